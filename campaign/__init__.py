@@ -1,0 +1,1 @@
+"""Flight-test campaign: matrix, status points, the flying engine, logs and CLI."""

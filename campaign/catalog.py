@@ -1,0 +1,155 @@
+"""The one catalog of JSBSim properties this project reads and writes.
+
+Every name is checked against ``fdm.get_property_catalog()`` when a model is
+loaded, because writing a misspelled property silently creates it.
+"""
+from __future__ import annotations
+
+import math
+
+from campaign.errors import UserError
+
+R2D = 180.0 / math.pi
+
+#: Log column -> (JSBSim property, scale). Rates are inertial (what gyros sense).
+STATE_CHANNELS: dict[str, tuple[str, float]] = {
+    "alt_ft": ("atmosphere/pressure-altitude", 1.0),
+    "tas_kt": ("velocities/vtrue-kts", 1.0),
+    "ias_kt": ("velocities/vc-kts", 1.0),
+    "mach": ("velocities/mach", 1.0),
+    "alpha_deg": ("aero/alpha-deg", 1.0),
+    "beta_deg": ("aero/beta-deg", 1.0),
+    "theta_deg": ("attitude/theta-deg", 1.0),
+    "phi_deg": ("attitude/phi-deg", 1.0),
+    "p_dps": ("velocities/pi-rad_sec", R2D),
+    "q_dps": ("velocities/qi-rad_sec", R2D),
+    "r_dps": ("velocities/ri-rad_sec", R2D),
+    "qdot_dps2": ("accelerations/qidot-rad_sec2", R2D),
+    "qbar_psf": ("aero/qbar-psf", 1.0),
+    "thrust_lbf": ("forces/fbx-prop-lbs", 1.0),
+    "elevator_deg": ("fcs/elevator-pos-rad", R2D),
+    "gear_norm": ("gear/gear-pos-norm", 1.0),
+    "mass_slug": ("inertia/mass-slugs", 1.0),
+    "xcg_in": ("inertia/cg-x-in", 1.0),
+}
+
+#: Body-axis non-gravitational force [lbf]; divided by mass it is the specific
+#: force an accelerometer at the CG senses, aligned in time with the states
+#: (``accelerations/N[xyz]`` lag one step behind).
+FORCE_CHANNELS: dict[str, str] = {
+    "ax_fps2": "forces/fbx-total-lbs",
+    "ay_fps2": "forces/fby-total-lbs",
+    "az_fps2": "forces/fbz-total-lbs",
+}
+
+#: Channels an aircraft may lack; the log then holds the stated constant.
+OPTIONAL_CHANNELS: dict[str, tuple[str, float]] = {
+    "stabilizer_deg": ("fcs/stabilizer-pos-deg", 0.0),
+}
+
+FLAP_NORM = "fcs/flap-pos-norm"
+THROTTLE_POS = "fcs/throttle-pos-norm[{i}]"
+
+#: Log columns in file order (the DESIGN.md log schema).
+LOG_COLUMNS: tuple[str, ...] = (
+    "t_s", "alt_ft", "tas_kt", "ias_kt", "mach", "alpha_deg", "beta_deg",
+    "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps", "qdot_dps2",
+    "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf",
+    "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm", "throttle_norm",
+    "mass_slug", "xcg_in",
+)
+
+#: What the autopilot hold reads (not logged).
+HOLD_INPUTS: dict[str, str] = {
+    "hdot_fps": "velocities/h-dot-fps",
+    "vt_fps": "velocities/vt-fps",
+}
+
+#: Properties written by the engine.
+CONTROLS: dict[str, str] = {
+    "elevator": "fcs/elevator-cmd-norm",
+    "pitch_trim": "fcs/pitch-trim-cmd-norm",
+    "throttle": "fcs/throttle-cmd-norm[{i}]",
+    "gear_cmd": "gear/gear-cmd-norm",
+    "gear_pos": "gear/gear-pos-norm",
+    "flap_cmd": "fcs/flap-cmd-norm",
+    "flap_pos": "fcs/flap-pos-norm",
+    "fuel_freeze": "propulsion/fuel_freeze",
+    "set_running": "propulsion/set-running",
+    "alpha_max": "aero/alpha-max-rad",
+    "alpha_min": "aero/alpha-min-rad",
+}
+
+INITIAL_CONDITIONS = (
+    "ic/h-sl-ft", "ic/mach", "ic/gamma-deg", "ic/beta-deg", "ic/phi-deg", "ic/psi-true-deg",
+)
+
+TURBULENCE = {
+    "type": "atmosphere/turb-type",
+    "seed": "atmosphere/randomseed",
+    "w20": "atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps",
+    "severity": "atmosphere/turbulence/milspec/severity",
+}
+
+#: Used only to set weight when the status point asks for one.
+POINTMASS_WEIGHT = "inertia/pointmass-weight-lbs[0]"
+
+#: Test-only truth channels (never in a campaign log): JSBSim's own aero forces
+#: and moments, so eq. (1) can be checked against them.
+TRUTH_CHANNELS: dict[str, str] = {
+    "truth_fx_aero_lbf": "forces/fbx-aero-lbs",
+    "truth_fz_aero_lbf": "forces/fbz-aero-lbs",
+    "truth_lift_lbf": "aero/lift-lbs" ,
+    "truth_drag_lbf": "aero/drag-lbs",
+    "truth_m_aero_lbfft": "moments/m-aero-lbsft",
+    "truth_m_prop_lbfft": "moments/m-prop-lbsft",
+    "truth_m_total_lbfft": "moments/m-total-lbsft",
+}
+
+
+def canonical(name: str) -> str:
+    """A property path with every ``[0]`` index dropped (JSBSim treats them alike)."""
+    return name.replace("[0]", "")
+
+
+class PropertyNames(set):
+    """Catalog names; membership ignores ``[0]`` indices."""
+
+    def __contains__(self, name: object) -> bool:
+        return set.__contains__(self, canonical(str(name)))
+
+
+def catalog_names(fdm) -> PropertyNames:
+    """Property names of a loaded FDM, without the ``(RW)`` suffixes."""
+    return PropertyNames(canonical(entry.split(" ")[0]) for entry in fdm.get_property_catalog())
+
+
+def check_catalog(fdm, n_engines: int, aircraft: str) -> dict[str, bool]:
+    """Check every property we need exists; report which optional ones do.
+
+    Returns
+    -------
+    dict
+        ``{optional property: present}``.
+
+    Raises
+    ------
+    UserError
+        Naming the aircraft and the first missing property.
+    """
+    names = catalog_names(fdm)
+    required = [p for p, _ in STATE_CHANNELS.values()]
+    required += list(FORCE_CHANNELS.values()) + list(HOLD_INPUTS.values()) + [FLAP_NORM]
+    required += [THROTTLE_POS.format(i=i) for i in range(n_engines)]
+    for key, prop in CONTROLS.items():
+        if key == "throttle":
+            required += [prop.format(i=i) for i in range(n_engines)]
+        else:
+            required.append(prop)
+    required += list(INITIAL_CONDITIONS)
+    for prop in required:
+        if prop not in names:
+            raise UserError(f"{aircraft}: property {prop} not in the JSBSim property catalog")
+    optional = [p for p, _ in OPTIONAL_CHANNELS.values()] + [POINTMASS_WEIGHT]
+    optional += list(TURBULENCE.values()) + list(TRUTH_CHANNELS.values())
+    return {p: p in names for p in optional}

@@ -1,0 +1,122 @@
+"""Command line: ``campaign run | fly | points``."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from campaign.errors import UserError
+from campaign.noise import NOISE_PROFILES
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, found {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, found {n}")
+    return n
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
+    p.add_argument("--aircraft", metavar="DIR",
+                   help="JSBSim aircraft folder holding DIR/<name>.xml (default: aircraft/737)")
+    p.add_argument("--effects", metavar="FILE",
+                   help="effect overlay XML, or 'none' for the bare model "
+                        "(default: aircraft/737/effects/reference.xml, the 'real aeroplane')")
+    p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="none",
+                   help="sensor noise and turbulence profile (default none)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="campaign", description=(
+        "Fly a flight-test matrix on a JSBSim aircraft and log what flight-test "
+        "instrumentation records, for landing-gear aerodynamics identification."))
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="fly every status point of the matrix (the main job)",
+                         description="Trim and fly every status point of the matrix; resume if --out "
+                                     "already holds the same campaign.")
+    _common(run)
+    run.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
+    run.add_argument("--out", metavar="DIR", help="campaign folder (default results/<matrix name>)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    fly = sub.add_parser("fly", help="re-fly one status point",
+                         description="Re-fly one status point; its logs are bit-identical to the "
+                                     "campaign's for the same options.")
+    fly.add_argument("point_id", metavar="POINT_ID", help="status point id, e.g. h02000_m0.30_f05_gdn")
+    _common(fly)
+    fly.add_argument("--out", metavar="DIR", required=True, help="folder for the logs")
+
+    pts = sub.add_parser("points", help="list the status points of a matrix",
+                         description="List the status points of a matrix with their manoeuvres.")
+    pts.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
+    return parser
+
+
+def _config(args):
+    from campaign.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
+                                   check_aircraft_folder, load_effects)
+    from campaign.engine import FlightConfig
+    from campaign.matrix import load_matrix
+
+    matrix = load_matrix(args.matrix)
+    folder = check_aircraft_folder(args.aircraft or DEFAULT_AIRCRAFT)
+    effects = load_effects(DEFAULT_EFFECTS if args.effects is None else args.effects)
+    config = FlightConfig(AircraftSource(str(folder), effects), args.seed, args.noise,
+                          matrix.maneuver_params, matrix.clmax_by_flap)
+    return matrix, config
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "points":
+            from campaign.matrix import load_matrix
+            for p in load_matrix(args.matrix).points:
+                print(f"{p.id}  {' '.join(p.maneuvers)}")
+            return 0
+        matrix, config = _config(args)
+        if args.command == "run":
+            from campaign.runner import run_campaign
+            out = Path(args.out) if args.out else Path("results") / matrix.name
+            summary = run_campaign(matrix, config, out, jobs=args.jobs,
+                                   progress=not args.quiet and sys.stderr.isatty())
+            print(summary.text())
+            print(f"logs and manifest in {out}")
+            return 0
+        if args.command == "fly":
+            from campaign.runner import fly_point
+            point = matrix.point(args.point_id)
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            rec = fly_point(point, config, out, overwrite=False)
+            if rec["status"] != "ok":
+                print(f"{point.id}: failed: {rec['reason']}")
+                return 1
+            for f in rec["files"]:
+                print(out / f)
+            return 0
+    except UserError as exc:
+        sys.stderr.write(f"campaign: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("campaign: interrupted; run the same command again to resume\n")
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,407 @@
+"""The flying engine: build an FDM, trim at a status point, fly a manoeuvre, log.
+
+Each call builds its own ``FGFDMExec`` (it cannot be pickled, and a failed trim
+leaves stale state behind), so the functions here run unchanged in joblib
+workers or on a Dask cluster.
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import hashlib
+import os
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+os.environ.setdefault("JSBSIM_DEBUG", "0")
+
+import jsbsim  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from campaign import catalog as cat  # noqa: E402
+from campaign.aircraft import AircraftSource, prepare  # noqa: E402
+from campaign.errors import UserError  # noqa: E402
+from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint  # noqa: E402
+from campaign.noise import NOISE_PROFILES, add_sensor_noise  # noqa: E402
+from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
+from maneuvers.library import GearTransition, Maneuver  # noqa: E402
+
+DT_S = 1.0 / 120.0
+_LIBC = ctypes.CDLL(None)
+FT_PER_KT = 1.6878098571011957
+FLAP_NORM_GRID = np.linspace(0.0, 1.0, len(FLAP_DETENTS_DEG))
+
+
+@contextlib.contextmanager
+def _captured_stdout(lines: list[str]):
+    """Capture JSBSim's C++ messages ("Sorry, wdot doesn't appear...") into ``lines``."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as buf:
+        try:
+            os.dup2(buf.fileno(), 1)
+            yield
+        finally:
+            _LIBC.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+            buf.seek(0)
+            lines.extend(x.strip() for x in buf.read().decode(errors="replace").splitlines() if x.strip())
+
+
+class TrimError(RuntimeError):
+    """A status point that does not trim; the message is the reason."""
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    """Everything a worker needs to fly a point, picklable.
+
+    Attributes
+    ----------
+    aircraft : AircraftSource
+    seed : int
+        Campaign seed; each manoeuvre derives its own from it and its name.
+    noise : str
+        Noise profile name (see :mod:`campaign.noise`).
+    maneuver_params : tuple
+        ``((manoeuvre name, ((param, value), ...)), ...)`` from the matrix.
+    clmax_by_flap : tuple
+        ``((flap_deg, CLmax), ...)`` for the stall-margin scaling.
+    record_truth : bool
+        Add JSBSim's own forces and moments (test logs only).
+    """
+
+    aircraft: AircraftSource
+    seed: int = 0
+    noise: str = "none"
+    maneuver_params: tuple = ()
+    clmax_by_flap: tuple = ()
+    record_truth: bool = False
+    gains: HoldGains = field(default_factory=HoldGains)
+
+    def maneuver(self, name: str) -> Maneuver:
+        from maneuvers.library import make_maneuver
+        return make_maneuver(name, **dict(dict(self.maneuver_params).get(name, ())))
+
+
+def derived_seed(seed: int, *names: str) -> int:
+    """A 32-bit seed derived from the campaign seed and names (stable across runs)."""
+    h = hashlib.sha256(("/".join([str(seed), *names])).encode()).digest()
+    return int.from_bytes(h[:4], "little") & 0x7FFFFFFF
+
+
+@lru_cache(maxsize=8)
+def _prepared_root(source: AircraftSource) -> str:
+    return str(prepare(source))
+
+
+def new_fdm(source: AircraftSource):
+    """Load the aircraft (with its overlay merged) into a fresh FGFDMExec."""
+    root = _prepared_root(source)
+    fdm = jsbsim.FGFDMExec(root)
+    fdm.set_debug_level(0)
+    local = Path(root) / "aircraft" / source.name / "Engines"
+    fdm.set_engine_path(str(local) if local.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "engine"))
+    fdm.set_systems_path(os.path.join(jsbsim.get_default_root_dir(), "systems"))
+    if not fdm.load_model(source.name):
+        raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}")
+    return fdm
+
+
+def engine_count(fdm) -> int:
+    names = cat.catalog_names(fdm)
+    n = 0
+    while f"propulsion/engine[{n}]/thrust-lbs" in names or (n == 0 and "propulsion/engine/thrust-lbs" in names):
+        n += 1
+    return max(n, 1)
+
+
+def flap_norm(flap_deg: int) -> float:
+    """``fcs/flap-cmd-norm`` of a detent (the 737's nine evenly spaced detents)."""
+    return FLAP_DETENTS_DEG.index(flap_deg) / (len(FLAP_DETENTS_DEG) - 1)
+
+
+def _set(fdm, names: set[str], prop: str, value: float) -> None:
+    if prop not in names:
+        raise UserError(f"property {prop} not in the JSBSim property catalog")
+    fdm[prop] = value
+
+
+@dataclass
+class Trim:
+    """A trimmed state: controls and the figures the logs' metadata keeps."""
+
+    alpha_deg: float
+    theta_deg: float
+    elevator_deg: float
+    elevator_cmd_norm: float
+    pitch_trim_norm: float
+    throttle: float
+    qbar_psf: float
+    cl: float
+    weight_lb: float
+
+
+#: Upper alpha bounds tried in turn [deg]: JSBSim's trim brackets alpha between
+#: ``aero/alpha-min-rad`` and ``aero/alpha-max-rad`` and fails when the bracket
+#: reaches the post-stall branch of the lift curve.
+TRIM_ALPHA_MAX_DEG = (30.0, 18.0, 15.0, 12.0)
+
+
+def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
+    """A fresh FDM trimmed at ``point``, retrying narrower alpha brackets.
+
+    Returns
+    -------
+    fdm, names, n_engines, optional, Trim
+    """
+    reason = ""
+    for alpha_max in TRIM_ALPHA_MAX_DEG:
+        fdm = new_fdm(source)
+        names = cat.catalog_names(fdm)
+        n_eng = engine_count(fdm)
+        optional = cat.check_catalog(fdm, n_eng, source.folder)
+        try:
+            return fdm, names, n_eng, optional, trim(fdm, point, gear, n_eng, names, alpha_max)
+        except TrimError as exc:
+            reason = reason or str(exc)
+    raise TrimError(reason)
+
+
+def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
+         alpha_max_deg: float = 30.0) -> Trim:
+    """Set the initial condition and run JSBSim's full trim.
+
+    Raises
+    ------
+    TrimError
+        With the reason (JSBSim's failure or a saturated control).
+    """
+    ic = {"ic/h-sl-ft": point.alt_ft, "ic/mach": point.mach, "ic/gamma-deg": 0.0,
+          "ic/beta-deg": 0.0, "ic/phi-deg": 0.0, "ic/psi-true-deg": 0.0}
+    for k, v in ic.items():
+        _set(fdm, names, k, v)
+    _set(fdm, names, cat.CONTROLS["fuel_freeze"], 1)
+    _set(fdm, names, cat.CONTROLS["flap_cmd"], flap_norm(point.flap_deg))
+    _set(fdm, names, cat.CONTROLS["flap_pos"], flap_norm(point.flap_deg))
+    _set(fdm, names, cat.CONTROLS["gear_cmd"], gear)
+    _set(fdm, names, cat.CONTROLS["gear_pos"], gear)
+    _set(fdm, names, cat.CONTROLS["alpha_max"], np.radians(alpha_max_deg))
+    _set(fdm, names, cat.CONTROLS["alpha_min"], np.radians(-20.0))
+    if point.weight_lb is not None:
+        if cat.POINTMASS_WEIGHT not in names:
+            raise TrimError("aircraft has no point mass to set the weight with")
+        extra = point.weight_lb - fdm["inertia/weight-lbs"]
+        pm = fdm[cat.POINTMASS_WEIGHT] + extra
+        if pm < 0:
+            raise TrimError(f"weight {point.weight_lb:.0f} lb is below the aircraft's empty weight and fuel")
+        fdm[cat.POINTMASS_WEIGHT] = pm
+    fdm.run_ic()
+    _set(fdm, names, cat.CONTROLS["set_running"], -1)
+    cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])
+    messages: list[str] = []
+    try:
+        with _captured_stdout(messages):
+            fdm.do_trim(1)
+    except jsbsim.TrimFailureError:
+        said = "; ".join(sorted({m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable",
+                                                                   " not trimmable") for m in messages
+                                 if "trimmable" in m}))
+        raise TrimError(f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
+                        f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
+    if point.weight_lb is not None and abs(fdm["inertia/weight-lbs"] - point.weight_lb) > 1.0:
+        raise TrimError(f"weight {fdm['inertia/weight-lbs']:.0f} lb, asked {point.weight_lb:.0f} lb")
+    qbar = fdm["aero/qbar-psf"]
+    weight = fdm["inertia/weight-lbs"]
+    return Trim(
+        alpha_deg=fdm["aero/alpha-deg"], theta_deg=fdm["attitude/theta-deg"],
+        elevator_deg=fdm["fcs/elevator-pos-rad"] * cat.R2D,
+        elevator_cmd_norm=fdm["fcs/elevator-cmd-norm"],
+        pitch_trim_norm=fdm["fcs/pitch-trim-cmd-norm"],
+        throttle=fdm[cat.CONTROLS["throttle"].format(i=0)],
+        qbar_psf=qbar, cl=weight / (qbar * fdm["metrics/Sw-sqft"]), weight_lb=weight)
+
+
+def elevator_gain_deg(source: AircraftSource) -> float:
+    """Elevator deflection per unit ``fcs/elevator-cmd-norm`` [deg], measured."""
+    return _elevator_gain(source)
+
+
+@lru_cache(maxsize=8)
+def _elevator_gain(source: AircraftSource) -> float:
+    fdm = new_fdm(source)
+    fdm["ic/h-sl-ft"] = 10000.0
+    fdm["ic/mach"] = 0.3
+    fdm.run_ic()
+    fdm["fcs/elevator-cmd-norm"] = 0.1
+    for _ in range(240):
+        fdm.run()
+    gain = fdm["fcs/elevator-pos-rad"] * cat.R2D / 0.1
+    if not gain:
+        raise UserError(f"{source.folder}: fcs/elevator-cmd-norm does not move fcs/elevator-pos-rad")
+    return gain
+
+
+@dataclass
+class Flight:
+    """One flown manoeuvre: the measured log and its metadata."""
+
+    log: pd.DataFrame
+    meta: dict
+
+
+def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
+    """Trim at ``point`` and fly one manoeuvre.
+
+    Parameters
+    ----------
+    point : StatusPoint
+    maneuver_name : str
+        A manoeuvre name of :data:`maneuvers.library.MANEUVERS`.
+    config : FlightConfig
+
+    Returns
+    -------
+    Flight
+
+    Raises
+    ------
+    TrimError
+        If the point does not trim.
+    """
+    maneuver = config.maneuver(maneuver_name)
+    gear0 = maneuver.gear_initial(point.gear_down)
+    fdm, names, n_eng, optional, tr = trimmed_fdm(config.aircraft, point, gear0)
+
+    clmax = dict(config.clmax_by_flap).get(point.flap_deg)
+    margin = 1.0 - tr.cl / clmax if clmax else None
+    scale = 1.0 if margin is None else float(np.clip(margin / 0.35, 0.2, 1.0))
+    prog = maneuver.program(DT_S, scale)
+    de_gain = elevator_gain_deg(config.aircraft)
+
+    seed = derived_seed(config.seed, point.id, maneuver.name)
+    profile = NOISE_PROFILES[config.noise]
+    if profile.turbulence_w20_fps > 0 and optional.get(cat.TURBULENCE["type"]):
+        fdm[cat.TURBULENCE["seed"]] = seed % 2**31
+        fdm[cat.TURBULENCE["type"]] = 3
+        fdm[cat.TURBULENCE["w20"]] = profile.turbulence_w20_fps
+        fdm[cat.TURBULENCE["severity"]] = profile.turbulence_severity
+
+    pm = fdm.get_property_manager()
+    node = lambda p: pm.get_node(p, False)  # noqa: E731
+    state_nodes = [node(p) for p, _ in cat.STATE_CHANNELS.values()]
+    state_scale = np.array([s for _, s in cat.STATE_CHANNELS.values()])
+    force_nodes = [node(p) for p in cat.FORCE_CHANNELS.values()]
+    stab = cat.OPTIONAL_CHANNELS["stabilizer_deg"]
+    stab_node = node(stab[0]) if optional[stab[0]] else None
+    flap_node = node(cat.FLAP_NORM)
+    thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)]
+    truth_nodes = ([node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else [])
+    hdot_node, vt_node = node(cat.HOLD_INPUTS["hdot_fps"]), node(cat.HOLD_INPUTS["vt_fps"])
+    elev_cmd = node(cat.CONTROLS["elevator"])
+    thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
+    gear_cmd = node(cat.CONTROLS["gear_cmd"])
+    idx = {name: i for i, name in enumerate(cat.STATE_CHANNELS)}
+    i_alt, i_theta, i_q = idx["alt_ft"], idx["theta_deg"], idx["q_dps"]
+    i_gear = idx["gear_norm"]
+
+    hold = None
+    if prog.hold:
+        hold = HoldAutopilot(config.gains, DT_S, fdm["atmosphere/pressure-altitude"],
+                             vt_node.get_double_value(), tr.theta_deg, tr.elevator_deg,
+                             tr.throttle, tr.qbar_psf)
+    gear_final = maneuver.gear_final if isinstance(maneuver, GearTransition) else None
+
+    n_state = len(state_nodes)
+    rows = np.empty((prog.max_steps, n_state + 3 + 3 + len(truth_nodes)))
+    elevator_deg = tr.elevator_deg
+    throttle = tr.throttle
+    h, theta, q = fdm["atmosphere/pressure-altitude"], tr.theta_deg, 0.0
+    end = prog.n_steps
+    k = 0
+    while k < end:
+        if hold is not None:
+            elevator_deg, throttle = hold.step(h, hdot_node.get_double_value(),
+                                               vt_node.get_double_value(), theta, q)
+            for t in thr_cmd:
+                t.set_double_value(throttle)
+        elev_cmd.set_double_value(tr.elevator_cmd_norm
+                                  + (elevator_deg - tr.elevator_deg + prog.elevator_deg(k)) / de_gain)
+        gear_cmd.set_double_value(prog.gear_cmd(k))
+        fdm.run()
+        row = rows[k]
+        for j, n in enumerate(state_nodes):
+            row[j] = n.get_double_value()
+        row[:n_state] *= state_scale
+        mass = row[idx["mass_slug"]]
+        for j, n in enumerate(force_nodes):
+            row[n_state + j] = n.get_double_value() / mass
+        row[n_state + 3] = stab_node.get_double_value() if stab_node else stab[1]
+        row[n_state + 4] = flap_node.get_double_value()
+        row[n_state + 5] = sum(t.get_double_value() for t in thr_nodes) / n_eng
+        for j, n in enumerate(truth_nodes):
+            row[n_state + 6 + j] = n.get_double_value()
+        h, theta, q = row[i_alt], row[i_theta], row[i_q]
+        if (gear_final is not None and end == prog.n_steps
+                and abs(row[i_gear] - gear_final) < 1e-9 and k > prog.n_steps - prog.post_travel_steps):
+            end = min(k + 1 + prog.post_travel_steps, prog.max_steps)
+        elif gear_final is not None and end == prog.n_steps and k == end - 1:
+            end = prog.max_steps
+        k += 1
+    rows = rows[:end]
+    if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
+        raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
+
+    cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_norm", "throttle_norm"]
+    cols += list(cat.TRUTH_CHANNELS) if config.record_truth else []
+    df = pd.DataFrame(rows, columns=cols)
+    df["t_s"] = np.arange(end) * DT_S
+    df["flap_deg"] = np.interp(df.pop("flap_norm"), FLAP_NORM_GRID, FLAP_DETENTS_DEG)
+    truth = [c for c in df.columns if c.startswith("truth_")]
+    df = df[list(cat.LOG_COLUMNS) + truth]
+    df = add_sensor_noise(df, profile, np.random.default_rng(seed))
+
+    meta = {
+        "point": point.id,
+        "status_point": {"alt_ft": point.alt_ft, "mach": point.mach, "flap_deg": point.flap_deg,
+                         "gear": "down" if point.gear_down else "up", "weight_lb": point.weight_lb},
+        "maneuver": maneuver.name,
+        "maneuver_params": {k: v for k, v in vars(maneuver).items()} if hasattr(maneuver, "__dict__") else {},
+        "seed": seed,
+        "campaign_seed": config.seed,
+        "noise": config.noise,
+        "dt_s": DT_S,
+        "aircraft": config.aircraft.name,
+        "aircraft_sha256": config.aircraft.sha256,
+        "effects_sha256": config.aircraft.effects.sha256,
+        "inertia_slugft2": {"ixx": fdm["inertia/ixx-slugs_ft2"], "iyy": fdm["inertia/iyy-slugs_ft2"],
+                            "izz": fdm["inertia/izz-slugs_ft2"], "ixz": fdm["inertia/ixz-slugs_ft2"]},
+        "geometry": {"S_ft2": fdm["metrics/Sw-sqft"], "cbar_ft": fdm["metrics/cbarw-ft"],
+                     "b_ft": fdm["metrics/bw-ft"],
+                     "aerorp_x_in": fdm["metrics/aero-rp-x-in"], "aerorp_z_in": fdm["metrics/aero-rp-z-in"],
+                     "cg_x_in": fdm["inertia/cg-x-in"], "cg_z_in": fdm["inertia/cg-z-in"],
+                     "thrust_z_arm_ft": _thrust_arm_ft(fdm, n_eng)},
+        "trim": {"alpha_deg": tr.alpha_deg, "theta_deg": tr.theta_deg, "elevator_deg": tr.elevator_deg,
+                 "pitch_trim_norm": tr.pitch_trim_norm, "throttle": tr.throttle, "cl": tr.cl,
+                 "weight_lb": tr.weight_lb},
+        "stall_margin": margin,
+        "amplitude_scale": scale,
+        "hold": prog.hold,
+        "absent_channels": [] if stab_node else ["stabilizer_deg"],
+    }
+    return Flight(df, meta)
+
+
+def _thrust_arm_ft(fdm, n_eng: int) -> float:
+    """Mean height of the thrust lines above the CG [ft] (negative: below)."""
+    names = cat.catalog_names(fdm)
+    zs = [fdm[f"propulsion/engine[{i}]/thruster/location-z-in"] for i in range(n_eng)
+          if f"propulsion/engine[{i}]/thruster/location-z-in" in names]
+    if not zs:
+        return 0.0
+    return (float(np.mean(zs)) - fdm["inertia/cg-z-in"]) / 12.0

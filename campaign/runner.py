@@ -1,0 +1,170 @@
+"""Run a campaign: every status point of a matrix, in parallel, resumable."""
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+from joblib import Parallel, delayed
+from tqdm import tqdm
+
+from campaign.engine import FlightConfig, TrimError, fly
+from campaign.errors import UserError
+from campaign.matrix import Matrix, StatusPoint
+from campaign.store import MANIFEST, clean_temporaries, log_name, read_manifest, write_json, write_log
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("jsbsim", "numpy", "pandas", "pyarrow", "joblib", "gear-aero-id"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def settings(matrix: Matrix, config: FlightConfig) -> dict:
+    """What makes two campaigns the same campaign (compared on resume)."""
+    fx = config.aircraft.effects
+    return {
+        "matrix": matrix.path, "matrix_sha256": matrix.sha256,
+        "aircraft": config.aircraft.folder, "aircraft_sha256": config.aircraft.sha256,
+        "effects": fx.path, "effects_sha256": fx.sha256,
+        "seed": config.seed, "noise": config.noise,
+    }
+
+
+def excursions(log) -> dict[str, float]:
+    """Largest departures from the first sample of a gear transition."""
+    first = log.iloc[0]
+    return {f"{c}_max_dev": float(np.abs(log[c] - first[c]).max()) for c in ("alpha_deg", "mach", "alt_ft")}
+
+
+def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bool = True) -> dict:
+    """Fly every manoeuvre of one point and write its logs.
+
+    Parameters
+    ----------
+    point : StatusPoint
+    config : FlightConfig
+    out : Path
+        Campaign folder.
+    overwrite : bool
+        If False, refuse to replace an existing log (``campaign fly``).
+
+    Returns
+    -------
+    dict
+        ``{"id", "status", "reason", "files", "seeds", "excursions"}``.
+    """
+    files, seeds, exc = [], {}, {}
+    for name in point.maneuvers:
+        path = Path(out) / log_name(point.id, name)
+        if path.exists() and not overwrite:
+            raise UserError(f"{path}: exists; will not overwrite (choose another --out)")
+        try:
+            flight = fly(point, name, config)
+        except TrimError as err:
+            return {"id": point.id, "status": "failed", "reason": f"{name}: {err}", "files": files,
+                    "seeds": seeds, "excursions": exc}
+        write_log(path, flight.log, flight.meta)
+        files.append(path.name)
+        seeds[path.name] = flight.meta["seed"]
+        if name.startswith("gear_"):
+            exc[name] = excursions(flight.log)
+    return {"id": point.id, "status": "ok", "reason": "", "files": files, "seeds": seeds, "excursions": exc}
+
+
+@dataclass
+class Summary:
+    """What a campaign run did."""
+
+    flown: int
+    skipped: int
+    failed: list[tuple[str, str]]
+    wall_s: float
+    total: int
+    worst: dict[str, float]
+
+    def text(self) -> str:
+        lines = [f"{self.total - len(self.failed)} of {self.total} points ok "
+                 f"({self.flown} flown now, {self.skipped} already done), "
+                 f"{len(self.failed)} failed, wall time {self.wall_s:.1f} s"]
+        for pid, reason in self.failed:
+            lines.append(f"  failed {pid}: {reason}")
+        if self.worst:
+            lines.append("  gear transitions, worst excursion: "
+                         f"alpha {self.worst['alpha_deg_max_dev']:.3f} deg, "
+                         f"Mach {self.worst['mach_max_dev']:.5f}, "
+                         f"altitude {self.worst['alt_ft_max_dev']:.2f} ft")
+        return "\n".join(lines)
+
+
+def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
+                 progress: bool = True, points: list[StatusPoint] | None = None) -> Summary:
+    """Fly the matrix into ``out``; resume if ``out`` holds the same campaign.
+
+    Raises
+    ------
+    UserError
+        If ``out`` holds a campaign with other settings (nothing is overwritten).
+    """
+    if jobs < 1:
+        raise UserError("--jobs: must be at least 1")
+    t0 = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    want = settings(matrix, config)
+    old = read_manifest(out)
+    if old is None and any(out.glob("*.parquet")):
+        raise UserError(f"{out}: holds logs but no {MANIFEST}; will not overwrite (choose another --out)")
+    done: dict[str, dict] = {}
+    if old is not None:
+        prev = old.get("settings", {})
+        diff = [k for k in want if prev.get(k) != want[k]]
+        if diff:
+            raise UserError(f"{out / MANIFEST}: settings.{diff[0]}: {prev.get(diff[0])!r} differs from "
+                            f"this run's {want[diff[0]]!r}; will not overwrite (choose another --out)")
+        for rec in old.get("points", []):
+            if rec["status"] != "ok" or all((out / f).exists() for f in rec["files"]):
+                done[rec["id"]] = rec
+    clean_temporaries(out)
+    todo = [p for p in (points or matrix.points) if p.id not in done]
+    order = {p.id: i for i, p in enumerate(matrix.points)}
+
+    def manifest(complete: bool) -> dict:
+        recs = sorted(done.values(), key=lambda r: order[r["id"]])
+        return {
+            "campaign": matrix.name,
+            "settings": want,
+            "matrix": matrix.to_json(),
+            "versions": _versions(),
+            "hashes": {"matrix": matrix.sha256, "aircraft": want["aircraft_sha256"],
+                       "effects": want["effects_sha256"]},
+            "seeds": {"campaign": config.seed,
+                      "logs": {f: s for r in recs for f, s in r.get("seeds", {}).items()}},
+            "points": recs,
+            "complete": complete,
+        }
+
+    write_json(out / MANIFEST, manifest(False))
+    skipped = len(done)
+    results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
+        delayed(fly_point)(p, config, out) for p in todo)
+    bar = tqdm(results, total=len(todo), desc="status points", unit="pt", disable=not progress)
+    for rec in bar:
+        done[rec["id"]] = rec
+        write_json(out / MANIFEST, manifest(False))
+    write_json(out / MANIFEST, manifest(len(done) == len(matrix.points)))
+    failed = [(r["id"], r["reason"]) for r in sorted(done.values(), key=lambda r: order[r["id"]])
+              if r["status"] != "ok"]
+    worst: dict[str, float] = {}
+    for r in done.values():
+        for e in r.get("excursions", {}).values():
+            for k, v in e.items():
+                worst[k] = max(worst.get(k, 0.0), v)
+    return Summary(len(todo), skipped, failed, time.perf_counter() - t0, len(done), worst)

@@ -1,0 +1,70 @@
+"""The results store: Parquet logs written atomically, and the manifest."""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from campaign.errors import UserError
+
+META_KEY = b"gearid"
+MANIFEST = "manifest.json"
+
+
+def log_name(point_id: str, maneuver: str) -> str:
+    """File name of one flown manoeuvre, e.g. ``h02000_m0.30_f05_gdn__doublet.parquet``."""
+    return f"{point_id}__{maneuver}.parquet"
+
+
+def _atomic_write(path: Path, write) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
+    """Write one log as Parquet (zstd) with ``meta`` in the schema metadata, atomically."""
+    table = pa.Table.from_pandas(log, preserve_index=False)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           META_KEY: json.dumps(meta, sort_keys=True).encode()})
+    _atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+
+
+def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
+    """Read a log and its metadata."""
+    table = pq.read_table(path)
+    meta = json.loads(table.schema.metadata[META_KEY])
+    return table.to_pandas(), meta
+
+
+def write_json(path: Path, obj: dict) -> None:
+    """Write JSON atomically."""
+    text = json.dumps(obj, indent=2, sort_keys=False) + "\n"
+    _atomic_write(Path(path), lambda tmp: Path(tmp).write_text(text))
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """The manifest of a campaign folder, or None if there is none."""
+    p = Path(folder) / MANIFEST
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+def clean_temporaries(folder: Path) -> None:
+    """Remove temporaries left by a killed run."""
+    for tmp in Path(folder).glob(".*.tmp"):
+        tmp.unlink(missing_ok=True)

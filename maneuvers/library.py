@@ -1,0 +1,161 @@
+"""Flight-test manoeuvres of the reference paper (section 3).
+
+A manoeuvre is a frozen, picklable description. :meth:`Maneuver.program`
+turns it into step-indexed signals for a given time step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from maneuvers.signals import Constant, Signal, Step, multistep
+
+
+@dataclass(frozen=True)
+class Program:
+    """Step-indexed signals of one manoeuvre at one time step.
+
+    Attributes
+    ----------
+    elevator_deg : Signal
+        Elevator input added to the trim (or to the hold) [deg].
+    gear_cmd : Signal
+        Gear command, 0 up, 1 down [-].
+    hold : bool
+        Whether the altitude/speed hold flies the manoeuvre.
+    n_steps : int
+        Length when the gear does not move [steps].
+    post_travel_steps : int or None
+        For gear transitions: steps flown after the gear completes its travel.
+    max_steps : int
+        Hard limit [steps].
+    """
+
+    elevator_deg: Signal
+    gear_cmd: Signal
+    hold: bool
+    n_steps: int
+    post_travel_steps: int | None
+    max_steps: int
+
+
+class Maneuver:
+    """Base class of the manoeuvres."""
+
+    name: str = ""
+
+    def gear_initial(self, point_gear_down: bool) -> float:
+        """Gear position at trim [-], given the status point's gear."""
+        return 1.0 if point_gear_down else 0.0
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:  # pragma: no cover
+        raise NotImplementedError
+
+
+def _steps(seconds: float, dt: float) -> int:
+    return int(round(seconds / dt))
+
+
+@dataclass(frozen=True)
+class Doublet2311(Maneuver):
+    """Longitudinal stick 2-3-1-1 on the elevator (paper section 3.1-3.2).
+
+    Pull for 2 units, push 3, pull 1, push 1; the gear stays as the status
+    point has it; controls are otherwise frozen at trim.
+
+    Parameters
+    ----------
+    amplitude_deg : float
+        Elevator amplitude with a full stall margin [deg]; the engine scales it
+        by the point's stall margin.
+    unit_s : float
+        Length of one unit of the 2-3-1-1 [s].
+    lead_s, tail_s : float
+        Trimmed flight before and free response after the input [s].
+    """
+
+    amplitude_deg: float = 3.0
+    unit_s: float = 1.0
+    lead_s: float = 2.0
+    tail_s: float = 8.0
+    name: str = "doublet"
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        a = self.amplitude_deg * amplitude_scale
+        u = _steps(self.unit_s, dt)
+        lead = _steps(self.lead_s, dt)
+        # JSBSim convention: negative elevator is trailing edge up (pull).
+        elevator = multistep(lead, (2 * u, 3 * u, u, u), (-a, a, -a, a))
+        n = lead + 7 * u + _steps(self.tail_s, dt)
+        return Program(elevator, Constant(0.0), False, n, None, n)
+
+
+@dataclass(frozen=True)
+class GearTransition(Maneuver):
+    """Gear extension or retraction under the altitude/speed hold (section 3.3).
+
+    Parameters
+    ----------
+    direction : {"extend", "retract"}
+    pre_s : float
+        Trimmed flight before the gear command [s].
+    post_s : float
+        Flight after the gear completes its travel [s].
+    hold : bool
+        Fly under the autopilot hold (True) or with controls frozen (False).
+    max_travel_s : float
+        Give up if the gear has not finished after this long [s].
+    """
+
+    direction: str = "extend"
+    pre_s: float = 5.0
+    post_s: float = 15.0
+    hold: bool = True
+    max_travel_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if self.direction not in ("extend", "retract"):
+            raise ValueError(f"direction must be 'extend' or 'retract', not {self.direction!r}")
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return "gear_extension" if self.direction == "extend" else "gear_retraction"
+
+    def gear_initial(self, point_gear_down: bool) -> float:
+        return 0.0 if self.direction == "extend" else 1.0
+
+    @property
+    def gear_final(self) -> float:
+        """Gear position at the end of the travel [-]."""
+        return 1.0 if self.direction == "extend" else 0.0
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        pre = _steps(self.pre_s, dt)
+        start = self.gear_initial(False)
+        gear: Signal = Constant(start) + Step(pre, self.gear_final - start)
+        post = _steps(self.post_s, dt)
+        return Program(Constant(0.0), gear, self.hold, pre + post, post,
+                       pre + _steps(self.max_travel_s, dt) + post)
+
+
+MANEUVERS: dict[str, type[Maneuver]] = {
+    "doublet": Doublet2311,
+    "gear_extension": GearTransition,
+    "gear_retraction": GearTransition,
+}
+
+
+def maneuver_parameters(name: str) -> set[str]:
+    """Names of the parameters a manoeuvre accepts (for matrix validation)."""
+    cls = MANEUVERS[name]
+    return {f.name for f in fields(cls)} - {"name", "direction"}
+
+
+def make_maneuver(name: str, **params) -> Maneuver:
+    """Build a manoeuvre by its matrix name with optional parameters."""
+    if name not in MANEUVERS:
+        raise KeyError(name)
+    if name == "gear_extension":
+        return GearTransition(direction="extend", **params)
+    if name == "gear_retraction":
+        return GearTransition(direction="retract", **params)
+    return MANEUVERS[name](**params)
