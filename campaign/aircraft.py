@@ -178,3 +178,17 @@ def prepare(source: AircraftSource, root: Path | None = None) -> Path:
     shutil.copytree(source.folder, dest, ignore=shutil.ignore_patterns("effects", "__pycache__"))
     (dest / f"{source.name}.xml").write_text(merged_xml(source))
     return root
+
+
+_TO_IN = {"IN": 1.0, "FT": 12.0, "M": 39.37007874015748, "CM": 0.3937007874015748, "MM": 0.03937007874015748}
+
+
+def thruster_z_in(source: AircraftSource) -> float | None:
+    """Mean structural z of the thrusters in the aircraft XML [in], or None."""
+    root = ET.parse(Path(source.folder) / f"{source.name}.xml").getroot()
+    zs = []
+    for loc in root.findall("propulsion/engine/thruster/location"):
+        z = loc.find("z")
+        if z is not None:
+            zs.append(float(z.text) * _TO_IN.get(loc.get("unit", "IN").upper(), 1.0))
+    return sum(zs) / len(zs) if zs else None

@@ -99,8 +99,8 @@ POINTMASS_WEIGHT = "inertia/pointmass-weight-lbs[0]"
 TRUTH_CHANNELS: dict[str, str] = {
     "truth_fx_aero_lbf": "forces/fbx-aero-lbs",
     "truth_fz_aero_lbf": "forces/fbz-aero-lbs",
-    "truth_lift_lbf": "aero/lift-lbs" ,
-    "truth_drag_lbf": "aero/drag-lbs",
+    "truth_fwx_aero_lbf": "forces/fwx-aero-lbs",
+    "truth_fwz_aero_lbf": "forces/fwz-aero-lbs",
     "truth_m_aero_lbfft": "moments/m-aero-lbsft",
     "truth_m_prop_lbfft": "moments/m-prop-lbsft",
     "truth_m_total_lbfft": "moments/m-total-lbsft",

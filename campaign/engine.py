@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from campaign import catalog as cat  # noqa: E402
-from campaign.aircraft import AircraftSource, prepare  # noqa: E402
+from campaign.aircraft import AircraftSource, prepare, thruster_z_in  # noqa: E402
 from campaign.errors import UserError  # noqa: E402
 from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint  # noqa: E402
 from campaign.noise import NOISE_PROFILES, add_sensor_noise  # noqa: E402
@@ -385,7 +385,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
                      "b_ft": fdm["metrics/bw-ft"],
                      "aerorp_x_in": fdm["metrics/aero-rp-x-in"], "aerorp_z_in": fdm["metrics/aero-rp-z-in"],
                      "cg_x_in": fdm["inertia/cg-x-in"], "cg_z_in": fdm["inertia/cg-z-in"],
-                     "thrust_z_arm_ft": _thrust_arm_ft(fdm, n_eng)},
+                     "thrust_z_arm_ft": _thrust_arm_ft(fdm, config.aircraft)},
         "trim": {"alpha_deg": tr.alpha_deg, "theta_deg": tr.theta_deg, "elevator_deg": tr.elevator_deg,
                  "pitch_trim_norm": tr.pitch_trim_norm, "throttle": tr.throttle, "cl": tr.cl,
                  "weight_lb": tr.weight_lb},
@@ -397,11 +397,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
     return Flight(df, meta)
 
 
-def _thrust_arm_ft(fdm, n_eng: int) -> float:
-    """Mean height of the thrust lines above the CG [ft] (negative: below)."""
-    names = cat.catalog_names(fdm)
-    zs = [fdm[f"propulsion/engine[{i}]/thruster/location-z-in"] for i in range(n_eng)
-          if f"propulsion/engine[{i}]/thruster/location-z-in" in names]
-    if not zs:
-        return 0.0
-    return (float(np.mean(zs)) - fdm["inertia/cg-z-in"]) / 12.0
+def _thrust_arm_ft(fdm, source: AircraftSource) -> float:
+    """Height of the thrust line above the CG [ft] (negative: below), from the XML."""
+    z = thruster_z_in(source)
+    return 0.0 if z is None else (z - fdm["inertia/cg-z-in"]) / 12.0
