@@ -81,7 +81,10 @@ def _config(args):
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
     try:
         if args.command == "points":
             from campaign.matrix import load_matrix

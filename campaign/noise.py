@@ -3,8 +3,8 @@
 ``flight-test`` uses one-sigma levels typical of flight-test instrumentation
 (air-data boom, INS/AHRS, servo-accelerometers, control-position transducers);
 see the README table. Noise is added after the flight, from a seeded generator,
-so it never disturbs the flight itself; turbulence is JSBSim's own MIL-F-8785C
-model with its own seed.
+so it never disturbs the flight itself. A profile may also switch on JSBSim's
+MIL-F-8785C turbulence (seeded through ``atmosphere/randomseed``); none does yet.
 """
 from __future__ import annotations
 
@@ -49,8 +49,9 @@ FLIGHT_TEST_SIGMA = {
 
 NOISE_PROFILES: dict[str, NoiseProfile] = {
     "none": NoiseProfile("none"),
-    "flight-test": NoiseProfile("flight-test", FLIGHT_TEST_SIGMA, turbulence_w20_fps=15.0,
-                                turbulence_severity=3),
+    # JSBSim's MIL-F-8785C turbulence gave gusts of ~20 kt at 2000 ft even at its
+    # lightest severity here, so the flight-test profile carries sensor noise only.
+    "flight-test": NoiseProfile("flight-test", FLIGHT_TEST_SIGMA),
 }
 
 

@@ -1,0 +1,181 @@
+"""The CLI: bad input, determinism, resume after a kill, no silent overwrite."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jsbsim
+import pandas as pd
+import pytest
+
+from campaign.cli import main
+from campaign.store import read_log
+
+STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
+
+
+def _one_line_error(capsys, argv, *needles):
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+def test_bad_inputs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, small_matrix):
+    out = tmp_path / "out"
+    bad_toml = tmp_path / "bad.toml"
+    bad_toml.write_text("[[points]\n")
+    unknown = tmp_path / "unknown.toml"
+    unknown.write_text(small_matrix.read_text().replace('name = "small"', 'name = "small"\ncolour = 1'))
+    mach0 = tmp_path / "mach0.toml"
+    mach0.write_text(small_matrix.read_text().replace("mach = 0.3\nalt_ft = 2000", "mach = 0\nalt_ft = 2000"))
+    flap = tmp_path / "flap.toml"
+    flap.write_text(small_matrix.read_text().replace("flap_deg = 5", "flap_deg = 6"))
+    fx = tmp_path / "fx.xml"
+    fx.write_text("<effects><axis name='DRAG'></effects>")
+    _one_line_error(capsys, ["run", "--matrix", str(unknown), "--out", str(out)], str(unknown), "colour")
+    _one_line_error(capsys, ["run", "--matrix", str(mach0), "--out", str(out)], str(mach0), "points[1].mach")
+    _one_line_error(capsys, ["run", "--matrix", str(flap), "--out", str(out)], str(flap), "points[1].flap_deg")
+    _one_line_error(capsys, ["run", "--matrix", str(bad_toml), "--out", str(out)], str(bad_toml), "TOML")
+    _one_line_error(capsys, ["run", "--aircraft", str(tmp_path / "nope"), "--out", str(out)], "nope",
+                    "aircraft folder")
+    _one_line_error(capsys, ["run", "--effects", str(fx), "--out", str(out)], str(fx), "not well-formed")
+    _one_line_error(capsys, ["run", "--jobs", "0", "--out", str(out)], "--jobs")
+    _one_line_error(capsys, ["fly", "h99999_m0.30_f00_gup", "--out", str(out)], "h99999_m0.30_f00_gup")
+    assert not out.exists()
+
+
+def test_entry_point_is_installed_and_helps():
+    for sub in ([], ["run"], ["fly"], ["points"]):
+        res = subprocess.run([str(Path(sys.executable).parent / "campaign"), *sub, "--help"], capture_output=True, text=True)
+        assert res.returncode == 0 and "usage: campaign" in res.stdout
+
+
+def test_fly_reproduces_the_campaign_bit_for_bit(tmp_path, capsys, small_matrix):
+    camp, one = tmp_path / "camp", tmp_path / "one"
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(camp), "--jobs", "2", "--seed", "7",
+                 "--noise", "flight-test"]) == 0
+    assert main(["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--out", str(one),
+                 "--seed", "7", "--noise", "flight-test"]) == 0
+    files = sorted(p.name for p in one.glob("*.parquet"))
+    assert files == ["h02000_m0.30_f05_gdn__doublet.parquet", "h02000_m0.30_f05_gdn__gear_extension.parquet"]
+    for f in files:
+        assert (one / f).read_bytes() == (camp / f).read_bytes()
+    # flying again into the same folder refuses to overwrite
+    capsys.readouterr()
+    _one_line_error(capsys, ["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--out", str(one)],
+                    "will not overwrite")
+
+
+def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix):
+    out = tmp_path / "c"
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [p["status"] for p in manifest["points"]] == ["ok"] * 3 and manifest["complete"]
+    assert manifest["hashes"]["aircraft"] and manifest["hashes"]["effects"] and manifest["versions"]["jsbsim"]
+    import pyarrow.parquet as pq
+    from campaign.catalog import LOG_COLUMNS
+    path = out / "h02000_m0.30_f05_gdn__gear_extension.parquet"
+    log, meta = read_log(path)
+    assert tuple(log.columns) == LOG_COLUMNS
+    assert pq.ParquetFile(path).metadata.row_group(0).column(0).compression == "ZSTD"
+    assert meta["point"] == "h02000_m0.30_f05_gdn" and meta["maneuver"] == "gear_extension"
+    assert set(meta) >= {"seed", "inertia_slugft2", "geometry", "trim", "noise"}
+    assert manifest["seeds"]["logs"][path.name] == meta["seed"]
+    assert log.t_s.diff().dropna().round(12).eq(round(1 / 120, 12)).all()
+
+
+def test_flight_test_noise_is_seeded(tmp_path, small_matrix):
+    a, b, c = (tmp_path / x for x in "abc")
+    pid = "h02000_m0.30_f00_gup"
+    for out, seed in ((a, 1), (b, 1), (c, 2)):
+        assert main(["fly", pid, "--matrix", str(small_matrix), "--out", str(out), "--seed", str(seed),
+                     "--noise", "flight-test"]) == 0
+    name = f"{pid}__doublet.parquet"
+    assert (a / name).read_bytes() == (b / name).read_bytes()
+    la, lc = read_log(a / name)[0], read_log(c / name)[0]
+    assert not la.alpha_deg.equals(lc.alpha_deg)
+    assert main(["fly", pid, "--matrix", str(small_matrix), "--out", str(tmp_path / "clean")]) == 0
+    clean = read_log(tmp_path / "clean" / name)[0]
+    # before the input the aircraft sits trimmed: the noise shows there alone
+    pre = clean.t_s < 1.0
+    assert (la.q_dps[pre] - clean.q_dps[pre]).std() == pytest.approx(0.02, rel=0.3)
+
+
+def test_existing_campaign_with_other_settings_is_not_overwritten(tmp_path, capsys, small_matrix):
+    out = tmp_path / "c"
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    _one_line_error(capsys, ["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "2"],
+                    "manifest.json", "seed")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # the same settings again: nothing to fly, nothing changes
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.suffix == ".parquet"} == \
+        {k: v for k, v in before.items() if k.endswith(".parquet")}
+
+
+SLOW_MATRIX = """
+name = "slow"
+[defaults]
+maneuvers_gear_down = ["gear_extension"]
+[maneuvers.gear_extension]
+post_s = 40.0
+[[points]]
+gear = "down"
+flap_deg = [0]
+mach = 0.3
+alt_ft = [2000, 3000, 4000, 5000, 6000, 7000, 8000, 9000, 10000]
+""".replace("flap_deg = [0]", "flap_deg = 0")
+
+
+def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
+    m = tmp_path / "slow.toml"
+    m.write_text(SLOW_MATRIX)
+    ref, killed = tmp_path / "ref", tmp_path / "killed"
+    assert main(["run", "--matrix", str(m), "--out", str(ref)]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--out",
+                             str(killed), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    n_done = 0
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            n_done = len(json.loads((killed / "manifest.json").read_text())["points"])
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            n_done = 0
+        if n_done >= 2:
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    partial = json.loads((killed / "manifest.json").read_text())
+    assert 2 <= len(partial["points"]) < 9 and not partial["complete"]
+    assert main(["run", "--matrix", str(m), "--out", str(killed)]) == 0
+    final = json.loads((killed / "manifest.json").read_text())
+    assert final["complete"] and len(final["points"]) == 9
+    ref_files = {p.name: p.read_bytes() for p in ref.glob("*.parquet")}
+    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.name != "manifest.json"}
+    assert got == ref_files
+    assert final["points"] == json.loads((ref / "manifest.json").read_text())["points"]
+
+
+def test_stock_737_flies_with_aircraft_option(tmp_path, small_matrix):
+    out = tmp_path / "stock"
+    assert main(["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--aircraft", STOCK_737,
+                 "--effects", "none", "--out", str(out)]) == 0
+    log, meta = read_log(out / "h02000_m0.30_f05_gdn__gear_extension.parquet")
+    assert meta["absent_channels"] == ["stabilizer_deg"] and (log.stabilizer_deg == 0).all()
+    assert log.gear_norm.iloc[-1] == 1.0 and meta["aircraft"] == "737"
+
+
+def test_identify_is_this_projects_package():
+    import identify
+    assert Path(identify.__file__).resolve().parent == Path(__file__).resolve().parents[1] / "identify"
