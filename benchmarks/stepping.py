@@ -1,0 +1,60 @@
+"""Steps per second of the campaign's flying loop against raw ``fdm.run()``.
+
+Run: ``python benchmarks/stepping.py`` (one process, one core). Both are measured
+on the same trimmed aircraft in the same process; the flying loop includes the
+autopilot hold, control writes and reading every logged channel.
+"""
+from __future__ import annotations
+
+import os
+import time
+
+os.environ.setdefault("JSBSIM_DEBUG", "0")
+
+from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
+from campaign.engine import FlightConfig, fly, trimmed_fdm  # noqa: E402
+from campaign.matrix import load_matrix  # noqa: E402
+
+
+def main(repeats: int = 5) -> None:
+    m = load_matrix()
+    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)),
+                       maneuver_params=m.maneuver_params, clmax_by_flap=m.clmax_by_flap)
+    point = m.point("h02000_m0.30_f05_gdn")
+    fly(point, "gear_extension", cfg)  # warm the caches (prepared aircraft, elevator gain)
+
+    fdm, *_ = trimmed_fdm(cfg.aircraft, point, 0.0)
+    n = 20000
+    raw = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(n):
+            fdm.run()
+        raw.append(n / (time.perf_counter() - t))
+
+    ours = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        flight = fly(point, "gear_extension", cfg)  # includes model load and trim
+        ours.append(len(flight.log) / (time.perf_counter() - t))
+
+    setup = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        trimmed_fdm(cfg.aircraft, point, 0.0)
+        setup.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    flight = fly(point, "gear_extension", cfg)
+    total = time.perf_counter() - t
+    loop_only = len(flight.log) / (min(len(flight.log) / r for r in ours) - min(setup))
+    print(f"raw fdm.run():                 {max(raw):9.0f} steps/s (best of {repeats})")
+    print(f"flying loop (hold + logging):  {max(ours):9.0f} steps/s incl. load+trim (best of {repeats})")
+    print(f"flying loop alone:             {loop_only:9.0f} steps/s (load+trim {min(setup) * 1000:.0f} ms "
+          "subtracted)")
+    print(f"ratio loop/raw:                {loop_only / max(raw):9.2f}")
+    print(f"one gear extension ({len(flight.log)} steps, {len(flight.log) / 120:.1f} s simulated): "
+          f"{total * 1000:.0f} ms wall")
+
+
+if __name__ == "__main__":
+    main()
