@@ -322,7 +322,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
     elevator_deg = tr.elevator_deg
     throttle = tr.throttle
     h, theta, q = fdm["atmosphere/pressure-altitude"], tr.theta_deg, 0.0
-    end = prog.n_steps
+    end = prog.n_steps if gear_final is None else prog.max_steps
     k = 0
     while k < end:
         if hold is not None:
@@ -347,11 +347,9 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
         for j, n in enumerate(truth_nodes):
             row[n_state + 6 + j] = n.get_double_value()
         h, theta, q = row[i_alt], row[i_theta], row[i_q]
-        if (gear_final is not None and end == prog.n_steps
-                and abs(row[i_gear] - gear_final) < 1e-9 and k > prog.n_steps - prog.post_travel_steps):
-            end = min(k + 1 + prog.post_travel_steps, prog.max_steps)
-        elif gear_final is not None and end == prog.n_steps and k == end - 1:
-            end = prog.max_steps
+        if (gear_final is not None and end == prog.max_steps and prog.gear_cmd(k) == gear_final
+                and abs(row[i_gear] - gear_final) < 1e-9):
+            end = k + 1 + prog.post_travel_steps
         k += 1
     rows = rows[:end]
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:

@@ -23,9 +23,10 @@ class Program:
     hold : bool
         Whether the altitude/speed hold flies the manoeuvre.
     n_steps : int
-        Length when the gear does not move [steps].
+        Length of a manoeuvre without gear travel [steps].
     post_travel_steps : int or None
-        For gear transitions: steps flown after the gear completes its travel.
+        For gear transitions: steps flown after the gear completes its travel;
+        the manoeuvre then ends ``post_travel_steps`` after completion.
     max_steps : int
         Hard limit [steps].
     """

@@ -115,3 +115,16 @@ def test_catalog_catches_a_misspelled_property(reference_config, monkeypatch):
     monkeypatch.setitem(cat.STATE_CHANNELS, "mach", ("velocities/mahc", 1.0))
     with pytest.raises(UserError, match="velocities/mahc"):
         cat.check_catalog(fdm, 2, "737")
+
+
+@pytest.mark.parametrize("post_s", [2.0, 15.0])
+def test_gear_transition_ends_post_s_after_travel(matrix, post_s):
+    from tests.conftest import config_for
+    cfg = config_for()
+    cfg = type(cfg)(cfg.aircraft, maneuver_params=(("gear_retraction", (("post_s", post_s),)),),
+                    clmax_by_flap=cfg.clmax_by_flap)
+    log = fly(matrix.point("h02000_m0.30_f05_gdn"), "gear_retraction", cfg).log
+    assert log.gear_norm.iloc[0] == 1.0
+    done = log.t_s[log.gear_norm <= 0.0].iloc[0]
+    assert done == pytest.approx(5.0 + 8.0, abs=0.02)  # 5 s trimmed, 8 s travel
+    assert log.t_s.iloc[-1] - done == pytest.approx(post_s, abs=1e-9)
