@@ -28,7 +28,7 @@ from campaign.errors import UserError  # noqa: E402
 from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint  # noqa: E402
 from campaign.noise import NOISE_PROFILES, add_sensor_noise  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
-from maneuvers.library import GearTransition, Maneuver  # noqa: E402
+from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
 
 DT_S = 1.0 / 120.0
 _LIBC = ctypes.CDLL(None)
@@ -85,7 +85,7 @@ class FlightConfig:
     gains: HoldGains = field(default_factory=HoldGains)
 
     def maneuver(self, name: str) -> Maneuver:
-        from maneuvers.library import make_maneuver
+        """The named manoeuvre with the matrix's parameters."""
         return make_maneuver(name, **dict(dict(self.maneuver_params).get(name, ())))
 
 
