@@ -234,16 +234,34 @@ def elevator_gain_deg(source: AircraftSource) -> float:
 
 @lru_cache(maxsize=8)
 def _elevator_gain(source: AircraftSource) -> float:
+    return _surface_gain(source, cat.CONTROLS["elevator"], "fcs/elevator-pos-rad", cat.R2D)
+
+
+def stabilizer_gain_deg(source: AircraftSource) -> float | None:
+    """Stabilizer deflection per unit ``fcs/pitch-trim-cmd-norm`` [deg], or None
+    if the aircraft has no separate stabilizer."""
+    return _stabilizer_gain(source)
+
+
+@lru_cache(maxsize=8)
+def _stabilizer_gain(source: AircraftSource) -> float | None:
+    prop = cat.OPTIONAL_CHANNELS["stabilizer_deg"][0]
+    if prop not in cat.catalog_names(new_fdm(source)):
+        return None
+    return _surface_gain(source, cat.CONTROLS["pitch_trim"], prop, 1.0)
+
+
+def _surface_gain(source: AircraftSource, command: str, position: str, scale: float) -> float:
     fdm = new_fdm(source)
     fdm["ic/h-sl-ft"] = 10000.0
     fdm["ic/mach"] = 0.3
     fdm.run_ic()
-    fdm["fcs/elevator-cmd-norm"] = 0.1
+    fdm[command] = 0.1
     for _ in range(240):
         fdm.run()
-    gain = fdm["fcs/elevator-pos-rad"] * cat.R2D / 0.1
+    gain = fdm[position] * scale / 0.1
     if not gain:
-        raise UserError(f"{source.folder}: fcs/elevator-cmd-norm does not move fcs/elevator-pos-rad")
+        raise UserError(f"{source.folder}: {command} does not move {position}")
     return gain
 
 
@@ -283,6 +301,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
     scale = 1.0 if margin is None else float(np.clip(margin / 0.35, 0.2, 1.0))
     prog = maneuver.program(DT_S, scale)
     de_gain = elevator_gain_deg(config.aircraft)
+    dh_gain = stabilizer_gain_deg(config.aircraft)
 
     seed = derived_seed(config.seed, point.id, maneuver.name)
     profile = NOISE_PROFILES[config.noise]
@@ -304,6 +323,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
     truth_nodes = ([node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else [])
     hdot_node, vt_node = node(cat.HOLD_INPUTS["hdot_fps"]), node(cat.HOLD_INPUTS["vt_fps"])
     elev_cmd = node(cat.CONTROLS["elevator"])
+    trim_cmd = node(cat.CONTROLS["pitch_trim"])
     thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
     gear_cmd = node(cat.CONTROLS["gear_cmd"])
     idx = {name: i for i, name in enumerate(cat.STATE_CHANNELS)}
@@ -332,6 +352,8 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
                 t.set_double_value(throttle)
         elev_cmd.set_double_value(tr.elevator_cmd_norm
                                   + (elevator_deg - tr.elevator_deg + prog.elevator_deg(k)) / de_gain)
+        if dh_gain:
+            trim_cmd.set_double_value(tr.pitch_trim_norm + prog.stabilizer_deg(k) / dh_gain)
         gear_cmd.set_double_value(prog.gear_cmd(k))
         fdm.run()
         row = rows[k]

@@ -18,6 +18,8 @@ class Program:
     ----------
     elevator_deg : Signal
         Elevator input added to the trim (or to the hold) [deg].
+    stabilizer_deg : Signal
+        Stabilizer input added to the trim [deg].
     gear_cmd : Signal
         Gear command, 0 up, 1 down [-].
     hold : bool
@@ -32,6 +34,7 @@ class Program:
     """
 
     elevator_deg: Signal
+    stabilizer_deg: Signal
     gear_cmd: Signal
     hold: bool
     n_steps: int
@@ -61,7 +64,10 @@ class Doublet2311(Maneuver):
     """Longitudinal stick 2-3-1-1 on the elevator (paper section 3.1-3.2).
 
     Pull for 2 units, push 3, pull 1, push 1; the gear stays as the status
-    point has it; controls are otherwise frozen at trim.
+    point has it; controls are otherwise frozen at trim. A second, smaller
+    2-3-1-1 on the stabilizer follows after ``gap_s``: without it the
+    stabilizer derivatives are not identifiable, and the gear-up and gear-down
+    trims (which differ in stabilizer) cannot be compared at one reference.
 
     Parameters
     ----------
@@ -71,23 +77,37 @@ class Doublet2311(Maneuver):
     unit_s : float
         Length of one unit of the 2-3-1-1 [s].
     lead_s, tail_s : float
-        Trimmed flight before and free response after the input [s].
+        Trimmed flight before and free response after the inputs [s].
+    stabilizer_amplitude_deg : float
+        Stabilizer 2-3-1-1 amplitude with a full stall margin [deg]; 0 omits it.
+    gap_s : float
+        Free response between the elevator and the stabilizer inputs [s].
     """
 
     amplitude_deg: float = 3.0
     unit_s: float = 1.0
     lead_s: float = 2.0
     tail_s: float = 8.0
+    stabilizer_amplitude_deg: float = 1.0
+    gap_s: float = 4.0
     name: str = "doublet"
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
         a = self.amplitude_deg * amplitude_scale
         u = _steps(self.unit_s, dt)
         lead = _steps(self.lead_s, dt)
+        pulses = (2 * u, 3 * u, u, u)
         # JSBSim convention: negative elevator is trailing edge up (pull).
-        elevator = multistep(lead, (2 * u, 3 * u, u, u), (-a, a, -a, a))
-        n = lead + 7 * u + _steps(self.tail_s, dt)
-        return Program(elevator, Constant(0.0), False, n, None, n)
+        elevator = multistep(lead, pulses, (-a, a, -a, a))
+        n = lead + 7 * u
+        stabilizer: Signal = Constant(0.0)
+        if self.stabilizer_amplitude_deg > 0:
+            h = self.stabilizer_amplitude_deg * amplitude_scale
+            n += _steps(self.gap_s, dt)
+            stabilizer = multistep(n, pulses, (-h, h, -h, h))
+            n += 7 * u
+        n += _steps(self.tail_s, dt)
+        return Program(elevator, stabilizer, Constant(0.0), False, n, None, n)
 
 
 @dataclass(frozen=True)
@@ -134,7 +154,7 @@ class GearTransition(Maneuver):
         start = self.gear_initial(False)
         gear: Signal = Constant(start) + Step(pre, self.gear_final - start)
         post = _steps(self.post_s, dt)
-        return Program(Constant(0.0), gear, self.hold, pre + post, post,
+        return Program(Constant(0.0), Constant(0.0), gear, self.hold, pre + post, post,
                        pre + _steps(self.max_travel_s, dt) + post)
 
 
