@@ -354,7 +354,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
                                   + (elevator_deg - tr.elevator_deg + prog.elevator_deg(k)) / de_gain)
         if dh_gain:
             trim_cmd.set_double_value(tr.pitch_trim_norm + prog.stabilizer_deg(k) / dh_gain)
-        gear_cmd.set_double_value(prog.gear_cmd(k))
+        gear_cmd.set_double_value(gear0 if prog.gear_cmd is None else prog.gear_cmd(k))
         fdm.run()
         row = rows[k]
         for j, n in enumerate(state_nodes):

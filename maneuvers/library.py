@@ -20,8 +20,8 @@ class Program:
         Elevator input added to the trim (or to the hold) [deg].
     stabilizer_deg : Signal
         Stabilizer input added to the trim [deg].
-    gear_cmd : Signal
-        Gear command, 0 up, 1 down [-].
+    gear_cmd : Signal or None
+        Gear command, 0 up, 1 down [-]; None holds the gear where it was trimmed.
     hold : bool
         Whether the altitude/speed hold flies the manoeuvre.
     n_steps : int
@@ -35,7 +35,7 @@ class Program:
 
     elevator_deg: Signal
     stabilizer_deg: Signal
-    gear_cmd: Signal
+    gear_cmd: Signal | None
     hold: bool
     n_steps: int
     post_travel_steps: int | None
@@ -107,7 +107,7 @@ class Doublet2311(Maneuver):
             stabilizer = multistep(n, pulses, (-h, h, -h, h))
             n += 7 * u
         n += _steps(self.tail_s, dt)
-        return Program(elevator, stabilizer, Constant(0.0), False, n, None, n)
+        return Program(elevator, stabilizer, None, False, n, None, n)
 
 
 @dataclass(frozen=True)

@@ -128,3 +128,10 @@ def test_gear_transition_ends_post_s_after_travel(matrix, post_s):
     done = log.t_s[log.gear_norm <= 0.0].iloc[0]
     assert done == pytest.approx(5.0 + 8.0, abs=0.02)  # 5 s trimmed, 8 s travel
     assert log.t_s.iloc[-1] - done == pytest.approx(post_s, abs=1e-9)
+
+
+@pytest.mark.parametrize("point", ["h02000_m0.30_f05_gdn", "h02000_m0.30_f05_gup"])
+def test_doublet_holds_the_trimmed_gear(matrix, reference_config, point):
+    log = fly(matrix.point(point), "doublet", reference_config).log
+    expected = 1.0 if point.endswith("gdn") else 0.0
+    assert (log.gear_norm == expected).all()

@@ -1,0 +1,54 @@
+"""Aerodynamic coefficients from measured channels (paper eq. 1).
+
+CL and CD follow eq. (1a, 1b). Cm follows eq. (1c), less the thrust line's
+moment, so it is the aerodynamic pitching moment about the CG.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+D2R = np.pi / 180.0
+FT_PER_KT = 1.6878098571011957
+
+
+def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
+    """CL, CD, Cm at the CG from a log (eq. 1).
+
+    Parameters
+    ----------
+    data : DataFrame
+        A log in the schema (accelerations [ft/s^2], rates [deg/s], thrust [lbf]...).
+    meta : dict
+        Log metadata with ``inertia_slugft2`` [slug ft^2] and ``geometry`` (S [ft^2],
+        cbar [ft], thrust_z_arm_ft [ft], thrust line height above the CG).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``CL``, ``CD``, ``Cm`` [-].
+    """
+    g = meta["geometry"]
+    inertia = meta["inertia_slugft2"]
+    s, cbar = g["S_ft2"], g["cbar_ft"]
+    a = data["alpha_deg"].to_numpy() * D2R
+    qs = data["qbar_psf"].to_numpy() * s
+    m = data["mass_slug"].to_numpy()
+    fx = m * data["ax_fps2"].to_numpy() - data["thrust_lbf"].to_numpy()
+    fz = m * data["az_fps2"].to_numpy()
+    cl = (-fz * np.cos(a) + fx * np.sin(a)) / qs
+    cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
+    p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
+    qdot = data["qdot_dps2"].to_numpy() * D2R
+    moment = (inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r
+              + inertia["ixz"] * (p ** 2 - r ** 2))
+    # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T
+    moment_thrust = -g.get("thrust_z_arm_ft", 0.0) * data["thrust_lbf"].to_numpy()
+    cm = (moment - moment_thrust) / (qs * cbar)
+    return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm}, index=data.index)
+
+
+def qhat(data: pd.DataFrame, meta: dict) -> np.ndarray:
+    """Normalized pitch rate q cbar / (2 V) [rad]."""
+    v = data["tas_kt"].to_numpy() * FT_PER_KT
+    return data["q_dps"].to_numpy() * D2R * meta["geometry"]["cbar_ft"] / (2.0 * v)

@@ -1,0 +1,117 @@
+"""Reading measured logs: a campaign folder (Parquet + manifest) or CSV files.
+
+This module knows the log schema only; it never imports the flying code.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+REQUIRED_COLUMNS: tuple[str, ...] = (
+    "t_s", "alt_ft", "tas_kt", "mach", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps",
+    "qdot_dps2", "ax_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
+    "flap_deg", "gear_norm", "mass_slug",
+)
+REQUIRED_META = ("point", "maneuver", "inertia_slugft2", "geometry")
+
+
+class LogError(ValueError):
+    """A bad measured log; the message names the file, and the column and row."""
+
+
+@dataclass
+class Log:
+    """One measured manoeuvre.
+
+    Attributes
+    ----------
+    path : str
+    data : pandas.DataFrame
+        Columns of the log schema, units in the names.
+    meta : dict
+        Status point, manoeuvre, inertia, geometry...
+    """
+
+    path: str
+    data: pd.DataFrame
+    meta: dict
+
+    @property
+    def point(self) -> str:
+        return self.meta["point"]
+
+    @property
+    def maneuver(self) -> str:
+        return self.meta["maneuver"]
+
+    @property
+    def condition(self) -> tuple[float, float, int]:
+        """(altitude [ft], Mach, flap [deg]) of the status point."""
+        sp = self.meta["status_point"]
+        return (float(sp["alt_ft"]), float(sp["mach"]), int(sp["flap_deg"]))
+
+    @property
+    def gear_down(self) -> bool:
+        return self.meta["status_point"]["gear"] == "down"
+
+
+def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:
+    for key in REQUIRED_META:
+        if key not in meta:
+            raise LogError(f"{path}: metadata field {key!r} missing")
+    for col in REQUIRED_COLUMNS:
+        if col not in df.columns:
+            raise LogError(f"{path}: column {col!r} missing")
+        values = pd.to_numeric(df[col], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(values.to_numpy(dtype=float)))
+        if bad.size:
+            raise LogError(f"{path}: column {col!r}, row {bad[0] + 1}: not a finite number "
+                           f"({df[col].iloc[bad[0]]!r})")
+    if len(df) < 10:
+        raise LogError(f"{path}: only {len(df)} rows")
+
+
+def read_parquet(path: str | Path) -> Log:
+    """Read one Parquet log written by a campaign."""
+    table = pq.read_table(path)
+    meta = json.loads((table.schema.metadata or {}).get(b"gearid", b"{}"))
+    df = table.to_pandas()
+    _validate(str(path), df, meta)
+    return Log(str(path), df, meta)
+
+
+def read_csv(path: str | Path) -> Log:
+    """Read a CSV log in the schema with its sidecar ``<name>.json`` metadata."""
+    path = Path(path)
+    side = path.with_suffix(".json")
+    if not side.exists():
+        raise LogError(f"{path}: metadata sidecar {side.name} missing")
+    try:
+        meta = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise LogError(f"{side}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    df = pd.read_csv(path)
+    _validate(str(path), df, meta)
+    return Log(str(path), df.astype({c: float for c in REQUIRED_COLUMNS}), meta)
+
+
+def read_campaign(folder: str | Path) -> list[Log]:
+    """Every log of a campaign folder (manifest order), or of a folder of CSVs."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise LogError(f"{folder}: not a folder")
+    manifest = folder / "manifest.json"
+    if manifest.exists():
+        man = json.loads(manifest.read_text())
+        files = [folder / f for p in man.get("points", []) if p["status"] == "ok" for f in p["files"]]
+        return [read_parquet(f) for f in files]
+    csvs = sorted(folder.glob("*.csv"))
+    parquets = sorted(folder.glob("*.parquet"))
+    if not csvs and not parquets:
+        raise LogError(f"{folder}: no manifest.json, Parquet or CSV logs")
+    return [read_parquet(f) for f in parquets] + [read_csv(f) for f in csvs]

@@ -1,0 +1,161 @@
+"""Ordinary least squares (paper eqs. 10-18) with what an engineer reads first.
+
+``LeastSquares(y, X).fit()`` returns :class:`LSResults` with ``params``, ``bse``
+(standard errors), ``rsquared``, residual max and RMS, ``summary()`` -- the
+statsmodels shape. Regressors that were not excited are dropped from the fit
+and reported as not identifiable. Flight data residuals are coloured, so the
+standard errors are Newey-West (HAC) estimates rather than the white-noise
+formula, which would understate them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+
+@dataclass
+class LSResults:
+    """Results of a least-squares fit.
+
+    Attributes
+    ----------
+    params, bse : Series
+        Estimates and standard errors of the identifiable parameters.
+    unexcited : dict
+        ``{regressor: reason}`` for regressors left out as not identifiable.
+    rsquared : float
+    resid : ndarray
+    fitted : ndarray
+    y : ndarray
+    """
+
+    name: str
+    params: pd.Series
+    bse: pd.Series
+    unexcited: dict
+    rsquared: float
+    resid: np.ndarray
+    fitted: np.ndarray
+    y: np.ndarray
+    cov: np.ndarray = field(repr=False, default=None)
+
+    @property
+    def nobs(self) -> int:
+        return len(self.y)
+
+    @property
+    def resid_max(self) -> float:
+        """Largest absolute residual."""
+        return float(np.max(np.abs(self.resid)))
+
+    @property
+    def resid_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.resid ** 2)))
+
+    @property
+    def rel_error_pct(self) -> float:
+        """Largest absolute residual relative to the mean absolute measurement [%]."""
+        return 100.0 * self.resid_max / max(float(np.mean(np.abs(self.y))), 1e-12)
+
+    def conf_int(self, n_sigma: float = 2.0) -> pd.DataFrame:
+        return pd.DataFrame({"lower": self.params - n_sigma * self.bse,
+                             "upper": self.params + n_sigma * self.bse})
+
+    def to_dict(self) -> dict:
+        return {
+            "params": {k: float(v) for k, v in self.params.items()},
+            "bse": {k: float(v) for k, v in self.bse.items()},
+            "rsquared": self.rsquared, "resid_max": self.resid_max, "resid_rms": self.resid_rms,
+            "rel_error_pct": self.rel_error_pct, "nobs": self.nobs,
+            "unexcited": dict(self.unexcited),
+        }
+
+    def summary(self) -> str:
+        lines = [f"{self.name}: N = {self.nobs}, R^2 = {self.rsquared:.6f}, "
+                 f"residual max {self.resid_max:.3g}, RMS {self.resid_rms:.3g}, "
+                 f"relative {self.rel_error_pct:.2f} %",
+                 f"  {'parameter':<20}{'estimate':>14}{'std err':>12}{'t':>10}"]
+        for k in self.params.index:
+            t = self.params[k] / self.bse[k] if self.bse[k] > 0 else np.inf
+            lines.append(f"  {k:<20}{self.params[k]:>14.6g}{self.bse[k]:>12.3g}{t:>10.1f}")
+        for k, why in self.unexcited.items():
+            lines.append(f"  {k:<20}{'not identifiable':>14}  ({why})")
+        return "\n".join(lines)
+
+
+def newey_west(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
+    """HAC covariance of OLS estimates with a Bartlett kernel.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, p)
+    e : ndarray, shape (N,)
+        Residuals.
+    lags : int
+        Bandwidth [samples].
+    """
+    u = x * e[:, None]
+    s = u.T @ u
+    for lag in range(1, min(lags, len(e) - 1) + 1):
+        w = 1.0 - lag / (lags + 1.0)
+        g = u[lag:].T @ u[:-lag]
+        s += w * (g + g.T)
+    xtx_inv = np.linalg.inv(x.T @ x)
+    return xtx_inv @ s @ xtx_inv
+
+
+class LeastSquares:
+    """``y = X theta + v`` solved by least squares (eq. 18).
+
+    Parameters
+    ----------
+    y : array_like, shape (N,)
+    X : DataFrame, shape (N, p)
+        Regressors by name; a column ``const`` of ones is the intercept.
+    min_std : dict, optional
+        ``{regressor: std}``: a regressor varying less than this was not
+        excited and is left out.
+    hac_lags : int
+        Newey-West bandwidth [samples].
+    name : str
+    """
+
+    def __init__(self, y, X: pd.DataFrame, min_std: dict | None = None, hac_lags: int = 240,
+                 name: str = "y") -> None:
+        self.y = np.asarray(y, dtype=float)
+        self.X = X
+        self.min_std = min_std or {}
+        self.hac_lags = hac_lags
+        self.name = name
+
+    def fit(self) -> LSResults:
+        unexcited = {}
+        keep = []
+        for col in self.X.columns:
+            if col == "const":
+                keep.append(col)
+                continue
+            sd = float(np.std(self.X[col]))
+            if sd < self.min_std.get(col, 0.0) or sd == 0.0:
+                unexcited[col] = f"std {sd:.2g} below {self.min_std.get(col, 0.0):.2g}"
+                continue
+            for other in keep:
+                if other == "const":
+                    continue
+                r = np.corrcoef(self.X[col], self.X[other])[0, 1]
+                if abs(r) > 0.98:
+                    unexcited[col] = f"collinear with {other} (r = {r:.3f})"
+                    break
+            else:
+                keep.append(col)
+        x = self.X[keep].to_numpy(dtype=float)
+        theta, *_ = np.linalg.lstsq(x, self.y, rcond=None)
+        fitted = x @ theta
+        resid = self.y - fitted
+        cov = newey_west(x, resid, self.hac_lags)
+        ss_tot = float(np.sum((self.y - self.y.mean()) ** 2))
+        r2 = 1.0 - float(np.sum(resid ** 2)) / ss_tot if ss_tot > 0 else float("nan")
+        return LSResults(self.name, pd.Series(theta, index=keep), pd.Series(np.sqrt(np.diag(cov)), index=keep),
+                         unexcited, r2, resid, fitted, self.y, cov)

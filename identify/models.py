@@ -1,0 +1,351 @@
+"""Baseline (eq. 3), linear gear (eq. 4) and nonlinear gear (eqs. 8, 9) models.
+
+Regressors are deviations from one reference state per flight condition
+(altitude, Mach, flap): the gear-up trim. Gear-up and gear-down fits then share
+a reference, and ``C0_gearDn - C0_gearUp`` is the gear increment at that state.
+Before the fits, the coefficients and the regressors pass through the same
+zero-phase low-pass filter: a linear relation between them is unchanged, while
+sensor noise in the regressors (which biases least squares) shrinks.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.interpolate import make_smoothing_spline
+from scipy.signal import butter, filtfilt
+
+from identify.coefficients import D2R, coefficients, qhat
+from identify.logs import Log
+from identify.lsq import LeastSquares, LSResults
+
+COEFFS = ("CL", "CD", "Cm")
+REGRESSORS = ("dalpha_rad", "qhat_rad", "delevator_rad", "dstabilizer_rad")
+PARAM_SUFFIX = {"const": "0", "dalpha_rad": "alpha_per_rad", "qhat_rad": "q_per_rad",
+                "delevator_rad": "de_per_rad", "dstabilizer_rad": "dh_per_rad"}
+#: A regressor varying less than this (std over the manoeuvre) was not excited.
+MIN_STD = {"dalpha_rad": 0.05 * D2R, "qhat_rad": 1e-5, "delevator_rad": 0.05 * D2R,
+           "dstabilizer_rad": 0.05 * D2R}
+CUTOFF_HZ = 3.0
+GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
+
+
+def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
+    """Zero-phase 4th-order Butterworth low-pass filter."""
+    b, a = butter(4, cutoff_hz * 2.0 * dt)
+    return filtfilt(b, a, x, padtype="odd", padlen=min(len(x) - 1, 3 * max(len(a), len(b)) * 20))
+
+
+def _dt(log: Log) -> float:
+    return float(np.median(np.diff(log.data["t_s"].to_numpy())))
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Reference state of a flight condition: its gear-up trim."""
+
+    alpha_deg: float
+    elevator_deg: float
+    stabilizer_deg: float
+    source: str
+
+
+def _steady_head(log: Log, seconds: float = 1.0) -> pd.DataFrame:
+    d = log.data
+    return d[d["t_s"] < seconds]
+
+
+def references(logs: list[Log]) -> dict[tuple, Reference]:
+    """The gear-up trim of each condition, from the first second of a gear-up
+    start (a gear extension, else a gear-up 2-3-1-1)."""
+    refs: dict[tuple, Reference] = {}
+    ranked = sorted(logs, key=lambda lg: (lg.maneuver != "gear_extension", lg.gear_down))
+    for log in ranked:
+        if log.condition in refs or log.data["gear_norm"].iloc[0] != 0.0:
+            continue
+        head = _steady_head(log)
+        refs[log.condition] = Reference(float(head.alpha_deg.mean()), float(head.elevator_deg.mean()),
+                                        float(head.stabilizer_deg.mean()), log.path)
+    for log in logs:  # conditions flown gear-down only: their own trim
+        if log.condition not in refs:
+            head = _steady_head(log)
+            refs[log.condition] = Reference(float(head.alpha_deg.mean()), float(head.elevator_deg.mean()),
+                                            float(head.stabilizer_deg.mean()), log.path)
+    return refs
+
+
+def regressors(log: Log, ref: Reference) -> pd.DataFrame:
+    """Eq. (3) regressors [rad] about the reference state, with a constant."""
+    d = log.data
+    return pd.DataFrame({
+        "const": 1.0,
+        "dalpha_rad": (d["alpha_deg"] - ref.alpha_deg) * D2R,
+        "qhat_rad": qhat(d, log.meta),
+        "delevator_rad": (d["elevator_deg"] - ref.elevator_deg) * D2R,
+        "dstabilizer_rad": (d["stabilizer_deg"] - ref.stabilizer_deg) * D2R,
+    }, index=d.index)
+
+
+def _filtered(log: Log, frame: pd.DataFrame) -> pd.DataFrame:
+    dt = _dt(log)
+    out = frame.copy()
+    for c in frame.columns:
+        if c != "const":
+            out[c] = lowpass(frame[c].to_numpy(), dt)
+    return out
+
+
+@dataclass
+class PointFit:
+    """Eq. (3) fits of CL, CD and Cm on one 2-3-1-1."""
+
+    point: str
+    path: str
+    condition: tuple
+    gear_down: bool
+    reference: Reference
+    fits: dict[str, LSResults]
+    alpha_trim_deg: float
+
+    def param(self, coeff: str, regressor: str) -> float | None:
+        res = self.fits[coeff]
+        return float(res.params[regressor]) if regressor in res.params.index else None
+
+    def table(self) -> pd.DataFrame:
+        """Parameters like the paper's Table 2: one row per coefficient, '' where not identifiable."""
+        rows = {}
+        for c, res in self.fits.items():
+            rows[c] = {f"{c}{PARAM_SUFFIX[r]}": (f"{res.params[r]:.6g}" if r in res.params.index
+                                                  else "n/i") for r in ("const", *REGRESSORS)}
+        return pd.DataFrame({c: list(v.values()) for c, v in rows.items()},
+                            index=["0", "alpha_per_rad", "q_per_rad", "de_per_rad", "dh_per_rad"]).T
+
+    def summary(self) -> str:
+        head = (f"{self.point} ({'gear down' if self.gear_down else 'gear up'}), regressors about "
+                f"alpha {self.reference.alpha_deg:.3f} deg, elevator {self.reference.elevator_deg:.3f} deg, "
+                f"stabilizer {self.reference.stabilizer_deg:.3f} deg")
+        return "\n".join([head] + [self.fits[c].summary() for c in COEFFS])
+
+
+def fit_baseline(log: Log, ref: Reference) -> PointFit:
+    """Least squares of eq. (3) on one 2-3-1-1 log."""
+    y = _filtered(log, coefficients(log.data, log.meta))
+    x = _filtered(log, regressors(log, ref))
+    fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / _dt(log))), name=c).fit()
+            for c in COEFFS}
+    return PointFit(log.point, log.path, log.condition, log.gear_down, ref, fits,
+                    float(_steady_head(log).alpha_deg.mean()))
+
+
+@dataclass
+class LinearGearModel:
+    """Eq. (4) at one condition: averaged derivatives, C0 gear up and gear down (Table 3)."""
+
+    condition: tuple
+    alpha_trim_deg: float
+    derivatives: dict[str, dict[str, float]]
+    c0_up: dict[str, float]
+    c0_dn: dict[str, float]
+    c0_up_bse: dict[str, float] = field(default_factory=dict)
+    c0_dn_bse: dict[str, float] = field(default_factory=dict)
+
+    def increment(self, coeff: str) -> float:
+        """Gear-down minus gear-up at the reference state [-]."""
+        return self.c0_dn[coeff] - self.c0_up[coeff]
+
+    def to_dict(self) -> dict:
+        return {"condition": {"alt_ft": self.condition[0], "mach": self.condition[1],
+                              "flap_deg": self.condition[2]},
+                "alpha_trim_deg": self.alpha_trim_deg,
+                "derivatives": self.derivatives, "C0_gearup": self.c0_up, "C0_gearDn": self.c0_dn,
+                "C0_gearup_bse": self.c0_up_bse, "C0_gearDn_bse": self.c0_dn_bse,
+                "increment": {c: self.increment(c) for c in COEFFS}}
+
+
+def linear_models(fits: list[PointFit]) -> dict[tuple, LinearGearModel]:
+    """One linear gear model per condition flown gear up and gear down."""
+    by_cond: dict[tuple, dict[bool, PointFit]] = {}
+    for f in fits:
+        by_cond.setdefault(f.condition, {})[f.gear_down] = f
+    out = {}
+    for cond, pair in by_cond.items():
+        if True not in pair or False not in pair:
+            continue
+        up, dn = pair[False], pair[True]
+        deriv = {}
+        for c in COEFFS:
+            deriv[c] = {}
+            for r in REGRESSORS:
+                vals = [v for v in (up.param(c, r), dn.param(c, r)) if v is not None]
+                if vals:
+                    deriv[c][r] = float(np.mean(vals))
+        out[cond] = LinearGearModel(
+            cond, up.alpha_trim_deg, deriv,
+            {c: up.param(c, "const") for c in COEFFS}, {c: dn.param(c, "const") for c in COEFFS},
+            {c: float(up.fits[c].bse["const"]) for c in COEFFS},
+            {c: float(dn.fits[c].bse["const"]) for c in COEFFS})
+    return out
+
+
+@dataclass
+class Increments:
+    """Eq. (8) increments along one gear transition, and their smoothing spline."""
+
+    point: str
+    condition: tuple
+    alpha_trim_deg: float
+    gear_norm: np.ndarray
+    raw: dict[str, np.ndarray]
+    grid: np.ndarray
+    smooth: dict[str, np.ndarray]
+    alpha_deg: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {"gear_norm": self.grid.tolist(), **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
+                "alpha_trim_deg": self.alpha_trim_deg}
+
+
+def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments:
+    """Eq. (8): what the baseline does not explain along a gear transition.
+
+    The gear-up part of the log (before an extension, after a retraction) is the
+    reference: its mean coefficients are ``C0_gearup`` and its mean state the
+    point the regressors are taken about.
+    """
+    coef = _filtered(log, coefficients(log.data, log.meta))
+    d = log.data
+    up = (d["gear_norm"] == 0.0).to_numpy()
+    ref = Reference(float(d.alpha_deg[up].mean()), float(d.elevator_deg[up].mean()),
+                    float(d.stabilizer_deg[up].mean()), log.path)
+    x = _filtered(log, regressors(log, ref))
+    x["qhat_rad"] = x["qhat_rad"] - x["qhat_rad"][up].mean()
+    raw = {}
+    for c in COEFFS:
+        f = coef[c].to_numpy() - coef[c][up].mean()
+        for r, v in derivatives[c].items():
+            f = f - v * x[r].to_numpy()
+        raw[c] = f
+    g = d["gear_norm"].to_numpy()
+    smooth = {c: _spline_on_grid(g, raw[c]) for c in COEFFS}
+    return Increments(log.point, log.condition, ref.alpha_deg, g, raw, GRID, smooth, d["alpha_deg"].to_numpy())
+
+
+def _spline_on_grid(g: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Smoothing spline of f(g), its smoothing chosen by GCV, evaluated on GRID.
+
+    Samples at the end stops (g = 0 and g = 1) enter as one weighted mean each.
+    """
+    inner = (g > 0.0) & (g < 1.0)
+    gi, fi = g[inner], f[inner]
+    order = np.argsort(gi, kind="stable")
+    gi, fi = gi[order], fi[order]
+    keep = np.concatenate([[True], np.diff(gi) > 1e-12])
+    gi, fi = gi[keep], fi[keep]
+    xs, ys, ws = [0.0], [float(f[g == 0.0].mean())], [float((g == 0.0).sum())]
+    xs += gi.tolist()
+    ys += fi.tolist()
+    ws += [1.0] * len(gi)
+    if (g == 1.0).any():
+        xs.append(1.0)
+        ys.append(float(f[g == 1.0].mean()))
+        ws.append(float((g == 1.0).sum()))
+    spline = make_smoothing_spline(np.array(xs), np.array(ys), w=np.sqrt(np.array(ws)), lam=None)
+    return spline(GRID)
+
+
+#: Candidate designs for eq. (9) across conditions of one flap setting.
+DESIGNS = {"constant": ("const",), "alpha": ("const", "alpha"), "alpha+mach": ("const", "alpha", "mach")}
+
+
+@dataclass
+class GearSurface:
+    """Eq. (9): gear increments over delta_LG, alpha, Mach and flap.
+
+    For each flap setting and each delta_LG node, each coefficient increment is
+    a linear function of alpha and Mach, its terms chosen by leave-one-out
+    cross-validation among :data:`DESIGNS`. Between flap settings the model
+    interpolates linearly; outside them it holds the nearest.
+    """
+
+    grid: np.ndarray
+    flaps: list[int]
+    designs: dict[tuple[int, str], str]
+    coef: dict[tuple[int, str], np.ndarray]  # (flap, C) -> (n_grid, n_terms)
+    alpha_range: dict[int, tuple[float, float]]
+    mach_range: dict[int, tuple[float, float]]
+    cv_rmse: dict[tuple[int, str], dict[str, float]]
+
+    def _at_flap(self, flap: int, c: str, alpha_deg: float, mach: float) -> np.ndarray:
+        lo, hi = self.alpha_range[flap]
+        a = min(max(alpha_deg, lo), hi)
+        mlo, mhi = self.mach_range[flap]
+        m = min(max(mach, mlo), mhi)
+        terms = {"const": 1.0, "alpha": a, "mach": m}
+        names = DESIGNS[self.designs[(flap, c)]]
+        return self.coef[(flap, c)] @ np.array([terms[t] for t in names])
+
+    def curve(self, c: str, alpha_deg: float, mach: float, flap_deg: float) -> np.ndarray:
+        """Increment of coefficient ``c`` on :attr:`grid` at one state."""
+        flaps = self.flaps
+        if flap_deg <= flaps[0]:
+            return self._at_flap(flaps[0], c, alpha_deg, mach)
+        if flap_deg >= flaps[-1]:
+            return self._at_flap(flaps[-1], c, alpha_deg, mach)
+        i = int(np.searchsorted(flaps, flap_deg)) - 1
+        w = (flap_deg - flaps[i]) / (flaps[i + 1] - flaps[i])
+        return ((1 - w) * self._at_flap(flaps[i], c, alpha_deg, mach)
+                + w * self._at_flap(flaps[i + 1], c, alpha_deg, mach))
+
+    def __call__(self, c: str, gear_norm: float, alpha_deg: float, mach: float, flap_deg: float) -> float:
+        return float(np.interp(gear_norm, self.grid, self.curve(c, alpha_deg, mach, flap_deg)))
+
+    def to_dict(self) -> dict:
+        return {"grid": self.grid.tolist(), "flaps": self.flaps,
+                "designs": {f"{f}/{c}": d for (f, c), d in self.designs.items()},
+                "cv_rmse": {f"{f}/{c}": v for (f, c), v in self.cv_rmse.items()},
+                "alpha_range_deg": {str(f): list(v) for f, v in self.alpha_range.items()},
+                "mach_range": {str(f): list(v) for f, v in self.mach_range.items()}}
+
+
+def fit_surface(curves: list[tuple[tuple, float, np.ndarray, dict[str, np.ndarray]]]) -> GearSurface:
+    """Fit eq. (9) from per-condition curves.
+
+    Parameters
+    ----------
+    curves : list of (condition, alpha_trim_deg, grid, {C: values on grid})
+    """
+    grid = curves[0][2]
+    flaps = sorted({cond[2] for cond, *_ in curves})
+    designs, coef, cv, ar, mr = {}, {}, {}, {}, {}
+    for flap in flaps:
+        rows = [(a, cond[1], vals) for cond, a, _, vals in curves if cond[2] == flap]
+        alpha = np.array([r[0] for r in rows])
+        mach = np.array([r[1] for r in rows])
+        ar[flap] = (float(alpha.min()), float(alpha.max()))
+        mr[flap] = (float(mach.min()), float(mach.max()))
+        terms = {"const": np.ones_like(alpha), "alpha": alpha, "mach": mach}
+        for c in COEFFS:
+            y = np.array([r[2][c] for r in rows])  # (n, n_grid)
+            scores = {}
+            for name, cols in DESIGNS.items():
+                x = np.column_stack([terms[t] for t in cols])
+                if len(rows) <= len(cols) or np.linalg.matrix_rank(x) < len(cols):
+                    continue
+                scores[name] = _loo_rmse(x, y)
+            best = min(scores, key=scores.get)
+            x = np.column_stack([terms[t] for t in DESIGNS[best]])
+            beta, *_ = np.linalg.lstsq(x, y, rcond=None)  # (n_terms, n_grid)
+            designs[(flap, c)] = best
+            coef[(flap, c)] = beta.T
+            cv[(flap, c)] = scores
+    return GearSurface(grid, flaps, designs, coef, ar, mr, cv)
+
+
+def _loo_rmse(x: np.ndarray, y: np.ndarray) -> float:
+    """Leave-one-out RMS prediction error of least squares (PRESS) [-]."""
+    h = x @ np.linalg.pinv(x.T @ x) @ x.T
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    resid = y - x @ beta
+    lev = np.clip(1.0 - np.diag(h), 1e-12, None)
+    return float(np.sqrt(np.mean((resid / lev[:, None]) ** 2)))
