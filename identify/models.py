@@ -21,12 +21,14 @@ from identify.logs import Log
 from identify.lsq import LeastSquares, LSResults
 
 COEFFS = ("CL", "CD", "Cm")
-REGRESSORS = ("dalpha_rad", "qhat_rad", "delevator_rad", "dstabilizer_rad")
+REGRESSORS = ("dalpha_rad", "qhat_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2")
 PARAM_SUFFIX = {"const": "0", "dalpha_rad": "alpha_per_rad", "qhat_rad": "q_per_rad",
-                "delevator_rad": "de_per_rad", "dstabilizer_rad": "dh_per_rad"}
+                "delevator_rad": "de_per_rad", "dstabilizer_rad": "dh_per_rad", "dmach": "mach",
+                "dalpha2_rad2": "alpha2_per_rad2"}
 #: A regressor varying less than this (std over the manoeuvre) was not excited.
 MIN_STD = {"dalpha_rad": 0.05 * D2R, "qhat_rad": 1e-5, "delevator_rad": 0.05 * D2R,
-           "dstabilizer_rad": 0.05 * D2R}
+           "dstabilizer_rad": 0.05 * D2R, "dmach": 0.002,
+           "dalpha2_rad2": (0.5 * D2R) ** 2}
 CUTOFF_HZ = 3.0
 GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
 
@@ -48,12 +50,18 @@ class Reference:
     alpha_deg: float
     elevator_deg: float
     stabilizer_deg: float
+    mach: float
     source: str
 
 
 def _steady_head(log: Log, seconds: float = 1.0) -> pd.DataFrame:
     d = log.data
     return d[d["t_s"] < seconds]
+
+
+def _reference(frame: pd.DataFrame, source: str) -> Reference:
+    return Reference(float(frame.alpha_deg.mean()), float(frame.elevator_deg.mean()),
+                     float(frame.stabilizer_deg.mean()), float(frame.mach.mean()), source)
 
 
 def references(logs: list[Log]) -> dict[tuple, Reference]:
@@ -65,13 +73,11 @@ def references(logs: list[Log]) -> dict[tuple, Reference]:
         if log.condition in refs or log.data["gear_norm"].iloc[0] != 0.0:
             continue
         head = _steady_head(log)
-        refs[log.condition] = Reference(float(head.alpha_deg.mean()), float(head.elevator_deg.mean()),
-                                        float(head.stabilizer_deg.mean()), log.path)
+        refs[log.condition] = _reference(head, log.path)
     for log in logs:  # conditions flown gear-down only: their own trim
         if log.condition not in refs:
             head = _steady_head(log)
-            refs[log.condition] = Reference(float(head.alpha_deg.mean()), float(head.elevator_deg.mean()),
-                                            float(head.stabilizer_deg.mean()), log.path)
+            refs[log.condition] = _reference(head, log.path)
     return refs
 
 
@@ -84,6 +90,8 @@ def regressors(log: Log, ref: Reference) -> pd.DataFrame:
         "qhat_rad": qhat(d, log.meta),
         "delevator_rad": (d["elevator_deg"] - ref.elevator_deg) * D2R,
         "dstabilizer_rad": (d["stabilizer_deg"] - ref.stabilizer_deg) * D2R,
+        "dmach": d["mach"] - ref.mach,
+        "dalpha2_rad2": ((d["alpha_deg"] - ref.alpha_deg) * D2R) ** 2,
     }, index=d.index)
 
 
@@ -116,10 +124,9 @@ class PointFit:
         """Parameters like the paper's Table 2: one row per coefficient, '' where not identifiable."""
         rows = {}
         for c, res in self.fits.items():
-            rows[c] = {f"{c}{PARAM_SUFFIX[r]}": (f"{res.params[r]:.6g}" if r in res.params.index
-                                                  else "n/i") for r in ("const", *REGRESSORS)}
-        return pd.DataFrame({c: list(v.values()) for c, v in rows.items()},
-                            index=["0", "alpha_per_rad", "q_per_rad", "de_per_rad", "dh_per_rad"]).T
+            rows[c] = [f"{res.params[r]:.6g}" if r in res.params.index else "n/i"
+                       for r in ("const", *REGRESSORS)]
+        return pd.DataFrame(rows, index=[PARAM_SUFFIX[r] for r in ("const", *REGRESSORS)]).T
 
     def summary(self) -> str:
         head = (f"{self.point} ({'gear down' if self.gear_down else 'gear up'}), regressors about "
@@ -216,8 +223,7 @@ def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments
     coef = _filtered(log, coefficients(log.data, log.meta))
     d = log.data
     up = (d["gear_norm"] == 0.0).to_numpy()
-    ref = Reference(float(d.alpha_deg[up].mean()), float(d.elevator_deg[up].mean()),
-                    float(d.stabilizer_deg[up].mean()), log.path)
+    ref = _reference(d[up], log.path)
     x = _filtered(log, regressors(log, ref))
     x["qhat_rad"] = x["qhat_rad"] - x["qhat_rad"][up].mean()
     raw = {}
@@ -231,26 +237,22 @@ def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments
     return Increments(log.point, log.condition, ref.alpha_deg, g, raw, GRID, smooth, d["alpha_deg"].to_numpy())
 
 
-def _spline_on_grid(g: np.ndarray, f: np.ndarray) -> np.ndarray:
+def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> np.ndarray:
     """Smoothing spline of f(g), its smoothing chosen by GCV, evaluated on GRID.
 
-    Samples at the end stops (g = 0 and g = 1) enter as one weighted mean each.
+    Samples are first averaged in ``bins`` equal bins of g (weights: counts),
+    so the end stops and the slow end of the travel do not crowd the spline.
     """
-    inner = (g > 0.0) & (g < 1.0)
-    gi, fi = g[inner], f[inner]
-    order = np.argsort(gi, kind="stable")
-    gi, fi = gi[order], fi[order]
-    keep = np.concatenate([[True], np.diff(gi) > 1e-12])
-    gi, fi = gi[keep], fi[keep]
-    xs, ys, ws = [0.0], [float(f[g == 0.0].mean())], [float((g == 0.0).sum())]
-    xs += gi.tolist()
-    ys += fi.tolist()
-    ws += [1.0] * len(gi)
-    if (g == 1.0).any():
-        xs.append(1.0)
-        ys.append(float(f[g == 1.0].mean()))
-        ws.append(float((g == 1.0).sum()))
-    spline = make_smoothing_spline(np.array(xs), np.array(ys), w=np.sqrt(np.array(ws)), lam=None)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.clip(np.digitize(g, edges[1:-1]), 0, bins - 1)
+    xs, ys, ws = [], [], []
+    for b in range(bins):
+        sel = idx == b
+        if sel.any():
+            xs.append(float(g[sel].mean()))
+            ys.append(float(f[sel].mean()))
+            ws.append(float(sel.sum()))
+    spline = make_smoothing_spline(np.array(xs), np.array(ys), w=np.array(ws) / np.mean(ws), lam=None)
     return spline(GRID)
 
 
