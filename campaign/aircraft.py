@@ -89,7 +89,7 @@ def load_effects(path: str | Path | None) -> Effects:
                 raise UserError(f"{p}: <axis name=\"{name}\"> child {j + 1}: expected <function>, found <{fn.tag}>")
             if not fn.get("name"):
                 raise UserError(f"{p}: <axis name=\"{name}\"> function {j + 1}: missing name attribute")
-            if len(fn) != 1:
+            if len([c for c in fn if c.tag != "description"]) != 1:
                 raise UserError(f"{p}: function {fn.get('name')}: needs exactly one operation or table inside")
             functions.append((name, ET.tostring(fn, encoding="unicode")))
     names = [ET.fromstring(f).get("name") for _, f in functions]

@@ -4,8 +4,10 @@
 (standard errors), ``rsquared``, residual max and RMS, ``summary()`` -- the
 statsmodels shape. Regressors that were not excited are dropped from the fit
 and reported as not identifiable. Flight data residuals are coloured, so the
-standard errors are Newey-West (HAC) estimates rather than the white-noise
-formula, which would understate them.
+standard errors are estimated for coloured residuals rather than by the white-noise
+formula, which would understate them: they follow Morelli & Klein (Aircraft
+System Identification, 2016, sec. 5.2) -- the residual autocorrelation
+weighted by the regressors' cross-products.
 """
 from __future__ import annotations
 
@@ -85,8 +87,13 @@ class LSResults:
         return "\n".join(lines)
 
 
-def newey_west(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
-    """HAC covariance of OLS estimates with a Bartlett kernel.
+def colored_residual_cov(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
+    """Covariance of least-squares estimates for coloured residuals.
+
+    ``(X'X)^-1 [sum_ij x_i R(i-j) x_j'] (X'X)^-1`` with ``R`` the residual
+    autocorrelation (Morelli & Klein 2016, eq. 5.71), summed up to its first
+    zero crossing (at most ``lags``): beyond it the estimate of ``R`` from
+    least-squares residuals is dominated by their enforced orthogonality to X.
 
     Parameters
     ----------
@@ -94,16 +101,20 @@ def newey_west(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     e : ndarray, shape (N,)
         Residuals.
     lags : int
-        Bandwidth [samples].
+        Largest lag of the autocorrelation [samples].
     """
-    u = x * e[:, None]
-    s = u.T @ u
-    for lag in range(1, min(lags, len(e) - 1) + 1):
-        w = 1.0 - lag / (lags + 1.0)
-        g = u[lag:].T @ u[:-lag]
-        s += w * (g + g.T)
+    n = len(e)
+    lags = min(lags, n - 1)
+    r = np.array([e[k:] @ e[:n - k] / n for k in range(lags + 1)])
+    crossing = np.flatnonzero(r <= 0.0)
+    last = int(crossing[0]) - 1 if crossing.size else lags
+    m = r[0] * (x.T @ x)
+    for k in range(1, last + 1):
+        g = x[k:].T @ x[:-k]
+        m += r[k] * (g + g.T)
     xtx_inv = np.linalg.inv(x.T @ x)
-    return xtx_inv @ s @ xtx_inv
+    cov = xtx_inv @ m @ xtx_inv
+    return cov
 
 
 class LeastSquares:
@@ -118,7 +129,7 @@ class LeastSquares:
         ``{regressor: std}``: a regressor varying less than this was not
         excited and is left out.
     hac_lags : int
-        Newey-West bandwidth [samples].
+        Largest residual autocorrelation lag used for the standard errors [samples].
     name : str
     """
 
@@ -154,7 +165,7 @@ class LeastSquares:
         theta, *_ = np.linalg.lstsq(x, self.y, rcond=None)
         fitted = x @ theta
         resid = self.y - fitted
-        cov = newey_west(x, resid, self.hac_lags)
+        cov = colored_residual_cov(x, resid, self.hac_lags)
         ss_tot = float(np.sum((self.y - self.y.mean()) ** 2))
         r2 = 1.0 - float(np.sum(resid ** 2)) / ss_tot if ss_tot > 0 else float("nan")
         return LSResults(self.name, pd.Series(theta, index=keep), pd.Series(np.sqrt(np.diag(cov)), index=keep),

@@ -52,6 +52,7 @@ class Reference:
     stabilizer_deg: float
     mach: float
     source: str
+    se: tuple = ()  # ((regressor, standard error of the reference value [regressor units]), ...)
 
 
 def _steady_head(log: Log, seconds: float = 1.0) -> pd.DataFrame:
@@ -60,8 +61,14 @@ def _steady_head(log: Log, seconds: float = 1.0) -> pd.DataFrame:
 
 
 def _reference(frame: pd.DataFrame, source: str) -> Reference:
+    n = max(len(frame), 1)
+    se = (("dalpha_rad", float(frame.alpha_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+          ("delevator_rad", float(frame.elevator_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+          ("dstabilizer_rad", float(frame.stabilizer_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+          ("dmach", float(frame.mach.std(ddof=1)) / np.sqrt(n)))
     return Reference(float(frame.alpha_deg.mean()), float(frame.elevator_deg.mean()),
-                     float(frame.stabilizer_deg.mean()), float(frame.mach.mean()), source)
+                     float(frame.stabilizer_deg.mean()), float(frame.mach.mean()), source,
+                     tuple((k, v if np.isfinite(v) else 0.0) for k, v in se))
 
 
 def references(logs: list[Log]) -> dict[tuple, Reference]:
@@ -141,6 +148,10 @@ def fit_baseline(log: Log, ref: Reference) -> PointFit:
     x = _filtered(log, regressors(log, ref))
     fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / _dt(log))), name=c).fit()
             for c in COEFFS}
+    for res in fits.values():
+        # C0 is the coefficient at the reference state, itself a mean of measured samples
+        extra = sum((res.params[r] * se) ** 2 for r, se in ref.se if r in res.params.index)
+        res.bse["const"] = float(np.sqrt(res.bse["const"] ** 2 + extra))
     return PointFit(log.point, log.path, log.condition, log.gear_down, ref, fits,
                     float(_steady_head(log).alpha_deg.mean()))
 
@@ -335,7 +346,8 @@ def fit_surface(curves: list[tuple[tuple, float, np.ndarray, dict[str, np.ndarra
                 if len(rows) <= len(cols) or np.linalg.matrix_rank(x) < len(cols):
                     continue
                 scores[name] = _loo_rmse(x, y)
-            best = min(scores, key=scores.get)
+            # one condition alone: the constant, no cross-validation possible
+            best = min(scores, key=scores.get) if scores else "constant"
             x = np.column_stack([terms[t] for t in DESIGNS[best]])
             beta, *_ = np.linalg.lstsq(x, y, rcond=None)  # (n_terms, n_grid)
             designs[(flap, c)] = best

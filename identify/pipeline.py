@@ -1,0 +1,172 @@
+"""``campaign identify``: every step from logs to tables, JSON, XML and plots."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from identify.export import merge_into_aircraft, write_effects
+from identify.logs import Log, read_campaign
+from identify.models import (COEFFS, GRID, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
+                             LinearGearModel, PointFit, fit_baseline, fit_surface, increments,
+                             linear_models, references)
+
+PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
+
+
+@dataclass
+class Identification:
+    """Everything identified from one campaign."""
+
+    fits: list[PointFit]
+    linear: dict[tuple, LinearGearModel]
+    increments: dict[str, Increments]
+    linear_surface: GearSurface | None
+    nonlinear_surface: GearSurface | None
+    arm_ft: float
+
+
+def identify_logs(logs: list[Log]) -> Identification:
+    """Baseline fits, linear gear models, increments and the eq. (9) surfaces."""
+    refs = references(logs)
+    fits = [fit_baseline(log, refs[log.condition]) for log in logs if log.maneuver == "doublet"]
+    linear = linear_models(fits)
+    incs = {}
+    for log in logs:
+        if log.maneuver in ("gear_extension", "gear_retraction") and log.condition in linear:
+            incs[log.point] = increments(log, linear[log.condition].derivatives)
+    lin_surface = None
+    if linear:
+        lin_surface = fit_surface([(c, m.alpha_trim_deg, np.array([0.0, 1.0]),
+                                    {k: np.array([0.0, m.increment(k)]) for k in COEFFS})
+                                   for c, m in linear.items()])
+    nl_surface = fit_surface([(i.condition, i.alpha_trim_deg, i.grid, i.smooth) for i in incs.values()]) \
+        if incs else None
+    g = logs[0].meta["geometry"]
+    arm = (g["aerorp_x_in"] - g["cg_x_in"]) / 12.0
+    return Identification(fits, linear, incs, lin_surface, nl_surface, arm)
+
+
+def _cond_key(c: tuple) -> str:
+    return f"h{int(c[0]):05d}_m{c[1]:.2f}_f{c[2]:02d}"
+
+
+def write_outputs(ident: Identification, logs: list[Log], out: Path, model_dir: Path | None,
+                  plots: str = "paper") -> dict[str, str]:
+    """Write tables (CSV, text), identification.json, XML and plots into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {}
+    rows, stats = [], []
+    for f in ident.fits:
+        for c, res in f.fits.items():
+            for r in ("const", *REGRESSORS):
+                ok = r in res.params.index
+                rows.append({"point": f.point, "gear": "down" if f.gear_down else "up", "coefficient": c,
+                             "parameter": f"{c}{PARAM_SUFFIX[r]}",
+                             "estimate": float(res.params[r]) if ok else np.nan,
+                             "std_error": float(res.bse[r]) if ok else np.nan,
+                             "identifiable": ok, "note": "" if ok else res.unexcited.get(r, "")})
+            stats.append({"point": f.point, "coefficient": c, "r2": res.rsquared, "resid_max": res.resid_max,
+                          "resid_rms": res.resid_rms, "rel_error_pct": res.rel_error_pct, "nobs": res.nobs,
+                          "not_identifiable": ";".join(res.unexcited)})
+    pd.DataFrame(rows).to_csv(out / "baseline_parameters.csv", index=False)
+    pd.DataFrame(stats).to_csv(out / "baseline_fit_statistics.csv", index=False)
+    lin_rows = []
+    for cond, m in ident.linear.items():
+        row = {"condition": _cond_key(cond), "alpha_trim_deg": m.alpha_trim_deg}
+        for c in COEFFS:
+            row.update({f"{c}0_gearup": m.c0_up[c], f"{c}0_gearDn": m.c0_dn[c], f"d{c}_gear": m.increment(c)})
+            row.update({f"{c}{PARAM_SUFFIX[r]}": v for r, v in m.derivatives[c].items()})
+        lin_rows.append(row)
+    pd.DataFrame(lin_rows).to_csv(out / "linear_gear_model.csv", index=False)
+    inc_rows = [{"point": p, "gear_norm": g, **{f"d{c}": float(i.smooth[c][k]) for c in COEFFS}}
+                for p, i in ident.increments.items() for k, g in enumerate(i.grid)]
+    pd.DataFrame(inc_rows).to_csv(out / "gear_increments.csv", index=False)
+    files.update({k: str(out / f"{k}.csv") for k in ("baseline_parameters", "baseline_fit_statistics",
+                                                      "linear_gear_model", "gear_increments")})
+
+    text = ["Identification summary", "=" * 22, ""]
+    for f in ident.fits:
+        if f.point in PAPER_POINTS:
+            text += [f"Table 2 style, {f.point}", f.table().to_string(), ""]
+    for cond, m in ident.linear.items():
+        if _cond_key(cond) == PAPER_POINTS[0][:-4]:
+            text += [f"Table 3 style (linear gear model), {_cond_key(cond)}",
+                     pd.DataFrame({c: {"C0_gearup": m.c0_up[c], "C0_gearDn": m.c0_dn[c],
+                                       **{PARAM_SUFFIX[r]: v for r, v in m.derivatives[c].items()}}
+                                   for c in COEFFS}).T.to_string(), ""]
+    if ident.nonlinear_surface:
+        text += ["Eq. (9) designs chosen by leave-one-out cross-validation (flap/coefficient: design):",
+                 "  " + ", ".join(f"{k}: {v}" for k, v in ident.nonlinear_surface.to_dict()["designs"].items()), ""]
+    text += ["Per-point fits", ""] + [f.summary() + "\n" for f in ident.fits]
+    (out / "summary.txt").write_text("\n".join(text))
+    files["summary"] = str(out / "summary.txt")
+
+    for kind, surface in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface)):
+        if surface is None:
+            continue
+        xml = write_effects(surface, kind, ident.arm_ft, out / f"gear_{kind}.xml")
+        files[f"xml_{kind}"] = str(xml)
+        if model_dir is not None and Path(model_dir).is_dir():
+            files[f"aircraft_{kind}"] = str(merge_into_aircraft(model_dir, xml, out / f"aircraft_{kind}"))
+
+    doc = {
+        "points": {f.point: {"gear": "down" if f.gear_down else "up",
+                             "reference": vars(f.reference),
+                             **{c: f.fits[c].to_dict() for c in COEFFS}} for f in ident.fits},
+        "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
+        "increments": {p: i.to_dict() for p, i in ident.increments.items()},
+        "surfaces": {k: s.to_dict() for k, s in (("linear", ident.linear_surface),
+                                                 ("nonlinear", ident.nonlinear_surface)) if s},
+        "files": files,
+    }
+    (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    files["json"] = str(out / "identification.json")
+    if plots != "none":
+        files.update(_plots(ident, logs, out / "plots", plots))
+    return files
+
+
+def _plots(ident: Identification, logs: list[Log], out: Path, which: str) -> dict[str, str]:
+    import matplotlib.pyplot as plt
+
+    from identify.plots import plot_alpha_transitions, plot_fit, plot_increments
+    out.mkdir(parents=True, exist_ok=True)
+    by_path = {log.path: log for log in logs}
+    written = {}
+    for f in ident.fits:
+        if which == "all" or f.point in PAPER_POINTS:
+            fig = plot_fit(f, by_path[f.path].data["t_s"].to_numpy())
+            p = out / f"fit_{f.point}.png"
+            fig.savefig(p, dpi=110)
+            plt.close(fig)
+            written[f"plot_fit_{f.point}"] = str(p)
+    incs = list(ident.increments.values())
+    if incs:
+        for name, fn in (("alpha_during_gear_transitions", plot_alpha_transitions),
+                         ("gear_increments", plot_increments)):
+            fig = fn(incs)
+            p = out / f"{name}.png"
+            fig.savefig(p, dpi=110)
+            plt.close(fig)
+            written[f"plot_{name}"] = str(p)
+    return written
+
+
+def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
+                      plots: str = "paper") -> dict[str, str]:
+    """Identify everything from a campaign folder; return the files written."""
+    results = Path(results)
+    logs = read_campaign(results)
+    if not logs:
+        raise ValueError(f"{results}: no logs")
+    if model_dir is None:
+        man = results / "manifest.json"
+        if man.exists():
+            model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
+    ident = identify_logs(logs)
+    return write_outputs(ident, logs, Path(out) if out else results / "identification",
+                         Path(model_dir) if model_dir else None, plots)

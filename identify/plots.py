@@ -1,0 +1,76 @@
+"""Identification plots (paper Figs. 6-9, 11, 12). Each takes ``ax=`` and returns the figure."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from identify.models import COEFFS, Increments, PointFit  # noqa: E402
+
+LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$"}
+
+
+def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
+    """Measured vs fitted coefficients and residuals of one 2-3-1-1 (Figs. 6-9).
+
+    Parameters
+    ----------
+    fit : PointFit
+    t_s : ndarray
+        Time of the samples [s].
+    axes : array of 3x2 Axes, optional
+    """
+    if axes is None:
+        fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True, constrained_layout=True)
+    fig = axes[0][0].figure
+    for i, c in enumerate(COEFFS):
+        res = fit.fits[c]
+        ax, axr = axes[i][0], axes[i][1]
+        ax.plot(t_s, res.y, "r.", ms=1.5, label="flight data (eq. 1)")
+        ax.plot(t_s, res.fitted, "b-", lw=1.0, label="identified model (eq. 3)")
+        ax.set_ylabel(LABEL[c])
+        axr.plot(t_s, res.resid, "k-", lw=0.8)
+        axr.axhline(0, color="0.6", lw=0.5)
+        axr.set_ylabel(f"residual {LABEL[c]}")
+        axr.set_title(f"max {res.resid_max:.2g}, RMS {res.resid_rms:.2g}, $R^2$ {res.rsquared:.4f}", fontsize=9)
+    axes[0][0].legend(fontsize=8)
+    axes[-1][0].set_xlabel("time [s]")
+    axes[-1][1].set_xlabel("time [s]")
+    fig.suptitle(f"{fit.point}: {'gear down' if fit.gear_down else 'gear up'}")
+    return fig
+
+
+def plot_alpha_transitions(incs: list[Increments], ax=None):
+    """Angle of attack against normalized gear position during the extensions (Fig. 11)."""
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
+    for inc in incs:
+        ax.plot(inc.gear_norm, inc.alpha_deg - inc.alpha_trim_deg, lw=0.8)
+    ax.set_xlabel(r"normalized gear position $\delta_{LG}$ [-]")
+    ax.set_ylabel(r"$\alpha - \alpha_{trim}$ [deg]")
+    ax.set_title(f"Angle of attack during gear transitions ({len(incs)} status points)")
+    ax.grid(alpha=0.3)
+    return ax.figure
+
+
+def plot_increments(incs: list[Increments], axes=None):
+    """Gear increments of CL, CD, Cm against delta_LG at each point (Fig. 12)."""
+    if axes is None:
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), constrained_layout=True)
+    cmap = plt.get_cmap("viridis")
+    alphas = np.array([i.alpha_trim_deg for i in incs])
+    lo, hi = (alphas.min(), alphas.max()) if len(alphas) else (0, 1)
+    for inc in incs:
+        color = cmap((inc.alpha_trim_deg - lo) / max(hi - lo, 1e-9))
+        for ax, c in zip(axes, COEFFS):
+            ax.plot(inc.grid, inc.smooth[c], color=color, lw=1.0)
+    for ax, c in zip(axes, COEFFS):
+        ax.set_xlabel(r"$\delta_{LG}$ [-]")
+        ax.set_ylabel(rf"$\Delta${LABEL[c]}")
+        ax.grid(alpha=0.3)
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
+    axes[-1].figure.colorbar(sm, ax=list(axes), label=r"trim $\alpha$ [deg]")
+    axes[0].figure.suptitle("Gear increments (eq. 8), one curve per status point")
+    return axes[0].figure
