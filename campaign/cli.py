@@ -52,6 +52,19 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     run.add_argument("--out", metavar="DIR", help="campaign folder (default results/<matrix name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--no-identify", action="store_true", help="fly only; skip the identification")
+
+    ident = sub.add_parser("identify", help="identify the aerodynamic models from a campaign's logs",
+                           description="Eq. (1) coefficients, eq. (3) fits per 2-3-1-1, linear (eq. 4) and "
+                                       "nonlinear (eqs. 8-9) gear models, JSBSim XML, tables, JSON, plots.")
+    ident.add_argument("results", metavar="RESULTS_DIR", help="campaign folder (manifest.json + logs), "
+                                                              "or a folder of CSV logs with JSON sidecars")
+    ident.add_argument("--out", metavar="DIR", help="output folder (default RESULTS_DIR/identification)")
+    ident.add_argument("--model", metavar="AIRCRAFT_DIR",
+                       help="model aircraft to merge the identified gear models into "
+                            "(default: the campaign's aircraft)")
+    ident.add_argument("--plots", choices=("paper", "all", "none"), default="paper",
+                       help="fit plots for the paper's 2000 ft/M0.3/flap-up points only, every point, or none")
 
     fly = sub.add_parser("fly", help="re-fly one status point",
                          description="Re-fly one status point; its logs are bit-identical to the "
@@ -80,6 +93,19 @@ def _config(args):
     return matrix, config
 
 
+def _identify(results: Path, out: Path | None, model: str | None, plots: str) -> int:
+    from identify.logs import LogError
+    from identify.pipeline import identify_campaign
+    try:
+        files = identify_campaign(results, out, Path(model) if model else None, plots)
+    except LogError as exc:
+        raise UserError(str(exc)) from None
+    print(f"identification in {Path(files['json']).parent}: "
+          f"{sum(1 for k in files if k.startswith('plot'))} plots, "
+          f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
@@ -91,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
             for p in load_matrix(args.matrix).points:
                 print(f"{p.id}  {' '.join(p.maneuvers)}")
             return 0
+        if args.command == "identify":
+            return _identify(Path(args.results), args.out and Path(args.out), args.model, args.plots)
         matrix, config = _config(args)
         if args.command == "run":
             from campaign.runner import run_campaign
@@ -99,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
                                    progress=not args.quiet and sys.stderr.isatty())
             print(summary.text())
             print(f"logs and manifest in {out}")
-            return 0
+            if args.no_identify:
+                return 0
+            return _identify(out, None, None, "paper")
         if args.command == "fly":
             from campaign.runner import fly_point
             point = matrix.point(args.point_id)

@@ -76,6 +76,7 @@ def test_fly_reproduces_the_campaign_bit_for_bit(tmp_path, capsys, small_matrix)
 def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix):
     out = tmp_path / "c"
     assert main(["run", "--matrix", str(small_matrix), "--out", str(out)]) == 0
+    assert (out / "identification" / "identification.json").exists()  # run ends with identification
     manifest = json.loads((out / "manifest.json").read_text())
     assert [p["status"] for p in manifest["points"]] == ["ok"] * 3 and manifest["complete"]
     assert manifest["hashes"]["aircraft"] and manifest["hashes"]["effects"] and manifest["versions"]["jsbsim"]
@@ -111,15 +112,15 @@ def test_flight_test_noise_is_seeded(tmp_path, small_matrix):
 def test_existing_campaign_with_other_settings_is_not_overwritten(tmp_path, capsys, small_matrix):
     out = tmp_path / "c"
     assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
     _one_line_error(capsys, ["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "2"],
                     "manifest.json", "seed")
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
-    # the same settings again: nothing to fly, nothing changes
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    # the same settings again: nothing to fly, no log changes
     assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
-    assert {p.name: p.read_bytes() for p in out.iterdir() if p.suffix == ".parquet"} == \
-        {k: v for k, v in before.items() if k.endswith(".parquet")}
+    assert {p: p.read_bytes() for p in out.glob("*.parquet")} == \
+        {k: v for k, v in before.items() if k.suffix == ".parquet"}
 
 
 SLOW_MATRIX = """
@@ -140,9 +141,9 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     m = tmp_path / "slow.toml"
     m.write_text(SLOW_MATRIX)
     ref, killed = tmp_path / "ref", tmp_path / "killed"
-    assert main(["run", "--matrix", str(m), "--out", str(ref)]) == 0
+    assert main(["run", "--matrix", str(m), "--out", str(ref), "--no-identify"]) == 0
     proc = subprocess.Popen([sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--out",
-                             str(killed), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             str(killed), "--quiet", "--no-identify"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 60
     n_done = 0
     while time.time() < deadline and proc.poll() is None:
@@ -158,11 +159,11 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     proc.wait()
     partial = json.loads((killed / "manifest.json").read_text())
     assert 2 <= len(partial["points"]) < 9 and not partial["complete"]
-    assert main(["run", "--matrix", str(m), "--out", str(killed)]) == 0
+    assert main(["run", "--matrix", str(m), "--out", str(killed), "--no-identify"]) == 0
     final = json.loads((killed / "manifest.json").read_text())
     assert final["complete"] and len(final["points"]) == 9
     ref_files = {p.name: p.read_bytes() for p in ref.glob("*.parquet")}
-    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.name != "manifest.json"}
+    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.is_file() and p.name != "manifest.json"}
     assert got == ref_files
     assert final["points"] == json.loads((ref / "manifest.json").read_text())["points"]
 

@@ -1,0 +1,253 @@
+"""Identification against known truths: the model's XML, JSBSim's own forces,
+the stock 737, the reference overlay (read here, never by identify/)."""
+import json
+import os
+import subprocess
+import sys
+
+import jsbsim
+import numpy as np
+import pandas as pd
+import pytest
+
+from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+from campaign.cli import main
+from campaign.engine import FlightConfig, fly, new_fdm
+from campaign.matrix import load_matrix
+from campaign.runner import run_campaign
+from identify.coefficients import coefficients
+from identify.logs import LogError, Log, read_campaign, read_csv
+from identify.pipeline import identify_logs
+
+STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
+D2R = np.pi / 180
+ARM = (638.95 - 635.84) / 155.81  # AERORP aft of the CG [cbar]
+
+PAIRS = """
+name = "pairs"
+[[points]]
+gear = "up"
+flap_deg = 0
+mach = 0.3
+alt_ft = [2000, 10000]
+[[points]]
+gear = "down"
+flap_deg = 0
+mach = 0.3
+alt_ft = [2000, 10000]
+[[points]]
+gear = "up"
+flap_deg = 30
+mach = 0.2
+alt_ft = 2000
+[[points]]
+gear = "down"
+flap_deg = 30
+mach = 0.2
+alt_ft = 2000
+"""
+
+
+def _campaign(tmp_path_factory, name, text, aircraft=str(DEFAULT_AIRCRAFT), effects=None, noise="none", seed=0):
+    folder = tmp_path_factory.mktemp(name)
+    (folder / "m.toml").write_text(text)
+    m = load_matrix(folder / "m.toml")
+    cfg = FlightConfig(AircraftSource(aircraft, load_effects(effects)), seed, noise, m.maneuver_params,
+                       m.clmax_by_flap)
+    run_campaign(m, cfg, folder / "out", jobs=2, progress=False)
+    return folder / "out"
+
+
+@pytest.fixture(scope="module")
+def bare(tmp_path_factory):
+    return identify_logs(read_campaign(_campaign(tmp_path_factory, "bare", PAIRS)))
+
+
+def test_eq1_cm_matches_jsbsim_moment(matrix):
+    from tests.conftest import config_for
+    f = fly(matrix.point("h05000_m0.40_f05_gdn"), "doublet", config_for(record_truth=True))
+    c = coefficients(f.log, f.meta)
+    qsc = f.log.qbar_psf * 1341.0 * 155.81 / 12
+    assert np.max(np.abs(c.Cm - f.log.truth_m_aero_lbfft / qsc)) < 1e-9
+    assert np.max(np.abs(c.CL - f.log.truth_fwz_aero_lbf / (f.log.qbar_psf * 1341.0))) < 1e-9
+
+
+def test_fits_recover_the_models_own_derivatives(bare):
+    """XML values (per rad, about AERORP); Cm about the CG adds -CL_x * (x_arp - x_cg)/cbar."""
+    cla = {0.3: 5.5, 0.2: 5.358}
+    for f in bare.fits:
+        mach = f.condition[1]
+        p = {c: f.fits[c].params for c in ("CL", "CD", "Cm")}
+        assert p["CL"]["dalpha_rad"] == pytest.approx(cla[mach], rel=0.005), f.point
+        assert p["CL"]["delevator_rad"] == pytest.approx(0.40, rel=0.01), f.point
+        assert p["CL"]["dstabilizer_rad"] == pytest.approx(0.95, rel=0.02), f.point
+        assert p["CL"]["qhat_rad"] == pytest.approx(4.5, rel=0.1), f.point
+        assert p["Cm"]["dalpha_rad"] == pytest.approx(-1.3 - cla[mach] * ARM, rel=0.005), f.point
+        assert p["Cm"]["delevator_rad"] == pytest.approx(-1.4 - 0.40 * ARM, rel=0.005), f.point
+        assert p["Cm"]["dstabilizer_rad"] == pytest.approx(-3.4 - 0.95 * ARM, rel=0.005), f.point
+        assert p["Cm"]["qhat_rad"] == pytest.approx(-25.0 - 4.5 * ARM, rel=0.01), f.point
+        assert p["CD"]["dalpha2_rad2"] == pytest.approx(0.045 * cla[mach] ** 2, rel=0.02), f.point
+        assert f.fits["CL"].rsquared > 0.9999 and f.fits["Cm"].rsquared > 0.9999
+        assert not f.fits["CL"].unexcited.get("dstabilizer_rad")
+
+
+def test_linear_gear_model_recovers_the_models_increments_within_1pct(bare):
+    assert len(bare.linear) == 3
+    for cond, m in bare.linear.items():
+        a = m.alpha_trim_deg * D2R
+        assert m.increment("CL") == pytest.approx(-0.013, rel=0.01), cond
+        assert m.increment("CD") == pytest.approx(0.031, rel=0.01), cond
+        cm_cg = 0.030 - (-0.013 * np.cos(a) + 0.031 * np.sin(a)) * ARM
+        assert m.increment("Cm") == pytest.approx(cm_cg, rel=0.01), cond
+
+
+def test_stock_737_elevator_lift_and_gear_drag(tmp_path_factory):
+    text = PAIRS.split("[[points]]\ngear = \"up\"\nflap_deg = 30")[0]
+    ident = identify_logs(read_campaign(_campaign(tmp_path_factory, "stock", text, aircraft=STOCK_737)))
+    for f in ident.fits:
+        assert f.fits["CL"].params["delevator_rad"] == pytest.approx(0.2, rel=0.02)
+        assert "dstabilizer_rad" in f.fits["CL"].unexcited  # the stock 737 has no stabilizer
+        assert "dstabilizer_rad" not in f.fits["CL"].params.index
+    for m in ident.linear.values():
+        assert m.increment("CD") == pytest.approx(0.015, rel=0.02)
+
+
+def test_flight_test_noise_keeps_95pct_of_parameters_within_3_se(tmp_path_factory, bare):
+    noisy = identify_logs(read_campaign(_campaign(tmp_path_factory, "noisy", PAIRS, noise="flight-test", seed=3)))
+    clean = {f.point: f for f in bare.fits}
+    z = []
+    for f in noisy.fits:
+        for c, res in f.fits.items():
+            ref = clean[f.point].fits[c]
+            z += [(res.params[k] - ref.params[k]) / res.bse[k] for k in res.params.index if k in ref.params.index]
+    z = np.abs(np.array(z))
+    assert len(z) > 100
+    assert np.mean(z <= 3.0) >= 0.95, f"{np.mean(z <= 3):.3f} within 3 SE"
+    assert np.mean(z <= 1.0) < 0.95  # standard errors are not inflated into meaninglessness
+
+
+def _reference_truth(alpha_deg, gear, mach, fdm_cache={}):
+    """Total gear increments of the reference aircraft at a state, from JSBSim (model + overlay)."""
+    if "fdm" not in fdm_cache:
+        fdm_cache["fdm"] = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)))
+    fdm = fdm_cache["fdm"]
+    theta = 2 / np.pi * np.arcsin(gear)
+    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha_deg, "gear/gear-cmd-norm": theta,
+                 "gear/theta-lg-norm": theta}.items():
+        fdm[k] = v
+    fdm.run_ic()
+    qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
+    dcl = (fdm["aero/coefficient/CLgear"] + fdm["aero/coefficient/ref-dCL-gear-alpha"]) / qs
+    dcd = (fdm["aero/coefficient/CDgear"] + fdm["aero/coefficient/ref-dCD-gear-nonlinear"]) / qs
+    dcm = (fdm["aero/coefficient/Cmgear"] + fdm["aero/coefficient/ref-dCm-gear-nonlinear"]) / (qs * fdm["metrics/cbarw-ft"])
+    a = alpha_deg * D2R
+    return {"CL": dcl, "CD": dcd, "Cm": dcm - (dcl * np.cos(a) + dcd * np.sin(a)) * ARM}
+
+
+@pytest.fixture(scope="module")
+def reference_gear_down(tmp_path_factory):
+    """Every gear-down point of the default matrix (and its gear-up twin) on the reference aircraft."""
+    m = load_matrix()
+    down = [p for p in m.points if p.gear_down]
+    conds = {(p.alt_ft, p.mach, p.flap_deg) for p in down}
+    pts = down + [p for p in m.points if not p.gear_down and (p.alt_ft, p.mach, p.flap_deg) in conds]
+    folder = tmp_path_factory.mktemp("ref") / "out"
+    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)), 0, "none",
+                       m.maneuver_params, m.clmax_by_flap)
+    run_campaign(m, cfg, folder, jobs=2, progress=False, points=pts)
+    logs = read_campaign(folder)
+    return folder, logs, identify_logs(logs)
+
+
+def test_nonlinear_increments_reproduce_the_overlay_within_5pct_of_peak(reference_gear_down):
+    _, _, ident = reference_gear_down
+    assert len(ident.increments) == 41
+    worst = {}
+    for pid, inc in ident.increments.items():
+        truth = [_reference_truth(inc.alpha_trim_deg, g, inc.condition[1]) for g in inc.grid]
+        for c in ("CL", "CD", "Cm"):
+            t = np.array([x[c] for x in truth])
+            err = np.max(np.abs(inc.smooth[c] - t)) / np.max(np.abs(t))
+            worst[c] = max(worst.get(c, 0.0), err)
+    assert max(worst.values()) < 0.05, worst
+
+
+def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tmp_path):
+    """Round trip: the model with its gear terms replaced by the export, loaded in
+    JSBSim, gives the identified increments at states inside the tables."""
+    folder, logs, ident = reference_gear_down
+    from identify.pipeline import write_outputs
+    files = write_outputs(ident, logs, tmp_path / "id", DEFAULT_AIRCRAFT, plots="none")
+    for kind, surface in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface)):
+        src = AircraftSource(files[f"aircraft_{kind}"], load_effects(None))
+        fdm = new_fdm(src)
+        rng = np.random.default_rng(1)
+        for _ in range(12):
+            flap = int(rng.choice(surface.flaps))
+            a_lo, a_hi = surface.alpha_range[flap]
+            m_lo, m_hi = surface.mach_range[flap]
+            alpha, mach, gear = rng.uniform(a_lo, a_hi), rng.uniform(m_lo, m_hi), rng.uniform(0, 1)
+            states = {}
+            for g in (0.0, gear):
+                theta = 2 / np.pi * np.arcsin(g)
+                for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha,
+                             "gear/gear-cmd-norm": theta, "gear/theta-lg-norm": theta,
+                             "fcs/flap-cmd-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8,
+                             "fcs/flap-pos-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8}.items():
+                    fdm[k] = v
+                fdm.run_ic()
+                states[g] = (fdm["forces/fwz-aero-lbs"], fdm["forces/fwx-aero-lbs"], fdm["moments/m-aero-lbsft"],
+                             fdm["aero/qbar-psf"] * 1341.0, fdm["aero/alpha-deg"])
+            (l1, d1, m1, qs, a1), (l0, d0, m0, *_) = states[gear], states[0.0]
+            want = {c: surface(c, gear, a1, mach, flap) - surface(c, 0.0, a1, mach, flap) for c in ("CL", "CD", "Cm")}
+            assert (l1 - l0) / qs == pytest.approx(want["CL"], abs=1e-9)
+            assert (d1 - d0) / qs == pytest.approx(want["CD"], abs=1e-9)
+            assert (m1 - m0) / (qs * 155.81 / 12) == pytest.approx(want["Cm"], abs=1e-9)
+
+
+def test_identify_cli_writes_tables_json_xml_plots(reference_gear_down, capsys):
+    folder, _, _ = reference_gear_down
+    assert main(["identify", str(folder), "--out", str(folder / "id")]) == 0
+    out = folder / "id"
+    for name in ("baseline_parameters.csv", "baseline_fit_statistics.csv", "linear_gear_model.csv",
+                 "gear_increments.csv", "summary.txt", "gear_linear.xml", "gear_nonlinear.xml",
+                 "plots/gear_increments.png", "plots/alpha_during_gear_transitions.png",
+                 "plots/fit_h02000_m0.30_f00_gup.png"):
+        assert (out / name).stat().st_size > 0, name
+    doc = json.loads((out / "identification.json").read_text())
+    pt = doc["points"]["h02000_m0.30_f00_gdn"]
+    assert set(pt["CL"]) >= {"params", "bse", "rsquared", "resid_max", "resid_rms", "unexcited"}
+    inc = doc["increments"]["h02000_m0.30_f00_gdn"]
+    assert len(inc["gear_norm"]) == len(inc["dCD"]) == len(inc["dCL"]) == len(inc["dCm"])
+    assert set(doc["linear"]["h02000_m0.30_f00"]["C0_gearDn"]) == {"CL", "CD", "Cm"}
+    assert "Table 2 style" in (out / "summary.txt").read_text()
+    capsys.readouterr()
+    assert main(["identify", str(folder / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert "nope" in err and err.count("\n") == 1
+
+
+def test_csv_logs_with_sidecar_and_their_errors(reference_gear_down, tmp_path):
+    _, logs, _ = reference_gear_down
+    log = logs[0]
+    csv = tmp_path / "a.csv"
+    log.data.to_csv(csv, index=False)
+    csv.with_suffix(".json").write_text(json.dumps(log.meta))
+    back = read_csv(csv)
+    assert np.allclose(back.data.alpha_deg, log.data.alpha_deg)
+    bad = log.data.copy()
+    bad["alpha_deg"] = bad["alpha_deg"].astype(object)
+    bad.loc[7, "alpha_deg"] = "oops"
+    bad.to_csv(csv, index=False)
+    with pytest.raises(LogError, match=r"a.csv: column 'alpha_deg', row 8"):
+        read_csv(csv)
+    log.data.drop(columns=["qbar_psf"]).to_csv(csv, index=False)
+    with pytest.raises(LogError, match="qbar_psf"):
+        read_csv(csv)
+
+
+def test_identify_never_imports_the_flying_code():
+    code = ("import sys, identify.pipeline, identify.plots; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
+            "assert not bad, bad")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
