@@ -58,8 +58,8 @@ class LSResults:
 
     @property
     def rel_error_pct(self) -> float:
-        """Largest absolute residual relative to the mean absolute measurement [%]."""
-        return 100.0 * self.resid_max / max(float(np.mean(np.abs(self.y))), 1e-12)
+        """Largest absolute residual relative to the range of the measurement [%]."""
+        return 100.0 * self.resid_max / max(float(np.ptp(self.y)), 1e-12)
 
     def conf_int(self, n_sigma: float = 2.0) -> pd.DataFrame:
         return pd.DataFrame({"lower": self.params - n_sigma * self.bse,

@@ -30,6 +30,7 @@ MIN_STD = {"dalpha_rad": 0.05 * D2R, "qhat_rad": 1e-5, "delevator_rad": 0.05 * D
            "dstabilizer_rad": 0.05 * D2R, "dmach": 0.002,
            "dalpha2_rad2": (0.5 * D2R) ** 2}
 CUTOFF_HZ = 3.0
+EDGE_S = 0.25  # dropped at both ends of a filtered record (filter start-up)
 GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
 
 
@@ -122,6 +123,7 @@ class PointFit:
     reference: Reference
     fits: dict[str, LSResults]
     alpha_trim_deg: float
+    t_s: np.ndarray = field(repr=False, default=None)
 
     def param(self, coeff: str, regressor: str) -> float | None:
         res = self.fits[coeff]
@@ -144,8 +146,10 @@ class PointFit:
 
 def fit_baseline(log: Log, ref: Reference) -> PointFit:
     """Least squares of eq. (3) on one 2-3-1-1 log."""
-    y = _filtered(log, coefficients(log.data, log.meta))
-    x = _filtered(log, regressors(log, ref))
+    edge = int(round(EDGE_S / _dt(log)))
+    inner = slice(edge, len(log.data) - edge)
+    y = _filtered(log, coefficients(log.data, log.meta)).iloc[inner]
+    x = _filtered(log, regressors(log, ref)).iloc[inner]
     fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / _dt(log))), name=c).fit()
             for c in COEFFS}
     for res in fits.values():
@@ -153,7 +157,7 @@ def fit_baseline(log: Log, ref: Reference) -> PointFit:
         extra = sum((res.params[r] * se) ** 2 for r, se in ref.se if r in res.params.index)
         res.bse["const"] = float(np.sqrt(res.bse["const"] ** 2 + extra))
     return PointFit(log.point, log.path, log.condition, log.gear_down, ref, fits,
-                    float(_steady_head(log).alpha_deg.mean()))
+                    float(_steady_head(log).alpha_deg.mean()), log.data["t_s"].to_numpy()[inner])
 
 
 @dataclass

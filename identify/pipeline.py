@@ -54,7 +54,7 @@ def _cond_key(c: tuple) -> str:
     return f"h{int(c[0]):05d}_m{c[1]:.2f}_f{c[2]:02d}"
 
 
-def write_outputs(ident: Identification, logs: list[Log], out: Path, model_dir: Path | None,
+def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                   plots: str = "paper") -> dict[str, str]:
     """Write tables (CSV, text), identification.json, XML and plots into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -126,20 +126,19 @@ def write_outputs(ident: Identification, logs: list[Log], out: Path, model_dir: 
     (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     files["json"] = str(out / "identification.json")
     if plots != "none":
-        files.update(_plots(ident, logs, out / "plots", plots))
+        files.update(_plots(ident, out / "plots", plots))
     return files
 
 
-def _plots(ident: Identification, logs: list[Log], out: Path, which: str) -> dict[str, str]:
+def _plots(ident: Identification, out: Path, which: str) -> dict[str, str]:
     import matplotlib.pyplot as plt
 
     from identify.plots import plot_alpha_transitions, plot_fit, plot_increments
     out.mkdir(parents=True, exist_ok=True)
-    by_path = {log.path: log for log in logs}
     written = {}
     for f in ident.fits:
         if which == "all" or f.point in PAPER_POINTS:
-            fig = plot_fit(f, by_path[f.path].data["t_s"].to_numpy())
+            fig = plot_fit(f, f.t_s)
             p = out / f"fit_{f.point}.png"
             fig.savefig(p, dpi=110)
             plt.close(fig)
@@ -168,5 +167,5 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
     ident = identify_logs(logs)
-    return write_outputs(ident, logs, Path(out) if out else results / "identification",
+    return write_outputs(ident, Path(out) if out else results / "identification",
                          Path(model_dir) if model_dir else None, plots)

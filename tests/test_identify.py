@@ -177,7 +177,7 @@ def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tm
     JSBSim, gives the identified increments at states inside the tables."""
     folder, logs, ident = reference_gear_down
     from identify.pipeline import write_outputs
-    files = write_outputs(ident, logs, tmp_path / "id", DEFAULT_AIRCRAFT, plots="none")
+    files = write_outputs(ident, tmp_path / "id", DEFAULT_AIRCRAFT, plots="none")
     for kind, surface in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface)):
         src = AircraftSource(files[f"aircraft_{kind}"], load_effects(None))
         fdm = new_fdm(src)
