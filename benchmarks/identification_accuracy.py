@@ -1,0 +1,106 @@
+"""Identification accuracy over the full default matrix (run by hand, ~1 min on 2 cores).
+
+    python benchmarks/identification_accuracy.py [WORKDIR]
+
+Flies three campaigns (bare model, reference aircraft, reference with
+flight-test noise), identifies them and prints: derivative recovery against the
+XML, linear gear increments against the model, nonlinear increments against the
+reference (model + overlay, read from JSBSim here -- never by identify/), the
+noise check (share of parameters within 3 SE) and the paper's-point residuals.
+"""
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+from campaign.engine import FlightConfig, new_fdm
+from campaign.matrix import load_matrix
+from campaign.runner import run_campaign
+from identify.logs import read_campaign
+from identify.pipeline import identify_logs
+
+ARM = (638.95 - 635.84) / 155.81
+CLA = ([0, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8], [5.247, 5.358, 5.5, 5.726, 6.058, 6.558, 7.349, 8.746])
+
+
+def campaign(work: Path, name: str, effects, noise="none", seed=0):
+    m = load_matrix()
+    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(effects)), seed, noise,
+                       m.maneuver_params, m.clmax_by_flap)
+    out = work / name
+    run_campaign(m, cfg, out, jobs=2, progress=False)
+    return identify_logs(read_campaign(out))
+
+
+def reference_truth(fdm, alpha_deg, gear, mach):
+    theta = 2 / np.pi * np.arcsin(gear)
+    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha_deg,
+                 "gear/gear-cmd-norm": theta, "gear/theta-lg-norm": theta}.items():
+        fdm[k] = v
+    fdm.run_ic()
+    qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
+    dcl = (fdm["aero/coefficient/CLgear"] + fdm["aero/coefficient/ref-dCL-gear-alpha"]) / qs
+    dcd = (fdm["aero/coefficient/CDgear"] + fdm["aero/coefficient/ref-dCD-gear-nonlinear"]) / qs
+    dcm = (fdm["aero/coefficient/Cmgear"] + fdm["aero/coefficient/ref-dCm-gear-nonlinear"]) / (qs * fdm["metrics/cbarw-ft"])
+    a = np.radians(alpha_deg)
+    return {"CL": dcl, "CD": dcd, "Cm": dcm - (dcl * np.cos(a) + dcd * np.sin(a)) * ARM}
+
+
+def main(work: Path) -> None:
+    bare = campaign(work, "bare", None)
+    errs: dict = {}
+    for f in bare.fits:
+        cla = np.interp(f.condition[1], *CLA)
+        truth = {("CL", "dalpha_rad"): cla, ("CL", "delevator_rad"): 0.40, ("CL", "dstabilizer_rad"): 0.95,
+                 ("CL", "qhat_rad"): 4.5, ("Cm", "dalpha_rad"): -1.3 - cla * ARM,
+                 ("Cm", "delevator_rad"): -1.4 - 0.4 * ARM, ("Cm", "dstabilizer_rad"): -3.4 - 0.95 * ARM,
+                 ("Cm", "qhat_rad"): -25 - 4.5 * ARM, ("CD", "dalpha2_rad2"): 0.045 * cla ** 2}
+        for (c, r), t in truth.items():
+            v = f.param(c, r)
+            errs.setdefault((c, r), []).append(np.nan if v is None else abs(v - t) / abs(t) * 100)
+    print(f"bare model, {len(bare.fits)} 2-3-1-1 fits, error vs XML:")
+    for (c, r), v in errs.items():
+        print(f"  {c} {r:<16} max {np.nanmax(v):6.2f} %  median {np.nanmedian(v):6.3f} %")
+    lin = {c: [] for c in ("CL", "CD", "Cm")}
+    for m in bare.linear.values():
+        a = np.radians(m.alpha_trim_deg)
+        t = {"CL": -0.013, "CD": 0.031, "Cm": 0.030 - (-0.013 * np.cos(a) + 0.031 * np.sin(a)) * ARM}
+        for c in lin:
+            lin[c].append(abs(m.increment(c) - t[c]) / abs(t[c]) * 100)
+    print(f"linear gear increments, {len(bare.linear)} conditions, worst error %:",
+          {c: round(max(v), 3) for c, v in lin.items()})
+
+    ref = campaign(work, "reference", DEFAULT_EFFECTS)
+    fdm = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)))
+    worst = {c: 0.0 for c in ("CL", "CD", "Cm")}
+    for inc in ref.increments.values():
+        truth = [reference_truth(fdm, inc.alpha_trim_deg, g, inc.condition[1]) for g in inc.grid]
+        for c in worst:
+            t = np.array([x[c] for x in truth])
+            worst[c] = max(worst[c], float(np.max(np.abs(inc.smooth[c] - t)) / np.max(np.abs(t)) * 100))
+    print(f"nonlinear increments, {len(ref.increments)} gear-down points, worst error % of peak:",
+          {c: round(v, 2) for c, v in worst.items()})
+
+    noisy = campaign(work, "noisy", DEFAULT_EFFECTS, "flight-test", 1)
+    clean = {f.point: f for f in ref.fits}
+    z = []
+    for f in noisy.fits:
+        for c, res in f.fits.items():
+            r0 = clean[f.point].fits[c]
+            z += [(res.params[k] - r0.params[k]) / res.bse[k] for k in res.params.index if k in r0.params.index]
+    z = np.abs(np.array(z))
+    print(f"flight-test noise: {np.mean(z <= 3) * 100:.1f} % of {len(z)} parameters within 3 SE "
+          f"(RMS z {np.sqrt(np.mean(z ** 2)):.2f})")
+    for label, ident in (("noise-free", ref), ("flight-test noise", noisy)):
+        for f in ident.fits:
+            if f.point.startswith("h02000_m0.30_f00"):
+                print(f"{label:>18} {f.point}: " + "  ".join(
+                    f"{c} max {f.fits[c].resid_max:.2g} rel {f.fits[c].rel_error_pct:.2f}%" for c in ("CL", "CD", "Cm")))
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="idacc-")))
