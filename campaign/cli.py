@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     run.add_argument("--out", metavar="DIR", help="campaign folder (default results/<matrix name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
-    run.add_argument("--no-identify", action="store_true", help="fly only; skip the identification")
+    run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
+    run.add_argument("--no-replay", action="store_true", help="fly and identify, but no replays")
 
     ident = sub.add_parser("identify", help="identify the aerodynamic models from a campaign's logs",
                            description="Eq. (1) coefficients, eq. (3) fits per 2-3-1-1, linear (eq. 4) and "
@@ -72,6 +73,21 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("point_id", metavar="POINT_ID", help="status point id, e.g. h02000_m0.30_f05_gdn")
     _common(fly)
     fly.add_argument("--out", metavar="DIR", required=True, help="folder for the logs")
+
+    rep = sub.add_parser("replay", help="fly the takeoff/landing cases on the reference and the identified models",
+                         description="Fly each replay case on the reference aircraft and on the model with the "
+                                     "identified linear and nonlinear gear models, open and closed loop; write "
+                                     "metrics and plots into RESULTS_DIR/replays.")
+    rep.add_argument("results", metavar="RESULTS_DIR", help="campaign folder, already identified")
+    rep.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
+    rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
+    rep.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
+
+    plo = sub.add_parser("plots", help="redraw the replay plots and metrics from stored logs (no flying)",
+                         description="Redraw the comparison plots (and metrics) from RESULTS_DIR/replays "
+                                     "without flying or identifying again.")
+    plo.add_argument("results", metavar="RESULTS_DIR", help="campaign folder with replays")
+    plo.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
 
     pts = sub.add_parser("points", help="list the status points of a matrix",
                          description="List the status points of a matrix with their manoeuvres.")
@@ -106,6 +122,21 @@ def _identify(results: Path, out: Path | None, model: str | None, plots: str) ->
     return 0
 
 
+def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int) -> int:
+    from campaign.replay import load_cases, run_replays, select
+    from campaign.replay_report import write_report
+    if not (results / "manifest.json").exists():
+        raise UserError(f"{results}: no manifest.json (not a campaign folder)")
+    cases = select(load_cases(cases_file), names)
+    failures = run_replays(results, cases, jobs)
+    for why in failures:
+        print(f"replay failed: {why}")
+    files = write_report(results, names)
+    print(files.pop("table"))
+    print(f"replay logs, metrics and plots in {results / 'replays'}")
+    return 1 if failures else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
@@ -117,6 +148,14 @@ def main(argv: list[str] | None = None) -> int:
             for p in load_matrix(args.matrix).points:
                 print(f"{p.id}  {' '.join(p.maneuvers)}")
             return 0
+        if args.command == "plots":
+            from campaign.replay_report import write_report
+            files = write_report(Path(args.results), args.case)
+            print(files.pop("table"))
+            print(f"{sum(1 for k in files if k.startswith('plot'))} plots in {Path(args.results) / 'replays' / 'plots'}")
+            return 0
+        if args.command == "replay":
+            return _replay(Path(args.results), args.case, args.cases, args.jobs)
         if args.command == "identify":
             return _identify(Path(args.results), args.out and Path(args.out), args.model, args.plots)
         matrix, config = _config(args)
@@ -129,7 +168,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"logs and manifest in {out}")
             if args.no_identify:
                 return 0
-            return _identify(out, None, None, "paper")
+            _identify(out, None, None, "paper")
+            if args.no_replay:
+                return 0
+            if not (out / "identification" / "aircraft_nonlinear").is_dir():
+                print("replays skipped: no gear models were identified (the matrix needs a condition flown "
+                      "gear up and gear down, with a gear extension)")
+                return 0
+            return _replay(out, None, None, args.jobs)
         if args.command == "fly":
             from campaign.runner import fly_point
             point = matrix.point(args.point_id)

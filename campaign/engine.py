@@ -196,8 +196,8 @@ def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
     if point.weight_lb is not None:
         if cat.POINTMASS_WEIGHT not in names:
             raise TrimError("aircraft has no point mass to set the weight with")
-        extra = point.weight_lb - fdm["inertia/weight-lbs"]
-        pm = fdm[cat.POINTMASS_WEIGHT] + extra
+        fdm.run_ic()  # sums the mass items into inertia/weight-lbs
+        pm = fdm[cat.POINTMASS_WEIGHT] + point.weight_lb - fdm["inertia/weight-lbs"]
         if pm < 0:
             raise TrimError(f"weight {point.weight_lb:.0f} lb is below the aircraft's empty weight and fuel")
         fdm[cat.POINTMASS_WEIGHT] = pm

@@ -47,12 +47,7 @@ def _flap_weight(parent: ET.Element, flaps: list[int], i: int) -> None:
 
 
 def _surface_table(parent: ET.Element, s: GearSurface, flap: int, coeff: str) -> None:
-    a_lo, a_hi = s.alpha_range[flap]
-    m_lo, m_hi = s.mach_range[flap]
-    if a_hi - a_lo < 1e-6:
-        a_lo, a_hi = a_lo - 1.0, a_hi + 1.0
-    if m_hi - m_lo < 1e-6:
-        m_lo, m_hi = m_lo - 0.05, m_hi + 0.05
+    (a_lo, a_hi), (m_lo, m_hi) = s.table_range(flap)
     names = DESIGNS[s.designs[(flap, coeff)]]
     beta = s.coef[(flap, coeff)]
 

@@ -271,6 +271,9 @@ def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> np.ndarray
     return spline(GRID)
 
 
+ALPHA_MARGIN_DEG = 5.0
+MACH_MARGIN = 0.1
+
 #: Candidate designs for eq. (9) across conditions of one flap setting.
 DESIGNS = {"constant": ("const",), "alpha": ("const", "alpha"), "alpha+mach": ("const", "alpha", "mach")}
 
@@ -282,7 +285,9 @@ class GearSurface:
     For each flap setting and each delta_LG node, each coefficient increment is
     a linear function of alpha and Mach, its terms chosen by leave-one-out
     cross-validation among :data:`DESIGNS`. Between flap settings the model
-    interpolates linearly; outside them it holds the nearest.
+    interpolates linearly; outside them it holds the nearest. In alpha and Mach
+    it extrapolates linearly up to :data:`ALPHA_MARGIN_DEG` and
+    :data:`MACH_MARGIN` beyond the data, and holds its value further out.
     """
 
     grid: np.ndarray
@@ -293,10 +298,15 @@ class GearSurface:
     mach_range: dict[int, tuple[float, float]]
     cv_rmse: dict[tuple[int, str], dict[str, float]]
 
-    def _at_flap(self, flap: int, c: str, alpha_deg: float, mach: float) -> np.ndarray:
+    def table_range(self, flap: int) -> tuple[tuple[float, float], tuple[float, float]]:
+        """Alpha [deg] and Mach intervals the tables span (data plus margins)."""
         lo, hi = self.alpha_range[flap]
-        a = min(max(alpha_deg, lo), hi)
         mlo, mhi = self.mach_range[flap]
+        return ((lo - ALPHA_MARGIN_DEG, hi + ALPHA_MARGIN_DEG), (max(mlo - MACH_MARGIN, 0.0), mhi + MACH_MARGIN))
+
+    def _at_flap(self, flap: int, c: str, alpha_deg: float, mach: float) -> np.ndarray:
+        (lo, hi), (mlo, mhi) = self.table_range(flap)
+        a = min(max(alpha_deg, lo), hi)
         m = min(max(mach, mlo), mhi)
         terms = {"const": 1.0, "alpha": a, "mach": m}
         names = DESIGNS[self.designs[(flap, c)]]

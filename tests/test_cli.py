@@ -60,7 +60,7 @@ def test_entry_point_is_installed_and_helps():
 def test_fly_reproduces_the_campaign_bit_for_bit(tmp_path, capsys, small_matrix):
     camp, one = tmp_path / "camp", tmp_path / "one"
     assert main(["run", "--matrix", str(small_matrix), "--out", str(camp), "--jobs", "2", "--seed", "7",
-                 "--noise", "flight-test"]) == 0
+                 "--noise", "flight-test", "--no-identify"]) == 0
     assert main(["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--out", str(one),
                  "--seed", "7", "--noise", "flight-test"]) == 0
     files = sorted(p.name for p in one.glob("*.parquet"))
@@ -73,10 +73,12 @@ def test_fly_reproduces_the_campaign_bit_for_bit(tmp_path, capsys, small_matrix)
                     "will not overwrite")
 
 
-def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix):
+def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix, capsys):
     out = tmp_path / "c"
     assert main(["run", "--matrix", str(small_matrix), "--out", str(out)]) == 0
-    assert (out / "identification" / "identification.json").exists()  # run ends with identification
+    assert (out / "identification" / "identification.json").exists()  # run identifies...
+    # ...and would replay, but this matrix flies no condition both gear up and gear down
+    assert "replays skipped: no gear models were identified" in capsys.readouterr().out
     manifest = json.loads((out / "manifest.json").read_text())
     assert [p["status"] for p in manifest["points"]] == ["ok"] * 3 and manifest["complete"]
     assert manifest["hashes"]["aircraft"] and manifest["hashes"]["effects"] and manifest["versions"]["jsbsim"]
@@ -111,14 +113,14 @@ def test_flight_test_noise_is_seeded(tmp_path, small_matrix):
 
 def test_existing_campaign_with_other_settings_is_not_overwritten(tmp_path, capsys, small_matrix):
     out = tmp_path / "c"
-    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1", "--no-replay"]) == 0
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
     _one_line_error(capsys, ["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "2"],
                     "manifest.json", "seed")
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     # the same settings again: nothing to fly, no log changes
-    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1"]) == 0
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1", "--no-identify"]) == 0
     assert {p: p.read_bytes() for p in out.glob("*.parquet")} == \
         {k: v for k, v in before.items() if k.suffix == ".parquet"}
 

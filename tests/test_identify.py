@@ -184,8 +184,7 @@ def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tm
         rng = np.random.default_rng(1)
         for _ in range(12):
             flap = int(rng.choice(surface.flaps))
-            a_lo, a_hi = surface.alpha_range[flap]
-            m_lo, m_hi = surface.mach_range[flap]
+            (a_lo, a_hi), (m_lo, m_hi) = surface.table_range(flap)
             alpha, mach, gear = rng.uniform(a_lo, a_hi), rng.uniform(m_lo, m_hi), rng.uniform(0, 1)
             states = {}
             for g in (0.0, gear):

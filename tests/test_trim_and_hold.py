@@ -135,3 +135,13 @@ def test_doublet_holds_the_trimmed_gear(matrix, reference_config, point):
     log = fly(matrix.point(point), "doublet", reference_config).log
     expected = 1.0 if point.endswith("gdn") else 0.0
     assert (log.gear_norm == expected).all()
+
+
+@pytest.mark.parametrize("weight", [120000.0, 170000.0])
+def test_status_point_weight_is_flown(reference_config, weight):
+    from campaign.matrix import StatusPoint
+    log, meta = (lambda f: (f.log, f.meta))(fly(StatusPoint(2000.0, 0.35, 5, False, weight, ("doublet",)),
+                                                "doublet", reference_config))
+    assert meta["trim"]["weight_lb"] == pytest.approx(weight)
+    assert log.mass_slug.iloc[0] * 32.174049 == pytest.approx(weight, rel=1e-6)
+    assert meta["inertia_slugft2"]["iyy"] == pytest.approx(2482936.0)  # the payload sits at the CG

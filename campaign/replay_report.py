@@ -1,0 +1,155 @@
+"""Replay metrics and plots from stored replay logs (no JSBSim here).
+
+Tolerances: FAA 14 CFR Part 60, Appendix A, Table A2A, test 2.c.4 (gear change
+dynamics): +-3 kt airspeed, +-100 ft altitude, and +-1.5 deg or 20 % of the pitch
+change, whichever is less restrictive (we read "20 %" as 20 % of the reference's
+largest pitch-angle change during the test).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from campaign.errors import UserError  # noqa: E402
+from campaign.store import read_log  # noqa: E402
+
+CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
+            ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
+TOL_TAS_KT = 3.0
+TOL_ALT_FT = 100.0
+TOL_THETA_DEG = 1.5
+COLORS = {"reference": "k", "linear": "tab:red", "nonlinear": "tab:blue"}
+
+
+def theta_tolerance(ref: pd.DataFrame) -> float:
+    """Pitch tolerance: 1.5 deg or 20 % of the reference's pitch change, the larger [deg]."""
+    return max(TOL_THETA_DEG, 0.2 * float(np.max(np.abs(ref.theta_deg - ref.theta_deg.iloc[0]))))
+
+
+def load_replays(results: Path, names: list[str] | None = None) -> dict[tuple[str, str, str], pd.DataFrame]:
+    """Stored replay logs: ``{(case, model, loop): log}``, cases filtered by partial names."""
+    folder = Path(results) / "replays"
+    files = sorted(folder.glob("*__*__*.parquet"))
+    if not files:
+        raise UserError(f"{folder}: no replay logs; run 'campaign replay {results}' first")
+    out = {}
+    for f in files:
+        case, model, loop = f.stem.split("__")
+        if names and not any(n in case for n in names):
+            continue
+        out[(case, model, loop)] = read_log(f)[0]
+    if not out:
+        raise UserError(f"--case: no stored replay matches {', '.join(names or [])}")
+    return out
+
+
+def metrics(replays: dict) -> pd.DataFrame:
+    """Max and RMS errors against the reference, and the Part 60 verdict."""
+    rows = []
+    for (case, model, loop), log in sorted(replays.items()):
+        ref = replays.get((case, "reference", loop))
+        if model == "reference" or ref is None:
+            continue
+        n = min(len(ref), len(log))
+        err = log.iloc[:n].reset_index(drop=True) - ref.iloc[:n].reset_index(drop=True)
+        row = {"case": case, "model": model, "loop": loop}
+        for ch, _ in CHANNELS:
+            row[f"max_err_{ch}"] = float(np.max(np.abs(err[ch])))
+            row[f"rms_err_{ch}"] = float(np.sqrt(np.mean(err[ch] ** 2)))
+        tol_theta = theta_tolerance(ref.iloc[:n])
+        row["tol_theta_deg"] = tol_theta
+        row["qtg_pass"] = bool(row["max_err_tas_kt"] <= TOL_TAS_KT and row["max_err_alt_ft"] <= TOL_ALT_FT
+                               and row["max_err_theta_deg"] <= tol_theta)
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    first = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
+             "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass"]
+    return df[first + [c for c in df.columns if c not in first]]
+
+
+def metrics_text(df: pd.DataFrame) -> str:
+    cols = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
+            "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass"]
+    head = ("Replay errors against the reference aircraft (max |model - reference|).\n"
+            "Part 60 gear change (2.c.4): airspeed 3 kt, altitude 100 ft, pitch 1.5 deg or 20 % of its change.\n\n")
+    return head + df[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}") + "\n"
+
+
+def plot_case(replays: dict, case: str, loop: str, axes=None):
+    """Time histories and residuals of one case and loop (paper Figs. 13-16).
+
+    Left: reference, linear and nonlinear models. Right: model minus reference,
+    with the Part 60 tolerance bands where they apply.
+    """
+    ref = replays[(case, "reference", loop)]
+    if axes is None:
+        fig, axes = plt.subplots(len(CHANNELS), 2, figsize=(13, 12), sharex=True, constrained_layout=True)
+    fig = axes[0][0].figure
+    g = ref.gear_norm.to_numpy()
+    moving = np.flatnonzero(np.diff(g) != 0)
+    tol = {"theta_deg": theta_tolerance(ref), "tas_kt": TOL_TAS_KT, "alt_ft": TOL_ALT_FT}
+    for i, (ch, label) in enumerate(CHANNELS):
+        ax, axr = axes[i][0], axes[i][1]
+        for model in ("reference", "linear", "nonlinear"):
+            log = replays.get((case, model, loop))
+            if log is None:
+                continue
+            if model == "reference":
+                ax.plot(log.t_s, log[ch], color="0.2", lw=4.0, alpha=0.35, label=model)
+            else:
+                ax.plot(log.t_s, log[ch], color=COLORS[model], lw=1.2, ls="-" if model != "linear" else "--",
+                        label=model)
+            if model != "reference":
+                n = min(len(ref), len(log))
+                axr.plot(log.t_s[:n], log[ch].to_numpy()[:n] - ref[ch].to_numpy()[:n], color=COLORS[model],
+                         lw=1.1, ls="-" if model != "linear" else "--", label=f"{model} - reference")
+        if ch in tol:
+            axr.axhspan(-tol[ch], tol[ch], color="tab:green", alpha=0.12, label="Part 60 tolerance")
+        axr.axhline(0, color="0.5", lw=0.6)
+        ax.set_ylabel(label)
+        axr.set_ylabel(f"error, {label}")
+        for a in (ax, axr):
+            if moving.size:
+                a.axvspan(ref.t_s.iloc[moving[0]], ref.t_s.iloc[moving[-1] + 1], color="0.85", alpha=0.5, lw=0)
+            a.grid(alpha=0.3)
+            a.tick_params(labelsize=10)
+    axes[0][0].legend(fontsize=10, loc="best")
+    axes[0][1].legend(fontsize=9, loc="best")
+    axes[-1][0].set_xlabel("time [s]  (grey: gear travelling)")
+    axes[-1][1].set_xlabel("time [s]")
+    fig.suptitle(f"{case}, {loop} loop: reference vs identified linear and nonlinear gear models", fontsize=13)
+    return fig
+
+
+def write_report(results: Path, names: list[str] | None = None) -> dict[str, str]:
+    """metrics.csv and metrics.txt over every stored replay, and one figure per
+    case and loop for the cases ``names`` selects (all by default)."""
+    results = Path(results)
+    replays = load_replays(results, names)
+    out = results / "replays"
+    df = metrics(load_replays(results) if names else replays)
+    df.to_csv(out / "metrics.csv", index=False)
+    (out / "metrics.txt").write_text(metrics_text(df))
+    files = {"metrics_csv": str(out / "metrics.csv"), "metrics_txt": str(out / "metrics.txt")}
+    plots = out / "plots"
+    plots.mkdir(exist_ok=True)
+    for case, loop in sorted({(c, lp) for c, m, lp in replays if m == "reference"}):
+        fig = plot_case(replays, case, loop)
+        p = plots / f"{case}__{loop}.png"
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        files[f"plot_{case}_{loop}"] = str(p)
+    selected = df[df.case.isin({c for c, _, _ in replays})]
+    files["table"] = metrics_text(selected)
+    return files
+
+
+def summary_json(df: pd.DataFrame) -> str:
+    return json.dumps(df.to_dict(orient="records"), indent=1)

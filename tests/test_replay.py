@@ -1,0 +1,148 @@
+"""Replays: cases, three aircraft, open and closed loop, metrics, plots without JSBSim."""
+import subprocess
+import sys
+import textwrap
+
+import pandas as pd
+import pytest
+
+from campaign.cli import main
+from campaign.errors import UserError
+from campaign.replay import DEFAULT_CASES, load_cases, select
+
+MATRIX = """
+name = "replay-test"
+[[points]]
+gear = "up"
+flap_deg = 5
+mach = 0.3
+alt_ft = [2000, 5000, 10000]
+[[points]]
+gear = "down"
+flap_deg = 5
+mach = 0.3
+alt_ft = [2000, 5000, 10000]
+[[points]]
+gear = "up"
+flap_deg = 5
+mach = 0.4
+alt_ft = 5000
+[[points]]
+gear = "down"
+flap_deg = 5
+mach = 0.4
+alt_ft = 5000
+[[points]]
+gear = "up"
+flap_deg = 30
+mach = 0.2
+alt_ft = [2000, 5000]
+[[points]]
+gear = "down"
+flap_deg = 30
+mach = 0.2
+alt_ft = [2000, 5000]
+[[points]]
+gear = "up"
+flap_deg = 30
+mach = 0.3
+alt_ft = [5000, 10000]
+[[points]]
+gear = "down"
+flap_deg = 30
+mach = 0.3
+alt_ft = [5000, 10000]
+"""
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rp")
+    (d / "m.toml").write_text(MATRIX)
+    out = d / "c"
+    assert main(["run", "--matrix", str(d / "m.toml"), "--out", str(out), "--jobs", "2"]) == 0
+    return out
+
+
+def test_default_cases_file_holds_the_five_cases():
+    cases = load_cases()
+    assert [c.name.split("-")[0] for c in cases] == ["takeoff", "landing", "takeoff", "landing", "cruise"]
+    by = {c.name: c for c in cases}
+    assert (by["takeoff-145kt"].ias_kt, by["takeoff-145kt"].flap_deg, by["takeoff-145kt"].gear) == (145, 5, "retract")
+    assert (by["landing-135kt"].ias_kt, by["landing-135kt"].flap_deg, by["landing-135kt"].gear) == (135, 30, "extend")
+    assert [c.name for c in select(cases, ["takeoff"])] == ["takeoff-145kt", "takeoff-heavy-160kt"]
+    with pytest.raises(UserError, match="--case"):
+        select(cases, ["taxi"])
+
+
+@pytest.mark.parametrize("edit, field", [("ias_kt = 145", "ias_kt = 0"), ("flap_deg = 5", "flap_deg = 6"),
+                                         ('gear = "retract"', 'gear = "up"'), ("alt_ft = 2000", "alt_fx = 2000")])
+def test_bad_cases_file(tmp_path, edit, field):
+    p = tmp_path / "cases.toml"
+    p.write_text(DEFAULT_CASES.read_text().replace(edit, field, 1))
+    with pytest.raises(UserError) as err:
+        load_cases(p)
+    assert str(p) in str(err.value) and "case[0]" in str(err.value)
+
+
+def test_replays_meet_part60_and_beat_the_linear_model(replayed):
+    df = pd.read_csv(replayed / "replays" / "metrics.csv")
+    assert set(df.columns) >= {"case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg",
+                               "max_err_alpha_deg", "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft",
+                               "qtg_pass"}
+    assert len(df) == 5 * 2 * 2  # cases x models x loops
+    nl = df[df.model == "nonlinear"]
+    assert nl.qtg_pass.all()
+    main_cases = df[df.case.isin(["takeoff-145kt", "landing-135kt"])]
+    for (case, loop), g in main_cases.groupby(["case", "loop"]):
+        lin, non = g[g.model == "linear"].iloc[0], g[g.model == "nonlinear"].iloc[0]
+        assert lin.max_err_theta_deg >= 3 * non.max_err_theta_deg, (case, loop)
+        assert lin.max_err_alt_ft >= 3 * non.max_err_alt_ft, (case, loop)
+    assert (replayed / "replays" / "metrics.txt").read_text().count("nonlinear") == 10
+    logs = sorted(p.name for p in (replayed / "replays").glob("*.parquet"))
+    assert len(logs) == 5 * 3 * 2 and "landing-135kt__reference__open.parquet" in logs
+
+
+def test_replay_command_reflies_selected_cases(replayed, capsys):
+    before = (replayed / "replays" / "takeoff-145kt__linear__open.parquet").read_bytes()
+    assert main(["replay", str(replayed), "--case", "takeoff-145"]) == 0
+    out = capsys.readouterr().out
+    assert "takeoff-145kt" in out and "landing-135kt" not in out
+    assert (replayed / "replays" / "takeoff-145kt__linear__open.parquet").read_bytes() == before  # deterministic
+
+
+def test_open_loop_freezes_controls_and_closed_loop_holds(replayed):
+    from campaign.store import read_log
+    open_, _ = read_log(replayed / "replays" / "landing-135kt__reference__open.parquet")
+    closed, _ = read_log(replayed / "replays" / "landing-135kt__reference__closed.parquet")
+    assert open_.elevator_deg.nunique() == 1 and open_.throttle_norm.nunique() == 1
+    assert open_.gear_norm.iloc[0] == 0 and open_.gear_norm.iloc[-1] == 1
+    t_done = open_.t_s[open_.gear_norm >= 1].iloc[0]
+    assert open_.t_s.iloc[-1] - t_done >= 15 - 1e-9 and (open_.gear_norm[open_.t_s < 5] == 0).all()
+    assert (closed.alt_ft - closed.alt_ft.iloc[0]).abs().max() < 10
+    assert (open_.alt_ft - open_.alt_ft.iloc[0]).abs().max() > 20
+
+
+def test_plots_redraw_from_stored_logs_without_jsbsim(replayed):
+    code = textwrap.dedent(f"""
+        import sys, time
+        sys.modules["jsbsim"] = None  # any JSBSim import now fails
+        from campaign.cli import main
+        t = time.perf_counter()
+        rc = main(["plots", {str(replayed)!r}, "--case", "landing"])
+        print("SECONDS", time.perf_counter() - t)
+        sys.exit(rc)
+    """)
+    for png in (replayed / "replays" / "plots").glob("*.png"):
+        png.unlink()
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    pngs = sorted(p.name for p in (replayed / "replays" / "plots").glob("*.png"))
+    assert pngs == ["landing-135kt__closed.png", "landing-135kt__open.png",
+                    "landing-heavy-160kt__closed.png", "landing-heavy-160kt__open.png"]  # partial name
+
+
+def test_plots_without_replays_is_a_clear_error(tmp_path, capsys):
+    assert main(["plots", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "no replay logs" in err and err.count("\n") == 1
