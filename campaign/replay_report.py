@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from joblib import Parallel, delayed  # noqa: E402
 
 from campaign.errors import UserError  # noqa: E402
 from campaign.store import read_log  # noqa: E402
@@ -90,7 +91,8 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
     """
     ref = replays[(case, "reference", loop)]
     if axes is None:
-        fig, axes = plt.subplots(len(CHANNELS), 2, figsize=(13, 12), sharex=True, constrained_layout=True)
+        fig, axes = plt.subplots(len(CHANNELS), 2, figsize=(13, 12), sharex=True)
+        fig.subplots_adjust(left=0.07, right=0.98, top=0.95, bottom=0.05, hspace=0.12, wspace=0.22)
     fig = axes[0][0].figure
     g = ref.gear_norm.to_numpy()
     moving = np.flatnonzero(np.diff(g) != 0)
@@ -128,6 +130,13 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
     return fig
 
 
+def _save_plot(replays: dict, case: str, loop: str, path: Path) -> str:
+    fig = plot_case(replays, case, loop)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return str(path)
+
+
 def write_report(results: Path, names: list[str] | None = None) -> dict[str, str]:
     """metrics.csv and metrics.txt over every stored replay, and one figure per
     case and loop for the cases ``names`` selects (all by default)."""
@@ -140,12 +149,12 @@ def write_report(results: Path, names: list[str] | None = None) -> dict[str, str
     files = {"metrics_csv": str(out / "metrics.csv"), "metrics_txt": str(out / "metrics.txt")}
     plots = out / "plots"
     plots.mkdir(exist_ok=True)
-    for case, loop in sorted({(c, lp) for c, m, lp in replays if m == "reference"}):
-        fig = plot_case(replays, case, loop)
-        p = plots / f"{case}__{loop}.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        files[f"plot_{case}_{loop}"] = str(p)
+    todo = sorted({(c, lp) for c, m, lp in replays if m == "reference"})
+    subsets = [{k: v for k, v in replays.items() if k[0] == case and k[2] == loop} for case, loop in todo]
+    paths = Parallel(n_jobs=min(2, len(todo)) or 1)(
+        delayed(_save_plot)(sub, case, loop, plots / f"{case}__{loop}.png")
+        for sub, (case, loop) in zip(subsets, todo))
+    files.update({f"plot_{case}_{loop}": p for (case, loop), p in zip(todo, paths)})
     selected = df[df.case.isin({c for c, _, _ in replays})]
     files["table"] = metrics_text(selected)
     return files
