@@ -273,14 +273,15 @@ class Flight:
     meta: dict
 
 
-def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
+def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig) -> Flight:
     """Trim at ``point`` and fly one manoeuvre.
 
     Parameters
     ----------
     point : StatusPoint
-    maneuver_name : str
-        A manoeuvre name of :data:`maneuvers.library.MANEUVERS`.
+    maneuver_name : str or Maneuver
+        A manoeuvre name of :data:`maneuvers.library.MANEUVERS` (parameters from
+        the config), or a manoeuvre object.
     config : FlightConfig
 
     Returns
@@ -292,7 +293,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
     TrimError
         If the point does not trim.
     """
-    maneuver = config.maneuver(maneuver_name)
+    maneuver = config.maneuver(maneuver_name) if isinstance(maneuver_name, str) else maneuver_name
     gear0 = maneuver.gear_initial(point.gear_down)
     fdm, names, n_eng, optional, tr = trimmed_fdm(config.aircraft, point, gear0)
 
@@ -350,6 +351,9 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
                                                vt_node.get_double_value(), theta, q)
             for t in thr_cmd:
                 t.set_double_value(throttle)
+        elif prog.throttle is not None:
+            for t in thr_cmd:
+                t.set_double_value(min(max(tr.throttle + prog.throttle(k), 0.0), 1.0))
         elev_cmd.set_double_value(tr.elevator_cmd_norm
                                   + (elevator_deg - tr.elevator_deg + prog.elevator_deg(k)) / de_gain)
         if dh_gain:
@@ -391,7 +395,7 @@ def fly(point: StatusPoint, maneuver_name: str, config: FlightConfig) -> Flight:
         "status_point": {"alt_ft": point.alt_ft, "mach": point.mach, "flap_deg": point.flap_deg,
                          "gear": "down" if point.gear_down else "up", "weight_lb": point.weight_lb},
         "maneuver": maneuver.name,
-        "maneuver_params": {k: v for k, v in vars(maneuver).items()} if hasattr(maneuver, "__dict__") else {},
+        "maneuver_params": {k: v for k, v in vars(maneuver).items() if not isinstance(v, tuple)},
         "seed": seed,
         "campaign_seed": config.seed,
         "noise": config.noise,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from maneuvers.signals import Constant, Signal, Step, multistep
+from maneuvers.signals import Constant, Sampled, Signal, Step, multistep
 
 
 @dataclass(frozen=True)
@@ -31,6 +31,8 @@ class Program:
         the manoeuvre then ends ``post_travel_steps`` after completion.
     max_steps : int
         Hard limit [steps].
+    throttle : Signal or None
+        Throttle input added to the trim [-], when the hold does not fly.
     """
 
     elevator_deg: Signal
@@ -40,6 +42,7 @@ class Program:
     n_steps: int
     post_travel_steps: int | None
     max_steps: int
+    throttle: Signal | None = None
 
 
 class Maneuver:
@@ -156,6 +159,37 @@ class GearTransition(Maneuver):
         post = _steps(self.post_s, dt)
         return Program(Constant(0.0), Constant(0.0), gear, self.hold, pre + post, post,
                        pre + _steps(self.max_travel_s, dt) + post)
+
+
+@dataclass(frozen=True)
+class Recorded(Maneuver):
+    """Recorded control inputs replayed open loop, as offsets from the trim.
+
+    Parameters
+    ----------
+    gear_start : float
+        Gear position at trim [-].
+    elevator_deg, stabilizer_deg, throttle : tuple of float
+        Offsets from their first recorded value, one per step [deg, deg, -].
+    gear_cmd : tuple of float
+        Gear command per step [-].
+    name : str
+    """
+
+    gear_start: float
+    elevator_deg: tuple[float, ...]
+    stabilizer_deg: tuple[float, ...]
+    throttle: tuple[float, ...]
+    gear_cmd: tuple[float, ...]
+    name: str = "recorded"
+
+    def gear_initial(self, point_gear_down: bool) -> float:
+        return self.gear_start
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        n = len(self.elevator_deg)
+        return Program(Sampled(self.elevator_deg), Sampled(self.stabilizer_deg), Sampled(self.gear_cmd),
+                       False, n, None, n, Sampled(self.throttle))
 
 
 MANEUVERS: dict[str, type[Maneuver]] = {

@@ -74,6 +74,16 @@ class Scaled(Signal):
         return self.gain * self.signal.value(k)
 
 
+@dataclass(frozen=True)
+class Sampled(Signal):
+    """A recorded signal: ``values[k]``, held at its last value after the end."""
+
+    values: tuple[float, ...]
+
+    def value(self, k: int) -> float:
+        return self.values[min(k, len(self.values) - 1)]
+
+
 def multistep(start: int, durations: tuple[int, ...], levels: tuple[float, ...]) -> Signal:
     """Consecutive pulses: ``levels[i]`` held for ``durations[i]`` steps.
 

@@ -1,0 +1,442 @@
+"""Diagnosis: what the model gets wrong, which variables explain it, and how.
+
+1. Residuals. Measured eq. (1) coefficients minus the model's own prediction
+   at the measured states (JSBSim computes it: :mod:`identify.evaluate`). Cm
+   is taken about the aerodynamic reference point, where JSBSim applies the aero
+   forces, so a lift or drag discrepancy does not leak into Cm.
+2. Model structure. Forward-backward stepwise regression of each residual on
+   a pool of candidate terms: every logged variable, linear and smooth (a
+   piecewise-linear basis), and pairwise interactions. A term enters by a
+   partial F-test whose degrees of freedom count the effective number of
+   independent samples (residuals are autocorrelated), and only if it
+   removes a meaningful share of the residual; a term leaves when it no
+   longer passes (SIDPAC's stepwise regression, with those two corrections).
+3. Causes. Selected terms that share a variable form one cause (a gear effect
+   and its gear x alpha interaction: one gear effect that depends on alpha).
+   Causes are ranked by the F statistic of removing them.
+4. Extension. The fitted terms, written as JSBSim functions (tables on the
+   variables' properties), to merge into a copy of the model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from identify.coefficients import D2R, coefficients, qhat
+from identify.logs import Log
+from identify.models import EDGE_S, lowpass
+
+COEFFS = ("CL", "CD", "Cm")
+#: Candidate variables: log column -> JSBSim property of the model it maps to.
+VARIABLES = {
+    "gear_norm": "gear/gear-pos-norm",
+    "alpha_deg": "aero/alpha-deg",
+    "mach": "velocities/mach",
+    "flap_deg": "fcs/flap-pos-deg",
+    "elevator_deg": "fcs/elevator-pos-deg",
+    "stabilizer_deg": "fcs/stabilizer-pos-deg",
+    "qhat_rad": None,  # q cbar / 2V: aero/ci2vel * velocities/q-aero-rad_sec
+}
+#: A variable must vary at least this much (std) to be a candidate.
+MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
+           "stabilizer_deg": 0.1, "qhat_rad": 1e-5}
+FILTERED = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps",
+            "r_dps", "elevator_deg", "stabilizer_deg")
+GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
+
+
+def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
+    """Measured minus model coefficients at the measured states, for every log.
+
+    Coefficients and states pass through the zero-phase low-pass filter of the
+    identification; 0.25 s is dropped at both ends; every ``step``-th sample kept.
+
+    Returns
+    -------
+    DataFrame
+        One row per sample: ``log`` (index into ``logs``), ``t_s``, the
+        variables, measured ``CL``/``CD``/``Cm`` and residuals ``r_CL``/``r_CD``/``r_Cm``
+        (Cm about AERORP).
+    """
+    frames = []
+    for i, log in enumerate(logs):
+        d = log.data
+        dt = float(np.median(np.diff(d["t_s"])))
+        f = d.copy()
+        for c in FILTERED:
+            if c in f:
+                f[c] = lowpass(d[c].to_numpy(), dt)
+        meas = coefficients(d, log.meta)
+        for c in COEFFS:
+            meas[c] = lowpass(meas[c].to_numpy(), dt)
+        edge = int(round(EDGE_S / dt))
+        keep = np.arange(edge, len(d) - edge, step)
+        f, meas = f.iloc[keep].reset_index(drop=True), meas.iloc[keep].reset_index(drop=True)
+        pred = evaluator.predict(f)
+        g = log.meta["geometry"]
+        arm = (g["aerorp_x_in"] - g["cg_x_in"]) / 12.0 / g["cbar_ft"]
+        a = f["alpha_deg"].to_numpy() * D2R
+        out = pd.DataFrame({"log": i, "t_s": f["t_s"], "maneuver": log.maneuver, "point": log.point})
+        for v in VARIABLES:
+            out[v] = qhat(f, log.meta) if v == "qhat_rad" else f[v].to_numpy()
+        for c in COEFFS:
+            out[f"model_{c}"] = pred[c].to_numpy()
+            out[c] = meas[c].to_numpy()
+        for src in ("", "model_"):
+            out[f"{src}Cm"] = out[f"{src}Cm"] + (out[f"{src}CL"] * np.cos(a) + out[f"{src}CD"] * np.sin(a)) * arm
+        for c in COEFFS:
+            out[f"r_{c}"] = out[c] - out[f"model_{c}"]
+        frames.append(out)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _hats(x: np.ndarray, knots: tuple[float, ...]) -> np.ndarray:
+    """Piecewise-linear basis: column j is 1 at knots[j], 0 at the others (flat outside)."""
+    cols = []
+    for j in range(len(knots)):
+        y = np.zeros(len(knots))
+        y[j] = 1.0
+        cols.append(np.interp(x, knots, y))
+    return np.column_stack(cols)
+
+
+@dataclass(frozen=True)
+class Term:
+    """A candidate group of regressors.
+
+    kind : "linear" | "smooth" | "product" | "smooth_x_linear"
+    variables : the log columns it uses (first is the smooth one for smooth_x_linear)
+    knots : knots of the smooth variable (the first knot is the reference: dropped)
+    centers, ranges : centring and clipping of the linear factors
+    """
+
+    kind: str
+    variables: tuple[str, ...]
+    knots: tuple[float, ...] = ()
+    centers: tuple[float, ...] = ()
+    ranges: tuple[tuple[float, float], ...] = ()
+
+    @property
+    def label(self) -> str:
+        v = " x ".join(self.variables)
+        if self.kind == "smooth_x_linear":
+            return f"smooth({self.variables[0]}) x {self.variables[1]}"
+        return {"linear": f"linear({v})", "smooth": f"smooth({v})", "product": v}[self.kind]
+
+    def _lin(self, frame: pd.DataFrame, i: int) -> np.ndarray:
+        v = self.variables[i]
+        lo, hi = self.ranges[i]
+        return np.clip(frame[v].to_numpy(), lo, hi) - self.centers[i]
+
+    def design(self, frame: pd.DataFrame) -> np.ndarray:
+        if self.kind == "linear":
+            return self._lin(frame, 0)[:, None]
+        if self.kind == "smooth":
+            return _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
+        if self.kind == "product":
+            return (self._lin(frame, 0) * self._lin(frame, 1))[:, None]
+        h = _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
+        return h * self._lin(frame, 1)[:, None]
+
+    @property
+    def width(self) -> int:
+        return len(self.knots) - 1 if self.kind in ("smooth", "smooth_x_linear") else 1
+
+
+def candidate_terms(data: pd.DataFrame) -> list[Term]:
+    """The candidate pool: every excited variable, linear and smooth, and pairs."""
+    excited = [v for v in VARIABLES if v in data and float(data[v].std()) >= MIN_STD[v]]
+    center = {v: float(np.median(data[v])) for v in excited}
+    rng = {v: (float(data[v].min()), float(data[v].max())) for v in excited}
+    terms = []
+    for v in excited:
+        terms.append(Term("linear", (v,), (), (center[v],), (rng[v],)))
+        if v == "gear_norm":
+            terms.append(Term("smooth", (v,), GEAR_KNOTS))
+        elif v != "qhat_rad":
+            vals = np.unique(np.round(data[v].to_numpy(), 6))
+            if v == "flap_deg":
+                knots = tuple(float(x) for x in vals)
+            else:
+                knots = tuple(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
+            if len(knots) >= 3:
+                terms.append(Term("smooth", (v,), knots))
+    for a, b in combinations(excited, 2):
+        terms.append(Term("product", (a, b), (), (center[a], center[b]), (rng[a], rng[b])))
+    if "gear_norm" in excited:
+        for b in excited:
+            if b not in ("gear_norm", "qhat_rad"):
+                terms.append(Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]),
+                                  ((0.0, 1.0), rng[b])))
+    return terms
+
+
+class _Lags:
+    """Sample pairs ``(i, i + k)`` within one log, for k = 1..max_lag (cached per dataset)."""
+
+    def __init__(self, log_id: np.ndarray, max_lag: int = 300) -> None:
+        n = len(log_id)
+        self.pairs = [np.flatnonzero(log_id[k:] == log_id[:n - k]) for k in range(1, max_lag + 1)]
+
+    def n_eff(self, resid: np.ndarray) -> float:
+        """Effective number of independent samples: N / (1 + 2 sum rho_k), rho up to its first zero."""
+        n = len(resid)
+        e = resid - resid.mean()
+        r0 = float(e @ e) / n
+        if r0 <= 0:
+            return float(n)
+        tau = 1.0
+        for k, idx in enumerate(self.pairs, start=1):
+            rho = float(e[idx + k] @ e[idx]) / n / r0
+            if rho <= 0:
+                break
+            tau += 2.0 * rho
+        return max(n / tau, 2.0)
+
+
+@dataclass
+class _Fit:
+    terms: list[Term]
+    beta: np.ndarray
+    resid: np.ndarray
+    rss: float
+
+
+def _fit(y: np.ndarray, cols: list[np.ndarray], terms: list[Term]) -> _Fit:
+    x = np.column_stack([np.ones(len(y))] + cols) if cols else np.ones((len(y), 1))
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    r = y - x @ beta
+    return _Fit(list(terms), beta, r, float(r @ r))
+
+
+def _f_test(small: _Fit, big: _Fit, k: int, n_eff: float, p_big: int) -> tuple[float, float]:
+    dof = max(n_eff - p_big, 1.0)
+    f = ((small.rss - big.rss) / k) / (big.rss / dof) if big.rss > 0 else np.inf
+    return float(f), float(stats.f.sf(f, k, dof)) if np.isfinite(f) else 0.0
+
+
+@dataclass
+class StepwiseResult:
+    """Stepwise regression of one coefficient's residual."""
+
+    coefficient: str
+    terms: list[Term]
+    beta: np.ndarray  # intercept first, then each term's columns
+    evidence: dict[str, dict]
+    alternatives: list[dict]
+    rms_before: float
+    rms_after: float
+    n_eff: float
+
+    def term_beta(self, term: Term) -> np.ndarray:
+        i = 1
+        for t in self.terms:
+            if t == term:
+                return self.beta[i:i + t.width]
+            i += t.width
+        raise KeyError(term.label)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        out = np.full(len(frame), self.beta[0])
+        for t in self.terms:
+            out += t.design(frame) @ self.term_beta(t)
+        return out
+
+
+def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float = 1e-6,
+             min_reduction: float = 0.01, max_terms: int = 6, lags: _Lags | None = None) -> StepwiseResult:
+    """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
+
+    A term enters if its partial F-test (on the effective sample size of the
+    residual after it enters) has p < ``alpha_in`` and it removes at least
+    ``min_reduction`` of the initial residual sum of squares (about its mean);
+    a term leaves when its removal test no longer passes.
+    """
+    y = data[f"r_{coefficient}"].to_numpy()
+    lags = lags or _Lags(data["log"].to_numpy())
+    designs = {t: t.design(data) for t in terms}
+    chosen: list[Term] = []
+    current = _fit(y, [], [])
+    rss0 = current.rss
+    rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
+    alternatives = []
+    for _ in range(max_terms):
+        p_now = 1 + sum(t.width for t in chosen)
+        rows = []
+        for t in terms:
+            if t in chosen or (t.kind == "linear" and any(c.kind == "smooth" and c.variables == t.variables
+                                                           for c in chosen)):
+                continue
+            big = _fit(y, [designs[c] for c in chosen] + [designs[t]], chosen + [t])
+            n_eff = lags.n_eff(big.resid)
+            f, p = _f_test(current, big, t.width, n_eff, p_now + t.width)
+            rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
+                         "n_eff": n_eff, "fit": big})
+        if not rows:
+            break
+        rows.sort(key=lambda r: (r["p_value"], -r["F"]))
+        if not alternatives:
+            alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
+                             "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
+        best = rows[0]
+        # among terms of the same variables, prefer the one with fewer columns if it does as well
+        same = [r for r in rows if set(r["term"].variables) == set(best["term"].variables)
+                and r["term"].width < best["term"].width and r["p_value"] < alpha_in]
+        if same:
+            lean = min(same, key=lambda r: r["term"].width)
+            if _f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
+                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
+                best = lean
+        if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
+            break
+        chosen.append(best["term"])
+        current = best["fit"]
+        for t in list(chosen[:-1]):  # backward step
+            rest = [c for c in chosen if c != t]
+            small = _fit(y, [designs[c] for c in rest], rest)
+            f, p = _f_test(small, current, t.width, lags.n_eff(current.resid),
+                           1 + sum(c.width for c in chosen))
+            if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
+                chosen.remove(t)
+                current = small
+    evidence = {}
+    n_eff = lags.n_eff(current.resid)
+    p_all = 1 + sum(t.width for t in chosen)
+    for t in chosen:
+        rest = [c for c in chosen if c != t]
+        small = _fit(y, [designs[c] for c in rest], rest)
+        f, p = _f_test(small, current, t.width, n_eff, p_all)
+        evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
+                             "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
+    rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
+    return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff)
+
+
+@dataclass
+class Cause:
+    """One named cause: a coefficient, the variables, a shape, the evidence."""
+
+    coefficient: str
+    variables: list[str]
+    terms: list[Term]
+    shape: str
+    evidence: dict
+    peak: float
+    curve: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"coefficient": self.coefficient, "variables": self.variables, "shape": self.shape,
+                "evidence": self.evidence, "peak": self.peak, "terms": [t.label for t in self.terms],
+                "curve": self.curve}
+
+
+def _shape(x: np.ndarray, y: np.ndarray) -> str:
+    """Describe a curve y(x) sampled on increasing x."""
+    span = float(np.ptp(y))
+    if span == 0:
+        return "constant"
+    d = np.diff(y)
+    lin = np.polyval(np.polyfit(x, y, 1), x)
+    if np.max(np.abs(y - lin)) < 0.05 * span:
+        return "linear"
+    up, down = np.sum(d[d > 0]), -np.sum(d[d < 0])
+    if min(up, down) > 0.1 * span:
+        return "non-monotonic (rises and falls)" if np.argmax(np.abs(y - y[0])) < len(y) - 2 else "non-monotonic"
+    n = len(y) // 3 or 1
+    first, last = abs(y[n] - y[0]), abs(y[-1] - y[-1 - n])
+    if last < 0.25 * first:
+        knee = x[int(np.argmax(np.abs(y - y[0]) >= 0.95 * np.max(np.abs(y - y[0]))))]
+        return f"saturating (flat beyond {x.dtype.type(knee):.2f})"
+    if first < 0.25 * last:
+        return "increasing slope (grows late)"
+    return "monotonic, curved"
+
+
+def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _Lags) -> list[Cause]:
+    """Group selected terms into causes (terms sharing a variable), rank by F."""
+    causes = []
+    for c, res in results.items():
+        groups: list[list[Term]] = []
+        for t in res.terms:
+            hit = [g for g in groups if set(t.variables) & {v for u in g for v in u.variables}]
+            merged = [t] + [u for g in hit for u in g]
+            groups = [g for g in groups if g not in hit] + [merged]
+        y = data[f"r_{c}"].to_numpy()
+        designs = {t: t.design(data) for t in res.terms}
+        full = _fit(y, [designs[t] for t in res.terms], res.terms)
+        n_eff = lags.n_eff(full.resid)
+        p_all = 1 + sum(t.width for t in res.terms)
+        for g in groups:
+            rest = [t for t in res.terms if t not in g]
+            small = _fit(y, [designs[t] for t in rest], rest)
+            k = sum(t.width for t in g)
+            f, p = _f_test(small, full, k, n_eff, p_all)
+            variables = []
+            for t in sorted(g, key=lambda t: t.kind != "smooth" and t.kind != "linear"):
+                variables += [v for v in t.variables if v not in variables]
+            contrib = sum(t.design(data) @ res.term_beta(t) for t in g) + res.beta[0]
+            primary = variables[0]
+            order = np.argsort(data[primary].to_numpy(), kind="stable")
+            xs = data[primary].to_numpy()[order]
+            bins = np.unique(np.quantile(xs, np.linspace(0, 1, 21)))
+            idx = np.clip(np.digitize(xs, bins[1:-1]), 0, len(bins) - 2)
+            cx = [float(xs[idx == b].mean()) for b in range(len(bins) - 1) if (idx == b).any()]
+            cy = [float(contrib[order][idx == b].mean()) for b in range(len(bins) - 1) if (idx == b).any()]
+            shape = _shape(np.array(cx), np.array(cy)) if len(cx) > 2 else "constant"
+            if len(variables) > 1:
+                shape += f", depends on {', '.join(variables[1:])}"
+            causes.append(Cause(c, variables, g, shape,
+                                {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
+                                 "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
+                                 "terms": {t.label: res.evidence.get(t.label, {}) for t in g}},
+                                float(np.max(np.abs(contrib))), {"x": cx, primary: cx, f"d{c}": cy}))
+    causes.sort(key=lambda c: -c.evidence["F"])
+    return causes
+
+
+@dataclass
+class Diagnosis:
+    """The result: residuals, stepwise fits, named causes."""
+
+    data: pd.DataFrame
+    results: dict[str, StepwiseResult]
+    causes: list[Cause]
+
+    @property
+    def discrepancy(self) -> bool:
+        return bool(self.causes)
+
+    def predict(self, coefficient: str, frame: pd.DataFrame) -> np.ndarray:
+        """The fitted discrepancy of one coefficient at the states of ``frame``."""
+        res = self.results[coefficient]
+        return res.predict(frame) if res.terms else np.zeros(len(frame))
+
+    def summary(self) -> str:
+        lines = []
+        if not self.causes:
+            lines.append("No significant discrepancy: noise alone explains the residuals.")
+        for i, c in enumerate(self.causes, 1):
+            e = c.evidence
+            lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
+                         f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, p = {e['p_value']:.2g}, "
+                         f"removes {e['rss_reduction_pct']:.1f} % of the residual")
+        lines.append("")
+        for c, res in self.results.items():
+            lines.append(f"{c}: residual RMS {res.rms_before:.3g} -> {res.rms_after:.3g} with "
+                         f"{', '.join(t.label for t in res.terms) or 'no term'} (N_eff {res.n_eff:.0f})")
+            lines.append("   alternatives at the first step: " + "; ".join(
+                f"{a['term']} F={a['F']:.3g}" for a in res.alternatives[:5]))
+        return "\n".join(lines)
+
+
+def diagnose(logs: list[Log], evaluator, step: int = 2, **kw) -> Diagnosis:
+    """Residuals against the model, stepwise structure per coefficient, causes."""
+    data = residual_data(logs, evaluator, step)
+    terms = candidate_terms(data)
+    lags = _Lags(data["log"].to_numpy())
+    results = {c: stepwise(data, c, terms, lags=lags, **kw) for c in COEFFS}
+    return Diagnosis(data, results, name_causes(results, data, lags))
