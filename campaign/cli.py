@@ -89,6 +89,17 @@ def build_parser() -> argparse.ArgumentParser:
     plo.add_argument("results", metavar="RESULTS_DIR", help="campaign folder with replays")
     plo.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
 
+    dia = sub.add_parser("diagnose", help="find what the model gets wrong in measured data, extend it, "
+                                          "measure the gain",
+                         description="Residuals of the model against measured data, the cause named by "
+                                     "stepwise regression, the model extended with it (JSBSim XML merged into a "
+                                     "copy), and the gain on held-out manoeuvres.")
+    dia.add_argument("--data", required=True, metavar="PATH",
+                     help="measured logs: a campaign folder, a folder of CSV logs with JSON sidecars, or a file")
+    dia.add_argument("--model", required=True, metavar="AIRCRAFT_DIR", help="the model aircraft folder")
+    dia.add_argument("--out", required=True, metavar="DIR", help="new folder for the report")
+    dia.add_argument("--no-plots", action="store_true", help="skip the plots")
+
     pts = sub.add_parser("points", help="list the status points of a matrix",
                          description="List the status points of a matrix with their manoeuvres.")
     pts.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
@@ -153,6 +164,12 @@ def main(argv: list[str] | None = None) -> int:
             files = write_report(Path(args.results), args.case)
             print(files.pop("table"))
             print(f"{sum(1 for k in files if k.startswith('plot'))} plots in {Path(args.results) / 'replays' / 'plots'}")
+            return 0
+        if args.command == "diagnose":
+            from campaign.diagnose import run_diagnosis
+            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out), plots=not args.no_plots)
+            print(doc["summary"])
+            print(f"report in {args.out}")
             return 0
         if args.command == "replay":
             return _replay(Path(args.results), args.case, args.cases, args.jobs)

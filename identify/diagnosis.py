@@ -109,6 +109,8 @@ class Term:
     """A candidate group of regressors.
 
     kind : "linear" | "smooth" | "product" | "smooth_x_linear"
+        Interactions carry their main effects (hierarchy): ``product`` is
+        a, b and a*b; ``smooth_x_linear`` is smooth(a) and smooth(a)*b.
     variables : the log columns it uses (first is the smooth one for smooth_x_linear)
     knots : knots of the smooth variable (the first knot is the reference: dropped)
     centers, ranges : centring and clipping of the linear factors
@@ -138,13 +140,15 @@ class Term:
         if self.kind == "smooth":
             return _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
         if self.kind == "product":
-            return (self._lin(frame, 0) * self._lin(frame, 1))[:, None]
+            a, b = self._lin(frame, 0), self._lin(frame, 1)
+            return np.column_stack([a, b, a * b])
         h = _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
-        return h * self._lin(frame, 1)[:, None]
+        return np.hstack([h, h * self._lin(frame, 1)[:, None]])
 
     @property
     def width(self) -> int:
-        return len(self.knots) - 1 if self.kind in ("smooth", "smooth_x_linear") else 1
+        return {"linear": 1, "product": 3, "smooth": len(self.knots) - 1,
+                "smooth_x_linear": 2 * (len(self.knots) - 1)}[self.kind]
 
 
 def candidate_terms(data: pd.DataFrame) -> list[Term]:
@@ -152,6 +156,7 @@ def candidate_terms(data: pd.DataFrame) -> list[Term]:
     excited = [v for v in VARIABLES if v in data and float(data[v].std()) >= MIN_STD[v]]
     center = {v: float(np.median(data[v])) for v in excited}
     rng = {v: (float(data[v].min()), float(data[v].max())) for v in excited}
+    rng["qhat_rad"] = (-np.inf, np.inf)  # exported as a product, not a table: never clipped
     terms = []
     for v in excited:
         terms.append(Term("linear", (v,), (), (center[v],), (rng[v],)))
@@ -165,7 +170,7 @@ def candidate_terms(data: pd.DataFrame) -> list[Term]:
                 knots = tuple(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
             if len(knots) >= 3:
                 terms.append(Term("smooth", (v,), knots))
-    for a, b in combinations(excited, 2):
+    for a, b in combinations([v for v in excited if v != "qhat_rad"], 2):
         terms.append(Term("product", (a, b), (), (center[a], center[b]), (rng[a], rng[b])))
     if "gear_norm" in excited:
         for b in excited:
@@ -283,14 +288,15 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
                              "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
         best = rows[0]
-        # among terms of the same variables, prefer the one with fewer columns if it does as well
-        same = [r for r in rows if set(r["term"].variables) == set(best["term"].variables)
-                and r["term"].width < best["term"].width and r["p_value"] < alpha_in]
-        if same:
-            lean = min(same, key=lambda r: r["term"].width)
+        # prefer a leaner term on a subset of the same variables if it does as well
+        leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
+                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in),
+                        key=lambda r: r["term"].width)
+        for lean in leaner:
             if _f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
                        best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
                 best = lean
+                break
         if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
             break
         chosen.append(best["term"])

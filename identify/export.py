@@ -115,8 +115,11 @@ def write_effects(surface: GearSurface, kind: str, arm_ft: float, path: Path) ->
     return Path(path)
 
 
-def merge_into_aircraft(model_dir: Path, effects_path: Path, out_root: Path) -> Path:
-    """Copy a model aircraft, replacing its gear aero terms with an effects file.
+def merge_into_aircraft(model_dir: Path, effects_path: Path, out_root: Path, replace_gear: bool = True) -> Path:
+    """Copy a model aircraft, adding an effects file's functions to its aero axes.
+
+    With ``replace_gear`` the model's own gear terms (aero functions that read
+    ``gear/gear-pos-norm``) are removed first.
 
     Returns
     -------
@@ -133,7 +136,7 @@ def merge_into_aircraft(model_dir: Path, effects_path: Path, out_root: Path) -> 
     tree = ET.parse(xml)
     aero = tree.getroot().find("aerodynamics")
     axes = {a.get("name"): a for a in aero.findall("axis")}
-    for axis in axes.values():
+    for axis in axes.values() if replace_gear else ():
         for fn in list(axis.findall("function")):
             if any(p.text and p.text.strip() == GEAR for p in fn.iter("property")) or \
                any(v.text and v.text.strip() == GEAR for v in fn.iter("independentVar")):

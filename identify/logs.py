@@ -17,7 +17,7 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
     "qdot_dps2", "ax_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
     "flap_deg", "gear_norm", "mass_slug",
 )
-REQUIRED_META = ("point", "maneuver", "inertia_slugft2", "geometry")
+REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
 
 
 class LogError(ValueError):

@@ -1,0 +1,207 @@
+"""``campaign diagnose``: show the discrepancy, name the cause, extend the model, measure the gain.
+
+Identification (:mod:`identify.diagnosis`) works on the training logs; this
+module splits the data, writes the extension into a copy of the model, and
+measures the gain on held-out manoeuvres: coefficient residuals (JSBSim
+evaluating both aircraft at the measured states) and replays (both aircraft
+flown from the same trimmed start with the recorded inputs).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.engine import DT_S, FlightConfig, TrimError, fly
+from campaign.errors import UserError
+from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint
+from identify.diagnosis import COEFFS, Diagnosis, diagnose, residual_data
+from identify.diagnosis_export import write_extension
+from identify.evaluate import ModelEvaluator
+from identify.export import merge_into_aircraft
+from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
+from maneuvers.library import Recorded
+
+REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
+G0 = 32.174049
+
+
+def load_data(path: Path) -> list[Log]:
+    """Measured logs: a campaign folder, a folder of CSV/Parquet logs, or one file."""
+    path = Path(path)
+    try:
+        if path.is_dir():
+            return read_campaign(path)
+        if path.suffix == ".csv":
+            return [read_csv(path)]
+        if path.suffix == ".parquet":
+            return [read_parquet(path)]
+    except LogError as exc:
+        raise UserError(str(exc)) from None
+    raise UserError(f"{path}: not a campaign folder, a CSV or a Parquet log")
+
+
+def split(logs: list[Log], every: int = 3) -> tuple[list[Log], list[Log]]:
+    """Hold out every ``every``-th flight condition (all its manoeuvres)."""
+    conds = sorted({log.condition for log in logs})
+    if len(conds) < 2:
+        raise UserError("--data: needs logs from at least two flight conditions (one is held out)")
+    held = {c for i, c in enumerate(conds) if i % every == every - 1} or {conds[-1]}
+    return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
+
+
+def recorded(log: Log, head_s: float = 0.5) -> tuple[StatusPoint, Recorded]:
+    """The log's start as a status point and its inputs as offsets from that start."""
+    d = log.data
+    head = d[d.t_s < head_s].mean()
+    g0 = float(round(d.gear_norm.iloc[0]))
+    moving = np.flatnonzero(np.abs(d.gear_norm.to_numpy() - g0) > 1e-6)
+    gear_cmd = np.full(len(d), g0)
+    if moving.size:
+        gear_cmd[max(moving[0] - 1, 0):] = round(float(d.gear_norm.iloc[-1]))
+    flap = min(FLAP_DETENTS_DEG, key=lambda f: abs(f - head.flap_deg))
+    point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
+    man = Recorded(g0, tuple(d.elevator_deg - head.elevator_deg), tuple(d.stabilizer_deg - head.stabilizer_deg),
+                   tuple(d.throttle_norm - head.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}")
+    return point, man
+
+
+def replay(log: Log, source: AircraftSource) -> pd.DataFrame | None:
+    """Fly the log's inputs on an aircraft from a trim at the log's start."""
+    point, man = recorded(log)
+    try:
+        return fly(point, man, FlightConfig(source)).log
+    except TrimError:
+        return None
+
+
+def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[str, float]:
+    if flown is None:
+        return {ch: float("nan") for ch in REPLAY_CHANNELS}
+    n = min(len(measured), len(flown))
+    return {ch: float(np.max(np.abs(flown[ch].to_numpy()[:n] - measured[ch].to_numpy()[:n])))
+            for ch in REPLAY_CHANNELS}
+
+
+def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = True) -> dict:
+    """The whole diagnosis; returns what ``diagnosis.json`` holds."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
+    model = check_aircraft_folder(model_dir)
+    logs = load_data(data_path)
+    train, held = split(logs)
+    out.mkdir(parents=True, exist_ok=True)
+    evaluator = ModelEvaluator(model)
+    diag = diagnose(train, evaluator)
+    doc: dict = {"discrepancy": diag.discrepancy, "causes": [c.to_dict() for c in diag.causes],
+                 "extension": None, "extension_xml": None, "gain": {},
+                 "alternatives": {c: r.alternatives for c, r in diag.results.items()},
+                 "data": {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
+                          "held_out": [lg.path for lg in held]},
+                 "model": str(model)}
+    before = residual_data(held, evaluator)
+    extended_eval = None
+    if diag.discrepancy:
+        xml = write_extension(diag, out / "extension.xml")
+        folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
+        doc["extension"], doc["extension_xml"] = str(folder), str(xml)
+        extended_eval = ModelEvaluator(folder)
+        after = residual_data(held, extended_eval)
+        rms = {c: {"before": float(np.sqrt(np.mean(before[f"r_{c}"] ** 2))),
+                   "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2)))} for c in COEFFS}
+        for v in rms.values():
+            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
+        top = diag.causes[0].coefficient
+        acting = _exercised(before, diag.causes[0].variables)
+        b, a = before[before.log.isin(acting)], after[after.log.isin(acting)]
+        rms_acting = {c: {"before": float(np.sqrt(np.mean(b[f"r_{c}"] ** 2))),
+                          "after": float(np.sqrt(np.mean(a[f"r_{c}"] ** 2)))} for c in COEFFS}
+        for v in rms_acting.values():
+            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
+        src_model = AircraftSource(str(model), load_effects(None))
+        src_ext = AircraftSource(str(folder), load_effects(None))
+        replays = {}
+        flown = {}
+        for lg in held:
+            fb, fa = replay(lg, src_model), replay(lg, src_ext)
+            flown[lg.path] = (fb, fa)
+            eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
+            replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}
+        worst = {ch: {"before": max(r[ch]["before"] for r in replays.values()),
+                      "after": max(r[ch]["after"] for r in replays.values())} for ch in REPLAY_CHANNELS}
+        for v in worst.values():
+            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
+        doc["gain"] = {"held_out_logs": [Path(lg.path).name for lg in held],
+                       "cause_exercised_in": [Path(held[i].path).name for i in acting],
+                       "residual_gain": rms_acting[top]["gain"], "coefficient": top,
+                       "residual_rms": rms_acting, "residual_rms_all_held_out": rms,
+                       "replay_max_error": worst, "replay_per_log": replays}
+        if plots:
+            _plots(diag, held, before, after, flown, out)
+    elif plots:
+        _plots(diag, held, before, None, {}, out)
+    doc["summary"] = _report(diag, doc)
+    (out / "diagnosis.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    (out / "diagnosis.txt").write_text(doc["summary"])
+    evaluator.close()
+    if extended_eval:
+        extended_eval.close()
+    return doc
+
+
+def _exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
+    """Held-out logs in which any of the cause's variables varies."""
+    from identify.diagnosis import MIN_STD
+    out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= MIN_STD[v] for v in variables)]
+    return out or sorted(int(i) for i in frame.log.unique())
+
+
+def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
+           flown: dict, out: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from identify.diagnosis_plots import plot_residual_history, plot_residuals, plot_response
+    (out / "plots").mkdir(exist_ok=True)
+    fig = plot_residuals(diag)
+    fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
+    plt.close(fig)
+    for i, lg in enumerate(held):
+        name = Path(lg.path).stem
+        b = before[before.log == i]
+        a = after[after.log == i] if after is not None else None
+        fig = plot_residual_history(b, a, f"held out: {name}")
+        fig.savefig(out / "plots" / f"residuals_{name}.png", dpi=90)
+        plt.close(fig)
+        fb, fa = flown.get(lg.path, (None, None))
+        if fb is not None:
+            fig = plot_response(lg.data, fb, fa, f"held out: {name}, same start and inputs")
+            fig.savefig(out / "plots" / f"response_{name}.png", dpi=90)
+            plt.close(fig)
+
+
+def _report(diag: Diagnosis, doc: dict) -> str:
+    lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
+             f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
+    lines.append(diag.summary())
+    g = doc.get("gain")
+    if g:
+        lines += ["", f"Gain on held-out manoeuvres ({', '.join(g['held_out_logs'])}).",
+                  f"Residual RMS where the first cause acts ({', '.join(g['cause_exercised_in'])}):"]
+        for c, v in g["residual_rms"].items():
+            w = g["residual_rms_all_held_out"][c]
+            lines.append(f"  {c}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f}); over every held-out "
+                         f"manoeuvre {w['before']:.3g} -> {w['after']:.3g} (x{w['gain']:.1f})")
+        lines.append("Replays of the held-out manoeuvres (same start, same inputs), worst error:")
+        for ch, v in g["replay_max_error"].items():
+            lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
+        lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
+    return "\n".join(lines) + "\n"
+
+
+def clean(out: Path) -> None:
+    shutil.rmtree(out, ignore_errors=True)

@@ -1,0 +1,72 @@
+"""Diagnosis plots. Each takes ``ax=``/``axes=`` and returns the figure."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from identify.diagnosis import COEFFS, Diagnosis  # noqa: E402
+
+LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
+
+
+def plot_residuals(diag: Diagnosis, axes=None):
+    """Residual of each coefficient against the variable of its first cause, with the fit."""
+    if axes is None:
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), constrained_layout=True)
+    d = diag.data
+    first = {}
+    for cause in diag.causes:
+        first.setdefault(cause.coefficient, cause)
+    for ax, c in zip(axes, COEFFS):
+        cause = first.get(c)
+        var = cause.variables[0] if cause else "gear_norm"
+        ax.plot(d[var], d[f"r_{c}"], ".", ms=1, color="0.6", label="measured - model")
+        if cause:
+            ax.plot(cause.curve[var], cause.curve[f"d{c}"], "r-", lw=2, label=f"identified: {cause.shape}")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xlabel(var)
+        ax.set_ylabel(f"residual {LABEL[c]}")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].figure.suptitle("Coefficient residuals: measured (eq. 1) minus the model at the measured states")
+    return axes[0].figure
+
+
+def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
+    """Measured response against the model (and the extended model), same inputs and start."""
+    chans = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
+             ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
+    if axes is None:
+        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 11), sharex=True, constrained_layout=True)
+    for ax, (ch, label) in zip(axes, chans):
+        ax.plot(data.t_s, data[ch], color="0.3", lw=3, alpha=0.4, label="measured")
+        ax.plot(before.t_s, before[ch], "r--", lw=1.2, label="model")
+        if after is not None:
+            ax.plot(after.t_s, after[ch], "b-", lw=1.0, label="extended model")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=9)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].figure.suptitle(title)
+    return axes[0].figure
+
+
+def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
+    """Residual time histories of a held-out log, before and after the extension."""
+    if axes is None:
+        fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
+    for ax, c in zip(axes, COEFFS):
+        ax.plot(log_frame.t_s, log_frame[f"r_{c}"], "r-", lw=1, label="model")
+        if after is not None:
+            ax.plot(after.t_s, after[f"r_{c}"], "b-", lw=1, label="extended model")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"residual {LABEL[c]}")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=9)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].figure.suptitle(title)
+    return axes[0].figure

@@ -1,0 +1,181 @@
+"""Random hidden effects, written as effect overlays (test side only: the
+diagnosis never sees these files)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AXIS = {"CL": "LIFT", "CD": "DRAG", "Cm": "PITCH"}
+SCALE = {"CL": ["aero/qbar-psf", "metrics/Sw-sqft"], "CD": ["aero/qbar-psf", "metrics/Sw-sqft"],
+         "Cm": ["aero/qbar-psf", "metrics/Sw-sqft", "metrics/cbarw-ft"]}
+FAMILIES = ("gear_saturating", "gear_bump", "alpha", "mach", "gear_x_alpha", "elevator_derivative")
+
+
+@dataclass
+class Hidden:
+    family: str
+    coefficient: str
+    variables: tuple[str, ...]
+    xml: str
+    description: str
+
+
+def _wrap(coeff: str, body: str, name: str) -> str:
+    props = "\n".join(f"        <property>{p}</property>" for p in SCALE[coeff])
+    return (f"<effects>\n  <axis name=\"{AXIS[coeff]}\">\n    <function name=\"aero/coefficient/hidden-{name}\">\n"
+            f"      <product>\n{props}\n{body}\n      </product>\n    </function>\n  </axis>\n</effects>\n")
+
+
+def _table(prop: str, xs, ys) -> str:
+    rows = "\n".join(f"            {x:.6g} {y:.8g}" for x, y in zip(xs, ys))
+    return (f"        <table>\n          <independentVar>{prop}</independentVar>\n          <tableData>\n{rows}\n"
+            f"          </tableData>\n        </table>")
+
+
+def _sat(d, knee):
+    return np.where(d < knee, np.sin(0.5 * np.pi * d / knee), 1.0)
+
+
+def make(family: str, rng: np.random.Generator, coefficient: str | None = None) -> Hidden:
+    """A random hidden effect of one family."""
+    sign = rng.choice([-1.0, 1.0])
+    d = np.linspace(0, 1, 41)
+    if family == "gear_saturating":
+        c = coefficient or rng.choice(["CL", "CD", "Cm"])
+        amp = {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.025), "Cm": rng.uniform(0.01, 0.03)}[c]
+        amp = abs(amp) if c == "CD" else sign * amp
+        knee = rng.uniform(0.3, 0.6)
+        return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, amp * _sat(d, knee)), family),
+                      f"d{c} = {amp:.4f} * saturating(gear, knee {knee:.2f})")
+    if family == "gear_bump":
+        c = coefficient or rng.choice(["CL", "CD", "Cm"])
+        amp = sign * {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.02), "Cm": rng.uniform(0.01, 0.03)}[c]
+        peak = rng.uniform(0.3, 0.7)
+        y = amp * np.sin(np.pi * np.where(d < peak, 0.5 * d / peak, 0.5 + 0.5 * (d - peak) / (1 - peak)))
+        return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, y), family),
+                      f"d{c} = {amp:.4f} * bump(gear, peak at {peak:.2f})")
+    if family == "alpha":
+        c = coefficient or rng.choice(["CL", "Cm"])
+        amp = sign * rng.uniform(0.02, 0.04)
+        a0 = rng.uniform(2.0, 8.0)
+        a = np.linspace(-10, 20, 61)
+        y = amp * 0.5 * (1 + np.tanh((a - a0) / 2.0))
+        return Hidden(family, c, ("alpha_deg",), _wrap(c, _table("aero/alpha-deg", a, y), family),
+                      f"d{c} = {amp:.4f} * step(alpha around {a0:.1f} deg)")
+    if family == "mach":
+        c = "CD"
+        amp = rng.uniform(0.004, 0.01)
+        m = np.linspace(0.1, 0.7, 31)
+        y = amp * ((m - 0.1) / 0.4) ** 2
+        return Hidden(family, c, ("mach",), _wrap(c, _table("velocities/mach", m, y), family),
+                      f"dCD = {amp:.4f} * ((M - 0.1)/0.4)^2")
+    if family == "gear_x_alpha":
+        c = coefficient or rng.choice(["CL", "Cm"])
+        amp = sign * rng.uniform(0.004, 0.008)  # per deg of alpha away from 4 deg
+        a = np.linspace(-10, 20, 7)
+        vals = np.outer(_sat(d, 0.5), amp * (a - 4.0))
+        lines = "            " + " ".join(f"{x:g}" for x in a) + "\n" + "\n".join(
+            f"            {g:.4f} " + " ".join(f"{v:.8g}" for v in row) for g, row in zip(d, vals))
+        body = (f"        <table>\n          <independentVar lookup=\"row\">gear/gear-pos-norm</independentVar>\n"
+                f"          <independentVar lookup=\"column\">aero/alpha-deg</independentVar>\n"
+                f"          <tableData>\n{lines}\n          </tableData>\n        </table>")
+        return Hidden(family, c, ("gear_norm", "alpha_deg"), _wrap(c, body, family),
+                      f"d{c} = {amp:.4f}/deg * (alpha - 4) * saturating(gear)")
+    if family == "elevator_derivative":
+        c = coefficient or rng.choice(["CL", "Cm"])
+        base = {"CL": 0.40, "Cm": -1.4}[c]
+        k = sign * (rng.uniform(0.35, 0.5) if c == "CL" else rng.uniform(0.2, 0.35))
+        body = f"        <property>fcs/elevator-pos-rad</property>\n        <value>{k * base:.6f}</value>"
+        return Hidden(family, c, ("elevator_deg",), _wrap(c, body, family),
+                      f"d{c}de = {k * base:+.4f} /rad ({k:+.0%} of the model's)")
+    raise ValueError(family)
+
+
+DIAG_MATRIX = """
+name = "diagnosis"
+[[points]]
+gear = "up"
+flap_deg = 0
+mach = 0.3
+alt_ft = [2000, 10000]
+[[points]]
+gear = "down"
+flap_deg = 0
+mach = 0.3
+alt_ft = [2000, 10000]
+[[points]]
+gear = "up"
+flap_deg = 0
+mach = 0.5
+alt_ft = 10000
+[[points]]
+gear = "down"
+flap_deg = 0
+mach = 0.5
+alt_ft = 10000
+[[points]]
+gear = "up"
+flap_deg = 30
+mach = 0.2
+alt_ft = 2000
+[[points]]
+gear = "down"
+flap_deg = 30
+mach = 0.2
+alt_ft = 2000
+"""
+
+
+def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2):
+    """Fly the diagnosis matrix on the model plus a hidden effect, with flight-test noise."""
+    from pathlib import Path
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.engine import FlightConfig
+    from campaign.matrix import load_matrix
+    from campaign.runner import run_campaign
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "m.toml").write_text(DIAG_MATRIX)
+    fx = None
+    if hidden is not None:
+        fx = workdir / "hidden.xml"
+        fx.write_text(hidden.xml)
+    m = load_matrix(workdir / "m.toml")
+    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(fx)), seed, "flight-test",
+                       m.maneuver_params, m.clmax_by_flap)
+    run_campaign(m, cfg, workdir / "data", jobs=jobs, progress=False)
+    return workdir / "data", fx
+
+
+def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2) -> dict:
+    """Fly, diagnose against the bare model, and score the answer against the hidden truth."""
+    from pathlib import Path
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnose import load_data, run_diagnosis, split
+    from identify.diagnosis import residual_data
+    from identify.evaluate import ModelEvaluator
+    from identify.export import merge_into_aircraft
+    workdir = Path(workdir)
+    data, fx = fly_data(workdir, hidden, seed, jobs)
+    doc = run_diagnosis(data, DEFAULT_AIRCRAFT, workdir / "report", plots=False)
+    out = {"doc": doc, "discrepancy": doc["discrepancy"]}
+    if hidden is None or not doc["causes"]:
+        return out
+    first = doc["causes"][0]
+    out["coefficient_ok"] = first["coefficient"] == hidden.coefficient
+    out["variable_ok"] = first["variables"][0] == hidden.variables[0] and set(hidden.variables) <= set(first["variables"])
+    train, _ = split(load_data(data))
+    truth_ac = merge_into_aircraft(DEFAULT_AIRCRAFT, fx, workdir / "truth", replace_gear=False)
+    r_model = residual_data(train, ModelEvaluator(DEFAULT_AIRCRAFT))
+    r_truth = residual_data(train, ModelEvaluator(truth_ac))
+    c = hidden.coefficient
+    true = (r_model[f"r_{c}"] - r_truth[f"r_{c}"]).to_numpy()
+    # the fitted discrepancy, as the extension flies it: the extended model's prediction minus the model's
+    r_ext = residual_data(train, ModelEvaluator(doc["extension"]))
+    fitted = (r_model[f"r_{c}"] - r_ext[f"r_{c}"]).to_numpy()
+    out["shape_error"] = float(np.max(np.abs(fitted - true)) / np.max(np.abs(true)))
+    out["gain"] = doc["gain"]["residual_gain"] if doc["gain"]["coefficient"] == c else float("nan")
+    return out
