@@ -1,0 +1,85 @@
+"""Hidden effects in the data: the diagnosis must find them from the logs alone.
+
+The overlays are generated here at random (fixed seeds) and flown with
+flight-test noise; the diagnosis sees only the logs and the bare model. Only
+this test reads the overlay, to score the answer.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from campaign.cli import main
+from tests.hidden import make, score
+
+CASES = [("gear_saturating", "CL"), ("gear_saturating", "CD"), ("gear_saturating", "Cm"),
+         ("gear_bump", "CL"), ("gear_bump", "CD"), ("gear_bump", "Cm"),
+         ("alpha", None), ("mach", None), ("gear_x_alpha", None), ("elevator_derivative", None)]
+
+
+@pytest.mark.parametrize("family, coeff", CASES, ids=[f"{f}-{c or 'any'}" for f, c in CASES])
+def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff):
+    seed = 1000 + CASES.index((family, coeff))
+    hidden = make(family, np.random.default_rng(seed), coeff)
+    r = score(tmp_path, hidden, seed=seed)
+    first = r["doc"]["causes"][0] if r["doc"]["causes"] else None
+    assert r["discrepancy"], hidden.description
+    assert r["coefficient_ok"] and r["variable_ok"], (hidden.description, first)
+    assert r["shape_error"] < 0.10, (hidden.description, r["shape_error"])
+    assert r["gain"] >= 3.0, (hidden.description, r["gain"])
+
+
+@pytest.mark.parametrize("seed", [21, 22])
+def test_noise_alone_is_no_discrepancy(tmp_path, seed):
+    r = score(tmp_path, None, seed=seed)
+    assert not r["discrepancy"], r["doc"]["causes"]
+    assert r["doc"]["extension"] is None
+
+
+def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
+    from tests.hidden import fly_data
+    hidden = make("gear_bump", np.random.default_rng(5), "CD")
+    data, _ = fly_data(tmp_path / "w", hidden, seed=5)
+    out = tmp_path / "report"
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "1. CD vs gear_norm" in text
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["discrepancy"] is True
+    c = doc["causes"][0]
+    assert set(c) >= {"coefficient", "variables", "shape", "evidence", "peak"}
+    assert c["evidence"]["p_value"] < 1e-6 and c["evidence"]["F"] > 10
+    assert (out / "extended_aircraft" / "737" / "737.xml").exists() and doc["extension"].endswith("737")
+    assert doc["gain"]["residual_gain"] >= 3 and "replay_max_error" in doc["gain"]
+    for name in ("diagnosis.txt", "extension.xml", "plots/residuals_vs_cause.png"):
+        assert (out / name).stat().st_size > 0
+    assert list((out / "plots").glob("response_*.png"))
+    # the report is never written over
+    capsys.readouterr()
+    assert main(["diagnose", "--data", str(data), "--model", doc["model"], "--out", str(out)]) == 2
+    assert "will not overwrite" in capsys.readouterr().err
+
+
+def test_diagnose_bad_inputs(tmp_path, capsys):
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from tests.hidden import fly_data
+    data, _ = fly_data(tmp_path / "w", None, seed=3)
+    # a CSV log with a bad value: file, column and row named
+    from identify.logs import read_parquet
+    log = read_parquet(sorted(data.glob("*.parquet"))[0])
+    csv_dir = tmp_path / "csv"
+    csv_dir.mkdir()
+    bad = log.data.astype({"qbar_psf": object})
+    bad.loc[41, "qbar_psf"] = "n/a"
+    bad.to_csv(csv_dir / "flight1.csv", index=False)
+    (csv_dir / "flight1.json").write_text(json.dumps(log.meta))
+    assert main(["diagnose", "--data", str(csv_dir), "--model", str(DEFAULT_AIRCRAFT), "--out",
+                 str(tmp_path / "o1")]) == 2
+    err = capsys.readouterr().err
+    assert "flight1.csv" in err and "'qbar_psf'" in err and "row 42" in err and err.count("\n") == 1
+    assert main(["diagnose", "--data", str(tmp_path / "missing"), "--model", str(DEFAULT_AIRCRAFT), "--out",
+                 str(tmp_path / "o2")]) == 2
+    assert main(["diagnose", "--data", str(data), "--model", str(tmp_path / "nomodel"), "--out",
+                 str(tmp_path / "o3")]) == 2
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o3").exists()
