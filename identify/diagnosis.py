@@ -386,20 +386,20 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
                 variables += [v for v in t.variables if v not in variables]
             contrib = sum(t.design(data) @ res.term_beta(t) for t in g) + res.beta[0]
             primary = variables[0]
-            order = np.argsort(data[primary].to_numpy(), kind="stable")
-            xs = data[primary].to_numpy()[order]
-            bins = np.unique(np.quantile(xs, np.linspace(0, 1, 21)))
-            idx = np.clip(np.digitize(xs, bins[1:-1]), 0, len(bins) - 2)
-            cx = [float(xs[idx == b].mean()) for b in range(len(bins) - 1) if (idx == b).any()]
-            cy = [float(contrib[order][idx == b].mean()) for b in range(len(bins) - 1) if (idx == b).any()]
-            shape = _shape(np.array(cx), np.array(cy)) if len(cx) > 2 else "constant"
+            grid = pd.DataFrame({v: np.full(41, float(np.median(data[v]))) for v in variables})
+            grid[primary] = np.linspace(float(data[primary].min()), float(data[primary].max()), 41)
+            cy = sum(t.design(grid) @ res.term_beta(t) for t in g) + res.beta[0]
+            cx = grid[primary].to_numpy()
+            shape = _shape(cx, cy)
             if len(variables) > 1:
                 shape += f", depends on {', '.join(variables[1:])}"
             causes.append(Cause(c, variables, g, shape,
                                 {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
                                  "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
                                  "terms": {t.label: res.evidence.get(t.label, {}) for t in g}},
-                                float(np.max(np.abs(contrib))), {"x": cx, primary: cx, f"d{c}": cy}))
+                                float(np.max(np.abs(contrib))),
+                                {primary: cx.tolist(), f"d{c}": np.asarray(cy).tolist(),
+                                 "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}}))
     causes.sort(key=lambda c: -c.evidence["F"])
     return causes
 
