@@ -184,14 +184,19 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
             plt.close(fig)
 
 
+def _names(files: list[str], n: int = 3) -> str:
+    return ", ".join(files[:n]) + (f" and {len(files) - n} more" if len(files) > n else "")
+
+
 def _report(diag: Diagnosis, doc: dict) -> str:
     lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
              f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
     lines.append(diag.summary())
     g = doc.get("gain")
     if g:
-        lines += ["", f"Gain on held-out manoeuvres ({', '.join(g['held_out_logs'])}).",
-                  f"Residual RMS where the first cause acts ({', '.join(g['cause_exercised_in'])}):"]
+        lines += ["", f"Gain on {len(g['held_out_logs'])} held-out manoeuvres ({_names(g['held_out_logs'])}).",
+                  f"Residual RMS where the first cause acts, {len(g['cause_exercised_in'])} of them "
+                  f"({_names(g['cause_exercised_in'])}):"]
         for c, v in g["residual_rms"].items():
             w = g["residual_rms_all_held_out"][c]
             lines.append(f"  {c}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f}); over every held-out "
