@@ -95,8 +95,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
     model = check_aircraft_folder(model_dir)
     logs = load_data(data_path)
     train, held = split(logs)
+    try:
+        evaluator = ModelEvaluator(model)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     out.mkdir(parents=True, exist_ok=True)
-    evaluator = ModelEvaluator(model)
     diag = diagnose(train, evaluator)
     doc: dict = {"discrepancy": diag.discrepancy, "causes": [c.to_dict() for c in diag.causes],
                  "extension": None, "extension_xml": None, "gain": {},

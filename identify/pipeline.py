@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from identify.export import merge_into_aircraft, write_effects
-from identify.logs import Log, read_campaign
+from identify.logs import Log, LogError, read_campaign
 from identify.models import (COEFFS, GRID, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
                              LinearGearModel, PointFit, fit_baseline, fit_surface, increments,
                              linear_models, references)
@@ -161,7 +161,7 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
     results = Path(results)
     logs = read_campaign(results)
     if not logs:
-        raise ValueError(f"{results}: no logs")
+        raise LogError(f"{results}: no logs of flown points to identify from")
     if model_dir is None:
         man = results / "manifest.json"
         if man.exists():
