@@ -9,14 +9,13 @@ flown from the same trimmed start with the recorded inputs).
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.engine import DT_S, FlightConfig, TrimError, fly
+from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint
 from identify.diagnosis import COEFFS, Diagnosis, diagnose, residual_data
@@ -209,7 +208,3 @@ def _report(diag: Diagnosis, doc: dict) -> str:
             lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
         lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
     return "\n".join(lines) + "\n"
-
-
-def clean(out: Path) -> None:
-    shutil.rmtree(out, ignore_errors=True)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -210,8 +209,3 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
         raise UserError(f"{ps}: points: status point {dup[0]} appears twice")
     return Matrix(str(p.resolve()), str(doc.get("name", p.stem)), tuple(points), tuple(params),
                   tuple(sorted(clmax)), hashlib.sha256(raw).hexdigest())
-
-
-def fingerprint(obj) -> str:
-    """Short stable hash of a JSON-able object."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]

@@ -7,7 +7,6 @@ largest pitch-angle change during the test).
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import matplotlib
@@ -158,7 +157,3 @@ def write_report(results: Path, names: list[str] | None = None) -> dict[str, str
     selected = df[df.case.isin({c for c, _, _ in replays})]
     files["table"] = metrics_text(selected)
     return files
-
-
-def summary_json(df: pd.DataFrame) -> str:
-    return json.dumps(df.to_dict(orient="records"), indent=1)

@@ -10,7 +10,7 @@ import pandas as pd
 
 from identify.export import merge_into_aircraft, write_effects
 from identify.logs import Log, LogError, read_campaign
-from identify.models import (COEFFS, GRID, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
+from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
                              LinearGearModel, PointFit, fit_baseline, fit_surface, increments,
                              linear_models, references)
 

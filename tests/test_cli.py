@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 
 import jsbsim
-import pandas as pd
 import pytest
 
 from campaign.cli import main

@@ -7,7 +7,6 @@ import sys
 
 import jsbsim
 import numpy as np
-import pandas as pd
 import pytest
 
 from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
@@ -16,7 +15,7 @@ from campaign.engine import FlightConfig, fly, new_fdm
 from campaign.matrix import load_matrix
 from campaign.runner import run_campaign
 from identify.coefficients import coefficients
-from identify.logs import LogError, Log, read_campaign, read_csv
+from identify.logs import LogError, read_campaign, read_csv
 from identify.pipeline import identify_logs
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
