@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -36,7 +37,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "(default: aircraft/737/effects/reference.xml, the 'real aeroplane')")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="none",
-                   help="sensor noise and turbulence profile (default none)")
+                   help="seeded sensor noise on the logged channels (default none; see the README table)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="model aircraft to merge the identified gear models into "
                             "(default: the campaign's aircraft)")
     ident.add_argument("--plots", choices=("paper", "all", "none"), default="paper",
-                       help="fit plots for the paper's 2000 ft/M0.3/flap-up points only, every point, or none")
+                       help="fit plots for the paper's 2000 ft/M0.3/flap-up points only (default), every point, "
+                            "or none")
 
     fly = sub.add_parser("fly", help="re-fly one status point",
                          description="Re-fly one status point; its logs are bit-identical to the "
@@ -183,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
                                    progress=not args.quiet and sys.stderr.isatty())
             print(summary.text())
             print(f"logs and manifest in {out}")
+            if summary.all_failed:
+                print("no point flew: nothing to identify")
+                return 1
             if args.no_identify:
                 return 0
             _identify(out, None, None, "paper")
@@ -208,6 +213,9 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         sys.stderr.write(f"campaign: error: {exc}\n")
         return 2
+    except BrokenPipeError:  # e.g. `campaign points | head`
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         sys.stderr.write("campaign: interrupted; run the same command again to resume\n")
         return 130

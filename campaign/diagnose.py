@@ -53,19 +53,25 @@ def split(logs: list[Log], every: int = 3) -> tuple[list[Log], list[Log]]:
     return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
 
 
-def recorded(log: Log, head_s: float = 0.5) -> tuple[StatusPoint, Recorded]:
-    """The log's start as a status point and its inputs as offsets from that start."""
+def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint, Recorded]:
+    """The log's start as a status point and its inputs as offsets from that start.
+
+    The flight condition is the mean of the first ``head_s`` (trimmed flight,
+    sensor noise averaged out); the controls are referenced to their first
+    ``first`` samples, because a hold may already be moving them.
+    """
     d = log.data
     head = d[d.t_s < head_s].mean()
+    ref = d.iloc[:first].mean()
     g0 = float(round(d.gear_norm.iloc[0]))
     moving = np.flatnonzero(np.abs(d.gear_norm.to_numpy() - g0) > 1e-6)
     gear_cmd = np.full(len(d), g0)
-    if moving.size:
-        gear_cmd[max(moving[0] - 1, 0):] = round(float(d.gear_norm.iloc[-1]))
+    if moving.size:  # the command set before step k moves the gear in row k
+        gear_cmd[moving[0]:] = round(float(d.gear_norm.iloc[-1]))
     flap = min(FLAP_DETENTS_DEG, key=lambda f: abs(f - head.flap_deg))
     point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
-    man = Recorded(g0, tuple(d.elevator_deg - head.elevator_deg), tuple(d.stabilizer_deg - head.stabilizer_deg),
-                   tuple(d.throttle_norm - head.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}")
+    man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),
+                   tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}")
     return point, man
 
 

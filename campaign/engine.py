@@ -380,6 +380,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     rows = rows[:end]
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
         raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
+    _check_envelope(rows, idx, tr)
 
     cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_norm", "throttle_norm"]
     cols += list(cat.TRUTH_CHANNELS) if config.record_truth else []
@@ -419,6 +420,19 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         "absent_channels": [] if stab_node else ["stabilizer_deg"],
     }
     return Flight(df, meta)
+
+
+#: A flight leaving these bounds is reported as failed, not logged as a valid test point.
+ENVELOPE = {"alpha_deg": (-15.0, 25.0), "phi_deg": (-30.0, 30.0), "theta_deg": (-30.0, 40.0)}
+
+
+def _check_envelope(rows: np.ndarray, idx: dict, tr: Trim) -> None:
+    for ch, (lo, hi) in ENVELOPE.items():
+        v = rows[:, idx[ch]]
+        k = np.flatnonzero((v < lo) | (v > hi))
+        if k.size:
+            raise TrimError(f"left the test envelope: {ch} {v[k[0]]:.1f} at t = {k[0] * DT_S:.1f} s "
+                            f"(allowed {lo:g}..{hi:g}; trimmed alpha {tr.alpha_deg:.1f} deg)")
 
 
 def _thrust_arm_ft(fdm, source: AircraftSource) -> float:

@@ -153,6 +153,11 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                 items.append((k, v))
             else:
                 items.append((k, _number(ps, f"maneuvers.{name}.{k}", v, positive=True)))
+        try:
+            from maneuvers.library import make_maneuver
+            make_maneuver(name, **dict(items))
+        except ValueError as exc:
+            raise UserError(f"{ps}: maneuvers.{name}: {exc}") from None
         params.append((name, tuple(items)))
 
     stall = doc.get("stall", {})

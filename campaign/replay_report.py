@@ -76,10 +76,17 @@ def metrics(replays: dict) -> pd.DataFrame:
 
 def metrics_text(df: pd.DataFrame) -> str:
     cols = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
-            "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass"]
+            "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "tol_theta_deg", "qtg_pass"]
     head = ("Replay errors against the reference aircraft (max |model - reference|).\n"
             "Part 60 gear change (2.c.4): airspeed 3 kt, altitude 100 ft, pitch 1.5 deg or 20 % of its change.\n\n")
-    return head + df[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}") + "\n"
+    table = df[cols].copy()
+    table["qtg_pass"] = table["qtg_pass"].map({True: "pass", False: "FAIL"})
+    text = head + table.to_string(index=False, float_format=lambda v: f"{v:#.3g}") + "\n"
+    failing = table[table.qtg_pass == "FAIL"]
+    if len(failing):
+        text += "\nOutside the Part 60 tolerances: " + "; ".join(
+            f"{r.case} {r.model} {r.loop}" for r in failing.itertuples()) + "\n"
+    return text
 
 
 def plot_case(replays: dict, case: str, loop: str, axes=None):

@@ -14,7 +14,7 @@ from tqdm import tqdm
 from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.matrix import Matrix, StatusPoint
-from campaign.store import MANIFEST, clean_temporaries, log_name, read_manifest, write_json, write_log
+from campaign.store import MANIFEST, clean_temporaries, log_name, read_manifest, readable_log, write_json, write_log
 
 
 def _versions() -> dict[str, str]:
@@ -90,10 +90,14 @@ class Summary:
     total: int
     worst: dict[str, float]
 
+    @property
+    def all_failed(self) -> bool:
+        return self.total > 0 and len(self.failed) == self.total
+
     def text(self) -> str:
         lines = [f"{self.total - len(self.failed)} of {self.total} points ok "
                  f"({self.flown} flown now, {self.skipped} already done), "
-                 f"{len(self.failed)} failed, wall time {self.wall_s:.1f} s"]
+                 f"{len(self.failed)} failed, flying took {self.wall_s:.1f} s"]
         for pid, reason in self.failed:
             lines.append(f"  failed {pid}: {reason}")
         if self.worst:
@@ -129,8 +133,8 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
         if diff:
             raise UserError(f"{out / MANIFEST}: settings.{diff[0]}: {prev.get(diff[0])!r} differs from "
                             f"this run's {want[diff[0]]!r}; will not overwrite (choose another --out)")
-        for rec in old.get("points", []):
-            if rec["status"] != "ok" or all((out / f).exists() for f in rec["files"]):
+        for rec in old.get("points", []):  # a missing or unreadable log flies again
+            if rec["status"] != "ok" or all(readable_log(out / f) for f in rec["files"]):
                 done[rec["id"]] = rec
     clean_temporaries(out)
     todo = [p for p in (points or matrix.points) if p.id not in done]

@@ -21,11 +21,18 @@ def log_name(point_id: str, maneuver: str) -> str:
     return f"{point_id}__{maneuver}.parquet"
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _atomic_write(path: Path, write) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file ordinary permissions
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -68,3 +75,12 @@ def clean_temporaries(folder: Path) -> None:
     """Remove temporaries left by a killed run."""
     for tmp in Path(folder).glob(".*.tmp"):
         tmp.unlink(missing_ok=True)
+
+
+def readable_log(path: Path) -> bool:
+    """True if ``path`` is a complete Parquet file (its footer reads)."""
+    try:
+        pq.read_metadata(path)
+        return True
+    except (OSError, ValueError):
+        return False

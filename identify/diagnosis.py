@@ -236,6 +236,7 @@ class StepwiseResult:
     rms_before: float
     rms_after: float
     n_eff: float
+    close: dict = field(default_factory=dict)  # term label -> rivals nearly as strong when it entered
 
     def term_beta(self, term: Term) -> np.ndarray:
         i = 1
@@ -265,6 +266,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     lags = lags or _Lags(data["log"].to_numpy())
     designs = {t: t.design(data) for t in terms}
     chosen: list[Term] = []
+    close: dict[str, list] = {}
     current = _fit(y, [], [])
     rss0 = current.rss
     rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
@@ -299,6 +301,11 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 break
         if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
             break
+        mine = set(best["term"].variables)
+        close[best["term"].label] = [
+            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / best["F"]} for r in rows
+            if r is not best and r["p_value"] < alpha_in and r["F"] >= 0.5 * best["F"]
+            and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
         chosen.append(best["term"])
         current = best["fit"]
         for t in list(chosen[:-1]):  # backward step
@@ -319,7 +326,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
                              "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
     rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
-    return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff)
+    return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
+                          {t.label: close.get(t.label, []) for t in chosen})
 
 
 @dataclass
@@ -396,7 +404,8 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
             causes.append(Cause(c, variables, g, shape,
                                 {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
                                  "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
-                                 "terms": {t.label: res.evidence.get(t.label, {}) for t in g}},
+                                 "terms": {t.label: res.evidence.get(t.label, {}) for t in g},
+                                 "hardly_separated_from": [a for t in g for a in res.close.get(t.label, [])]},
                                 float(np.max(np.abs(contrib))),
                                 {primary: cx.tolist(), f"d{c}": np.asarray(cy).tolist(),
                                  "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}}))
@@ -427,9 +436,13 @@ class Diagnosis:
             lines.append("No significant discrepancy: noise alone explains the residuals.")
         for i, c in enumerate(self.causes, 1):
             e = c.evidence
-            lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
-                         f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, p = {e['p_value']:.2g}, "
-                         f"removes {e['rss_reduction_pct']:.1f} % of the residual")
+            p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
+        lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
+                     f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
+                     f"removes {e['rss_reduction_pct']:.1f} % of the residual")
+        for a in e.get("hardly_separated_from", []):
+            lines.append(f"   caution: the data hardly separate it from {a['term']} "
+                         f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
         lines.append("")
         for c, res in self.results.items():
             lines.append(f"{c}: residual RMS {res.rms_before:.3g} -> {res.rms_after:.3g} with "

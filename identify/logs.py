@@ -18,6 +18,10 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
     "flap_deg", "gear_norm", "mass_slug",
 )
 REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
+#: Physically plausible ranges; a value outside is a unit or sign mistake.
+PLAUSIBLE = {"alpha_deg": (-30.0, 60.0), "mach": (0.0, 3.0), "tas_kt": (0.0, 2000.0), "qbar_psf": (0.0, 3000.0),
+             "gear_norm": (-0.01, 1.01), "flap_deg": (-1.0, 60.0), "mass_slug": (1.0, 1e5),
+             "theta_deg": (-90.0, 90.0), "elevator_deg": (-45.0, 45.0), "stabilizer_deg": (-30.0, 30.0)}
 
 
 class LogError(ValueError):
@@ -67,18 +71,27 @@ def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:
     for col in REQUIRED_COLUMNS:
         if col not in df.columns:
             raise LogError(f"{path}: column {col!r} missing")
-        values = pd.to_numeric(df[col], errors="coerce")
-        bad = np.flatnonzero(~np.isfinite(values.to_numpy(dtype=float)))
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise LogError(f"{path}: column {col!r}, row {bad[0] + 1}: not a finite number "
-                           f"({df[col].iloc[bad[0]]!r})")
+            raw = df[col].iloc[bad[0]]
+            shown = "empty" if pd.isna(raw) else repr(str(raw))
+            raise LogError(f"{path}: column {col!r}, row {bad[0] + 1}: not a finite number ({shown})")
+        lo, hi = PLAUSIBLE.get(col, (-np.inf, np.inf))
+        out = np.flatnonzero((values < lo) | (values > hi))
+        if out.size:
+            raise LogError(f"{path}: column {col!r}, row {out[0] + 1}: {values[out[0]]:g} is outside "
+                           f"{lo:g}..{hi:g} (units? the column's unit is in its name)")
     if len(df) < 10:
         raise LogError(f"{path}: only {len(df)} rows")
 
 
 def read_parquet(path: str | Path) -> Log:
     """Read one Parquet log written by a campaign."""
-    table = pq.read_table(path)
+    try:
+        table = pq.read_table(path)
+    except (OSError, ValueError) as exc:  # pyarrow.ArrowInvalid is a ValueError
+        raise LogError(f"{path}: not a readable Parquet log ({str(exc).splitlines()[0][:120]})") from None
     meta = json.loads((table.schema.metadata or {}).get(b"gearid", b"{}"))
     df = table.to_pandas()
     _validate(str(path), df, meta)

@@ -89,6 +89,19 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                                                       "linear_gear_model", "gear_increments")})
 
     text = ["Identification summary", "=" * 22, ""]
+    if ident.linear:
+        head = pd.DataFrame([{"condition": _cond_key(c), "alpha_trim_deg": round(m.alpha_trim_deg, 2),
+                              **{f"d{k}_gear": round(m.increment(k), 5) for k in COEFFS}}
+                             for c, m in sorted(ident.linear.items())])
+        text += ["Linear gear increments (eq. 4): gear-down minus gear-up at the gear-up trim, per condition",
+                 head.to_string(index=False), ""]
+    if ident.increments:
+        peaks = pd.DataFrame([{"point": p, **{f"peak_d{k}": round(float(i.smooth[k][np.argmax(np.abs(i.smooth[k]))]), 5)
+                                               for k in COEFFS},
+                               **{f"d{k}_at_0.5": round(float(np.interp(0.5, i.grid, i.smooth[k])), 5) for k in COEFFS}}
+                              for p, i in sorted(ident.increments.items())])
+        text += ["Nonlinear gear increments (eq. 8) along each transition: peak and value at delta_LG = 0.5",
+                 peaks.to_string(index=False), ""]
     for f in ident.fits:
         if f.point in PAPER_POINTS:
             text += [f"Table 2 style, {f.point}", f.table().to_string(), ""]

@@ -28,8 +28,8 @@ def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
     for i, c in enumerate(COEFFS):
         res = fit.fits[c]
         ax, axr = axes[i][0], axes[i][1]
-        ax.plot(t_s, res.y, "r.", ms=1.5, label="flight data (eq. 1)")
-        ax.plot(t_s, res.fitted, "b-", lw=1.0, label="identified model (eq. 3)")
+        ax.plot(t_s, res.fitted, "b-", lw=2.5, alpha=0.6, label="identified model (eq. 3)")
+        ax.plot(t_s, res.y, "r.", ms=1.0, zorder=3, label="flight data (eq. 1)")
         ax.set_ylabel(LABEL[c])
         axr.plot(t_s, res.resid, "k-", lw=0.8)
         axr.axhline(0, color="0.6", lw=0.5)
@@ -46,8 +46,15 @@ def plot_alpha_transitions(incs: list[Increments], ax=None):
     """Angle of attack against normalized gear position during the extensions (Fig. 11)."""
     if ax is None:
         fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
+    cmap = plt.get_cmap("viridis")
+    trims = np.array([i.alpha_trim_deg for i in incs])
+    lo, hi = trims.min(), max(trims.max(), trims.min() + 1e-9)
     for inc in incs:
-        ax.plot(inc.gear_norm, inc.alpha_deg - inc.alpha_trim_deg, lw=0.8)
+        moving = (inc.gear_norm > 0.0) & (inc.gear_norm < 1.0)
+        ax.plot(inc.gear_norm[moving], inc.alpha_deg[moving] - inc.alpha_trim_deg, lw=0.8,
+                color=cmap((inc.alpha_trim_deg - lo) / (hi - lo)))
+    ax.figure.colorbar(plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi)), ax=ax,
+                       label=r"trim $\alpha$ [deg]")
     ax.set_xlabel(r"normalized gear position $\delta_{LG}$ [-]")
     ax.set_ylabel(r"$\alpha - \alpha_{trim}$ [deg]")
     ax.set_title(f"Angle of attack during gear transitions ({len(incs)} status points)")

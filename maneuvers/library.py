@@ -95,6 +95,12 @@ class Doublet2311(Maneuver):
     gap_s: float = 4.0
     name: str = "doublet"
 
+    def __post_init__(self) -> None:
+        if not 0 < self.amplitude_deg <= 10.0:
+            raise ValueError(f"amplitude_deg must be in (0, 10] deg, not {self.amplitude_deg}")
+        if not 0 <= self.stabilizer_amplitude_deg <= 5.0:
+            raise ValueError(f"stabilizer_amplitude_deg must be in [0, 5] deg, not {self.stabilizer_amplitude_deg}")
+
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
         a = self.amplitude_deg * amplitude_scale
         u = _steps(self.unit_s, dt)

@@ -181,3 +181,46 @@ def test_stock_737_flies_with_aircraft_option(tmp_path, small_matrix):
 def test_identify_is_this_projects_package():
     import identify
     assert Path(identify.__file__).resolve().parent == Path(__file__).resolve().parents[1] / "identify"
+
+
+def test_corrupt_log_is_an_error_for_identify_and_is_reflown_on_resume(tmp_path, capsys, small_matrix):
+    out = tmp_path / "c"
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--no-identify"]) == 0
+    victim = out / "h02000_m0.30_f00_gup__doublet.parquet"
+    good = victim.read_bytes()
+    victim.write_bytes(good[:1000])
+    capsys.readouterr()
+    assert main(["identify", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert victim.name in err and "not a readable Parquet log" in err and err.count("\n") == 1
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--no-identify"]) == 0
+    assert "1 flown now" in capsys.readouterr().out
+    assert victim.read_bytes() == good
+
+
+def test_outputs_have_ordinary_permissions(tmp_path, small_matrix):
+    import os
+    old = os.umask(0o022)
+    try:
+        assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--no-identify"]) == 0
+    finally:
+        os.umask(old)
+    for p in (tmp_path / "c").iterdir():
+        assert p.stat().st_mode & 0o777 == 0o644, p
+
+
+def test_points_into_a_closed_pipe_is_quiet():
+    res = subprocess.run(f"{sys.executable} -m campaign.cli points | head -1", shell=True, capture_output=True,
+                         text=True)
+    assert res.stdout.startswith("h02000_m0.30_f00_gup") and "Traceback" not in res.stderr
+
+
+def test_run_fails_when_no_point_flies_and_limits_amplitudes(tmp_path, capsys, small_matrix):
+    bad = tmp_path / "fast.toml"
+    bad.write_text('[[points]]\ngear = "up"\nflap_deg = 40\nmach = 0.6\nalt_ft = 2000\n')
+    assert main(["run", "--matrix", str(bad), "--out", str(tmp_path / "f")]) == 1
+    assert "0 of 1 points ok" in capsys.readouterr().out
+    big = tmp_path / "big.toml"
+    big.write_text(small_matrix.read_text().replace("tail_s = 2.0", "tail_s = 2.0\namplitude_deg = 40"))
+    _one_line_error(capsys, ["run", "--matrix", str(big), "--out", str(tmp_path / "g")], str(big),
+                    "maneuvers.doublet", "amplitude_deg")

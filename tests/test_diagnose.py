@@ -50,6 +50,7 @@ def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     c = doc["causes"][0]
     assert set(c) >= {"coefficient", "variables", "shape", "evidence", "peak"}
     assert c["evidence"]["p_value"] < 1e-6 and c["evidence"]["F"] > 10
+    assert "hardly_separated_from" in c["evidence"]
     assert (out / "extended_aircraft" / "737" / "737.xml").exists() and doc["extension"].endswith("737")
     assert doc["gain"]["residual_gain"] >= 3 and "replay_max_error" in doc["gain"]
     for name in ("diagnosis.txt", "extension.xml", "plots/residuals_vs_cause.png"):
@@ -83,3 +84,21 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
     assert main(["diagnose", "--data", str(data), "--model", str(tmp_path / "nomodel"), "--out",
                  str(tmp_path / "o3")]) == 2
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o3").exists()
+
+
+def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
+    """Same start, same recorded inputs, same aircraft: the flight comes back."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+    from campaign.diagnose import replay
+    from campaign.engine import FlightConfig, fly
+    from campaign.matrix import load_matrix
+    from identify.logs import Log
+    m = load_matrix()
+    src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS))
+    for man in ("gear_extension", "doublet"):
+        f = fly(m.point("h10000_m0.30_f00_gdn"), man, FlightConfig(src, maneuver_params=m.maneuver_params,
+                                                                   clmax_by_flap=m.clmax_by_flap))
+        again = replay(Log("x", f.log, f.meta), src)
+        assert (again.gear_norm.to_numpy() == f.log.gear_norm.to_numpy()).all()
+        assert np.max(np.abs(again.theta_deg - f.log.theta_deg)) < 0.01, man
+        assert np.max(np.abs(again.alt_ft - f.log.alt_ft)) < 0.5, man

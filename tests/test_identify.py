@@ -242,6 +242,11 @@ def test_csv_logs_with_sidecar_and_their_errors(reference_gear_down, tmp_path):
     log.data.drop(columns=["qbar_psf"]).to_csv(csv, index=False)
     with pytest.raises(LogError, match="qbar_psf"):
         read_csv(csv)
+    radians = log.data.copy()
+    radians["alpha_deg"] = radians["alpha_deg"] * 57.3  # a unit mistake
+    radians.to_csv(csv, index=False)
+    with pytest.raises(LogError, match=r"column 'alpha_deg', row \d+: .* outside -30..60"):
+        read_csv(csv)
 
 
 def test_identify_never_imports_the_flying_code():
