@@ -437,12 +437,12 @@ class Diagnosis:
         for i, c in enumerate(self.causes, 1):
             e = c.evidence
             p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
-        lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
-                     f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
-                     f"removes {e['rss_reduction_pct']:.1f} % of the residual")
-        for a in e.get("hardly_separated_from", []):
-            lines.append(f"   caution: the data hardly separate it from {a['term']} "
-                         f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+            lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
+                         f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
+                         f"removes {e['rss_reduction_pct']:.1f} % of the residual")
+            for a in e.get("hardly_separated_from", []):
+                lines.append(f"   caution: the data hardly separate it from {a['term']} "
+                             f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
         lines.append("")
         for c, res in self.results.items():
             lines.append(f"{c}: residual RMS {res.rms_before:.3g} -> {res.rms_after:.3g} with "

@@ -45,6 +45,9 @@ def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "1. CD vs gear_norm" in text
+    doc0 = json.loads((out / "diagnosis.json").read_text())
+    for i, cause in enumerate(doc0["causes"], 1):  # every cause is in the report
+        assert f"{i}. {cause['coefficient']} vs" in text
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["discrepancy"] is True
     c = doc["causes"][0]
