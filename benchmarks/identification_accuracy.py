@@ -23,6 +23,9 @@ from campaign.runner import run_campaign
 from identify.logs import read_campaign
 from identify.pipeline import identify_logs
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.hidden import reference_gear_truth  # noqa: E402
+
 ARM = (638.95 - 635.84) / 155.81
 CLA = ([0, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8], [5.247, 5.358, 5.5, 5.726, 6.058, 6.558, 7.349, 8.746])
 
@@ -34,20 +37,6 @@ def campaign(work: Path, name: str, effects, noise="none", seed=0):
     out = work / name
     run_campaign(m, cfg, out, jobs=2, progress=False)
     return identify_logs(read_campaign(out))
-
-
-def reference_truth(fdm, alpha_deg, gear, mach):
-    theta = 2 / np.pi * np.arcsin(gear)
-    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha_deg,
-                 "gear/gear-cmd-norm": theta, "gear/theta-lg-norm": theta}.items():
-        fdm[k] = v
-    fdm.run_ic()
-    qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
-    dcl = (fdm["aero/coefficient/CLgear"] + fdm["aero/coefficient/ref-dCL-gear-alpha"]) / qs
-    dcd = (fdm["aero/coefficient/CDgear"] + fdm["aero/coefficient/ref-dCD-gear-nonlinear"]) / qs
-    dcm = (fdm["aero/coefficient/Cmgear"] + fdm["aero/coefficient/ref-dCm-gear-nonlinear"]) / (qs * fdm["metrics/cbarw-ft"])
-    a = np.radians(alpha_deg)
-    return {"CL": dcl, "CD": dcd, "Cm": dcm - (dcl * np.cos(a) + dcd * np.sin(a)) * ARM}
 
 
 def main(work: Path) -> None:
@@ -78,7 +67,7 @@ def main(work: Path) -> None:
     fdm = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)))
     worst = {c: 0.0 for c in ("CL", "CD", "Cm")}
     for inc in ref.increments.values():
-        truth = [reference_truth(fdm, inc.alpha_trim_deg, g, inc.condition[1]) for g in inc.grid]
+        truth = [reference_gear_truth(fdm, inc.alpha_trim_deg, g, inc.condition[1], ARM) for g in inc.grid]
         for c in worst:
             t = np.array([x[c] for x in truth])
             worst[c] = max(worst[c], float(np.max(np.abs(inc.smooth[c] - t)) / np.max(np.abs(t)) * 100))

@@ -33,6 +33,23 @@ def _table(prop: str, xs, ys) -> str:
             f"          </tableData>\n        </table>")
 
 
+def reference_gear_truth(fdm, alpha_deg: float, gear: float, mach: float, arm: float) -> dict[str, float]:
+    """Total gear increments of the reference aircraft (model + reference overlay) at one
+    state, read from JSBSim; Cm about the CG (``arm``: AERORP aft of the CG [cbar])."""
+    theta = 2 / np.pi * np.arcsin(gear)  # our 737: gear-pos-norm = sin(theta_LG)
+    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha_deg,
+                 "gear/gear-cmd-norm": theta, "gear/theta-lg-norm": theta}.items():
+        fdm[k] = v
+    fdm.run_ic()
+    qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
+    dcl = (fdm["aero/coefficient/CLgear"] + fdm["aero/coefficient/ref-dCL-gear-alpha"]) / qs
+    dcd = (fdm["aero/coefficient/CDgear"] + fdm["aero/coefficient/ref-dCD-gear-nonlinear"]) / qs
+    dcm = ((fdm["aero/coefficient/Cmgear"] + fdm["aero/coefficient/ref-dCm-gear-nonlinear"])
+           / (qs * fdm["metrics/cbarw-ft"]))
+    a = np.radians(alpha_deg)
+    return {"CL": dcl, "CD": dcd, "Cm": dcm - (dcl * np.cos(a) + dcd * np.sin(a)) * arm}
+
+
 def _sat(d, knee):
     return np.where(d < knee, np.sin(0.5 * np.pi * d / knee), 1.0)
 

@@ -17,6 +17,7 @@ from campaign.runner import run_campaign
 from identify.coefficients import coefficients
 from identify.logs import LogError, read_campaign, read_csv
 from identify.pipeline import identify_logs
+from tests.hidden import reference_gear_truth
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
 D2R = np.pi / 180
@@ -126,21 +127,9 @@ def test_flight_test_noise_keeps_95pct_of_parameters_within_3_se(tmp_path_factor
 
 
 def _reference_truth(alpha_deg, gear, mach, fdm_cache={}):
-    """Total gear increments of the reference aircraft at a state, from JSBSim (model + overlay)."""
     if "fdm" not in fdm_cache:
         fdm_cache["fdm"] = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)))
-    fdm = fdm_cache["fdm"]
-    theta = 2 / np.pi * np.arcsin(gear)
-    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha_deg, "gear/gear-cmd-norm": theta,
-                 "gear/theta-lg-norm": theta}.items():
-        fdm[k] = v
-    fdm.run_ic()
-    qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
-    dcl = (fdm["aero/coefficient/CLgear"] + fdm["aero/coefficient/ref-dCL-gear-alpha"]) / qs
-    dcd = (fdm["aero/coefficient/CDgear"] + fdm["aero/coefficient/ref-dCD-gear-nonlinear"]) / qs
-    dcm = (fdm["aero/coefficient/Cmgear"] + fdm["aero/coefficient/ref-dCm-gear-nonlinear"]) / (qs * fdm["metrics/cbarw-ft"])
-    a = alpha_deg * D2R
-    return {"CL": dcl, "CD": dcd, "Cm": dcm - (dcl * np.cos(a) + dcd * np.sin(a)) * ARM}
+    return reference_gear_truth(fdm_cache["fdm"], alpha_deg, gear, mach, ARM)
 
 
 @pytest.fixture(scope="module")
