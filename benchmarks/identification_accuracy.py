@@ -25,6 +25,7 @@ from identify.pipeline import identify_logs
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.hidden import reference_gear_truth  # noqa: E402
+from tests.support import z_scores  # noqa: E402
 
 ARM = (638.95 - 635.84) / 155.81
 CLA = ([0, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8], [5.247, 5.358, 5.5, 5.726, 6.058, 6.558, 7.349, 8.746])
@@ -75,13 +76,7 @@ def main(work: Path) -> None:
           {c: round(v, 2) for c, v in worst.items()})
 
     noisy = campaign(work, "noisy", DEFAULT_EFFECTS, "flight-test", 1)
-    clean = {f.point: f for f in ref.fits}
-    z = []
-    for f in noisy.fits:
-        for c, res in f.fits.items():
-            r0 = clean[f.point].fits[c]
-            z += [(res.params[k] - r0.params[k]) / res.bse[k] for k in res.params.index if k in r0.params.index]
-    z = np.abs(np.array(z))
+    z = z_scores(ref.fits, noisy.fits)
     print(f"flight-test noise: {np.mean(z <= 3) * 100:.1f} % of {len(z)} parameters within 3 SE "
           f"(RMS z {np.sqrt(np.mean(z ** 2)):.2f})")
     for label, ident in (("noise-free", ref), ("flight-test noise", noisy)):

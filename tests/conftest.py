@@ -1,5 +1,4 @@
 import os
-import textwrap
 
 import pytest
 
@@ -8,6 +7,7 @@ os.environ.setdefault("JSBSIM_DEBUG", "0")
 from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
 from campaign.engine import FlightConfig  # noqa: E402
 from campaign.matrix import load_matrix  # noqa: E402
+from tests.support import matrix_toml  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -36,33 +36,15 @@ def bare_config():
     return config_for(None)
 
 
-SMALL_MATRIX = """
-name = "small"
-[defaults]
-maneuvers_gear_up = ["doublet"]
-maneuvers_gear_down = ["doublet", "gear_extension"]
-[maneuvers.doublet]
-tail_s = 2.0
-[maneuvers.gear_extension]
-post_s = 5.0
-[stall.clmax_by_flap]
-0 = 1.45
-5 = 1.90
-[[points]]
-gear = "up"
-flap_deg = 0
-mach = 0.3
-alt_ft = [2000, 10000]
-[[points]]
-gear = "down"
-flap_deg = 5
-mach = 0.3
-alt_ft = 2000
-"""
+SMALL_MATRIX = matrix_toml(
+    [("up", 0, 0.3, [2000, 10000]), ("down", 5, 0.3, 2000)], "small",
+    '[defaults]\nmaneuvers_gear_up = ["doublet"]\nmaneuvers_gear_down = ["doublet", "gear_extension"]\n'
+    "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"
+    "[stall.clmax_by_flap]\n0 = 1.45\n5 = 1.90\n")
 
 
 @pytest.fixture
 def small_matrix(tmp_path):
     p = tmp_path / "small.toml"
-    p.write_text(textwrap.dedent(SMALL_MATRIX))
+    p.write_text(SMALL_MATRIX)
     return p

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tests.support import matrix_toml, pairs
+
 AXIS = {"CL": "LIFT", "CD": "DRAG", "Cm": "PITCH"}
 SCALE = {"CL": ["aero/qbar-psf", "metrics/Sw-sqft"], "CD": ["aero/qbar-psf", "metrics/Sw-sqft"],
          "Cm": ["aero/qbar-psf", "metrics/Sw-sqft", "metrics/cbarw-ft"]}
@@ -109,39 +111,7 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None) 
     raise ValueError(family)
 
 
-DIAG_MATRIX = """
-name = "diagnosis"
-[[points]]
-gear = "up"
-flap_deg = 0
-mach = 0.3
-alt_ft = [2000, 10000]
-[[points]]
-gear = "down"
-flap_deg = 0
-mach = 0.3
-alt_ft = [2000, 10000]
-[[points]]
-gear = "up"
-flap_deg = 0
-mach = 0.5
-alt_ft = 10000
-[[points]]
-gear = "down"
-flap_deg = 0
-mach = 0.5
-alt_ft = 10000
-[[points]]
-gear = "up"
-flap_deg = 30
-mach = 0.2
-alt_ft = 2000
-[[points]]
-gear = "down"
-flap_deg = 30
-mach = 0.2
-alt_ft = 2000
-"""
+DIAG_MATRIX = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000)), "diagnosis")
 
 
 def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2):

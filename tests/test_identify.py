@@ -18,34 +18,13 @@ from identify.coefficients import coefficients
 from identify.logs import LogError, read_campaign, read_csv
 from identify.pipeline import identify_logs
 from tests.hidden import reference_gear_truth
+from tests.support import matrix_toml, pairs, z_scores
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
 D2R = np.pi / 180
 ARM = (638.95 - 635.84) / 155.81  # AERORP aft of the CG [cbar]
 
-PAIRS = """
-name = "pairs"
-[[points]]
-gear = "up"
-flap_deg = 0
-mach = 0.3
-alt_ft = [2000, 10000]
-[[points]]
-gear = "down"
-flap_deg = 0
-mach = 0.3
-alt_ft = [2000, 10000]
-[[points]]
-gear = "up"
-flap_deg = 30
-mach = 0.2
-alt_ft = 2000
-[[points]]
-gear = "down"
-flap_deg = 30
-mach = 0.2
-alt_ft = 2000
-"""
+PAIRS = matrix_toml(pairs((0, 0.3, [2000, 10000]), (30, 0.2, 2000)), "pairs")
 
 
 def _campaign(tmp_path_factory, name, text, aircraft=str(DEFAULT_AIRCRAFT), effects=None, noise="none", seed=0):
@@ -102,7 +81,7 @@ def test_linear_gear_model_recovers_the_models_increments_within_1pct(bare):
 
 
 def test_stock_737_elevator_lift_and_gear_drag(tmp_path_factory):
-    text = PAIRS.split("[[points]]\ngear = \"up\"\nflap_deg = 30")[0]
+    text = matrix_toml(pairs((0, 0.3, [2000, 10000])), "stock")
     ident = identify_logs(read_campaign(_campaign(tmp_path_factory, "stock", text, aircraft=STOCK_737)))
     for f in ident.fits:
         assert f.fits["CL"].params["delevator_rad"] == pytest.approx(0.2, rel=0.02)
@@ -114,13 +93,7 @@ def test_stock_737_elevator_lift_and_gear_drag(tmp_path_factory):
 
 def test_flight_test_noise_keeps_95pct_of_parameters_within_3_se(tmp_path_factory, bare):
     noisy = identify_logs(read_campaign(_campaign(tmp_path_factory, "noisy", PAIRS, noise="flight-test", seed=3)))
-    clean = {f.point: f for f in bare.fits}
-    z = []
-    for f in noisy.fits:
-        for c, res in f.fits.items():
-            ref = clean[f.point].fits[c]
-            z += [(res.params[k] - ref.params[k]) / res.bse[k] for k in res.params.index if k in ref.params.index]
-    z = np.abs(np.array(z))
+    z = z_scores(bare.fits, noisy.fits)
     assert len(z) > 100
     assert np.mean(z <= 3.0) >= 0.95, f"{np.mean(z <= 3):.3f} within 3 SE"
     assert np.mean(z <= 1.0) < 0.95  # standard errors are not inflated into meaninglessness

@@ -8,50 +8,10 @@ import pytest
 from campaign.cli import main
 from campaign.errors import UserError
 from campaign.replay import DEFAULT_CASES, load_cases, select
+from tests.support import matrix_toml, pairs
 
-MATRIX = """
-name = "replay-test"
-[[points]]
-gear = "up"
-flap_deg = 5
-mach = 0.3
-alt_ft = [2000, 5000, 10000]
-[[points]]
-gear = "down"
-flap_deg = 5
-mach = 0.3
-alt_ft = [2000, 5000, 10000]
-[[points]]
-gear = "up"
-flap_deg = 5
-mach = 0.4
-alt_ft = 5000
-[[points]]
-gear = "down"
-flap_deg = 5
-mach = 0.4
-alt_ft = 5000
-[[points]]
-gear = "up"
-flap_deg = 30
-mach = 0.2
-alt_ft = [2000, 5000]
-[[points]]
-gear = "down"
-flap_deg = 30
-mach = 0.2
-alt_ft = [2000, 5000]
-[[points]]
-gear = "up"
-flap_deg = 30
-mach = 0.3
-alt_ft = [5000, 10000]
-[[points]]
-gear = "down"
-flap_deg = 30
-mach = 0.3
-alt_ft = [5000, 10000]
-"""
+MATRIX = matrix_toml(pairs((5, 0.3, [2000, 5000, 10000]), (5, 0.4, 5000), (30, 0.2, [2000, 5000]),
+                            (30, 0.3, [5000, 10000])), "replay-test")
 
 
 @pytest.fixture(scope="module")
