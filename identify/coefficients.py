@@ -1,7 +1,8 @@
 """Aerodynamic coefficients from measured channels (paper eq. 1).
 
 CL and CD follow eq. (1a, 1b). Cm follows eq. (1c), less the thrust line's
-moment, so it is the aerodynamic pitching moment about the CG.
+moment, so it is the aerodynamic pitching moment about the CG. The body-axis
+force coefficients Cx and Cz come along: a moment transfer needs them.
 """
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``CL``, ``CD``, ``Cm`` [-].
+        Columns ``CL``, ``CD``, ``Cm`` and the body-axis aero force coefficients
+        ``Cx`` (forward), ``Cz`` (down) [-].
     """
     g = meta["geometry"]
     inertia = meta["inertia_slugft2"]
@@ -45,7 +47,7 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T
     moment_thrust = -g.get("thrust_z_arm_ft", 0.0) * data["thrust_lbf"].to_numpy()
     cm = (moment - moment_thrust) / (qs * cbar)
-    return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm}, index=data.index)
+    return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm, "Cx": fx / qs, "Cz": fz / qs}, index=data.index)
 
 
 def qhat(data: pd.DataFrame, meta: dict) -> np.ndarray:

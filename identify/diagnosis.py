@@ -26,12 +26,14 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from identify.coefficients import D2R, coefficients, qhat
+from identify.coefficients import D2R, FT_PER_KT, coefficients
+from identify.evaluate import moment_transfer
+from identify.kinematics import angle_rates
 from identify.logs import Log
 from identify.models import EDGE_S, lowpass
 
 COEFFS = ("CL", "CD", "Cm")
-#: Candidate variables: log column -> JSBSim property of the model it maps to.
+#: Candidate variables: log column (or derived quantity) -> JSBSim property of the model it maps to.
 VARIABLES = {
     "gear_norm": "gear/gear-pos-norm",
     "alpha_deg": "aero/alpha-deg",
@@ -40,56 +42,101 @@ VARIABLES = {
     "elevator_deg": "fcs/elevator-pos-deg",
     "stabilizer_deg": "fcs/stabilizer-pos-deg",
     "qhat_rad": None,  # q cbar / 2V: aero/ci2vel * velocities/q-aero-rad_sec
+    "adothat_rad": None,  # alpha-dot cbar / 2V: aero/ci2vel * aero/alphadot-rad_sec
+    "CL": "aero/cl-squared",  # the measured lift coefficient; exported through CL^2
 }
+#: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
+RATES = {"qhat_rad": "velocities/q-aero-rad_sec", "adothat_rad": "aero/alphadot-rad_sec"}
+#: Variables a coefficient's residual may not be regressed on (they contain that residual).
+EXCLUDED = {"CL": ("CL",)}
 #: A variable must vary at least this much (std) to be a candidate.
 MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
-           "stabilizer_deg": 0.1, "qhat_rad": 1e-5}
-FILTERED = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps",
-            "r_dps", "elevator_deg", "stabilizer_deg")
+           "stabilizer_deg": 0.1, "qhat_rad": 1e-5, "adothat_rad": 1e-5, "CL": 0.01}
+#: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
+FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
 GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
+
+
+def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray) -> pd.DataFrame:
+    """The candidate variables of one log, unfiltered.
+
+    Parameters
+    ----------
+    data : DataFrame
+        A log in the schema.
+    meta : dict
+        Its metadata (``geometry.cbar_ft``).
+    cl : ndarray
+        Its measured lift coefficient [-].
+    """
+    half_chord_over_v = meta["geometry"]["cbar_ft"] / (2.0 * data["tas_kt"].to_numpy() * FT_PER_KT)
+    alpha_dot, _ = angle_rates(data)
+    out = pd.DataFrame({v: data[v].to_numpy(dtype=float) for v in VARIABLES if v in data.columns}, index=data.index)
+    out["qhat_rad"] = data["q_dps"].to_numpy() * D2R * half_chord_over_v
+    out["adothat_rad"] = alpha_dot * half_chord_over_v
+    out["CL"] = np.asarray(cl, dtype=float)
+    return out
+
+
+def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
+    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP.
+
+    The log's own area and chord are converted to the model's; the moment moves
+    from the log's CG (the model's CG if the log does not give one) to the
+    model's AERORP, with the full x and z offset.
+    """
+    g = meta["geometry"]
+    k = g["S_ft2"] / evaluator.S
+    cg_x, cg_z = g.get("cg_x_in", evaluator.cg_in[0]), g.get("cg_z_in", evaluator.cg_in[2])
+    cm = coef["Cm"].to_numpy() * k * g["cbar_ft"] / evaluator.cbar
+    cm = moment_transfer(cm, coef["Cx"].to_numpy() * k, coef["Cz"].to_numpy() * k,
+                         evaluator.aerorp_in[0] - cg_x, evaluator.aerorp_in[2] - cg_z, evaluator.cbar)
+    return pd.DataFrame({"CL": coef["CL"].to_numpy() * k, "CD": coef["CD"].to_numpy() * k, "Cm": cm},
+                        index=coef.index)
+
+
+def _smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
+    out = frame.copy()
+    for c in columns:
+        if c in out:
+            out[c] = lowpass(out[c].to_numpy(), dt)
+    return out
 
 
 def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
     """Measured minus model coefficients at the measured states, for every log.
 
-    Coefficients and states pass through the zero-phase low-pass filter of the
-    identification; 0.25 s is dropped at both ends; every ``step``-th sample kept.
+    The model is evaluated at the raw measured states (exact on noise-free
+    data); the measured and model coefficients and the variables then pass
+    through the zero-phase low-pass filter of the identification, 0.25 s is
+    dropped at both ends, and every ``step``-th sample is kept.
 
     Returns
     -------
     DataFrame
         One row per sample: ``log`` (index into ``logs``), ``t_s``, the
-        variables, measured ``CL``/``CD``/``Cm`` and residuals ``r_CL``/``r_CD``/``r_Cm``
-        (Cm about AERORP).
+        variables, measured ``CL``/``CD``/``Cm``, the model's ``model_CL``...
+        and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP).
     """
     frames = []
     for i, log in enumerate(logs):
         d = log.data
         dt = float(np.median(np.diff(d["t_s"])))
-        f = d.copy()
-        for c in FILTERED:
-            if c in f:
-                f[c] = lowpass(d[c].to_numpy(), dt)
-        meas = coefficients(d, log.meta)
-        for c in COEFFS:
-            meas[c] = lowpass(meas[c].to_numpy(), dt)
+        meas = measured_about(coefficients(d, log.meta), log.meta, evaluator)
+        cl = meas["CL"].to_numpy()
+        pred = evaluator.predict(d, cl)
+        both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
+        both = _smooth(both, dt, both.columns)
+        var = _smooth(variables(d, log.meta, cl), dt, FILTERED)
         edge = int(round(EDGE_S / dt))
         keep = np.arange(edge, len(d) - edge, step)
-        f, meas = f.iloc[keep].reset_index(drop=True), meas.iloc[keep].reset_index(drop=True)
-        pred = evaluator.predict(f)
-        g = log.meta["geometry"]
-        arm = (g["aerorp_x_in"] - g["cg_x_in"]) / 12.0 / g["cbar_ft"]
-        a = f["alpha_deg"].to_numpy() * D2R
-        out = pd.DataFrame({"log": i, "t_s": f["t_s"], "maneuver": log.maneuver, "point": log.point})
+        out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
         for v in VARIABLES:
-            out[v] = qhat(f, log.meta) if v == "qhat_rad" else f[v].to_numpy()
+            out[v] = var[v].to_numpy()[keep]
         for c in COEFFS:
-            out[f"model_{c}"] = pred[c].to_numpy()
-            out[c] = meas[c].to_numpy()
-        for src in ("", "model_"):
-            out[f"{src}Cm"] = out[f"{src}Cm"] + (out[f"{src}CL"] * np.cos(a) + out[f"{src}CD"] * np.sin(a)) * arm
-        for c in COEFFS:
-            out[f"r_{c}"] = out[c] - out[f"model_{c}"]
+            out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
+            out[f"meas_{c}"] = both[c].to_numpy()[keep]
+            out[f"r_{c}"] = out[f"meas_{c}"] - out[f"model_{c}"]
         frames.append(out)
     return pd.concat(frames, ignore_index=True)
 
@@ -151,30 +198,37 @@ class Term:
                 "smooth_x_linear": 2 * (len(self.knots) - 1)}[self.kind]
 
 
-def candidate_terms(data: pd.DataFrame) -> list[Term]:
-    """The candidate pool: every excited variable, linear and smooth, and pairs."""
-    excited = [v for v in VARIABLES if v in data and float(data[v].std()) >= MIN_STD[v]]
+def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[Term]:
+    """The candidate pool of one coefficient's residual: every excited variable,
+    linear and smooth, and pairs (interactions carry their main effects).
+
+    Rates normalised by cbar/2V enter linearly only. A coefficient is never
+    regressed on itself (the measured CL holds the CL residual).
+    """
+    banned = EXCLUDED.get(coefficient, ())
+    excited = [v for v in VARIABLES if v in data and v not in banned and float(data[v].std()) >= MIN_STD[v]]
+    if "CL" in excited and float(data["CL"].min()) <= 0.05:
+        excited.remove("CL")  # exported through CL^2: needs a lift coefficient that stays positive
     center = {v: float(np.median(data[v])) for v in excited}
-    rng = {v: (float(data[v].min()), float(data[v].max())) for v in excited}
-    rng["qhat_rad"] = (-np.inf, np.inf)  # exported as a product, not a table: never clipped
+    rng = {v: (-np.inf, np.inf) if v in RATES else (float(data[v].min()), float(data[v].max())) for v in excited}
+    shaped = [v for v in excited if v not in RATES]
     terms = []
     for v in excited:
         terms.append(Term("linear", (v,), (), (center[v],), (rng[v],)))
         if v == "gear_norm":
             terms.append(Term("smooth", (v,), GEAR_KNOTS))
-        elif v != "qhat_rad":
-            vals = np.unique(np.round(data[v].to_numpy(), 6))
+        elif v in shaped:
             if v == "flap_deg":
-                knots = tuple(float(x) for x in vals)
+                knots = tuple(float(x) for x in np.unique(np.round(data[v].to_numpy(), 6)))
             else:
                 knots = tuple(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
             if len(knots) >= 3:
                 terms.append(Term("smooth", (v,), knots))
-    for a, b in combinations([v for v in excited if v != "qhat_rad"], 2):
+    for a, b in combinations(shaped, 2):
         terms.append(Term("product", (a, b), (), (center[a], center[b]), (rng[a], rng[b])))
-    if "gear_norm" in excited:
-        for b in excited:
-            if b not in ("gear_norm", "qhat_rad"):
+    if "gear_norm" in shaped:
+        for b in shaped:
+            if b != "gear_norm":
                 terms.append(Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]),
                                   ((0.0, 1.0), rng[b])))
     return terms
@@ -455,7 +509,6 @@ class Diagnosis:
 def diagnose(logs: list[Log], evaluator, step: int = 2, **kw) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes."""
     data = residual_data(logs, evaluator, step)
-    terms = candidate_terms(data)
     lags = _Lags(data["log"].to_numpy())
-    results = {c: stepwise(data, c, terms, lags=lags, **kw) for c in COEFFS}
+    results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
     return Diagnosis(data, results, name_causes(results, data, lags))

@@ -1,50 +1,112 @@
 """The model aircraft's own aerodynamics at measured states, computed by JSBSim.
 
-The diagnosis must not re-implement the model's aerodynamics. JSBSim computes
-them, from an evaluation copy of the model aircraft: the same XML without its
-flight-control system, so the measured surface, flap and gear positions can be
-set directly (an FCS would move them through its actuators). Each state is set
-as an initial condition; ``run_ic()`` then evaluates every aero function there.
-This module uses JSBSim as a calculator of the model; it does not fly anything.
+The diagnosis must not re-implement the model's aerodynamics: JSBSim computes
+them, from an evaluation copy of the model aircraft. Any JSBSim aircraft works;
+nothing here assumes ours. The copy differs from the model in three ways:
+
+- it has no flight-control system, so the measured surface, flap and gear
+  positions are set directly; every other FCS output that moves with them
+  (a normalised elevator, a flap angle computed from a flap norm, a gear angle)
+  is set from the model's own control schedules (:mod:`identify.model`);
+- ``aero/alphadot-*``, ``aero/betadot-*`` and ``aero/cl-squared`` are read
+  from settable ``eval/`` properties. When JSBSim flies, it computes them
+  from the previous frame (α̇ from the previous frame's accelerations, CL²
+  from the previous frame's lift). Here α̇ and β̇ come from the measured α
+  and β, and CL² from the measured lift coefficient, both taken one frame
+  (:attr:`ModelEvaluator.frame_s`) before the sample, as JSBSim has them;
+- network ``<input>``/``<output>`` elements are removed.
+
+Each sample is set as an initial condition and ``run_ic()`` evaluates every
+aero function there, at the raw (unfiltered) measured state. The pitching
+moment is returned about the model's aerodynamic reference point (AERORP),
+where JSBSim applies the aero forces, with the full x and z offset from the
+model's CG.
 """
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-os.environ.setdefault("JSBSIM_DEBUG", "0")
+from identify.kinematics import angle_rates
+from identify.model import (CONTROL_CHANNELS, captured_stdout, catalog, component_outputs, control_schedules,
+                            fcs_sections, load_fdm, longitudinal_inputs)
 
 D2R = np.pi / 180.0
-FLAP_DETENTS_DEG = (0, 1, 2, 5, 10, 15, 25, 30, 40)
-#: Measured channel -> JSBSim properties it sets (with scale).
-SETS = {
-    "elevator_deg": (("fcs/elevator-pos-rad", D2R), ("fcs/elevator-pos-deg", 1.0)),
-    "stabilizer_deg": (("fcs/stabilizer-pos-rad", D2R), ("fcs/stabilizer-pos-deg", 1.0)),
-    "flap_deg": (("fcs/flap-pos-deg", 1.0),),
-    "gear_norm": (("gear/gear-pos-norm", 1.0),),
+#: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
+REDIRECT = {
+    "aero/alphadot-rad_sec": "eval/alphadot-rad_sec",
+    "aero/alphadot-deg_sec": "eval/alphadot-deg_sec",
+    "aero/betadot-rad_sec": "eval/betadot-rad_sec",
+    "aero/betadot-deg_sec": "eval/betadot-deg_sec",
+    "aero/cl-squared": "eval/cl-squared",
 }
-FCS_SECTIONS = ("flight_control", "autopilot", "system")
+#: Properties JSBSim derives from the state set as an initial condition.
+STATE_DERIVED = ("aero/alpha", "aero/beta", "aero/mag-beta", "aero/qbar", "aero/ci2vel", "aero/bi2vel",
+                 "aero/h_b-", "velocities/", "atmosphere/", "position/h-", "attitude/", "metrics/")
+IC_CHANNELS = (("ic/h-sl-ft", "alt_ft", 1.0), ("ic/vt-kts", "tas_kt", 1.0), ("ic/alpha-deg", "alpha_deg", 1.0),
+               ("ic/beta-deg", "beta_deg", 1.0), ("ic/theta-deg", "theta_deg", 1.0),
+               ("ic/phi-deg", "phi_deg", 1.0), ("ic/p-rad_sec", "p_dps", D2R), ("ic/q-rad_sec", "q_dps", D2R),
+               ("ic/r-rad_sec", "r_dps", D2R))
 
 
-def _component_outputs(section: ET.Element) -> set[str]:
-    names = set()
-    for el in section.iter():
-        if el.tag == "output" and el.text:
-            names.add(el.text.strip())
-        elif el.get("name") and el.tag not in ("channel", "flight_control", "autopilot", "system", "property"):
-            n = el.get("name").strip()
-            names.add(n if "/" in n else "fcs/" + n.lower().replace(" ", "-"))
-    return names
+def moment_transfer(cm: np.ndarray, cx: np.ndarray, cz: np.ndarray, dx_in: float, dz_in: float,
+                    cbar_ft: float) -> np.ndarray:
+    """Pitching-moment coefficient moved from point A to point B.
+
+    Parameters
+    ----------
+    cm : ndarray
+        Cm about A [-].
+    cx, cz : ndarray
+        Body-axis force coefficients of the force acting at B [-] (x forward, z down).
+    dx_in, dz_in : float
+        B minus A in JSBSim structural axes (x aft, z up) [in].
+    cbar_ft : float
+        Reference chord [ft].
+
+    Returns
+    -------
+    ndarray
+        Cm about B [-]: ``Cm_A = Cm_B + r x F`` with r from A to B in body axes.
+    """
+    return cm + (dz_in * cx - dx_in * cz) / (12.0 * cbar_ft)
 
 
-def evaluation_copy(model_dir: Path, root: Path) -> Path:
-    """Write ``root/aircraft/<name>/`` without FCS, its outputs declared as properties."""
+def _redirect(aero: ET.Element) -> set[str]:
+    """Point every read of :data:`REDIRECT` properties at the stand-ins; return those used."""
+    used = set()
+    for el in aero.iter():
+        if el.tag in ("property", "independentVar") and el.text:
+            raw = el.text.strip()
+            sign, name = ("-", raw[1:]) if raw.startswith("-") else ("", raw)
+            if name in REDIRECT:
+                el.text = sign + REDIRECT[name]
+                used.add(REDIRECT[name])
+    return used
+
+
+def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[str], set[str]]:
+    """Write ``root/aircraft/<name>/``: the model without FCS and network I/O.
+
+    The properties the removed FCS wrote are declared settable, and the
+    aerodynamics read :data:`REDIRECT`'s stand-ins.
+
+    Returns
+    -------
+    folder : Path
+    outputs : set of str
+        Properties the removed FCS wrote.
+    builtin : set of str
+        JSBSim's own properties of the model (not declared again).
+    redirected : set of str
+        The ``eval/`` stand-ins the aerodynamics read.
+    """
     model_dir = Path(model_dir)
     name = model_dir.name
     dest = root / "aircraft" / name
@@ -52,82 +114,177 @@ def evaluation_copy(model_dir: Path, root: Path) -> Path:
     tree = ET.parse(dest / f"{name}.xml")
     top = tree.getroot()
     outputs: set[str] = set()
-    for tag in FCS_SECTIONS:
-        for sec in top.findall(tag):
-            outputs |= _component_outputs(sec)
-            top.remove(sec)
-    for tag in ("input", "output"):
+    for sec in fcs_sections(top, model_dir):
+        outputs |= component_outputs(sec)
+    for tag in ("input", "output", *("flight_control", "autopilot", "system")):
         for el in top.findall(tag):
             top.remove(el)
-    builtin = {"fcs/elevator-pos-rad", "fcs/elevator-pos-deg", "fcs/elevator-pos-norm", "fcs/flap-pos-deg",
-               "fcs/flap-pos-norm", "fcs/flap-pos-rad", "gear/gear-pos-norm", "fcs/left-aileron-pos-rad",
-               "fcs/right-aileron-pos-rad", "fcs/rudder-pos-rad", "fcs/speedbrake-pos-norm",
-               "fcs/spoiler-pos-norm", "fcs/throttle-pos-norm"}
-    fcs = ET.SubElement(top, "flight_control", name="evaluation: surfaces set directly")
-    for prop in sorted(outputs - builtin):
+    aero = top.find("aerodynamics")
+    kept = list(aero)
+    for el in kept:  # a probe without aerodynamics lists JSBSim's own properties
+        aero.remove(el)
+    tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
+    builtin = set(catalog(load_fdm(root, name)))
+    aero.extend(kept)
+    redirected = _redirect(aero)
+    fcs = ET.SubElement(top, "flight_control", name="evaluation: positions set directly")
+    for prop in sorted((outputs | redirected) - builtin):
         ET.SubElement(fcs, "property", value="0").text = prop
     tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
-    return dest
+    return dest, outputs, builtin, redirected
+
+
+@dataclass(frozen=True)
+class UnsetInput:
+    """A property the model's lift, drag or pitching moment read that no log channel sets."""
+
+    name: str
+    value: float
+
+    def __str__(self) -> str:
+        return f"{self.name} (held at {self.value:g})"
 
 
 class ModelEvaluator:
-    """Evaluate a model aircraft's CL, CD and Cm (about the CG) at measured states.
+    """Evaluate a model aircraft's CL, CD and Cm (about its AERORP) at measured states.
 
     Parameters
     ----------
     model_dir : Path
         A JSBSim aircraft folder (``<name>.xml`` inside).
+
+    Attributes
+    ----------
+    schedules : dict
+        The model's control schedules (:func:`identify.model.control_schedules`).
+    unset : list of UnsetInput
+        Inputs of the model's lift, drag and pitching moment that the logs do
+        not set; they keep the value shown (normally 0, as in level flight).
+    frame_s : float
+        JSBSim's frame [s]: α̇, β̇ and CL² are taken this long before each sample.
+    aerorp_in, cg_in : tuple
+        The model's AERORP and CG, structural x, y, z [in].
     """
 
     def __init__(self, model_dir: Path) -> None:
-        import jsbsim
-
         self.model_dir = Path(model_dir)
+        name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
-        folder = evaluation_copy(self.model_dir, self._tmp)
-        fdm = jsbsim.FGFDMExec(str(self._tmp))
-        fdm.set_debug_level(0)
-        engines = folder / "Engines"
-        fdm.set_engine_path(str(engines) if engines.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "engine"))
-        fdm.set_systems_path(os.path.join(jsbsim.get_default_root_dir(), "systems"))
-        if not fdm.load_model(folder.name):
-            raise ValueError(f"{self.model_dir}: JSBSim could not load the model for evaluation")
-        self.fdm = fdm
-        names = {e.split(" ")[0].replace("[0]", "") for e in fdm.get_property_catalog()}
-        self.sets = {ch: tuple((p, k) for p, k in props if p in names) for ch, props in SETS.items()}
+        try:
+            full_root = self._tmp / "full"
+            full = full_root / "aircraft" / name
+            shutil.copytree(self.model_dir, full, ignore=shutil.ignore_patterns("effects", "__pycache__"))
+            tree = ET.parse(full / f"{name}.xml")
+            for tag in ("input", "output"):
+                for el in tree.getroot().findall(tag):
+                    tree.getroot().remove(el)
+            tree.write(full / f"{name}.xml", xml_declaration=True, encoding="unicode")
+            model_fdm = load_fdm(full_root, name)
+            folder, outputs, builtin, redirected = evaluation_copy(self.model_dir, self._tmp / "eval")
+            self.schedules = control_schedules(model_fdm, outputs | {p for p in builtin
+                                                                     if p.startswith(("fcs/", "gear/gear-"))})
+            self.fdm = load_fdm(self._tmp / "eval", name)
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+        fdm = self.fdm
+        self.names = catalog(fdm)
+        self.redirected = redirected
+        self.frame_s = float(model_fdm.get_delta_t())
         self.S = fdm["metrics/Sw-sqft"]
         self.cbar = fdm["metrics/cbarw-ft"]
+        fdm["ic/vt-kts"] = 200.0
+        with captured_stdout():
+            fdm.run_ic()
+        self.aerorp_in = tuple(fdm[f"metrics/aero-rp-{a}-in"] for a in "xyz")
+        self.cg_in = tuple(fdm[f"inertia/cg-{a}-in"] for a in "xyz")
+        inputs = longitudinal_inputs(ET.parse(folder / f"{name}.xml").getroot())
+        settable = {s.position for s in self.schedules.values()} | set(redirected)
+        for s in self.schedules.values():
+            settable |= set(s.outputs)
+        self.unset = [UnsetInput(p, float(fdm[p]) if p in self.names else 0.0) for p in sorted(inputs)
+                      if p not in settable and not p.startswith(STATE_DERIVED) and not p.startswith("eval/")
+                      and not (p.startswith("fcs/mag-") and "fcs/" + p[8:] in settable)]
 
-    def predict(self, states: pd.DataFrame) -> pd.DataFrame:
-        """CL, CD, Cm of the model at each row of ``states`` (log-schema columns).
+    def _controls(self, data: pd.DataFrame) -> dict[str, np.ndarray]:
+        """Every FCS output to set, from the measured control channels."""
+        n = len(data)
+        out: dict[str, np.ndarray] = {}
+        for ch, s in self.schedules.items():
+            measured = ch in data.columns
+            if not s.moves:
+                if measured and float(np.max(np.abs(data[ch]))) > 1e-6:
+                    raise ValueError(f"{self.model_dir.name}: the logs have {ch} up to "
+                                     f"{float(np.max(np.abs(data[ch]))):g} but the model's flight controls "
+                                     f"never move {s.position}")
+                values = np.zeros(n)
+            else:
+                values = data[ch].to_numpy(dtype=float) if measured else np.zeros(n)
+            for prop, v in s.settings(values).items():
+                if self.names.get(prop):
+                    out[prop] = v
+            if self.names.get(s.position):
+                out[s.position] = values / s.scale
+        return out
 
-        Uses alt_ft, tas_kt, alpha_deg, beta_deg, theta_deg, phi_deg, p/q/r_dps
-        and the surface, flap and gear positions.
+    def _derived(self, data: pd.DataFrame, cl: np.ndarray | None) -> dict[str, np.ndarray]:
+        """α̇, β̇ and CL² as JSBSim has them: from the previous frame."""
+        out = {}
+        if self.redirected & {"eval/alphadot-rad_sec", "eval/alphadot-deg_sec", "eval/betadot-rad_sec",
+                              "eval/betadot-deg_sec"}:
+            adot, bdot = angle_rates(data, lag_s=self.frame_s)
+            out.update({"eval/alphadot-rad_sec": adot, "eval/alphadot-deg_sec": adot / D2R,
+                        "eval/betadot-rad_sec": bdot, "eval/betadot-deg_sec": bdot / D2R})
+        if "eval/cl-squared" in self.redirected:
+            if cl is None:
+                raise ValueError(f"{self.model_dir.name}: the model reads aero/cl-squared: give the measured CL")
+            # JSBSim: the previous frame's lift over this frame's dynamic pressure, squared
+            t = data["t_s"].to_numpy(dtype=float)
+            qbar = data["qbar_psf"].to_numpy(dtype=float)
+            out["eval/cl-squared"] = (np.interp(t - self.frame_s, t, cl * qbar) / qbar) ** 2
+        return {k: v for k, v in out.items() if k in self.redirected}
+
+    def predict(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> pd.DataFrame:
+        """CL, CD and Cm about the model's AERORP at each row of ``data``.
+
+        Parameters
+        ----------
+        data : DataFrame
+            A log in the schema, in time order (``t_s`` [s], ``alt_ft``,
+            ``tas_kt``, ``alpha_deg``, rates, surfaces, flap, gear...).
+        cl : ndarray, optional
+            Measured lift coefficient [-] at each row; needed when the model
+            reads ``aero/cl-squared``.
+
+        Returns
+        -------
+        DataFrame
+            ``CL``, ``CD`` and ``Cm`` [-], ``Cm`` about the model's AERORP.
         """
         fdm = self.fdm
-        out = np.empty((len(states), 3))
-        cols = {c: states[c].to_numpy() for c in states.columns}
-        beta = cols.get("beta_deg", np.zeros(len(states)))
-        for i in range(len(states)):
-            fdm["ic/h-sl-ft"] = cols["alt_ft"][i]
-            fdm["ic/vt-kts"] = cols["tas_kt"][i]
-            fdm["ic/alpha-deg"] = cols["alpha_deg"][i]
-            fdm["ic/beta-deg"] = beta[i]
-            fdm["ic/theta-deg"] = cols["theta_deg"][i]
-            fdm["ic/phi-deg"] = cols["phi_deg"][i]
-            fdm["ic/p-rad_sec"] = cols["p_dps"][i] * D2R
-            fdm["ic/q-rad_sec"] = cols["q_dps"][i] * D2R
-            fdm["ic/r-rad_sec"] = cols["r_dps"][i] * D2R
-            for ch, props in self.sets.items():
-                for prop, k in props:
-                    fdm[prop] = cols[ch][i] * k
-            fdm["fcs/flap-pos-norm"] = np.interp(cols["flap_deg"][i], FLAP_DETENTS_DEG,
-                                                 np.linspace(0, 1, len(FLAP_DETENTS_DEG)))
-            fdm.run_ic()
-            qs = fdm["aero/qbar-psf"] * self.S
-            out[i] = (fdm["forces/fwz-aero-lbs"] / qs, fdm["forces/fwx-aero-lbs"] / qs,
-                      fdm["moments/m-aero-lbsft"] / (qs * self.cbar))
-        return pd.DataFrame(out, columns=["CL", "CD", "Cm"], index=states.index)
+        pm = fdm.get_property_manager()
+        n = len(data)
+        zeros = np.zeros(n)
+        sets = [(pm.get_node(p, False), data[c].to_numpy(dtype=float) * k if c in data else zeros)
+                for p, c, k in IC_CHANNELS]
+        sets += [(pm.get_node(p, False), v) for p, v in {**self._controls(data), **self._derived(data, cl)}.items()]
+        read = [pm.get_node(p, False) for p in ("aero/qbar-psf", "forces/fwz-aero-lbs", "forces/fwx-aero-lbs",
+                                                 "forces/fbx-aero-lbs", "forces/fbz-aero-lbs",
+                                                 "moments/m-aero-lbsft")]
+        raw = np.empty((n, len(read)))
+        with captured_stdout():
+            for i in range(n):
+                for node, v in sets:
+                    node.set_double_value(v[i])
+                fdm.run_ic()
+                raw[i] = [r.get_double_value() for r in read]
+        qs = raw[:, 0] * self.S
+        cm_cg = raw[:, 5] / (qs * self.cbar)
+        dx = self.aerorp_in[0] - self.cg_in[0]
+        dz = self.aerorp_in[2] - self.cg_in[2]
+        cm = moment_transfer(cm_cg, raw[:, 3] / qs, raw[:, 4] / qs, dx, dz, self.cbar)
+        return pd.DataFrame({"CL": raw[:, 1] / qs, "CD": raw[:, 2] / qs, "Cm": cm}, index=data.index)
 
     def close(self) -> None:
         shutil.rmtree(self._tmp, ignore_errors=True)
+

@@ -1,0 +1,268 @@
+"""What a JSBSim aircraft model is, read from the model itself.
+
+Any aircraft folder, ours or someone else's: how to load it quietly, which
+flight-control outputs move with each measured control (its own control
+schedules, measured by sweeping its commands through its own FCS), and which
+properties its longitudinal aerodynamics read. Nothing here assumes our 737.
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("JSBSIM_DEBUG", "0")
+
+R2D = 180.0 / np.pi
+_LIBC = ctypes.CDLL(None)
+
+#: Measured control channel -> (position property, log units per property unit,
+#: command property, command range). The schedules sweep the command.
+CONTROL_CHANNELS: dict[str, tuple[str, float, str, tuple[float, float]]] = {
+    "elevator_deg": ("fcs/elevator-pos-rad", R2D, "fcs/elevator-cmd-norm", (-1.0, 1.0)),
+    "stabilizer_deg": ("fcs/stabilizer-pos-deg", 1.0, "fcs/pitch-trim-cmd-norm", (-1.0, 1.0)),
+    "flap_deg": ("fcs/flap-pos-deg", 1.0, "fcs/flap-cmd-norm", (0.0, 1.0)),
+    "gear_norm": ("gear/gear-pos-norm", 1.0, "gear/gear-cmd-norm", (0.0, 1.0)),
+}
+FCS_SECTIONS = ("flight_control", "autopilot", "system")
+SWEEP_POINTS = 401
+#: Axes whose functions make CL, CD and Cm (wind, body and body axial/normal frames).
+LONGITUDINAL_AXES = ("DRAG", "LIFT", "PITCH", "X", "Z", "AXIAL", "NORMAL")
+
+
+@contextlib.contextmanager
+def captured_stdout(lines: list[str] | None = None):
+    """Capture JSBSim's C++ messages (they bypass ``sys.stdout``) into ``lines``."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as buf:
+        try:
+            os.dup2(buf.fileno(), 1)
+            yield
+        finally:
+            _LIBC.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+            if lines is not None:
+                buf.seek(0)
+                lines.extend(x.strip() for x in buf.read().decode(errors="replace").splitlines() if x.strip())
+
+
+def load_fdm(root: Path, name: str):
+    """A fresh ``FGFDMExec`` with ``root/aircraft/<name>`` loaded, quietly.
+
+    Engines come from the aircraft's own ``Engines/`` folder if it has one,
+    else from the jsbsim package; system files likewise.
+
+    Raises
+    ------
+    ValueError
+        If JSBSim cannot load the model (the message names the folder).
+    """
+    import jsbsim
+
+    folder = Path(root) / "aircraft" / name
+    fdm = jsbsim.FGFDMExec(str(root))
+    fdm.set_debug_level(0)
+    engines = folder / "Engines"
+    fdm.set_engine_path(str(engines) if engines.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "engine"))
+    systems = folder / "Systems"
+    fdm.set_systems_path(str(systems) if systems.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "systems"))
+    said: list[str] = []
+    with captured_stdout(said):
+        ok = fdm.load_model(name)
+    if not ok:
+        why = next((s for s in said if "rror" in s), "")
+        raise ValueError(f"{folder}: JSBSim could not load the aircraft{': ' + why if why else ''}")
+    return fdm
+
+
+def catalog(fdm) -> dict[str, bool]:
+    """Property name -> writable, for every property of a loaded model (``[0]`` dropped)."""
+    out = {}
+    for entry in fdm.get_property_catalog():
+        name, _, flags = entry.partition(" ")
+        out[name.replace("[0]", "")] = "W" in flags
+    return out
+
+
+def _system_file(ref: str, model_dir: Path) -> Path | None:
+    import jsbsim
+
+    name = ref if ref.endswith(".xml") else ref + ".xml"
+    for d in (model_dir / "Systems", model_dir, Path(jsbsim.get_default_root_dir()) / "systems"):
+        if (d / name).is_file():
+            return d / name
+    return None
+
+
+def fcs_sections(top: ET.Element, model_dir: Path) -> list[ET.Element]:
+    """The flight-control, autopilot and system sections, external files included."""
+    out = []
+    for tag in FCS_SECTIONS:
+        for sec in top.findall(tag):
+            out.append(sec)
+            ref = sec.get("file")
+            path = _system_file(ref, model_dir) if ref else None
+            if path is not None:
+                with contextlib.suppress(ET.ParseError):
+                    out.append(ET.parse(path).getroot())
+    return out
+
+
+def component_outputs(section: ET.Element) -> set[str]:
+    """Properties a flight-control section writes: explicit outputs and component names."""
+    names = set()
+    for el in section.iter():
+        if el.tag == "output" and el.text:
+            names.add(el.text.strip())
+        elif el.get("name") and el.tag not in ("channel", "property", *FCS_SECTIONS):
+            n = el.get("name").strip()
+            names.add(n if "/" in n else "fcs/" + n.lower().replace(" ", "-"))
+    return {n.replace("[0]", "") for n in names}
+
+
+@dataclass
+class Schedule:
+    """How one measured control moves the model's flight-control outputs.
+
+    Measured by sweeping the control's command through the model's own FCS
+    with JSBSim's trim status on, so kinematics and actuators settle in one
+    frame.
+
+    Attributes
+    ----------
+    channel : str
+        The log column (``flap_deg``...).
+    position : str
+        The property the log column measures (``fcs/flap-pos-deg``...).
+    scale : float
+        Log units per property unit.
+    command : ndarray
+        The swept command values, increasing.
+    values : ndarray
+        The position at each command [log units].
+    outputs : dict
+        Every other FCS output that moved, property -> value at each command.
+    """
+
+    channel: str
+    position: str
+    scale: float
+    command: np.ndarray
+    values: np.ndarray
+    outputs: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def moves(self) -> bool:
+        """Whether the command moves the position at all."""
+        return float(np.ptp(self.values)) > 1e-9
+
+    @property
+    def range(self) -> tuple[float, float]:
+        """Smallest and largest position the command reaches [log units]."""
+        return float(self.values.min()), float(self.values.max())
+
+    def _monotone(self) -> tuple[np.ndarray, np.ndarray]:
+        """Positions increasing, with the command index each comes from (plateaus dropped)."""
+        v = self.values if self.values[-1] >= self.values[0] else self.values[::-1]
+        idx = np.arange(len(v)) if self.values[-1] >= self.values[0] else np.arange(len(v))[::-1]
+        keep = np.concatenate([[True], np.diff(v) > 1e-12])
+        return v[keep], idx[keep]
+
+    def command_for(self, value: float) -> float:
+        """The command that puts the position at ``value`` [log units]."""
+        v, idx = self._monotone()
+        return float(np.interp(value, v, self.command[idx]))
+
+    def settings(self, values: np.ndarray) -> dict[str, np.ndarray]:
+        """The other outputs at measured positions ``values`` [log units], interpolated."""
+        v, idx = self._monotone()
+        return {p: np.interp(values, v, y[idx]) for p, y in self.outputs.items()}
+
+
+def control_schedules(fdm, watched: set[str]) -> dict[str, Schedule]:
+    """Sweep each control command of a loaded model through its own FCS.
+
+    Parameters
+    ----------
+    fdm : FGFDMExec
+        A freshly loaded model (its full FCS); its state is changed.
+    watched : set of str
+        FCS outputs to record (component outputs and built-in positions).
+
+    Returns
+    -------
+    dict
+        Log column -> :class:`Schedule`, for the controls the model has.
+    """
+    names = catalog(fdm)
+    fdm["ic/h-sl-ft"] = 5000.0
+    fdm["ic/vt-kts"] = 200.0
+    with captured_stdout():
+        fdm.run_ic()
+    fdm.suspend_integration()
+    fdm.set_trim_status(True)
+    pm = fdm.get_property_manager()
+    present = sorted(p for p in watched if p in names)
+    nodes = [pm.get_node(p, False) for p in present]
+    out = {}
+    try:
+        for ch, (position, scale, command, (lo, hi)) in CONTROL_CHANNELS.items():
+            if position not in names or command not in names:
+                continue
+            cmds = np.linspace(lo, hi, SWEEP_POINTS)
+            table = np.empty((len(cmds), len(nodes)))
+            pos = np.empty(len(cmds))
+            for i, c in enumerate(cmds):
+                fdm[command] = c
+                fdm.run()
+                fdm.run()
+                pos[i] = fdm[position] * scale
+                table[i] = [n.get_double_value() for n in nodes]
+            fdm[command] = 0.0 if lo < 0 else lo
+            fdm.run()
+            moved = {p: table[:, j] for j, p in enumerate(present)
+                     if p not in (position, command) and float(np.ptp(table[:, j])) > 1e-12}
+            out[ch] = Schedule(ch, position, scale, cmds, pos, moved)
+    finally:
+        fdm.set_trim_status(False)
+        fdm.resume_integration()
+    return out
+
+
+def _refs(el: ET.Element) -> set[str]:
+    names = set()
+    for p in el.iter():
+        if p.tag in ("property", "independentVar") and p.text and p.text.strip():
+            names.add(p.text.strip().lstrip("-").replace("[0]", ""))
+    return names
+
+
+def longitudinal_inputs(top: ET.Element) -> set[str]:
+    """Properties the lift, drag and pitching-moment functions read, through the
+    functions they call (functions defined in ``<aerodynamics>`` resolved)."""
+    aero = top.find("aerodynamics")
+    if aero is None:
+        return set()
+    defined = {fn.get("name"): fn for fn in aero.iter("function") if fn.get("name")}
+    todo = set()
+    for axis in aero.findall("axis"):
+        if axis.get("name", "").upper() in LONGITUDINAL_AXES:
+            todo |= _refs(axis)
+    seen: set[str] = set()
+    while todo:
+        p = todo.pop()
+        if p in seen:
+            continue
+        seen.add(p)
+        if p in defined:
+            todo |= _refs(defined[p])
+    return {p for p in seen if p not in defined}
