@@ -47,7 +47,8 @@ OPTIONAL_CHANNELS: dict[str, tuple[str, float]] = {
     "stabilizer_deg": ("fcs/stabilizer-pos-deg", 0.0),
 }
 
-FLAP_NORM = "fcs/flap-pos-norm"
+#: The aircraft's own flap angle (JSBSim keeps it at 0 if the FCS never writes it).
+FLAP_DEG = "fcs/flap-pos-deg"
 THROTTLE_POS = "fcs/throttle-pos-norm[{i}]"
 
 #: Log columns in file order (the DESIGN.md log schema).
@@ -73,7 +74,6 @@ CONTROLS: dict[str, str] = {
     "gear_cmd": "gear/gear-cmd-norm",
     "gear_pos": "gear/gear-pos-norm",
     "flap_cmd": "fcs/flap-cmd-norm",
-    "flap_pos": "fcs/flap-pos-norm",
     "fuel_freeze": "propulsion/fuel_freeze",
     "set_running": "propulsion/set-running",
     "alpha_max": "aero/alpha-max-rad",
@@ -139,7 +139,7 @@ def check_catalog(fdm, n_engines: int, aircraft: str) -> dict[str, bool]:
     """
     names = catalog_names(fdm)
     required = [p for p, _ in STATE_CHANNELS.values()]
-    required += list(FORCE_CHANNELS.values()) + list(HOLD_INPUTS.values()) + [FLAP_NORM]
+    required += list(FORCE_CHANNELS.values()) + list(HOLD_INPUTS.values()) + [FLAP_DEG]
     required += [THROTTLE_POS.format(i=i) for i in range(n_engines)]
     for key, prop in CONTROLS.items():
         if key == "throttle":

@@ -111,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _config(args):
     from campaign.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
                                    check_aircraft_folder, load_effects)
-    from campaign.engine import FlightConfig
+    from campaign.engine import FlightConfig, check_flaps
     from campaign.matrix import load_matrix
 
     matrix = load_matrix(args.matrix)
@@ -119,6 +119,8 @@ def _config(args):
     effects = load_effects(DEFAULT_EFFECTS if args.effects is None else args.effects)
     config = FlightConfig(AircraftSource(str(folder), effects), args.seed, args.noise,
                           matrix.maneuver_params, matrix.clmax_by_flap)
+    points = [matrix.point(args.point_id)] if args.command == "fly" else matrix.points
+    check_flaps(config.aircraft, [(f"{matrix.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
     return matrix, config
 
 

@@ -17,7 +17,7 @@ import pandas as pd
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
 from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
-from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint
+from campaign.matrix import StatusPoint
 from identify.diagnosis import COEFFS, Diagnosis, diagnose, residual_data
 from identify.diagnosis_export import write_extension
 from identify.evaluate import ModelEvaluator
@@ -68,7 +68,7 @@ def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint
     gear_cmd = np.full(len(d), g0)
     if moving.size:  # the command set before step k moves the gear in row k
         gear_cmd[moving[0]:] = round(float(d.gear_norm.iloc[-1]))
-    flap = min(FLAP_DETENTS_DEG, key=lambda f: abs(f - head.flap_deg))
+    flap = round(float(head.flap_deg), 3)
     point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
     man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),
                    tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}")

@@ -6,12 +6,8 @@ workers or on a Dask cluster.
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import hashlib
 import os
-import sys
-import tempfile
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -25,32 +21,14 @@ import pandas as pd  # noqa: E402
 from campaign import catalog as cat  # noqa: E402
 from campaign.aircraft import AircraftSource, prepare, thruster_z_in  # noqa: E402
 from campaign.errors import UserError  # noqa: E402
-from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint  # noqa: E402
+from campaign.matrix import StatusPoint  # noqa: E402
 from campaign.noise import NOISE_PROFILES, add_sensor_noise  # noqa: E402
+from identify.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
 
 DT_S = 1.0 / 120.0
-_LIBC = ctypes.CDLL(None)
 FT_PER_KT = 1.6878098571011957
-FLAP_NORM_GRID = np.linspace(0.0, 1.0, len(FLAP_DETENTS_DEG))
-
-
-@contextlib.contextmanager
-def _captured_stdout(lines: list[str]):
-    """Capture JSBSim's C++ messages ("Sorry, wdot doesn't appear...") into ``lines``."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    with tempfile.TemporaryFile() as buf:
-        try:
-            os.dup2(buf.fileno(), 1)
-            yield
-        finally:
-            _LIBC.fflush(None)
-            os.dup2(saved, 1)
-            os.close(saved)
-            buf.seek(0)
-            lines.extend(x.strip() for x in buf.read().decode(errors="replace").splitlines() if x.strip())
 
 
 class TrimError(RuntimeError):
@@ -102,15 +80,10 @@ def _prepared_root(source: AircraftSource) -> str:
 
 def new_fdm(source: AircraftSource):
     """Load the aircraft (with its overlay merged) into a fresh FGFDMExec."""
-    root = _prepared_root(source)
-    fdm = jsbsim.FGFDMExec(root)
-    fdm.set_debug_level(0)
-    local = Path(root) / "aircraft" / source.name / "Engines"
-    fdm.set_engine_path(str(local) if local.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "engine"))
-    fdm.set_systems_path(os.path.join(jsbsim.get_default_root_dir(), "systems"))
-    if not fdm.load_model(source.name):
-        raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}")
-    return fdm
+    try:
+        return load_fdm(Path(_prepared_root(source)), source.name)
+    except ValueError:
+        raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}") from None
 
 
 def engine_count(fdm) -> int:
@@ -121,9 +94,36 @@ def engine_count(fdm) -> int:
     return max(n, 1)
 
 
-def flap_norm(flap_deg: int) -> float:
-    """``fcs/flap-cmd-norm`` of a detent (the 737's nine evenly spaced detents)."""
-    return FLAP_DETENTS_DEG.index(flap_deg) / (len(FLAP_DETENTS_DEG) - 1)
+@lru_cache(maxsize=8)
+def flap_schedule(source: AircraftSource) -> Schedule:
+    """The aircraft's own flap schedule: ``fcs/flap-pos-deg`` against ``fcs/flap-cmd-norm``."""
+    return control_schedules(new_fdm(source), set())["flap_deg"]
+
+
+def flap_problem(source: AircraftSource, flap_deg: float) -> str:
+    """Why the aircraft cannot fly at a flap angle ("" if it can)."""
+    s = flap_schedule(source)
+    if not s.moves:
+        return "" if flap_deg == 0 else (f"aircraft {source.name} has no flap angle (its flight controls never "
+                                         f"write {s.position}): only flap_deg = 0 can be flown")
+    lo, hi = s.range
+    if not lo - 1e-6 <= flap_deg <= hi + 1e-6:
+        return f"flap {flap_deg:g} deg is outside aircraft {source.name}'s flap range {lo:g}..{hi:g} deg"
+    return ""
+
+
+def check_flaps(source: AircraftSource, flaps: list[tuple[str, float]]) -> None:
+    """Refuse, naming the place, the first flap angle the aircraft cannot fly.
+
+    Parameters
+    ----------
+    flaps : list of (where, flap_deg)
+        ``where`` names the input field, e.g. ``"m.toml: points[3].flap_deg"``.
+    """
+    for where, flap in flaps:
+        why = flap_problem(source, flap)
+        if why:
+            raise UserError(f"{where}: {why}")
 
 
 def _set(fdm, names: set[str], prop: str, value: float) -> None:
@@ -160,6 +160,10 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
     -------
     fdm, names, n_engines, optional, Trim
     """
+    why = flap_problem(source, point.flap_deg)
+    if why:
+        raise TrimError(why)
+    flap_cmd = flap_schedule(source).command_for(point.flap_deg)
     reason = ""
     for alpha_max in TRIM_ALPHA_MAX_DEG:
         fdm = new_fdm(source)
@@ -167,15 +171,18 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
         n_eng = engine_count(fdm)
         optional = cat.check_catalog(fdm, n_eng, source.folder)
         try:
-            return fdm, names, n_eng, optional, trim(fdm, point, gear, n_eng, names, alpha_max)
+            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max)
         except TrimError as exc:
             reason = reason or str(exc)
     raise TrimError(reason)
 
 
-def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
+def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, names: set[str],
          alpha_max_deg: float = 30.0) -> Trim:
     """Set the initial condition and run JSBSim's full trim.
+
+    ``flap_cmd`` is the ``fcs/flap-cmd-norm`` that gives the point's flap angle
+    (:func:`flap_schedule`); JSBSim's trim moves the flaps there at once.
 
     Raises
     ------
@@ -187,8 +194,7 @@ def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
     for k, v in ic.items():
         _set(fdm, names, k, v)
     _set(fdm, names, cat.CONTROLS["fuel_freeze"], 1)
-    _set(fdm, names, cat.CONTROLS["flap_cmd"], flap_norm(point.flap_deg))
-    _set(fdm, names, cat.CONTROLS["flap_pos"], flap_norm(point.flap_deg))
+    _set(fdm, names, cat.CONTROLS["flap_cmd"], flap_cmd)
     _set(fdm, names, cat.CONTROLS["gear_cmd"], gear)
     _set(fdm, names, cat.CONTROLS["gear_pos"], gear)
     _set(fdm, names, cat.CONTROLS["alpha_max"], np.radians(alpha_max_deg))
@@ -206,7 +212,7 @@ def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
     cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])
     messages: list[str] = []
     try:
-        with _captured_stdout(messages):
+        with captured_stdout(messages):
             fdm.do_trim(1)
     except jsbsim.TrimFailureError:
         said = "; ".join(sorted({m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable",
@@ -214,6 +220,8 @@ def trim(fdm, point: StatusPoint, gear: float, n_engines: int, names: set[str],
                                  if "trimmable" in m}))
         raise TrimError(f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
                         f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
+    if abs(fdm[cat.FLAP_DEG] - point.flap_deg) > 1e-6:
+        raise TrimError(f"flaps at {fdm[cat.FLAP_DEG]:g} deg after the trim, asked {point.flap_deg:g} deg")
     if point.weight_lb is not None and abs(fdm["inertia/weight-lbs"] - point.weight_lb) > 1.0:
         raise TrimError(f"weight {fdm['inertia/weight-lbs']:.0f} lb, asked {point.weight_lb:.0f} lb")
     qbar = fdm["aero/qbar-psf"]
@@ -319,7 +327,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     force_nodes = [node(p) for p in cat.FORCE_CHANNELS.values()]
     stab = cat.OPTIONAL_CHANNELS["stabilizer_deg"]
     stab_node = node(stab[0]) if optional[stab[0]] else None
-    flap_node = node(cat.FLAP_NORM)
+    flap_node = node(cat.FLAP_DEG)
     thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)]
     truth_nodes = ([node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else [])
     hdot_node, vt_node = node(cat.HOLD_INPUTS["hdot_fps"]), node(cat.HOLD_INPUTS["vt_fps"])
@@ -382,11 +390,10 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
     _check_envelope(rows, idx, tr)
 
-    cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_norm", "throttle_norm"]
+    cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_deg", "throttle_norm"]
     cols += list(cat.TRUTH_CHANNELS) if config.record_truth else []
     df = pd.DataFrame(rows, columns=cols)
     df["t_s"] = np.arange(end) * DT_S
-    df["flap_deg"] = np.interp(df.pop("flap_norm"), FLAP_NORM_GRID, FLAP_DETENTS_DEG)
     truth = [c for c in df.columns if c.startswith("truth_")]
     df = df[list(cat.LOG_COLUMNS) + truth]
     df = add_sensor_noise(df, profile, np.random.default_rng(seed))

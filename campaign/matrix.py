@@ -9,13 +9,17 @@ from pathlib import Path
 from campaign.errors import UserError
 from maneuvers.library import MANEUVERS, maneuver_parameters
 
-FLAP_DETENTS_DEG: tuple[int, ...] = (0, 1, 2, 5, 10, 15, 25, 30, 40)
 DEFAULT_MATRIX = Path(__file__).resolve().parent / "matrices" / "cai2024.toml"
 
 TOP_KEYS = {"name", "description", "defaults", "maneuvers", "stall", "points"}
 DEFAULT_KEYS = {"weight_lb", "maneuvers_gear_up", "maneuvers_gear_down"}
 POINT_KEYS = {"gear", "flap_deg", "mach", "alt_ft", "weight_lb", "maneuvers"}
 STALL_KEYS = {"clmax_by_flap"}
+
+
+def flap_label(flap_deg: float) -> str:
+    """A flap angle as point ids write it: ``05`` for 5 deg, ``2.5`` for 2.5 deg."""
+    return f"{int(flap_deg):02d}" if float(flap_deg).is_integer() else f"{flap_deg:g}"
 
 
 @dataclass(frozen=True, order=True)
@@ -28,27 +32,31 @@ class StatusPoint:
         Pressure altitude [ft].
     mach : float
         Mach number [-].
-    flap_deg : int
-        Flap detent [deg].
+    flap_deg : float
+        The aircraft's own flap angle, ``fcs/flap-pos-deg`` [deg].
     gear_down : bool
         Gear configuration of the point.
     weight_lb : float or None
         Gross weight [lb]; None keeps the aircraft's own.
     maneuvers : tuple of str
         Manoeuvres flown at this point, by name.
+    entry : str
+        The matrix entry it comes from, e.g. ``points[3]`` (for messages).
     """
 
     alt_ft: float
     mach: float
-    flap_deg: int
+    flap_deg: float
     gear_down: bool
     weight_lb: float | None = None
     maneuvers: tuple[str, ...] = field(default=(), compare=False)
+    entry: str = field(default="", compare=False)
 
     @property
     def id(self) -> str:
         """Stable readable id, e.g. ``h02000_m0.30_f05_gdn``."""
-        pid = f"h{int(round(self.alt_ft)):05d}_m{self.mach:.2f}_f{self.flap_deg:02d}_g{'dn' if self.gear_down else 'up'}"
+        pid = (f"h{int(round(self.alt_ft)):05d}_m{self.mach:.2f}_f{flap_label(self.flap_deg)}"
+               f"_g{'dn' if self.gear_down else 'up'}")
         if self.weight_lb is not None:
             pid += f"_w{int(round(self.weight_lb)):06d}"
         return pid
@@ -62,7 +70,7 @@ class Matrix:
     name: str
     points: tuple[StatusPoint, ...]
     maneuver_params: tuple[tuple[str, tuple[tuple[str, float], ...]], ...]
-    clmax_by_flap: tuple[tuple[int, float], ...]
+    clmax_by_flap: tuple[tuple[float, float], ...]
     sha256: str
 
     def point(self, point_id: str) -> StatusPoint:
@@ -74,7 +82,7 @@ class Matrix:
     def params_for(self, maneuver: str) -> dict[str, float]:
         return dict(dict(self.maneuver_params).get(maneuver, ()))
 
-    def clmax(self, flap_deg: int) -> float | None:
+    def clmax(self, flap_deg: float) -> float | None:
         return dict(self.clmax_by_flap).get(flap_deg)
 
     def to_json(self) -> dict:
@@ -165,11 +173,9 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
     clmax = []
     for k, v in stall.get("clmax_by_flap", {}).items():
         try:
-            flap = int(k)
+            flap = float(k)
         except ValueError:
-            raise UserError(f"{ps}: stall.clmax_by_flap.{k}: key must be a flap detent") from None
-        if flap not in FLAP_DETENTS_DEG:
-            raise UserError(f"{ps}: stall.clmax_by_flap.{k}: flap {k} is not a detent {FLAP_DETENTS_DEG}")
+            raise UserError(f"{ps}: stall.clmax_by_flap.{k}: key must be a flap angle [deg]") from None
         clmax.append((flap, _number(ps, f"stall.clmax_by_flap.{k}", v, positive=True)))
 
     entries = doc.get("points", [])
@@ -187,9 +193,9 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
         gear = e["gear"]
         if gear not in ("up", "down"):
             raise UserError(f"{ps}: {where}.gear: expected \"up\" or \"down\", found {gear!r}")
-        flap = e["flap_deg"]
-        if isinstance(flap, bool) or not isinstance(flap, (int, float)) or flap not in FLAP_DETENTS_DEG:
-            raise UserError(f"{ps}: {where}.flap_deg: {flap!r} is not a flap detent {FLAP_DETENTS_DEG}")
+        flap = _number(ps, f"{where}.flap_deg", e["flap_deg"])
+        if not -90.0 <= flap <= 90.0:
+            raise UserError(f"{ps}: {where}.flap_deg: {flap:g} is not a flap angle in degrees")
         machs = e["mach"] if isinstance(e["mach"], list) else [e["mach"]]
         alts = e["alt_ft"] if isinstance(e["alt_ft"], list) else [e["alt_ft"]]
         machs = [_number(ps, f"{where}.mach", m, positive=True) for m in machs]
@@ -207,7 +213,7 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                 else (man_dn if gear == "down" else man_up))
         for m in machs:
             for a in alts:
-                points.append(StatusPoint(a, m, int(flap), gear == "down", weight, mans))
+                points.append(StatusPoint(a, m, flap, gear == "down", weight, mans, where))
     ids = [p.id for p in points]
     dup = sorted({x for x in ids if ids.count(x) > 1})
     if dup:

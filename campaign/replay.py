@@ -15,9 +15,9 @@ from pathlib import Path
 from joblib import Parallel, delayed
 
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.engine import FlightConfig, TrimError, fly, new_fdm
+from campaign.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
 from campaign.errors import UserError
-from campaign.matrix import FLAP_DETENTS_DEG, StatusPoint
+from campaign.matrix import StatusPoint
 from campaign.store import write_log
 
 DEFAULT_CASES = Path(__file__).resolve().parent / "cases" / "replays.toml"
@@ -37,7 +37,8 @@ class ReplayCase:
         Pressure altitude [ft].
     ias_kt : float
         Indicated (calibrated) airspeed [kt].
-    flap_deg : int
+    flap_deg : float
+        The aircraft's own flap angle [deg].
     gear : str
         ``"retract"`` or ``"extend"``.
     weight_lb : float or None
@@ -48,7 +49,7 @@ class ReplayCase:
     name: str
     alt_ft: float
     ias_kt: float
-    flap_deg: int
+    flap_deg: float
     gear: str
     weight_lb: float | None = None
     pre_s: float = 5.0
@@ -78,8 +79,8 @@ def load_cases(path: str | Path | None = None) -> list[ReplayCase]:
                 raise UserError(f"{p}: case[{i}].{k}: missing")
         if c["gear"] not in ("retract", "extend"):
             raise UserError(f"{p}: case[{i}].gear: expected \"retract\" or \"extend\"")
-        if c["flap_deg"] not in FLAP_DETENTS_DEG:
-            raise UserError(f"{p}: case[{i}].flap_deg: {c['flap_deg']} is not a detent")
+        if isinstance(c["flap_deg"], bool) or not isinstance(c["flap_deg"], (int, float)):
+            raise UserError(f"{p}: case[{i}].flap_deg: expected a number")
         if not c["ias_kt"] > 0:
             raise UserError(f"{p}: case[{i}].ias_kt: must be > 0")
         if c.get("pre_s", 5.0) < 5.0 or c.get("post_s", 15.0) < 15.0:
@@ -148,6 +149,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1) -> list[s
     """Fly every case x model x loop into ``results/replays``; return failures."""
     results = Path(results)
     sources = aircraft_for(results)
+    check_flaps(sources["reference"], [(f"case {c.name}.flap_deg", c.flap_deg) for c in cases])
     out = results / "replays"
     out.mkdir(parents=True, exist_ok=True)
     (out / "cases.json").write_text(json.dumps([vars(c) for c in cases], indent=1) + "\n")

@@ -8,10 +8,12 @@ import time
 from pathlib import Path
 
 import jsbsim
+import numpy as np
 import pytest
 
 from campaign.cli import main
 from campaign.store import read_log
+from tests.support import matrix_toml
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
 
@@ -35,7 +37,7 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, sma
     mach0 = tmp_path / "mach0.toml"
     mach0.write_text(small_matrix.read_text().replace("mach = 0.3\nalt_ft = 2000", "mach = 0\nalt_ft = 2000"))
     flap = tmp_path / "flap.toml"
-    flap.write_text(small_matrix.read_text().replace("flap_deg = 5", "flap_deg = 6"))
+    flap.write_text(small_matrix.read_text().replace("flap_deg = 5", "flap_deg = 45"))
     fx = tmp_path / "fx.xml"
     fx.write_text("<effects><axis name='DRAG'></effects>")
     _one_line_error(capsys, ["run", "--matrix", str(unknown), "--out", str(out)], str(unknown), "colour")
@@ -169,13 +171,26 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     assert final["points"] == json.loads((ref / "manifest.json").read_text())["points"]
 
 
-def test_stock_737_flies_with_aircraft_option(tmp_path, small_matrix):
+def test_stock_aircraft_fly_at_their_own_flap_angles(tmp_path, capsys):
+    """Flap settings mean the aircraft's own fcs/flap-pos-deg: the A320 flies flap 5 at 5 deg; the stock
+    737, whose FCS writes only fcs/flap-pos-norm, has no flap angle and refuses anything but 0."""
+    m = tmp_path / "m.toml"
+    m.write_text(matrix_toml([("down", 0, 0.3, 2000), ("up", 5, 0.3, 5000)], "flaps",
+                             '[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n'))
     out = tmp_path / "stock"
-    assert main(["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--aircraft", STOCK_737,
+    assert main(["fly", "h02000_m0.30_f00_gdn", "--matrix", str(m), "--aircraft", STOCK_737,
                  "--effects", "none", "--out", str(out)]) == 0
-    log, meta = read_log(out / "h02000_m0.30_f05_gdn__gear_extension.parquet")
+    log, meta = read_log(out / "h02000_m0.30_f00_gdn__gear_extension.parquet")
     assert meta["absent_channels"] == ["stabilizer_deg"] and (log.stabilizer_deg == 0).all()
     assert log.gear_norm.iloc[-1] == 1.0 and meta["aircraft"] == "737"
+    capsys.readouterr()
+    _one_line_error(capsys, ["fly", "h05000_m0.30_f05_gup", "--matrix", str(m), "--aircraft", STOCK_737,
+                             "--effects", "none", "--out", str(out)], "points[1].flap_deg", "no flap angle")
+    a320 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "A320")
+    assert main(["fly", "h05000_m0.30_f05_gup", "--matrix", str(m), "--aircraft", a320, "--effects", "none",
+                 "--out", str(tmp_path / "a320")]) == 0
+    log, _ = read_log(tmp_path / "a320" / "h05000_m0.30_f05_gup__doublet.parquet")
+    assert np.allclose(log.flap_deg, 5.0, atol=1e-9)
 
 
 def test_identify_is_this_projects_package():

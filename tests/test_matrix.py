@@ -30,7 +30,7 @@ def test_point_ids_are_stable_readable_and_pickle():
     ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\nmachh=1\n', "points[0].machh"),
     ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.0\nalt_ft=2000\n', "points[0].mach"),
     ('[[points]]\ngear="up"\nflap_deg=0\nmach=-0.2\nalt_ft=2000\n', "points[0].mach"),
-    ('[[points]]\ngear="up"\nflap_deg=7\nmach=0.3\nalt_ft=2000\n', "points[0].flap_deg"),
+    ('[[points]]\ngear="up"\nflap_deg="5"\nmach=0.3\nalt_ft=2000\n', "points[0].flap_deg"),
     ('[[points]\ngear="up"\n', "TOML does not parse"),
     ('[[points]]\ngear="sideways"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n', "points[0].gear"),
     ('[maneuvers.doublet]\namplitude=3\n[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n',

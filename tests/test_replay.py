@@ -34,7 +34,7 @@ def test_default_cases_file_holds_the_five_cases():
         select(cases, ["taxi"])
 
 
-@pytest.mark.parametrize("edit, field", [("ias_kt = 145", "ias_kt = 0"), ("flap_deg = 5", "flap_deg = 6"),
+@pytest.mark.parametrize("edit, field", [("ias_kt = 145", "ias_kt = 0"), ("flap_deg = 5", "flap_deg = \"5\""),
                                          ('gear = "retract"', 'gear = "up"'), ("alt_ft = 2000", "alt_fx = 2000")])
 def test_bad_cases_file(tmp_path, edit, field):
     p = tmp_path / "cases.toml"
