@@ -18,7 +18,8 @@ from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effect
 from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
-from identify.diagnosis import COEFFS, Diagnosis, diagnose, residual_data
+from identify.diagnosis import COEFFS, MIN_STD, Diagnosis, diagnose
+from identify.residuals import residual_data
 from identify.diagnosis_export import write_extension
 from identify.evaluate import ModelEvaluator
 from identify.export import merge_into_aircraft
@@ -105,14 +106,20 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
     except ValueError as exc:
         raise UserError(str(exc)) from None
     out.mkdir(parents=True, exist_ok=True)
-    diag = diagnose(train, evaluator)
-    doc: dict = {"discrepancy": diag.discrepancy, "causes": [c.to_dict() for c in diag.causes],
+    diag = diagnose(train, evaluator, held)
+    doc: dict = {"discrepancy": diag.discrepancy,
+                 "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
+                 "causes": [c.to_dict() for c in diag.causes],
+                 "rejected": [c.to_dict() for c in diag.rejected],
+                 "largest_rejected": None if diag.discrepancy else diag.largest_rejected(),
                  "extension": None, "extension_xml": None, "gain": {},
                  "alternatives": {c: r.alternatives for c, r in diag.results.items()},
+                 "noise_estimated": diag.noise,
+                 "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
                  "data": {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
                           "held_out": [lg.path for lg in held]},
                  "model": str(model)}
-    before = residual_data(held, evaluator)
+    before = diag.held
     extended_eval = None
     if diag.discrepancy:
         xml = write_extension(diag, out / "extension.xml")
@@ -164,7 +171,6 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
 
 def _exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
     """Held-out logs in which any of the cause's variables varies."""
-    from identify.diagnosis import MIN_STD
     out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= MIN_STD[v] for v in variables)]
     return out or sorted(int(i) for i in frame.log.unique())
 

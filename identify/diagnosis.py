@@ -26,25 +26,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from identify.coefficients import D2R, FT_PER_KT, coefficients
-from identify.evaluate import moment_transfer
-from identify.kinematics import angle_rates
 from identify.logs import Log
-from identify.models import EDGE_S, lowpass
+from identify.noise_floor import RESOLUTION, NoiseFloor, channel_noise
+from identify.residuals import COEFFS, VARIABLES, residual_data
 
-COEFFS = ("CL", "CD", "Cm")
-#: Candidate variables: log column (or derived quantity) -> JSBSim property of the model it maps to.
-VARIABLES = {
-    "gear_norm": "gear/gear-pos-norm",
-    "alpha_deg": "aero/alpha-deg",
-    "mach": "velocities/mach",
-    "flap_deg": "fcs/flap-pos-deg",
-    "elevator_deg": "fcs/elevator-pos-deg",
-    "stabilizer_deg": "fcs/stabilizer-pos-deg",
-    "qhat_rad": None,  # q cbar / 2V: aero/ci2vel * velocities/q-aero-rad_sec
-    "adothat_rad": None,  # alpha-dot cbar / 2V: aero/ci2vel * aero/alphadot-rad_sec
-    "CL": "aero/cl-squared",  # the measured lift coefficient; exported through CL^2
-}
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
 RATES = {"qhat_rad": "velocities/q-aero-rad_sec", "adothat_rad": "aero/alphadot-rad_sec"}
 #: Variables a coefficient's residual may not be regressed on (they contain that residual).
@@ -52,93 +37,7 @@ EXCLUDED = {"CL": ("CL",)}
 #: A variable must vary at least this much (std) to be a candidate.
 MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
            "stabilizer_deg": 0.1, "qhat_rad": 1e-5, "adothat_rad": 1e-5, "CL": 0.01}
-#: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
-FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
 GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
-
-
-def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray) -> pd.DataFrame:
-    """The candidate variables of one log, unfiltered.
-
-    Parameters
-    ----------
-    data : DataFrame
-        A log in the schema.
-    meta : dict
-        Its metadata (``geometry.cbar_ft``).
-    cl : ndarray
-        Its measured lift coefficient [-].
-    """
-    half_chord_over_v = meta["geometry"]["cbar_ft"] / (2.0 * data["tas_kt"].to_numpy() * FT_PER_KT)
-    alpha_dot, _ = angle_rates(data)
-    out = pd.DataFrame({v: data[v].to_numpy(dtype=float) for v in VARIABLES if v in data.columns}, index=data.index)
-    out["qhat_rad"] = data["q_dps"].to_numpy() * D2R * half_chord_over_v
-    out["adothat_rad"] = alpha_dot * half_chord_over_v
-    out["CL"] = np.asarray(cl, dtype=float)
-    return out
-
-
-def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
-    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP.
-
-    The log's own area and chord are converted to the model's; the moment moves
-    from the log's CG (the model's CG if the log does not give one) to the
-    model's AERORP, with the full x and z offset.
-    """
-    g = meta["geometry"]
-    k = g["S_ft2"] / evaluator.S
-    cg_x, cg_z = g.get("cg_x_in", evaluator.cg_in[0]), g.get("cg_z_in", evaluator.cg_in[2])
-    cm = coef["Cm"].to_numpy() * k * g["cbar_ft"] / evaluator.cbar
-    cm = moment_transfer(cm, coef["Cx"].to_numpy() * k, coef["Cz"].to_numpy() * k,
-                         evaluator.aerorp_in[0] - cg_x, evaluator.aerorp_in[2] - cg_z, evaluator.cbar)
-    return pd.DataFrame({"CL": coef["CL"].to_numpy() * k, "CD": coef["CD"].to_numpy() * k, "Cm": cm},
-                        index=coef.index)
-
-
-def _smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
-    out = frame.copy()
-    for c in columns:
-        if c in out:
-            out[c] = lowpass(out[c].to_numpy(), dt)
-    return out
-
-
-def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
-    """Measured minus model coefficients at the measured states, for every log.
-
-    The model is evaluated at the raw measured states (exact on noise-free
-    data); the measured and model coefficients and the variables then pass
-    through the zero-phase low-pass filter of the identification, 0.25 s is
-    dropped at both ends, and every ``step``-th sample is kept.
-
-    Returns
-    -------
-    DataFrame
-        One row per sample: ``log`` (index into ``logs``), ``t_s``, the
-        variables, measured ``CL``/``CD``/``Cm``, the model's ``model_CL``...
-        and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP).
-    """
-    frames = []
-    for i, log in enumerate(logs):
-        d = log.data
-        dt = float(np.median(np.diff(d["t_s"])))
-        meas = measured_about(coefficients(d, log.meta), log.meta, evaluator)
-        cl = meas["CL"].to_numpy()
-        pred = evaluator.predict(d, cl)
-        both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
-        both = _smooth(both, dt, both.columns)
-        var = _smooth(variables(d, log.meta, cl), dt, FILTERED)
-        edge = int(round(EDGE_S / dt))
-        keep = np.arange(edge, len(d) - edge, step)
-        out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
-        for v in VARIABLES:
-            out[v] = var[v].to_numpy()[keep]
-        for c in COEFFS:
-            out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
-            out[f"meas_{c}"] = both[c].to_numpy()[keep]
-            out[f"r_{c}"] = out[f"meas_{c}"] - out[f"model_{c}"]
-        frames.append(out)
-    return pd.concat(frames, ignore_index=True)
 
 
 def _hats(x: np.ndarray, knots: tuple[float, ...]) -> np.ndarray:
@@ -155,9 +54,10 @@ def _hats(x: np.ndarray, knots: tuple[float, ...]) -> np.ndarray:
 class Term:
     """A candidate group of regressors.
 
-    kind : "linear" | "smooth" | "product" | "smooth_x_linear"
-        Interactions carry their main effects (hierarchy): ``product`` is
-        a, b and a*b; ``smooth_x_linear`` is smooth(a) and smooth(a)*b.
+    kind : "linear" | "quadratic" | "smooth" | "product" | "smooth_x_linear"
+        Higher terms carry the lower ones (hierarchy): ``quadratic`` is a and
+        a^2 (an induced-drag law in CL), ``product`` is a, b and a*b,
+        ``smooth_x_linear`` is smooth(a) and smooth(a)*b.
     variables : the log columns it uses (first is the smooth one for smooth_x_linear)
     knots : knots of the smooth variable (the first knot is the reference: dropped)
     centers, ranges : centring and clipping of the linear factors
@@ -174,7 +74,8 @@ class Term:
         v = " x ".join(self.variables)
         if self.kind == "smooth_x_linear":
             return f"smooth({self.variables[0]}) x {self.variables[1]}"
-        return {"linear": f"linear({v})", "smooth": f"smooth({v})", "product": v}[self.kind]
+        return {"linear": f"linear({v})", "quadratic": f"quadratic({v})", "smooth": f"smooth({v})",
+                "product": v}[self.kind]
 
     def _lin(self, frame: pd.DataFrame, i: int) -> np.ndarray:
         v = self.variables[i]
@@ -184,6 +85,9 @@ class Term:
     def design(self, frame: pd.DataFrame) -> np.ndarray:
         if self.kind == "linear":
             return self._lin(frame, 0)[:, None]
+        if self.kind == "quadratic":
+            a = self._lin(frame, 0)
+            return np.column_stack([a, a * a])
         if self.kind == "smooth":
             return _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
         if self.kind == "product":
@@ -194,8 +98,24 @@ class Term:
 
     @property
     def width(self) -> int:
-        return {"linear": 1, "product": 3, "smooth": len(self.knots) - 1,
+        return {"linear": 1, "quadratic": 2, "product": 3, "smooth": len(self.knots) - 1,
                 "smooth_x_linear": 2 * (len(self.knots) - 1)}[self.kind]
+
+
+#: Smooth terms' knots are at least this share of the variable's range apart: a narrow interval
+#: inside a cluster of trimmed values is excited by sensor noise alone (errors-in-variables).
+MIN_KNOT_SPACING = 0.1
+
+
+def _spread(knots: np.ndarray) -> tuple[float, ...]:
+    """Quantile knots thinned so that neighbours are at least :data:`MIN_KNOT_SPACING` of the range apart."""
+    gap = MIN_KNOT_SPACING * float(knots[-1] - knots[0])
+    out = [float(knots[0])]
+    for k in knots[1:-1]:
+        if k - out[-1] >= gap and knots[-1] - k >= gap:
+            out.append(float(k))
+    out.append(float(knots[-1]))
+    return tuple(out)
 
 
 def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[Term]:
@@ -215,13 +135,15 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
     terms = []
     for v in excited:
         terms.append(Term("linear", (v,), (), (center[v],), (rng[v],)))
+        if v in shaped and v not in ("gear_norm", "flap_deg"):
+            terms.append(Term("quadratic", (v,), (), (center[v],), (rng[v],)))
         if v == "gear_norm":
             terms.append(Term("smooth", (v,), GEAR_KNOTS))
         elif v in shaped:
             if v == "flap_deg":
                 knots = tuple(float(x) for x in np.unique(np.round(data[v].to_numpy(), 6)))
             else:
-                knots = tuple(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
+                knots = _spread(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
             if len(knots) >= 3:
                 terms.append(Term("smooth", (v,), knots))
     for a, b in combinations(shaped, 2):
@@ -329,8 +251,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         p_now = 1 + sum(t.width for t in chosen)
         rows = []
         for t in terms:
-            if t in chosen or (t.kind == "linear" and any(c.kind == "smooth" and c.variables == t.variables
-                                                           for c in chosen)):
+            if t in chosen or (t.kind in ("linear", "quadratic") and any(
+                    c.kind in ("smooth", "quadratic") and c.variables == t.variables for c in chosen)):
                 continue
             big = _fit(y, [designs[c] for c in chosen] + [designs[t]], chosen + [t])
             n_eff = lags.n_eff(big.resid)
@@ -386,7 +308,17 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
 
 @dataclass
 class Cause:
-    """One named cause: a coefficient, the variables, a shape, the evidence."""
+    """One candidate cause: a coefficient, the variables, a shape, the evidence, the verdict.
+
+    Attributes
+    ----------
+    size : float
+        Range (max - min) of its contribution over the data [-].
+    verdict : dict
+        ``accepted``, ``reason``, ``noise_floor`` (the size instrument noise
+        alone reaches), ``holdout_gain`` (residual RMS without / with it on data
+        it was not fitted on, where it acts) and ``holdout_logs``.
+    """
 
     coefficient: str
     variables: list[str]
@@ -395,11 +327,17 @@ class Cause:
     evidence: dict
     peak: float
     curve: dict = field(default_factory=dict)
+    size: float = 0.0
+    verdict: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return f"{self.coefficient} vs {', '.join(self.variables)}"
 
     def to_dict(self) -> dict:
-        return {"coefficient": self.coefficient, "variables": self.variables, "shape": self.shape,
-                "evidence": self.evidence, "peak": self.peak, "terms": [t.label for t in self.terms],
-                "curve": self.curve}
+        return {"kind": "aero", "coefficient": self.coefficient, "variables": self.variables, "shape": self.shape,
+                "evidence": self.evidence, "peak": self.peak, "size": self.size, "verdict": self.verdict,
+                "terms": [t.label for t in self.terms], "curve": self.curve}
 
 
 def _shape(x: np.ndarray, y: np.ndarray) -> str:
@@ -424,6 +362,27 @@ def _shape(x: np.ndarray, y: np.ndarray) -> str:
     return "monotonic, curved"
 
 
+def _share(y: np.ndarray, x: np.ndarray) -> float:
+    """R^2 of ``y`` explained by a piecewise-linear function of ``x`` alone."""
+    knots = np.linspace(float(x.min()), float(x.max()), 6)
+    if knots[-1] <= knots[0]:
+        return 0.0
+    design = np.column_stack([np.ones(len(x)), _hats(x, tuple(knots))[:, 1:]])
+    beta, *_ = np.linalg.lstsq(design, y, rcond=None)
+    e = y - design @ beta
+    ss = float(((y - y.mean()) ** 2).sum())
+    return 1.0 - float(e @ e) / ss if ss > 0 else 0.0
+
+
+def _along(group: list[Term], res: StepwiseResult, data: pd.DataFrame, variable: str,
+           n: int = 41) -> tuple[np.ndarray, np.ndarray]:
+    """A group's contribution along one of its variables, the others at their median."""
+    names = {v for t in group for v in t.variables}
+    grid = pd.DataFrame({v: np.full(n, float(np.median(data[v]))) for v in names})
+    grid[variable] = np.linspace(float(data[variable].min()), float(data[variable].max()), n)
+    return grid[variable].to_numpy(), sum(t.design(grid) @ res.term_beta(t) for t in group)
+
+
 def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _Lags) -> list[Cause]:
     """Group selected terms into causes (terms sharing a variable), rank by F."""
     causes = []
@@ -443,15 +402,15 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
             small = _fit(y, [designs[t] for t in rest], rest)
             k = sum(t.width for t in g)
             f, p = _f_test(small, full, k, n_eff, p_all)
+            contrib = sum(t.design(data) @ res.term_beta(t) for t in g)
             variables = []
-            for t in sorted(g, key=lambda t: t.kind != "smooth" and t.kind != "linear"):
-                variables += [v for v in t.variables if v not in variables]
-            contrib = sum(t.design(data) @ res.term_beta(t) for t in g) + res.beta[0]
+            for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
+                ordered = t.variables
+                if t.kind == "product":  # the variable that alone explains more of the cause comes first
+                    ordered = tuple(sorted(t.variables, key=lambda v: -_share(contrib, data[v].to_numpy())))
+                variables += [v for v in ordered if v not in variables]
             primary = variables[0]
-            grid = pd.DataFrame({v: np.full(41, float(np.median(data[v]))) for v in variables})
-            grid[primary] = np.linspace(float(data[primary].min()), float(data[primary].max()), 41)
-            cy = sum(t.design(grid) @ res.term_beta(t) for t in g) + res.beta[0]
-            cx = grid[primary].to_numpy()
+            cx, cy = _along(g, res, data, primary)
             shape = _shape(cx, cy)
             if len(variables) > 1:
                 shape += f", depends on {', '.join(variables[1:])}"
@@ -462,18 +421,120 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
                                  "hardly_separated_from": [a for t in g for a in res.close.get(t.label, [])]},
                                 float(np.max(np.abs(contrib))),
                                 {primary: cx.tolist(), f"d{c}": np.asarray(cy).tolist(),
-                                 "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}}))
+                                 "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}},
+                                float(np.ptp(contrib))))
     causes.sort(key=lambda c: -c.evidence["F"])
     return causes
 
 
+#: Fresh noise on logs that already hold noise doubles the regressors' noise, which can halve the
+#: errors-in-variables effect the floor simulates (sigma^2/(V+sigma^2) <= 2 sigma^2/(V+2 sigma^2)).
+FLOOR_FACTOR = 2.0
+#: A cause must make residuals this much smaller (RMS ratio) on data it was not fitted on, where it acts.
+MIN_HOLDOUT_GAIN = 1.02
+#: A log "sees" a cause where its contribution departs this share of its size from its typical value.
+ACTING_SHARE = 0.2
+
+
+def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple[float, list[int]]:
+    """Leave-one-condition-out check of one cause on every condition flown.
+
+    For each flight condition, the coefficient's selected terms are fitted on
+    the others and predict it; the gain is the residual RMS without the cause's
+    part of that prediction over the RMS with it, pooled over the logs where
+    the cause acts.
+
+    Parameters
+    ----------
+    res : StepwiseResult
+        The coefficient's stepwise fit (its terms).
+    cause : Cause
+    data : DataFrame
+        Residual data of every log, train and held out, with ``condition`` and ``log`` columns.
+
+    Returns
+    -------
+    gain : float
+        NaN if no log sees the cause, or it was flown at a single condition.
+    acting : list of int
+        The logs (``log`` values) where it acts.
+    """
+    y = data[f"r_{cause.coefficient}"].to_numpy()
+    own = [t for t in res.terms if t in cause.terms]
+    rest = [t for t in res.terms if t not in cause.terms]
+    full = sum(t.design(data) @ res.term_beta(t) for t in own)
+    typical = float(np.median(full))
+    frame = pd.DataFrame({"log": data["log"].to_numpy(), "dev": np.abs(full - typical)})
+    acting = [int(i) for i, g in frame.groupby("log") if g["dev"].max() >= ACTING_SHARE * max(cause.size, 1e-300)]
+    conds = data["condition"].to_numpy()
+    if not acting or len(set(conds)) < 2:
+        return float("nan"), acting
+    x_own = np.column_stack([t.design(data) for t in own])
+    x_rest = np.column_stack([np.ones(len(y))] + [t.design(data) for t in rest])
+    x = np.hstack([x_rest, x_own])
+    before = np.zeros(len(y))
+    after = np.zeros(len(y))
+    for c in set(conds):
+        out = conds == c
+        beta, *_ = np.linalg.lstsq(x[~out], y[~out], rcond=None)
+        base = y[out] - x_rest[out] @ beta[:x_rest.shape[1]]
+        before[out] = base
+        after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]
+    sel = np.isin(data["log"].to_numpy(), acting)
+    ss_after = float(after[sel] @ after[sel])
+    return (float(np.sqrt(before[sel] @ before[sel] / ss_after)) if ss_after > 0 else float("inf")), acting
+
+
+def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
+          floors: list[np.ndarray], alpha_in: float = 1e-6) -> None:
+    """Fill each cause's verdict: significant, above the noise floor, better on held-out data."""
+    for cause, null in zip(causes, floors):
+        floor = max(FLOOR_FACTOR * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
+        gain, acting = holdout_gain(results[cause.coefficient], cause, data_all)
+        reasons = []
+        if not cause.evidence["p_value"] < alpha_in:
+            reasons.append(f"not significant (p = {cause.evidence['p_value']:.2g}, needs < {alpha_in:g})")
+        if not cause.size > floor:
+            reasons.append(f"no larger than instrument noise makes it (size {cause.size:.3g}, noise floor "
+                           f"{floor:.3g})")
+        if not gain >= MIN_HOLDOUT_GAIN:
+            reasons.append("no held-out data where it acts" if not np.isfinite(gain) else
+                           f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+        cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
+                         "noise_sizes": [float(v) for v in null], "holdout_gain": gain,
+                         "holdout_logs": acting, "size_over_floor": cause.size / floor}
+
+
 @dataclass
 class Diagnosis:
-    """The result: residuals, stepwise fits, named causes."""
+    """The result: residuals, stepwise fits, the causes named and those rejected.
+
+    Attributes
+    ----------
+    data : DataFrame
+        Residual data of the logs fitted on.
+    held : DataFrame or None
+        Residual data of the held-out logs (``log`` counts on after the fitted ones).
+    results : dict
+        Coefficient -> :class:`StepwiseResult`, refitted on the accepted causes' terms.
+    causes : list of Cause
+        Accepted causes, best first.
+    rejected : list of Cause
+        Candidates that failed the verdict, with the reason.
+    noise : dict
+        Channel noise levels estimated from the logs.
+    unset : list
+        Inputs of the model's aerodynamics that no log channel sets.
+    """
 
     data: pd.DataFrame
     results: dict[str, StepwiseResult]
     causes: list[Cause]
+    rejected: list[Cause] = field(default_factory=list)
+    held: pd.DataFrame | None = None
+    noise: dict = field(default_factory=dict)
+    unset: list = field(default_factory=list)
+    first_step: dict = field(default_factory=dict)
 
     @property
     def discrepancy(self) -> bool:
@@ -484,19 +545,43 @@ class Diagnosis:
         res = self.results[coefficient]
         return res.predict(frame) if res.terms else np.zeros(len(frame))
 
+    def largest_rejected(self) -> dict:
+        """The strongest candidate that was not named, and why."""
+        if self.rejected:
+            c = max(self.rejected, key=lambda c: c.verdict["size_over_floor"])
+            return {"candidate": c.label, "size": c.size, "peak": c.peak, "reason": c.verdict["reason"],
+                    "evidence": {k: c.evidence[k] for k in ("F", "p_value", "rss_reduction_pct")},
+                    "noise_floor": c.verdict["noise_floor"], "holdout_gain": c.verdict["holdout_gain"]}
+        best = min(self.first_step.items(), key=lambda kv: (kv[1]["p_value"], -kv[1]["F"]), default=None)
+        if best is None:
+            return {}
+        c, a = best
+        why = (f"not significant (p = {a['p_value']:.2g}, needs < 1e-06)" if a["p_value"] >= 1e-6 else
+               f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs 1 %)")
+        return {"candidate": f"{c} vs {a['term']}", "reason": why,
+                "evidence": {k: a[k] for k in ("F", "p_value", "rss_reduction_pct")}}
+
     def summary(self) -> str:
         lines = []
+        if self.unset:
+            lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
         if not self.causes:
-            lines.append("No significant discrepancy: noise alone explains the residuals.")
+            lines.append("No significant discrepancy.")
+            big = self.largest_rejected()
+            if big:
+                lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
         for i, c in enumerate(self.causes, 1):
-            e = c.evidence
+            e, v = c.evidence, c.verdict
             p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
-            lines.append(f"{i}. {c.coefficient} vs {', '.join(c.variables)}: {c.shape}; peak {c.peak:.4g}; "
+            lines.append(f"{i}. {c.label}: {c.shape}; peak {c.peak:.4g}; "
                          f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
-                         f"removes {e['rss_reduction_pct']:.1f} % of the residual")
+                         f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
+                         f"noise floor of {v['noise_floor']:.3g}; held-out gain x{v['holdout_gain']:.2f}")
             for a in e.get("hardly_separated_from", []):
                 lines.append(f"   caution: the data hardly separate it from {a['term']} "
                              f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+        if self.causes and self.rejected:
+            lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
         lines.append("")
         for c, res in self.results.items():
             lines.append(f"{c}: residual RMS {res.rms_before:.3g} -> {res.rms_after:.3g} with "
@@ -506,9 +591,57 @@ class Diagnosis:
         return "\n".join(lines)
 
 
-def diagnose(logs: list[Log], evaluator, step: int = 2, **kw) -> Diagnosis:
-    """Residuals against the model, stepwise structure per coefficient, causes."""
+def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
+    frame = frame.copy()
+    frame["log"] = frame["log"] + offset
+    keys = {i + offset: "/".join(f"{x:g}" for x in lg.condition) for i, lg in enumerate(logs)}
+    frame["condition"] = frame["log"].map(keys)
+    return frame
+
+
+def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> StepwiseResult:
+    """The same stepwise result with only ``keep`` terms, refitted."""
+    y = data[f"r_{res.coefficient}"].to_numpy()
+    fit = _fit(y, [t.design(data) for t in keep], keep)
+    return StepwiseResult(res.coefficient, list(keep), fit.beta, {k: v for k, v in res.evidence.items()
+                                                                    if k in {t.label for t in keep}},
+                          res.alternatives, res.rms_before, float(np.sqrt(np.mean(fit.resid ** 2))), res.n_eff,
+                          {k: v for k, v in res.close.items() if k in {t.label for t in keep}})
+
+
+def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int = 2, realizations: int = 20,
+             **kw) -> Diagnosis:
+    """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
+
+    Parameters
+    ----------
+    logs : list of Log
+        Logs to fit on.
+    evaluator : ModelEvaluator
+    held : list of Log
+        Logs not fitted on; the verdict's leave-one-condition-out check uses them too.
+    step : int
+        Thinning of the residual data.
+    realizations : int
+        Noise realizations of the instrument-noise floor.
+    """
+    held = list(held)
     data = residual_data(logs, evaluator, step)
+    held_data = residual_data(held, evaluator, step) if held else None
     lags = _Lags(data["log"].to_numpy())
     results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
-    return Diagnosis(data, results, name_causes(results, data, lags))
+    causes = name_causes(results, data, lags)
+    noise = channel_noise(logs + held)
+    floors = NoiseFloor(logs, evaluator, noise, step, realizations).sizes(
+        [(c.coefficient, c.terms) for c in causes]) if causes else []
+    data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
+                         ignore_index=True)
+    judge(causes, results, data_all, floors, kw.get("alpha_in", 1e-6))
+    accepted = [c for c in causes if c.verdict["accepted"]]
+    rejected = [c for c in causes if not c.verdict["accepted"]]
+    for c in COEFFS:
+        keep = [t for cause in accepted if cause.coefficient == c for t in cause.terms]
+        if len(keep) != len(results[c].terms):
+            results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
+    first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
+    return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first)

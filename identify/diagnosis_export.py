@@ -6,8 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.diagnosis import VARIABLES, Diagnosis, Term
+from identify.diagnosis import RATES, VARIABLES, Diagnosis, Term
 from identify.export import AXIS
+
+#: Points per table on a variable exported through another property (CL through CL^2).
+DENSE = 41
 
 SCALE = {"CL": ("aero/qbar-psf", "metrics/Sw-sqft"), "CD": ("aero/qbar-psf", "metrics/Sw-sqft"),
          "Cm": ("aero/qbar-psf", "metrics/Sw-sqft", "metrics/cbarw-ft")}
@@ -37,39 +40,59 @@ def _table_2d(parent: ET.Element, row: str, col: str, rows, cols, values) -> Non
     ET.SubElement(t, "tableData").text = "\n" + "\n".join(lines) + "\n"
 
 
-def _qhat(parent: ET.Element, center: float) -> None:
+def _rate(parent: ET.Element, variable: str, center: float) -> None:
+    """``cbar/2V * rate - center`` of a normalised rate (:data:`identify.diagnosis.RATES`)."""
     d = ET.SubElement(parent, "difference")
     p = ET.SubElement(d, "product")
     ET.SubElement(p, "property").text = "aero/ci2vel"
-    ET.SubElement(p, "property").text = "velocities/q-aero-rad_sec"
+    ET.SubElement(p, "property").text = RATES[variable]
     ET.SubElement(d, "value").text = repr(float(center))
+
+
+def _axis(variable: str, points) -> tuple[str, np.ndarray, np.ndarray]:
+    """The property a table on ``variable`` reads, its breakpoints, and the variable's value at each.
+
+    CL has no JSBSim property of its own: its tables read ``aero/cl-squared`` (the
+    lift coefficient is positive over the data, :func:`candidate_terms` sees to it),
+    with breakpoints dense enough that the table is linear in CL between them.
+    """
+    points = np.asarray(points, dtype=float)
+    if variable != "CL":
+        return VARIABLES[variable], points, points
+    cl = np.unique(np.concatenate([points, np.linspace(points.min(), points.max(), DENSE)]))
+    return VARIABLES[variable], cl ** 2, cl
 
 
 def _term(prod: ET.Element, t: Term, beta: np.ndarray) -> None:
     if t.kind == "linear":
         v = t.variables[0]
-        if VARIABLES[v] is None:
+        if v in RATES:
             ET.SubElement(prod, "value").text = repr(float(beta[0]))
-            _qhat(prod, t.centers[0])
+            _rate(prod, v, t.centers[0])
             return
+        prop, bp, x = _axis(v, t.ranges[0])
+        _table_1d(prod, prop, bp, beta[0] * (x - t.centers[0]))
+    elif t.kind == "quadratic":
         lo, hi = t.ranges[0]
-        _table_1d(prod, VARIABLES[v], (lo, hi), (beta[0] * (lo - t.centers[0]), beta[0] * (hi - t.centers[0])))
+        prop, bp, x = _axis(t.variables[0], np.linspace(lo, hi, DENSE))
+        _table_1d(prod, prop, bp, beta[0] * (x - t.centers[0]) + beta[1] * (x - t.centers[0]) ** 2)
     elif t.kind == "smooth":
-        _table_1d(prod, VARIABLES[t.variables[0]], t.knots, np.concatenate([[0.0], beta]))
+        prop, bp, x = _axis(t.variables[0], t.knots)
+        _table_1d(prod, prop, bp, np.interp(x, t.knots, np.concatenate([[0.0], beta])))
     elif t.kind == "product":
-        (la, ha), (lb, hb) = t.ranges
+        (pa, bpa, xa), (pb, bpb, xb) = _axis(t.variables[0], t.ranges[0]), _axis(t.variables[1], t.ranges[1])
         ca, cb = t.centers
         ba, bb, bab = beta
-        vals = [[ba * (a - ca) + bb * (b - cb) + bab * (a - ca) * (b - cb) for b in (lb, hb)] for a in (la, ha)]
-        _table_2d(prod, VARIABLES[t.variables[0]], VARIABLES[t.variables[1]], (la, ha), (lb, hb), vals)
+        vals = [[ba * (a - ca) + bb * (b - cb) + bab * (a - ca) * (b - cb) for b in xb] for a in xa]
+        _table_2d(prod, pa, pb, bpa, bpb, vals)
     else:
-        lb, hb = t.ranges[1]
+        pb, bpb, xb = _axis(t.variables[1], t.ranges[1])
         cb = t.centers[1]
         k = len(t.knots) - 1
         main = np.concatenate([[0.0], beta[:k]])
         inter = np.concatenate([[0.0], beta[k:]])
-        vals = [[m + w * (lb - cb), m + w * (hb - cb)] for m, w in zip(main, inter)]
-        _table_2d(prod, VARIABLES[t.variables[0]], VARIABLES[t.variables[1]], t.knots, (lb, hb), vals)
+        vals = [[m + w * (b - cb) for b in xb] for m, w in zip(main, inter)]
+        _table_2d(prod, VARIABLES[t.variables[0]], pb, t.knots, bpb, vals)
 
 
 def extension_effects(diag: Diagnosis) -> ET.Element:

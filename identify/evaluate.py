@@ -244,46 +244,65 @@ class ModelEvaluator:
             out["eval/cl-squared"] = (np.interp(t - self.frame_s, t, cl * qbar) / qbar) ** 2
         return {k: v for k, v in out.items() if k in self.redirected}
 
-    def predict(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> pd.DataFrame:
-        """CL, CD and Cm about the model's AERORP at each row of ``data``.
+    def inputs(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Every property the evaluation sets, per row of a log: the state as an
+        initial condition, the control positions and their schedules, α̇, β̇, CL².
 
         Parameters
         ----------
         data : DataFrame
-            A log in the schema, in time order (``t_s`` [s], ``alt_ft``,
-            ``tas_kt``, ``alpha_deg``, rates, surfaces, flap, gear...).
+            A log in the schema, in time order.
         cl : ndarray, optional
             Measured lift coefficient [-] at each row; needed when the model
             reads ``aero/cl-squared``.
+        """
+        zeros = np.zeros(len(data))
+        out = {p: data[c].to_numpy(dtype=float) * k if c in data else zeros for p, c, k in IC_CHANNELS}
+        out.update(self._controls(data))
+        out.update(self._derived(data, cl))
+        return out
 
-        Returns
-        -------
-        DataFrame
-            ``CL``, ``CD`` and ``Cm`` [-], ``Cm`` about the model's AERORP.
+    def evaluate(self, inputs: dict[str, np.ndarray], rows: np.ndarray | None = None) -> pd.DataFrame:
+        """CL, CD and Cm about the model's AERORP, JSBSim evaluating each row of ``inputs``.
+
+        Parameters
+        ----------
+        inputs : dict
+            Property -> values (:meth:`inputs`).
+        rows : ndarray of int, optional
+            Evaluate these rows only (default all).
         """
         fdm = self.fdm
         pm = fdm.get_property_manager()
-        n = len(data)
-        zeros = np.zeros(n)
-        sets = [(pm.get_node(p, False), data[c].to_numpy(dtype=float) * k if c in data else zeros)
-                for p, c, k in IC_CHANNELS]
-        sets += [(pm.get_node(p, False), v) for p, v in {**self._controls(data), **self._derived(data, cl)}.items()]
+        n = len(next(iter(inputs.values())))
+        rows = np.arange(n) if rows is None else np.asarray(rows)
+        sets = [(pm.get_node(p, False), v) for p, v in inputs.items()]
         read = [pm.get_node(p, False) for p in ("aero/qbar-psf", "forces/fwz-aero-lbs", "forces/fwx-aero-lbs",
                                                  "forces/fbx-aero-lbs", "forces/fbz-aero-lbs",
                                                  "moments/m-aero-lbsft")]
-        raw = np.empty((n, len(read)))
+        raw = np.empty((len(rows), len(read)))
         with captured_stdout():
-            for i in range(n):
+            for j, i in enumerate(rows):
                 for node, v in sets:
                     node.set_double_value(v[i])
                 fdm.run_ic()
-                raw[i] = [r.get_double_value() for r in read]
+                raw[j] = [r.get_double_value() for r in read]
         qs = raw[:, 0] * self.S
         cm_cg = raw[:, 5] / (qs * self.cbar)
         dx = self.aerorp_in[0] - self.cg_in[0]
         dz = self.aerorp_in[2] - self.cg_in[2]
         cm = moment_transfer(cm_cg, raw[:, 3] / qs, raw[:, 4] / qs, dx, dz, self.cbar)
-        return pd.DataFrame({"CL": raw[:, 1] / qs, "CD": raw[:, 2] / qs, "Cm": cm}, index=data.index)
+        return pd.DataFrame({"CL": raw[:, 1] / qs, "CD": raw[:, 2] / qs, "Cm": cm})
+
+    def predict(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> pd.DataFrame:
+        """CL, CD and Cm about the model's AERORP at each row of ``data`` (see :meth:`inputs`).
+
+        Returns
+        -------
+        DataFrame
+            ``CL``, ``CD`` and ``Cm`` [-], ``Cm`` about the model's AERORP, indexed like ``data``.
+        """
+        return self.evaluate(self.inputs(data, cl)).set_index(data.index)
 
     def close(self) -> None:
         shutil.rmtree(self._tmp, ignore_errors=True)

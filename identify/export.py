@@ -66,7 +66,7 @@ def _surface_table(parent: ET.Element, s: GearSurface, flap: int, coeff: str) ->
         ET.SubElement(table, "tableData", breakPoint=repr(float(m))).text = "\n" + "\n".join(lines) + "\n"
 
 
-def gear_effects(surface: GearSurface, kind: str, arm_ft: float) -> ET.Element:
+def gear_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float]) -> ET.Element:
     """The identified gear increments as an ``<effects>`` element.
 
     Parameters
@@ -74,10 +74,11 @@ def gear_effects(surface: GearSurface, kind: str, arm_ft: float) -> ET.Element:
     surface : GearSurface
     kind : str
         ``"linear"`` or ``"nonlinear"``, for the function names.
-    arm_ft : float
-        AERORP aft of the CG [ft]. The identified Cm is about the CG; JSBSim
-        transfers the lift and drag increments from AERORP, so the pitching
-        function adds that transfer back.
+    arm_ft : (float, float)
+        AERORP aft of and above the CG, structural x and z [ft]. The identified
+        Cm is about the CG; JSBSim transfers the lift and drag increments from
+        AERORP, so the pitching function adds that transfer back:
+        ``x (dCL cos a + dCD sin a) + z (dCL sin a - dCD cos a)`` per cbar.
     """
     root = ET.Element("effects")
     for coeff in COEFFS:
@@ -97,18 +98,25 @@ def gear_effects(surface: GearSurface, kind: str, arm_ft: float) -> ET.Element:
             _flap_weight(term, surface.flaps, i)
             _surface_table(term, surface, flap, coeff)
         if coeff == "Cm":
-            transfer = ET.SubElement(top, "product")
-            _value(transfer, arm_ft)
-            both = ET.SubElement(transfer, "sum")
-            for c, trig in (("CL", "cos"), ("CD", "sin")):
-                p = ET.SubElement(both, "product")
-                _prop(p, function_name(kind, c))
-                _prop(ET.SubElement(p, trig), "aero/alpha-rad")
+            # the lift and drag functions are forces: (arm / cbar) * force / (qbar S) * qbar S cbar = arm * force
+            for arm, terms in ((arm_ft[0], (("CL", "cos", 1.0), ("CD", "sin", 1.0))),
+                               (arm_ft[1], (("CL", "sin", 1.0), ("CD", "cos", -1.0)))):
+                if arm == 0.0:
+                    continue
+                transfer = ET.SubElement(top, "product")
+                _value(transfer, arm)
+                both = ET.SubElement(transfer, "sum")
+                for c, trig, sign in terms:
+                    p = ET.SubElement(both, "product")
+                    if sign < 0:
+                        _value(p, sign)
+                    _prop(p, function_name(kind, c))
+                    _prop(ET.SubElement(p, trig), "aero/alpha-rad")
     ET.indent(root)
     return root
 
 
-def write_effects(surface: GearSurface, kind: str, arm_ft: float, path: Path) -> Path:
+def write_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float], path: Path) -> Path:
     root = gear_effects(surface, kind, arm_ft)
     Path(path).write_text(f"<?xml version=\"1.0\"?>\n<!-- written by campaign identify -->\n"
                           f"{ET.tostring(root, encoding='unicode')}\n")

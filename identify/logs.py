@@ -57,7 +57,7 @@ class Log:
     def condition(self) -> tuple[float, float, int]:
         """(altitude [ft], Mach, flap [deg]) of the status point."""
         sp = self.meta["status_point"]
-        return (float(sp["alt_ft"]), float(sp["mach"]), int(sp["flap_deg"]))
+        return (float(sp["alt_ft"]), float(sp["mach"]), float(sp["flap_deg"]))
 
     @property
     def gear_down(self) -> bool:

@@ -37,9 +37,43 @@ SWEEP_POINTS = 401
 LONGITUDINAL_AXES = ("DRAG", "LIFT", "PITCH", "X", "Z", "AXIAL", "NORMAL")
 
 
+def _collector(lines: list[str]):
+    """A JSBSim logger that keeps each message as lines of text (none reach the console)."""
+    import jsbsim
+
+    class Collector(jsbsim.FGLogger):
+        def __init__(self) -> None:
+            super().__init__()
+            self.parts: list[str] = []
+
+        def set_level(self, level) -> None:
+            self.parts = []
+
+        def file_location(self, filename: str, line: int) -> None:
+            pass
+
+        def message(self, message: str) -> None:
+            self.parts.append(message)
+
+        def format(self, format) -> None:
+            pass
+
+        def flush(self) -> None:
+            lines.extend(x.strip() for x in "".join(self.parts).splitlines() if x.strip())
+            self.parts = []
+
+    return Collector()
+
+
 @contextlib.contextmanager
 def captured_stdout(lines: list[str] | None = None):
-    """Capture JSBSim's C++ messages (they bypass ``sys.stdout``) into ``lines``."""
+    """Keep JSBSim's messages (its logger's and any written straight to the C stdout) out of
+    the console, in ``lines`` if given."""
+    import jsbsim
+
+    lines = [] if lines is None else lines
+    previous = jsbsim.get_logger()
+    jsbsim.set_logger(_collector(lines))
     sys.stdout.flush()
     saved = os.dup(1)
     with tempfile.TemporaryFile() as buf:
@@ -50,9 +84,9 @@ def captured_stdout(lines: list[str] | None = None):
             _LIBC.fflush(None)
             os.dup2(saved, 1)
             os.close(saved)
-            if lines is not None:
-                buf.seek(0)
-                lines.extend(x.strip() for x in buf.read().decode(errors="replace").splitlines() if x.strip())
+            jsbsim.set_logger(previous)
+            buf.seek(0)
+            lines.extend(x.strip() for x in buf.read().decode(errors="replace").splitlines() if x.strip())
 
 
 def load_fdm(root: Path, name: str):

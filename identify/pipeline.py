@@ -26,7 +26,7 @@ class Identification:
     increments: dict[str, Increments]
     linear_surface: GearSurface | None
     nonlinear_surface: GearSurface | None
-    arm_ft: float
+    arm_ft: tuple[float, float]  # AERORP aft of and above the CG [ft]
 
 
 def identify_logs(logs: list[Log]) -> Identification:
@@ -46,12 +46,13 @@ def identify_logs(logs: list[Log]) -> Identification:
     nl_surface = fit_surface([(i.condition, i.alpha_trim_deg, i.grid, i.smooth) for i in incs.values()]) \
         if incs else None
     g = logs[0].meta["geometry"]
-    arm = (g["aerorp_x_in"] - g["cg_x_in"]) / 12.0
+    arm = ((g["aerorp_x_in"] - g["cg_x_in"]) / 12.0, (g["aerorp_z_in"] - g["cg_z_in"]) / 12.0)
     return Identification(fits, linear, incs, lin_surface, nl_surface, arm)
 
 
 def _cond_key(c: tuple) -> str:
-    return f"h{int(c[0]):05d}_m{c[1]:.2f}_f{c[2]:02d}"
+    flap = f"{int(c[2]):02d}" if float(c[2]).is_integer() else f"{c[2]:g}"
+    return f"h{int(c[0]):05d}_m{c[1]:.2f}_f{flap}"
 
 
 def write_outputs(ident: Identification, out: Path, model_dir: Path | None,

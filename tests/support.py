@@ -29,3 +29,71 @@ def z_scores(clean_fits, noisy_fits) -> np.ndarray:
             ref = clean[f.point].fits[c]
             z += [(res.params[k] - ref.params[k]) / res.bse[k] for k in res.params.index if k in ref.params.index]
     return np.abs(np.array(z))
+
+
+def run_matrix(folder, text: str, aircraft: str, effects=None, noise: str = "none", seed: int = 0, jobs: int = 2):
+    """Fly a matrix (TOML text) on an aircraft folder into ``folder/data``; return that folder."""
+    from pathlib import Path
+
+    from campaign.aircraft import AircraftSource, load_effects
+    from campaign.engine import FlightConfig
+    from campaign.matrix import load_matrix
+    from campaign.runner import run_campaign
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "m.toml").write_text(text)
+    m = load_matrix(folder / "m.toml")
+    cfg = FlightConfig(AircraftSource(str(aircraft), load_effects(effects)), seed, noise, m.maneuver_params,
+                       m.clmax_by_flap)
+    run_campaign(m, cfg, folder / "data", jobs=jobs, progress=False)
+    return folder / "data"
+
+
+def renoise(src, dst, seed: int, noise: str = "flight-test"):
+    """A noise-free campaign folder with sensor noise added exactly as ``--noise NOISE --seed SEED``
+    adds it (the noise never disturbs the flight, so the logs are the same bit for bit)."""
+    import json
+    from pathlib import Path
+
+    from campaign.engine import derived_seed
+    from campaign.noise import NOISE_PROFILES, add_sensor_noise
+    from campaign.store import read_log, write_log
+    src, dst = Path(src), Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    man = json.loads((src / "manifest.json").read_text())
+    for rec in man["points"]:
+        for f in rec["files"]:
+            log, meta = read_log(src / f)
+            s = derived_seed(seed, meta["point"], meta["maneuver"])
+            write_log(dst / f, add_sensor_noise(log, NOISE_PROFILES[noise], np.random.default_rng(s)),
+                      {**meta, "seed": s, "campaign_seed": seed, "noise": noise})
+            rec["seeds"][f] = s
+    man["settings"].update(seed=seed, noise=noise)
+    (dst / "manifest.json").write_text(json.dumps(man, indent=2))
+    return dst
+
+
+def scaled_copy(aircraft, root, function: str, scale: float):
+    """A copy of a JSBSim aircraft folder with one of its aero functions scaled (0: removed)."""
+    import shutil
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+    aircraft = Path(aircraft)
+    dest = Path(root) / aircraft.name
+    shutil.copytree(aircraft, dest)
+    tree = ET.parse(dest / f"{aircraft.name}.xml")
+    for axis in tree.getroot().find("aerodynamics").findall("axis"):
+        for fn in axis.findall("function"):
+            if fn.get("name") == function:
+                if scale == 0:
+                    axis.remove(fn)
+                else:
+                    body = [c for c in fn if c.tag != "description"]
+                    for c in body:
+                        fn.remove(c)
+                    prod = ET.SubElement(fn, "product")
+                    ET.SubElement(prod, "value").text = repr(float(scale))
+                    prod.extend(body)
+                tree.write(dest / f"{aircraft.name}.xml")
+                return dest
+    raise KeyError(f"{aircraft.name}: no aero function {function}")

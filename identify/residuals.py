@@ -1,0 +1,126 @@
+"""Residuals: the measured coefficients minus the model's, at the measured states.
+
+The model is evaluated by JSBSim at the raw measured states
+(:mod:`identify.evaluate`), so a model checked against its own noise-free logs
+leaves nothing. The measured pitching moment is moved to the model's
+aerodynamic reference point (AERORP, where JSBSim applies the aero forces) with
+the full x and z offset, so a lift or drag discrepancy does not leak into Cm.
+Both sides and the candidate variables then pass through the identification's
+zero-phase low-pass filter.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from identify.coefficients import D2R, FT_PER_KT, coefficients
+from identify.evaluate import moment_transfer
+from identify.kinematics import angle_rates
+from identify.logs import Log
+from identify.models import EDGE_S, lowpass
+
+COEFFS = ("CL", "CD", "Cm")
+#: Candidate variables: log column (or derived quantity) -> JSBSim property of the model it maps to.
+VARIABLES = {
+    "gear_norm": "gear/gear-pos-norm",
+    "alpha_deg": "aero/alpha-deg",
+    "mach": "velocities/mach",
+    "flap_deg": "fcs/flap-pos-deg",
+    "elevator_deg": "fcs/elevator-pos-deg",
+    "stabilizer_deg": "fcs/stabilizer-pos-deg",
+    "qhat_rad": None,  # q cbar / 2V: aero/ci2vel * velocities/q-aero-rad_sec
+    "adothat_rad": None,  # alpha-dot cbar / 2V: aero/ci2vel * aero/alphadot-rad_sec
+    "CL": "aero/cl-squared",  # the measured lift coefficient; exported through CL^2
+}
+#: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
+FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
+
+
+def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES) -> pd.DataFrame:
+    """The candidate variables of one log, unfiltered.
+
+    Parameters
+    ----------
+    data : DataFrame
+        A log in the schema.
+    meta : dict
+        Its metadata (``geometry.cbar_ft``).
+    cl : ndarray
+        Its measured lift coefficient [-].
+    columns : iterable of str
+        The variables wanted (default all of :data:`VARIABLES`).
+    """
+    half_chord_over_v = meta["geometry"]["cbar_ft"] / (2.0 * data["tas_kt"].to_numpy() * FT_PER_KT)
+    out = pd.DataFrame({v: data[v].to_numpy(dtype=float) for v in columns if v in data.columns}, index=data.index)
+    if "qhat_rad" in columns:
+        out["qhat_rad"] = data["q_dps"].to_numpy() * D2R * half_chord_over_v
+    if "adothat_rad" in columns:
+        out["adothat_rad"] = angle_rates(data)[0] * half_chord_over_v
+    if "CL" in columns:
+        out["CL"] = np.asarray(cl, dtype=float)
+    return out
+
+
+def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
+    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP.
+
+    The log's own area and chord are converted to the model's; the moment moves
+    from the log's CG (the model's CG if the log does not give one) to the
+    model's AERORP, with the full x and z offset.
+    """
+    g = meta["geometry"]
+    k = g["S_ft2"] / evaluator.S
+    cg_x, cg_z = g.get("cg_x_in", evaluator.cg_in[0]), g.get("cg_z_in", evaluator.cg_in[2])
+    cm = coef["Cm"].to_numpy() * k * g["cbar_ft"] / evaluator.cbar
+    cm = moment_transfer(cm, coef["Cx"].to_numpy() * k, coef["Cz"].to_numpy() * k,
+                         evaluator.aerorp_in[0] - cg_x, evaluator.aerorp_in[2] - cg_z, evaluator.cbar)
+    return pd.DataFrame({"CL": coef["CL"].to_numpy() * k, "CD": coef["CD"].to_numpy() * k, "Cm": cm},
+                        index=coef.index)
+
+
+def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
+    out = frame.copy()
+    for c in columns:
+        if c in out:
+            out[c] = lowpass(out[c].to_numpy(), dt)
+    return out
+
+
+def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
+    """Measured minus model coefficients at the measured states, for every log.
+
+    The model is evaluated at the raw measured states (exact on noise-free
+    data); the measured and model coefficients and the variables then pass
+    through the zero-phase low-pass filter of the identification, 0.25 s is
+    dropped at both ends, and every ``step``-th sample is kept.
+
+    Returns
+    -------
+    DataFrame
+        One row per sample: ``log`` (index into ``logs``), ``t_s``, the
+        variables, measured ``CL``/``CD``/``Cm``, the model's ``model_CL``...
+        and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP).
+    """
+    frames = []
+    for i, log in enumerate(logs):
+        d = log.data
+        dt = float(np.median(np.diff(d["t_s"])))
+        meas = measured_about(coefficients(d, log.meta), log.meta, evaluator)
+        cl = meas["CL"].to_numpy()
+        pred = evaluator.predict(d, cl)
+        both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
+        both = smooth(both, dt, both.columns)
+        var = smooth(variables(d, log.meta, cl), dt, FILTERED)
+        edge = int(round(EDGE_S / dt))
+        keep = np.arange(edge, len(d) - edge, step)
+        out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
+        for v in VARIABLES:
+            out[v] = var[v].to_numpy()[keep]
+        for c in COEFFS:
+            out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
+            out[f"meas_{c}"] = both[c].to_numpy()[keep]
+            out[f"r_{c}"] = out[f"meas_{c}"] - out[f"model_{c}"]
+        frames.append(out)
+    return pd.concat(frames, ignore_index=True)
+
+
