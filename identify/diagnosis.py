@@ -428,7 +428,8 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
 
 
 #: Fresh noise on logs that already hold noise doubles the regressors' noise, which can halve the
-#: errors-in-variables effect the floor simulates (sigma^2/(V+sigma^2) <= 2 sigma^2/(V+2 sigma^2)).
+#: errors-in-variables effect the floor simulates (sigma^2/(V+sigma^2) <= 2 sigma^2/(V+2 sigma^2)):
+#: a cause on a noisy variable must clear twice the largest simulated size.
 FLOOR_FACTOR = 2.0
 #: A cause must make residuals this much smaller (RMS ratio) on data it was not fitted on, where it acts.
 MIN_HOLDOUT_GAIN = 1.02
@@ -486,10 +487,15 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
 
 
 def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
-          floors: list[np.ndarray], alpha_in: float = 1e-6) -> None:
-    """Fill each cause's verdict: significant, above the noise floor, better on held-out data."""
-    for cause, null in zip(causes, floors):
-        floor = max(FLOOR_FACTOR * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
+          floors: list[np.ndarray], noisy: list[bool], alpha_in: float = 1e-6) -> None:
+    """Fill each cause's verdict: significant, above the noise floor, better on held-out data.
+
+    ``floors`` holds each cause's sizes fitted to noise alone; ``noisy`` whether any
+    of its variables carries noise (then errors-in-variables may be underestimated
+    by the simulation, up to a factor :data:`FLOOR_FACTOR`).
+    """
+    for cause, null, eiv in zip(causes, floors, noisy):
+        floor = max((FLOOR_FACTOR if eiv else 1.0) * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
         gain, acting = holdout_gain(results[cause.coefficient], cause, data_all)
         reasons = []
         if not cause.evidence["p_value"] < alpha_in:
@@ -632,11 +638,12 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int = 2, re
     results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
     causes = name_causes(results, data, lags)
     noise = channel_noise(logs + held)
-    floors = NoiseFloor(logs, evaluator, noise, step, realizations).sizes(
-        [(c.coefficient, c.terms) for c in causes]) if causes else []
+    floor = NoiseFloor(logs, evaluator, noise, step, realizations) if causes else None
+    floors = floor.sizes([(c.coefficient, c.terms) for c in causes]) if causes else []
+    noisy = [floor.noisy(c.variables) for c in causes]
     data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
                          ignore_index=True)
-    judge(causes, results, data_all, floors, kw.get("alpha_in", 1e-6))
+    judge(causes, results, data_all, floors, noisy, kw.get("alpha_in", 1e-6))
     accepted = [c for c in causes if c.verdict["accepted"]]
     rejected = [c for c in causes if not c.verdict["accepted"]]
     for c in COEFFS:

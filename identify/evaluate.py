@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from identify.kinematics import angle_rates
-from identify.model import (CONTROL_CHANNELS, captured_stdout, catalog, component_outputs, control_schedules,
+from identify.model import (captured_stdout, catalog, component_outputs, control_schedules,
                             fcs_sections, load_fdm, longitudinal_inputs)
 
 D2R = np.pi / 180.0

@@ -28,7 +28,14 @@ from identify.residuals import COEFFS, FILTERED, measured_about, variables
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
          "qdot_dps2", "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg",
-         "stabilizer_deg", "gear_norm", "mass_slug")
+         "stabilizer_deg", "flap_deg", "gear_norm", "mass_slug")
+#: The channels each candidate variable is computed from (errors-in-variables needs noise in one).
+SOURCES = {"gear_norm": ("gear_norm",), "alpha_deg": ("alpha_deg",), "mach": ("mach",), "flap_deg": ("flap_deg",),
+           "elevator_deg": ("elevator_deg",), "stabilizer_deg": ("stabilizer_deg",),
+           "qhat_rad": ("q_dps", "tas_kt"),
+           "adothat_rad": ("alpha_deg", "beta_deg", "tas_kt", "ax_fps2", "az_fps2", "p_dps", "q_dps", "r_dps",
+                           "theta_deg", "phi_deg"),
+           "CL": ("ax_fps2", "az_fps2", "alpha_deg", "qbar_psf", "thrust_lbf", "mass_slug")}
 SENSITIVITY_EVERY_S = 0.5
 #: Below this a coefficient change is beyond the evaluation's own resolution (it reproduces
 #: noise-free logs to about 1e-7).
@@ -100,6 +107,10 @@ class NoiseFloor:
             cl = _measured(moved, log.meta, ev)["CL"].to_numpy()
             out[ch] = (ev.evaluate(ev.inputs(moved, cl), rows).to_numpy() - base) / sigma
         return t[rows] if dt > 0 else rows.astype(float), out
+
+    def noisy(self, variables) -> bool:
+        """Whether any of the variables is computed from a channel that holds noise."""
+        return any(self.noise.get(ch, 0.0) > 0 for v in variables for ch in SOURCES.get(v, (v,)))
 
     def realization(self, k: int, columns: set[str]) -> pd.DataFrame:
         """One noise-only residual data set: ``r_CL``... and the variables in ``columns``."""

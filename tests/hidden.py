@@ -111,6 +111,18 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None) 
     raise ValueError(family)
 
 
+#: Clean conditions for stock aircraft (the stock 737 has no flap angle), each gear up and gear down.
+CLEAN = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000)), "clean")
+#: Terms of the stock 737's own aerodynamics changed in the model copy:
+#: (function, scale (0: removed), coefficient and variable that must be named first).
+OWN_TERMS = [("aero/coefficient/CDgear", 0.0, "CD", "gear_norm"),
+             ("aero/coefficient/CDi", 1.3, "CD", "CL"),
+             ("aero/coefficient/CLde", 0.5, "CL", "elevator_deg"),
+             ("aero/coefficient/CLalpha", 0.97, "CL", "alpha_deg"),
+             ("aero/coefficient/Cmde", 0.7, "Cm", "elevator_deg"),
+             ("aero/coefficient/Cmq", 0.5, "Cm", "qhat_rad"),
+             ("aero/coefficient/Cmalpha", 1.3, "Cm", "alpha_deg")]
+
 DIAG_MATRIX = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000)), "diagnosis")
 
 

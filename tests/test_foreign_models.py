@@ -7,7 +7,6 @@ diagnosis must name that coefficient and variable first and invent nothing on
 another coefficient. Only these tests read the aircraft XML to check the answers.
 """
 import json
-import os
 from pathlib import Path
 
 import jsbsim
@@ -18,16 +17,15 @@ import pytest
 from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
 from campaign.diagnose import load_data, split
 from campaign.engine import FlightConfig, fly
-from campaign.matrix import StatusPoint, load_matrix
+from campaign.matrix import StatusPoint
 from identify.coefficients import coefficients
 from identify.diagnosis import diagnose
 from identify.evaluate import ModelEvaluator, moment_transfer
+from tests.hidden import CLEAN, OWN_TERMS
 from tests.support import matrix_toml, pairs, renoise, run_matrix, scaled_copy
 
 STOCK = Path(jsbsim.get_default_root_dir()) / "aircraft"
 SHORT = "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"
-#: Clean conditions (the stock 737 has no flap angle), each gear up and gear down.
-CLEAN = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000)), "clean")
 
 
 def _truth(log: pd.DataFrame, meta: dict) -> pd.DataFrame:
@@ -45,7 +43,6 @@ def test_evaluator_reproduces_jsbsims_own_forces(name, flap):
     """Every property the aero reads, alpha-dot and CL^2 as JSBSim has them, the full AERORP offset:
     a 2-3-1-1 and a gear extension come back to 1e-6 in CL, CD and Cm."""
     folder = DEFAULT_AIRCRAFT if name == "ours" else STOCK / name
-    m = load_matrix()
     cfg = FlightConfig(AircraftSource(str(folder), load_effects(None)), 0, "none",
                        (("doublet", (("tail_s", 2.0),)), ("gear_extension", (("post_s", 5.0),))), (),
                        record_truth=True)
@@ -57,7 +54,6 @@ def test_evaluator_reproduces_jsbsims_own_forces(name, flap):
         pred = ev.predict(f.log, coefficients(f.log, f.meta)["CL"].to_numpy())
         err = (pred - _truth(f.log, f.meta)).abs().max()
         assert (err < 1e-6).all(), (name, man, err.to_dict())
-    assert m.points  # the default matrix loads alongside
 
 
 def test_evaluator_names_what_the_logs_cannot_set():
@@ -108,14 +104,6 @@ def test_stock_737_with_flight_test_noise_ten_seeds_no_discrepancy(stock_737_cle
     assert not reported, reported
 
 
-#: (function of the stock 737, scale, coefficient, variable that must be named first)
-OWN_TERMS = [("aero/coefficient/CDgear", 0.0, "CD", "gear_norm"),
-             ("aero/coefficient/CDi", 1.3, "CD", "CL"),
-             ("aero/coefficient/CLde", 0.5, "CL", "elevator_deg"),
-             ("aero/coefficient/CLalpha", 0.97, "CL", "alpha_deg"),
-             ("aero/coefficient/Cmde", 0.7, "Cm", "elevator_deg"),
-             ("aero/coefficient/Cmq", 0.5, "Cm", "qhat_rad"),
-             ("aero/coefficient/Cmalpha", 1.3, "Cm", "alpha_deg")]
 
 
 @pytest.fixture(scope="module")
