@@ -105,8 +105,12 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
         evaluator = ModelEvaluator(model)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    try:
+        diag = diagnose(train, evaluator, held)
+    except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
+        evaluator.close()
+        raise UserError(str(exc)) from None
     out.mkdir(parents=True, exist_ok=True)
-    diag = diagnose(train, evaluator, held)
     doc: dict = {"discrepancy": diag.discrepancy,
                  "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
                  "causes": [c.to_dict() for c in diag.causes],

@@ -90,7 +90,7 @@ class Matrix:
             "path": self.path, "name": self.name, "sha256": self.sha256,
             "points": [p.id for p in self.points],
             "maneuvers": {m: dict(p) for m, p in self.maneuver_params},
-            "clmax_by_flap": {str(f): c for f, c in self.clmax_by_flap},
+            "clmax_by_flap": {f"{f:g}": c for f, c in self.clmax_by_flap},
         }
 
 

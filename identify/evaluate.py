@@ -34,8 +34,8 @@ import numpy as np
 import pandas as pd
 
 from identify.kinematics import angle_rates
-from identify.model import (captured_stdout, catalog, component_outputs, control_schedules,
-                            fcs_sections, load_fdm, longitudinal_inputs)
+from identify.model import (FCS_SECTIONS, captured_stdout, catalog, component_outputs, control_schedules,
+                            copy_model, fcs_sections, load_fdm, longitudinal_inputs)
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -109,14 +109,12 @@ def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[st
     """
     model_dir = Path(model_dir)
     name = model_dir.name
-    dest = root / "aircraft" / name
-    shutil.copytree(model_dir, dest, ignore=shutil.ignore_patterns("effects", "__pycache__"))
-    tree = ET.parse(dest / f"{name}.xml")
+    dest, tree = copy_model(model_dir, root)
     top = tree.getroot()
     outputs: set[str] = set()
     for sec in fcs_sections(top, model_dir):
         outputs |= component_outputs(sec)
-    for tag in ("input", "output", *("flight_control", "autopilot", "system")):
+    for tag in FCS_SECTIONS:
         for el in top.findall(tag):
             top.remove(el)
     aero = top.find("aerodynamics")
@@ -171,15 +169,8 @@ class ModelEvaluator:
         name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
         try:
-            full_root = self._tmp / "full"
-            full = full_root / "aircraft" / name
-            shutil.copytree(self.model_dir, full, ignore=shutil.ignore_patterns("effects", "__pycache__"))
-            tree = ET.parse(full / f"{name}.xml")
-            for tag in ("input", "output"):
-                for el in tree.getroot().findall(tag):
-                    tree.getroot().remove(el)
-            tree.write(full / f"{name}.xml", xml_declaration=True, encoding="unicode")
-            model_fdm = load_fdm(full_root, name)
+            copy_model(self.model_dir, self._tmp / "full")
+            model_fdm = load_fdm(self._tmp / "full", name)
             folder, outputs, builtin, redirected = evaluation_copy(self.model_dir, self._tmp / "eval")
             self.schedules = control_schedules(model_fdm, outputs | {p for p in builtin
                                                                      if p.startswith(("fcs/", "gear/gear-"))})

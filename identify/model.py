@@ -118,6 +118,25 @@ def load_fdm(root: Path, name: str):
     return fdm
 
 
+def copy_model(model_dir: Path, root: Path) -> tuple[Path, ET.ElementTree]:
+    """Copy an aircraft folder to ``root/aircraft/<name>/``, its XML without network I/O.
+
+    Returns the copy's folder and its parsed XML (written already; edit and write it again
+    to change the copy).
+    """
+    import shutil
+
+    model_dir = Path(model_dir)
+    dest = Path(root) / "aircraft" / model_dir.name
+    shutil.copytree(model_dir, dest, ignore=shutil.ignore_patterns("effects", "__pycache__"))
+    tree = ET.parse(dest / f"{model_dir.name}.xml")
+    for tag in ("input", "output"):
+        for el in tree.getroot().findall(tag):
+            tree.getroot().remove(el)
+    tree.write(dest / f"{model_dir.name}.xml", xml_declaration=True, encoding="unicode")
+    return dest, tree
+
+
 def catalog(fdm) -> dict[str, bool]:
     """Property name -> writable, for every property of a loaded model (``[0]`` dropped)."""
     out = {}

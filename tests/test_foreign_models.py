@@ -181,3 +181,14 @@ def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp
         assert got == pytest.approx(want, abs=1e-6)
         checked += 1
     assert checked == 3 and abs(want[2]) > 0.003  # the drag's moment about the CG is really there
+
+
+def test_logs_the_model_cannot_be_set_to_are_one_line(tmp_path, capsys):
+    """A320 logs at flap 15 against the stock 737, which has no flap angle: exit 2, one line, nothing written."""
+    from campaign.cli import main
+    data = run_matrix(tmp_path, matrix_toml([("up", 15, 0.3, 5000), ("up", 0, 0.4, 5000)], "f",
+                                            "[maneuvers.doublet]\ntail_s = 2.0\n"), str(STOCK / "A320"))
+    assert main(["diagnose", "--data", str(data), "--model", str(STOCK / "737"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "flap_deg" in err and "fcs/flap-pos-deg" in err
+    assert not (tmp_path / "r").exists()
