@@ -21,6 +21,7 @@ STATE_CHANNELS: dict[str, tuple[str, float]] = {
     "beta_deg": ("aero/beta-deg", 1.0),
     "theta_deg": ("attitude/theta-deg", 1.0),
     "phi_deg": ("attitude/phi-deg", 1.0),
+    "psi_deg": ("attitude/psi-deg", 1.0),
     "p_dps": ("velocities/pi-rad_sec", R2D),
     "q_dps": ("velocities/qi-rad_sec", R2D),
     "r_dps": ("velocities/ri-rad_sec", R2D),
@@ -31,6 +32,10 @@ STATE_CHANNELS: dict[str, tuple[str, float]] = {
     "gear_norm": ("gear/gear-pos-norm", 1.0),
     "mass_slug": ("inertia/mass-slugs", 1.0),
     "xcg_in": ("inertia/cg-x-in", 1.0),
+    # the inertial/GPS unit's velocity relative to the Earth, north-east-down
+    "vn_fps": ("velocities/v-north-fps", 1.0),
+    "ve_fps": ("velocities/v-east-fps", 1.0),
+    "vd_fps": ("velocities/v-down-fps", 1.0),
 }
 
 #: Body-axis non-gravitational force [lbf]; divided by mass it is the specific
@@ -54,16 +59,19 @@ THROTTLE_POS = "fcs/throttle-pos-norm[{i}]"
 #: Log columns in file order (the DESIGN.md log schema).
 LOG_COLUMNS: tuple[str, ...] = (
     "t_s", "alt_ft", "tas_kt", "ias_kt", "mach", "alpha_deg", "beta_deg",
-    "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps", "qdot_dps2",
+    "theta_deg", "phi_deg", "psi_deg", "p_dps", "q_dps", "r_dps", "qdot_dps2",
     "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf",
     "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm", "throttle_norm",
-    "mass_slug", "xcg_in",
+    "mass_slug", "xcg_in", "vn_fps", "ve_fps", "vd_fps",
 )
 
 #: What the autopilot hold reads (not logged).
 HOLD_INPUTS: dict[str, str] = {
     "hdot_fps": "velocities/h-dot-fps",
-    "vt_fps": "velocities/vt-fps",
+    # the speed hold holds inertial speed (body velocity relative to the Earth), which gusts do not move
+    "u_fps": "velocities/u-fps",
+    "v_fps": "velocities/v-fps",
+    "w_fps": "velocities/w-fps",
 }
 
 #: Properties written by the engine.
@@ -84,18 +92,21 @@ INITIAL_CONDITIONS = (
     "ic/h-sl-ft", "ic/mach", "ic/gamma-deg", "ic/beta-deg", "ic/phi-deg", "ic/psi-true-deg",
 )
 
-TURBULENCE = {
-    "type": "atmosphere/turb-type",
-    "seed": "atmosphere/randomseed",
-    "w20": "atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps",
-    "severity": "atmosphere/turbulence/milspec/severity",
+#: Gust inputs (NED) the turbulence of an instrument profile flies through (:mod:`campaign.turbulence`).
+GUSTS = ("atmosphere/gust-north-fps", "atmosphere/gust-east-fps", "atmosphere/gust-down-fps")
+
+#: Body angular accelerations, for accelerometers away from the CG (not logged).
+ANGULAR_ACCELERATIONS = {
+    "pdot_rps2": "accelerations/pidot-rad_sec2",
+    "qdot_rps2": "accelerations/qidot-rad_sec2",
+    "rdot_rps2": "accelerations/ridot-rad_sec2",
 }
 
 #: Used only to set weight when the status point asks for one.
 POINTMASS_WEIGHT = "inertia/pointmass-weight-lbs[0]"
 
 #: Test-only truth channels (never in a campaign log): JSBSim's own aero forces
-#: and moments, so eq. (1) can be checked against them.
+#: and moments, so eq. (1) can be checked against them, and the wind it flies in.
 TRUTH_CHANNELS: dict[str, str] = {
     "truth_fx_aero_lbf": "forces/fbx-aero-lbs",
     "truth_fz_aero_lbf": "forces/fbz-aero-lbs",
@@ -104,6 +115,9 @@ TRUTH_CHANNELS: dict[str, str] = {
     "truth_m_aero_lbfft": "moments/m-aero-lbsft",
     "truth_m_prop_lbfft": "moments/m-prop-lbsft",
     "truth_m_total_lbfft": "moments/m-total-lbsft",
+    "truth_wind_north_fps": "atmosphere/total-wind-north-fps",
+    "truth_wind_east_fps": "atmosphere/total-wind-east-fps",
+    "truth_wind_down_fps": "atmosphere/total-wind-down-fps",
 }
 
 
@@ -146,10 +160,10 @@ def check_catalog(fdm, n_engines: int, aircraft: str) -> dict[str, bool]:
             required += [prop.format(i=i) for i in range(n_engines)]
         else:
             required.append(prop)
-    required += list(INITIAL_CONDITIONS)
+    required += list(INITIAL_CONDITIONS) + list(GUSTS) + list(ANGULAR_ACCELERATIONS.values())
     for prop in required:
         if prop not in names:
             raise UserError(f"{aircraft}: property {prop} not in the JSBSim property catalog")
     optional = [p for p, _ in OPTIONAL_CHANNELS.values()] + [POINTMASS_WEIGHT]
-    optional += list(TURBULENCE.values()) + list(TRUTH_CHANNELS.values())
+    optional += list(TRUTH_CHANNELS.values())
     return {p: p in names for p in optional}

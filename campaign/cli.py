@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from campaign.errors import UserError
-from campaign.noise import NOISE_PROFILES
+from campaign.instruments import shipped
 
 
 class _Parser(argparse.ArgumentParser):
@@ -36,8 +36,13 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="effect overlay XML, or 'none' for the bare model "
                         "(default: aircraft/737/effects/reference.xml, the 'real aeroplane')")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
-    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="none",
-                   help="seeded sensor noise on the logged channels (default none; see the README table)")
+    rec = p.add_mutually_exclusive_group()
+    rec.add_argument("--noise", choices=shipped(), default=None,
+                     help="a shipped instrument profile: 'none' (perfect instruments, the default) or "
+                          "'flight-test' (50 Hz, no qdot, nose-boom vanes, noise, light turbulence)")
+    rec.add_argument("--instruments", metavar="FILE",
+                     help="instrument profile TOML (rate, omitted channels, turbulence, per-channel noise, "
+                          "bias, scale, lag, delay, position; see the README)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -112,12 +117,14 @@ def _config(args):
     from campaign.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
                                    check_aircraft_folder, load_effects)
     from campaign.engine import FlightConfig, check_flaps
+    from campaign.instruments import load_profile
     from campaign.matrix import load_matrix
 
     matrix = load_matrix(args.matrix)
     folder = check_aircraft_folder(args.aircraft or DEFAULT_AIRCRAFT)
     effects = load_effects(DEFAULT_EFFECTS if args.effects is None else args.effects)
-    config = FlightConfig(AircraftSource(str(folder), effects), args.seed, args.noise,
+    config = FlightConfig(AircraftSource(str(folder), effects), args.seed,
+                          load_profile(args.instruments or args.noise or "none"),
                           matrix.maneuver_params, matrix.clmax_by_flap)
     points = [matrix.point(args.point_id)] if args.command == "fly" else matrix.points
     check_flaps(config.aircraft, [(f"{matrix.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])

@@ -119,13 +119,15 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                  "extension": None, "extension_xml": None, "gain": {},
                  "alternatives": {c: r.alternatives for c, r in diag.results.items()},
                  "noise_estimated": diag.noise,
+                 "data_compatibility": diag.compat.to_dict() if diag.compat else None,
                  "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
                  "data": {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
                           "held_out": [lg.path for lg in held]},
                  "model": str(model)}
     before = diag.held
+    held = diag.held_logs  # as corrected for instrument errors
     extended_eval = None
-    if diag.discrepancy:
+    if diag.aero_causes:
         xml = write_extension(diag, out / "extension.xml")
         folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
         doc["extension"], doc["extension_xml"] = str(folder), str(xml)
@@ -135,8 +137,9 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                    "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2)))} for c in COEFFS}
         for v in rms.values():
             v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
-        top = diag.causes[0].coefficient
-        acting = _exercised(before, diag.causes[0].variables)
+        first = diag.aero_causes[0]
+        top = first.coefficient
+        acting = _exercised(before, first.variables)
         b, a = before[before.log.isin(acting)], after[after.log.isin(acting)]
         rms_acting = {c: {"before": float(np.sqrt(np.mean(b[f"r_{c}"] ** 2))),
                           "after": float(np.sqrt(np.mean(a[f"r_{c}"] ** 2)))} for c in COEFFS}
@@ -155,7 +158,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                       "after": max(r[ch]["after"] for r in replays.values())} for ch in REPLAY_CHANNELS}
         for v in worst.values():
             v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
-        doc["gain"] = {"held_out_logs": [Path(lg.path).name for lg in held],
+        doc["gain"] = {"cause": first.label, "held_out_logs": [Path(lg.path).name for lg in held],
                        "cause_exercised_in": [Path(held[i].path).name for i in acting],
                        "residual_gain": rms_acting[top]["gain"], "coefficient": top,
                        "residual_rms": rms_acting, "residual_rms_all_held_out": rms,
@@ -210,10 +213,12 @@ def _report(diag: Diagnosis, doc: dict) -> str:
     lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
              f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
     lines.append(diag.summary())
+    if diag.compat is not None:
+        lines += ["", diag.compat.summary()]
     g = doc.get("gain")
     if g:
         lines += ["", f"Gain on {len(g['held_out_logs'])} held-out manoeuvres ({_names(g['held_out_logs'])}).",
-                  f"Residual RMS where the first cause acts, {len(g['cause_exercised_in'])} of them "
+                  f"Residual RMS where the first aerodynamic cause ({g['cause']}) acts, {len(g['cause_exercised_in'])} of them "
                   f"({_names(g['cause_exercised_in'])}):"]
         for c, v in g["residual_rms"].items():
             w = g["residual_rms_all_held_out"][c]

@@ -22,7 +22,8 @@ from campaign import catalog as cat  # noqa: E402
 from campaign.aircraft import AircraftSource, prepare, thruster_z_in  # noqa: E402
 from campaign.errors import UserError  # noqa: E402
 from campaign.matrix import StatusPoint  # noqa: E402
-from campaign.noise import NOISE_PROFILES, add_sensor_noise  # noqa: E402
+from campaign.instruments import InstrumentProfile, load_profile, record  # noqa: E402
+from campaign.turbulence import dryden_gusts  # noqa: E402
 from identify.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
@@ -44,8 +45,9 @@ class FlightConfig:
     aircraft : AircraftSource
     seed : int
         Campaign seed; each manoeuvre derives its own from it and its name.
-    noise : str
-        Noise profile name (see :mod:`campaign.noise`).
+    instruments : InstrumentProfile or str
+        How the instrumentation records the flight (:mod:`campaign.instruments`);
+        a shipped profile's name or a profile file is loaded.
     maneuver_params : tuple
         ``((manoeuvre name, ((param, value), ...)), ...)`` from the matrix.
     clmax_by_flap : tuple
@@ -56,11 +58,15 @@ class FlightConfig:
 
     aircraft: AircraftSource
     seed: int = 0
-    noise: str = "none"
+    instruments: InstrumentProfile | str = "none"
     maneuver_params: tuple = ()
     clmax_by_flap: tuple = ()
     record_truth: bool = False
     gains: HoldGains = field(default_factory=HoldGains)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.instruments, str):
+            object.__setattr__(self, "instruments", load_profile(self.instruments))
 
     def maneuver(self, name: str) -> Maneuver:
         """The named manoeuvre with the matrix's parameters."""
@@ -313,12 +319,9 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     dh_gain = stabilizer_gain_deg(config.aircraft)
 
     seed = derived_seed(config.seed, point.id, maneuver.name)
-    profile = NOISE_PROFILES[config.noise]
-    if profile.turbulence_w20_fps > 0 and optional.get(cat.TURBULENCE["type"]):
-        fdm[cat.TURBULENCE["seed"]] = seed % 2**31
-        fdm[cat.TURBULENCE["type"]] = 3
-        fdm[cat.TURBULENCE["w20"]] = profile.turbulence_w20_fps
-        fdm[cat.TURBULENCE["severity"]] = profile.turbulence_severity
+    profile = config.instruments
+    gusts = dryden_gusts(prog.max_steps, DT_S, fdm["velocities/vt-fps"], point.alt_ft, profile.sigma_fps,
+                         np.random.default_rng(derived_seed(seed, "turbulence")))
 
     pm = fdm.get_property_manager()
     node = lambda p: pm.get_node(p, False)  # noqa: E731
@@ -330,11 +333,19 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     flap_node = node(cat.FLAP_DEG)
     thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)]
     truth_nodes = ([node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else [])
-    hdot_node, vt_node = node(cat.HOLD_INPUTS["hdot_fps"]), node(cat.HOLD_INPUTS["vt_fps"])
+    hdot_node = node(cat.HOLD_INPUTS["hdot_fps"])
+    uvw_nodes = [node(cat.HOLD_INPUTS[c]) for c in ("u_fps", "v_fps", "w_fps")]
+
+    def speed() -> float:
+        return float(np.sqrt(sum(n.get_double_value() ** 2 for n in uvw_nodes)))
+
     elev_cmd = node(cat.CONTROLS["elevator"])
     trim_cmd = node(cat.CONTROLS["pitch_trim"])
     thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
     gear_cmd = node(cat.CONTROLS["gear_cmd"])
+    gust_nodes = [node(p) for p in cat.GUSTS] if profile.sigma_fps > 0 else []
+    rot_nodes = ([node(p) for p in cat.ANGULAR_ACCELERATIONS.values()]
+                 if any(any(s.position_ft) for c, s in profile.sensors if c[0] == "a") else [])
     idx = {name: i for i, name in enumerate(cat.STATE_CHANNELS)}
     i_alt, i_theta, i_q = idx["alt_ft"], idx["theta_deg"], idx["q_dps"]
     i_gear = idx["gear_norm"]
@@ -342,12 +353,13 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     hold = None
     if prog.hold:
         hold = HoldAutopilot(config.gains, DT_S, fdm["atmosphere/pressure-altitude"],
-                             vt_node.get_double_value(), tr.theta_deg, tr.elevator_deg,
+                             speed(), tr.theta_deg, tr.elevator_deg,
                              tr.throttle, tr.qbar_psf)
     gear_final = maneuver.gear_final if isinstance(maneuver, GearTransition) else None
 
     n_state = len(state_nodes)
-    rows = np.empty((prog.max_steps, n_state + 3 + 3 + len(truth_nodes)))
+    n_truth = len(truth_nodes)
+    rows = np.empty((prog.max_steps, n_state + 3 + 3 + n_truth + len(rot_nodes)))
     elevator_deg = tr.elevator_deg
     throttle = tr.throttle
     h, theta, q = fdm["atmosphere/pressure-altitude"], tr.theta_deg, 0.0
@@ -355,8 +367,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     k = 0
     while k < end:
         if hold is not None:
-            elevator_deg, throttle = hold.step(h, hdot_node.get_double_value(),
-                                               vt_node.get_double_value(), theta, q)
+            elevator_deg, throttle = hold.step(h, hdot_node.get_double_value(), speed(), theta, q)
             for t in thr_cmd:
                 t.set_double_value(throttle)
         elif prog.throttle is not None:
@@ -367,6 +378,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         if dh_gain:
             trim_cmd.set_double_value(tr.pitch_trim_norm + prog.stabilizer_deg(k) / dh_gain)
         gear_cmd.set_double_value(gear0 if prog.gear_cmd is None else prog.gear_cmd(k))
+        for j, n in enumerate(gust_nodes):
+            n.set_double_value(gusts[k, j])
         fdm.run()
         row = rows[k]
         for j, n in enumerate(state_nodes):
@@ -380,6 +393,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         row[n_state + 5] = sum(t.get_double_value() for t in thr_nodes) / n_eng
         for j, n in enumerate(truth_nodes):
             row[n_state + 6 + j] = n.get_double_value()
+        for j, n in enumerate(rot_nodes):
+            row[n_state + 6 + n_truth + j] = n.get_double_value()
         h, theta, q = row[i_alt], row[i_theta], row[i_q]
         if (gear_final is not None and end == prog.max_steps and prog.gear_cmd(k) == gear_final
                 and abs(row[i_gear] - gear_final) < 1e-9):
@@ -392,11 +407,13 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_deg", "throttle_norm"]
     cols += list(cat.TRUTH_CHANNELS) if config.record_truth else []
+    cols += list(cat.ANGULAR_ACCELERATIONS) if rot_nodes else []
     df = pd.DataFrame(rows, columns=cols)
     df["t_s"] = np.arange(end) * DT_S
+    df["psi_deg"] = np.degrees(np.unwrap(np.radians(df["psi_deg"])))  # no jump through north
     truth = [c for c in df.columns if c.startswith("truth_")]
-    df = df[list(cat.LOG_COLUMNS) + truth]
-    df = add_sensor_noise(df, profile, np.random.default_rng(seed))
+    extra = df[list(cat.ANGULAR_ACCELERATIONS)] if rot_nodes else None
+    df = record(df[list(cat.LOG_COLUMNS) + truth], extra, profile, DT_S, np.random.default_rng(seed))
 
     meta = {
         "point": point.id,
@@ -406,8 +423,14 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         "maneuver_params": {k: v for k, v in vars(maneuver).items() if not isinstance(v, tuple)},
         "seed": seed,
         "campaign_seed": config.seed,
-        "noise": config.noise,
-        "dt_s": DT_S,
+        "noise": profile.name,
+        "instruments": {"name": profile.name, "sha256": profile.sha256},
+        "omitted_channels": list(profile.omit),
+        # documented installation geometry, as a flight-test data package gives it (never the errors)
+        "sensor_positions_ft": {c: list(s.position_ft) for c, s in profile.sensors if any(s.position_ft)},
+        "dt_s": 1.0 / profile.rate_hz if profile.rate_hz else DT_S,
+        "gravity_fps2": _gravity(fdm),
+        "latitude_deg": float(fdm["position/lat-geod-deg"]),
         "aircraft": config.aircraft.name,
         "aircraft_sha256": config.aircraft.sha256,
         "effects_sha256": config.aircraft.effects.sha256,
@@ -440,6 +463,15 @@ def _check_envelope(rows: np.ndarray, idx: dict, tr: Trim) -> None:
         if k.size:
             raise TrimError(f"left the test envelope: {ch} {v[k[0]]:.1f} at t = {k[0] * DT_S:.1f} s "
                             f"(allowed {lo:g}..{hi:g}; trimmed alpha {tr.alpha_deg:.1f} deg)")
+
+
+from identify.compat import EARTH_RATE  # noqa: E402  (JSBSim's planet rotates at the WGS84 rate)
+
+
+def _gravity(fdm) -> float:
+    """Local effective gravity: gravitation less the Earth's centrifugal acceleration [ft/s^2]."""
+    r = fdm["position/radius-to-vehicle-ft"] * np.cos(fdm["position/lat-geod-rad"])
+    return float(fdm["accelerations/gravity-ft_sec2"] - EARTH_RATE ** 2 * r * np.cos(fdm["position/lat-geod-rad"]))
 
 
 def _thrust_arm_ft(fdm, source: AircraftSource) -> float:

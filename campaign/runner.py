@@ -34,7 +34,8 @@ def settings(matrix: Matrix, config: FlightConfig) -> dict:
         "matrix": matrix.path, "matrix_sha256": matrix.sha256,
         "aircraft": config.aircraft.folder, "aircraft_sha256": config.aircraft.sha256,
         "effects": fx.path, "effects_sha256": fx.sha256,
-        "seed": config.seed, "noise": config.noise,
+        "seed": config.seed, "instruments": config.instruments.name,
+        "instruments_sha256": config.instruments.sha256,
     }
 
 
@@ -148,7 +149,8 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
             "matrix": matrix.to_json(),
             "versions": _versions(),
             "hashes": {"matrix": matrix.sha256, "aircraft": want["aircraft_sha256"],
-                       "effects": want["effects_sha256"]},
+                       "effects": want["effects_sha256"], "instruments": want["instruments_sha256"]},
+            "instruments": config.instruments.to_json(),
             "seeds": {"campaign": config.seed,
                       "logs": {f: s for r in recs for f, s in r.get("seeds", {}).items()}},
             "points": recs,

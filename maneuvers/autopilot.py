@@ -1,9 +1,11 @@
 """Altitude and speed hold for gear transitions (paper section 3.3).
 
 The elevator holds altitude through a pitch-attitude inner loop; the throttle
-holds true airspeed. Gains are scheduled on dynamic pressure so one set works
-across the matrix. The hold reads true states: it is part of the flight, not of
-the instrumentation.
+holds speed. Gains are scheduled on dynamic pressure so one set works across
+the matrix. The hold reads true states: it is part of the flight, not of the
+instrumentation. The engine gives it the inertial speed, equal to the true
+airspeed in still air; in turbulence the airspeed's gusts, differentiated for
+the damping term, would drive the throttle from stop to stop.
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ class HoldAutopilot:
     dt : float
         Time step [s].
     h_ref_ft, v_ref_fps, theta_ref_deg : float
-        References: trimmed altitude [ft], true airspeed [ft/s], pitch [deg].
+        References: trimmed altitude [ft], speed [ft/s], pitch [deg].
     elevator_trim_deg, throttle_trim : float
         Trimmed elevator [deg] and throttle [-].
     qbar_psf : float

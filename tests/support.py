@@ -49,30 +49,6 @@ def run_matrix(folder, text: str, aircraft: str, effects=None, noise: str = "non
     return folder / "data"
 
 
-def renoise(src, dst, seed: int, noise: str = "flight-test"):
-    """A noise-free campaign folder with sensor noise added exactly as ``--noise NOISE --seed SEED``
-    adds it (the noise never disturbs the flight, so the logs are the same bit for bit)."""
-    import json
-    from pathlib import Path
-
-    from campaign.engine import derived_seed
-    from campaign.noise import NOISE_PROFILES, add_sensor_noise
-    from campaign.store import read_log, write_log
-    src, dst = Path(src), Path(dst)
-    dst.mkdir(parents=True, exist_ok=True)
-    man = json.loads((src / "manifest.json").read_text())
-    for rec in man["points"]:
-        for f in rec["files"]:
-            log, meta = read_log(src / f)
-            s = derived_seed(seed, meta["point"], meta["maneuver"])
-            write_log(dst / f, add_sensor_noise(log, NOISE_PROFILES[noise], np.random.default_rng(s)),
-                      {**meta, "seed": s, "campaign_seed": seed, "noise": noise})
-            rec["seeds"][f] = s
-    man["settings"].update(seed=seed, noise=noise)
-    (dst / "manifest.json").write_text(json.dumps(man, indent=2))
-    return dst
-
-
 def scaled_copy(aircraft, root, function: str, scale: float):
     """A copy of a JSBSim aircraft folder with one of its aero functions scaled (0: removed)."""
     import shutil
@@ -97,3 +73,15 @@ def scaled_copy(aircraft, root, function: str, scale: float):
                 tree.write(dest / f"{aircraft.name}.xml")
                 return dest
     raise KeyError(f"{aircraft.name}: no aero function {function}")
+
+
+def one_line_error(capsys, argv, *needles) -> str:
+    """Run the CLI: exit code 2, one line on stderr holding every needle, no traceback."""
+    from campaign.cli import main
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+    return err

@@ -13,19 +13,9 @@ import pytest
 
 from campaign.cli import main
 from campaign.store import read_log
-from tests.support import matrix_toml
+from tests.support import matrix_toml, one_line_error
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
-
-
-def _one_line_error(capsys, argv, *needles):
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 def test_bad_inputs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, small_matrix):
@@ -40,15 +30,15 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, sma
     flap.write_text(small_matrix.read_text().replace("flap_deg = 5", "flap_deg = 45"))
     fx = tmp_path / "fx.xml"
     fx.write_text("<effects><axis name='DRAG'></effects>")
-    _one_line_error(capsys, ["run", "--matrix", str(unknown), "--out", str(out)], str(unknown), "colour")
-    _one_line_error(capsys, ["run", "--matrix", str(mach0), "--out", str(out)], str(mach0), "points[1].mach")
-    _one_line_error(capsys, ["run", "--matrix", str(flap), "--out", str(out)], str(flap), "points[1].flap_deg")
-    _one_line_error(capsys, ["run", "--matrix", str(bad_toml), "--out", str(out)], str(bad_toml), "TOML")
-    _one_line_error(capsys, ["run", "--aircraft", str(tmp_path / "nope"), "--out", str(out)], "nope",
+    one_line_error(capsys, ["run", "--matrix", str(unknown), "--out", str(out)], str(unknown), "colour")
+    one_line_error(capsys, ["run", "--matrix", str(mach0), "--out", str(out)], str(mach0), "points[1].mach")
+    one_line_error(capsys, ["run", "--matrix", str(flap), "--out", str(out)], str(flap), "points[1].flap_deg")
+    one_line_error(capsys, ["run", "--matrix", str(bad_toml), "--out", str(out)], str(bad_toml), "TOML")
+    one_line_error(capsys, ["run", "--aircraft", str(tmp_path / "nope"), "--out", str(out)], "nope",
                     "aircraft folder")
-    _one_line_error(capsys, ["run", "--effects", str(fx), "--out", str(out)], str(fx), "not well-formed")
-    _one_line_error(capsys, ["run", "--jobs", "0", "--out", str(out)], "--jobs")
-    _one_line_error(capsys, ["fly", "h99999_m0.30_f00_gup", "--out", str(out)], "h99999_m0.30_f00_gup")
+    one_line_error(capsys, ["run", "--effects", str(fx), "--out", str(out)], str(fx), "not well-formed")
+    one_line_error(capsys, ["run", "--jobs", "0", "--out", str(out)], "--jobs")
+    one_line_error(capsys, ["fly", "h99999_m0.30_f00_gup", "--out", str(out)], "h99999_m0.30_f00_gup")
     assert not out.exists()
 
 
@@ -70,7 +60,7 @@ def test_fly_reproduces_the_campaign_bit_for_bit(tmp_path, capsys, small_matrix)
         assert (one / f).read_bytes() == (camp / f).read_bytes()
     # flying again into the same folder refuses to overwrite
     capsys.readouterr()
-    _one_line_error(capsys, ["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--out", str(one)],
+    one_line_error(capsys, ["fly", "h02000_m0.30_f05_gdn", "--matrix", str(small_matrix), "--out", str(one)],
                     "will not overwrite")
 
 
@@ -105,11 +95,10 @@ def test_flight_test_noise_is_seeded(tmp_path, small_matrix):
     assert (a / name).read_bytes() == (b / name).read_bytes()
     la, lc = read_log(a / name)[0], read_log(c / name)[0]
     assert not la.alpha_deg.equals(lc.alpha_deg)
-    assert main(["fly", pid, "--matrix", str(small_matrix), "--out", str(tmp_path / "clean")]) == 0
-    clean = read_log(tmp_path / "clean" / name)[0]
-    # before the input the aircraft sits trimmed: the noise shows there alone
-    pre = clean.t_s < 1.0
-    assert (la.q_dps[pre] - clean.q_dps[pre]).std() == pytest.approx(0.02, rel=0.3)
+    meta = read_log(a / name)[1]
+    assert meta["instruments"]["name"] == "flight-test" and len(meta["instruments"]["sha256"]) == 64
+    assert "qdot_dps2" not in la and meta["omitted_channels"] == ["qdot_dps2"]
+    assert la.t_s.diff().dropna().round(12).eq(0.02).all()  # 50 Hz
 
 
 def test_existing_campaign_with_other_settings_is_not_overwritten(tmp_path, capsys, small_matrix):
@@ -117,7 +106,7 @@ def test_existing_campaign_with_other_settings_is_not_overwritten(tmp_path, caps
     assert main(["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "1", "--no-replay"]) == 0
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
-    _one_line_error(capsys, ["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "2"],
+    one_line_error(capsys, ["run", "--matrix", str(small_matrix), "--out", str(out), "--seed", "2"],
                     "manifest.json", "seed")
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     # the same settings again: nothing to fly, no log changes
@@ -184,7 +173,7 @@ def test_stock_aircraft_fly_at_their_own_flap_angles(tmp_path, capsys):
     assert meta["absent_channels"] == ["stabilizer_deg"] and (log.stabilizer_deg == 0).all()
     assert log.gear_norm.iloc[-1] == 1.0 and meta["aircraft"] == "737"
     capsys.readouterr()
-    _one_line_error(capsys, ["fly", "h05000_m0.30_f05_gup", "--matrix", str(m), "--aircraft", STOCK_737,
+    one_line_error(capsys, ["fly", "h05000_m0.30_f05_gup", "--matrix", str(m), "--aircraft", STOCK_737,
                              "--effects", "none", "--out", str(out)], "points[1].flap_deg", "no flap angle")
     a320 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "A320")
     assert main(["fly", "h05000_m0.30_f05_gup", "--matrix", str(m), "--aircraft", a320, "--effects", "none",
@@ -237,5 +226,5 @@ def test_run_fails_when_no_point_flies_and_limits_amplitudes(tmp_path, capsys, s
     assert "0 of 1 points ok" in capsys.readouterr().out
     big = tmp_path / "big.toml"
     big.write_text(small_matrix.read_text().replace("tail_s = 2.0", "tail_s = 2.0\namplitude_deg = 40"))
-    _one_line_error(capsys, ["run", "--matrix", str(big), "--out", str(tmp_path / "g")], str(big),
+    one_line_error(capsys, ["run", "--matrix", str(big), "--out", str(tmp_path / "g")], str(big),
                     "maneuvers.doublet", "amplitude_deg")
