@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from identify.kinematics import pitch_acceleration
+
 D2R = np.pi / 180.0
 FT_PER_KT = 1.6878098571011957
 
@@ -20,6 +22,8 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     ----------
     data : DataFrame
         A log in the schema (accelerations [ft/s^2], rates [deg/s], thrust [lbf]...).
+        Without ``qdot_dps2``, the pitch acceleration is the smoothing derivative of
+        ``q_dps`` (:func:`identify.kinematics.pitch_acceleration`).
     meta : dict
         Log metadata with ``inertia_slugft2`` [slug ft^2] and ``geometry`` (S [ft^2],
         cbar [ft], thrust_z_arm_ft [ft], thrust line height above the CG).
@@ -41,7 +45,7 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     cl = (-fz * np.cos(a) + fx * np.sin(a)) / qs
     cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
-    qdot = data["qdot_dps2"].to_numpy() * D2R
+    qdot = pitch_acceleration(data) * D2R
     moment = (inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r
               + inertia["ixz"] * (p ** 2 - r ** 2))
     # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T

@@ -14,9 +14,12 @@ import pyarrow.parquet as pq
 
 REQUIRED_COLUMNS: tuple[str, ...] = (
     "t_s", "alt_ft", "tas_kt", "mach", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps",
-    "qdot_dps2", "ax_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
+    "ax_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
     "flap_deg", "gear_norm", "mass_slug",
 )
+#: Channels a log may lack; what takes their place.
+DERIVED = {"qdot_dps2": "derivative of the quintic spline through q_dps, half a JSBSim frame ahead, "
+                        "low-passed at 3 Hz with the coefficients"}
 REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
 #: Physically plausible ranges; a value outside is a unit or sign mistake.
 PLAUSIBLE = {"alpha_deg": (-30.0, 60.0), "mach": (0.0, 3.0), "tas_kt": (0.0, 2000.0), "qbar_psf": (0.0, 3000.0),
@@ -86,6 +89,14 @@ def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:
         raise LogError(f"{path}: only {len(df)} rows")
 
 
+def _derive(meta: dict, df: pd.DataFrame) -> dict:
+    """Name in the metadata the channels the log lacks and the analysis derives."""
+    derived = {c: how for c, how in DERIVED.items() if c not in df.columns}
+    if derived:
+        meta = {**meta, "derived_channels": {**meta.get("derived_channels", {}), **derived}}
+    return meta
+
+
 def read_parquet(path: str | Path) -> Log:
     """Read one Parquet log written by a campaign."""
     try:
@@ -95,7 +106,7 @@ def read_parquet(path: str | Path) -> Log:
     meta = json.loads((table.schema.metadata or {}).get(b"gearid", b"{}"))
     df = table.to_pandas()
     _validate(str(path), df, meta)
-    return Log(str(path), df, meta)
+    return Log(str(path), df, _derive(meta, df))
 
 
 def read_csv(path: str | Path) -> Log:
@@ -110,7 +121,7 @@ def read_csv(path: str | Path) -> Log:
         raise LogError(f"{side}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
     df = pd.read_csv(path)
     _validate(str(path), df, meta)
-    return Log(str(path), df.astype({c: float for c in REQUIRED_COLUMNS}), meta)
+    return Log(str(path), df.astype({c: float for c in REQUIRED_COLUMNS}), _derive(meta, df))
 
 
 def read_campaign(folder: str | Path) -> list[Log]:

@@ -10,6 +10,7 @@ sensor noise in the regressors (which biases least squares) shrinks.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import pandas as pd
@@ -17,6 +18,7 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.signal import butter, filtfilt
 
 from identify.coefficients import D2R, coefficients, qhat
+from identify.kinematics import ANCHOR_S, odd_extension
 from identify.logs import Log
 from identify.lsq import LeastSquares, LSResults
 
@@ -34,10 +36,19 @@ EDGE_S = 0.25  # dropped at both ends of a filtered record (filter start-up)
 GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
 
 
+@lru_cache(maxsize=64)
+def _butter(wn: float) -> tuple[np.ndarray, np.ndarray]:
+    return butter(4, wn)
+
+
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
-    """Zero-phase 4th-order Butterworth low-pass filter."""
-    b, a = butter(4, cutoff_hz * 2.0 * dt)
-    return filtfilt(b, a, x, padtype="odd", padlen=min(len(x) - 1, 3 * max(len(a), len(b)) * 20))
+    """Zero-phase 4th-order Butterworth low-pass filter, the ends padded by
+    :func:`identify.kinematics.odd_extension`."""
+    b, a = _butter(cutoff_hz * 2.0 * dt)
+    x = np.asarray(x, dtype=float)
+    pad = min(len(x) - 1, 3 * max(len(a), len(b)) * 20)
+    y = filtfilt(b, a, odd_extension(x, pad, int(round(ANCHOR_S / dt))), padtype=None)
+    return y[pad:pad + len(x)]
 
 
 def _dt(log: Log) -> float:

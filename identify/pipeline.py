@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
 from identify.logs import Log, LogError, read_campaign
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
@@ -27,10 +28,19 @@ class Identification:
     linear_surface: GearSurface | None
     nonlinear_surface: GearSurface | None
     arm_ft: tuple[float, float]  # AERORP aft of and above the CG [ft]
+    compat: CompatResult | None = None  # instrument errors estimated and corrected before eq. (1)
 
 
-def identify_logs(logs: list[Log]) -> Identification:
-    """Baseline fits, linear gear models, increments and the eq. (9) surfaces."""
+def identify_logs(logs: list[Log], compatibility: bool = True) -> Identification:
+    """Baseline fits, linear gear models, increments and the eq. (9) surfaces.
+
+    With ``compatibility`` the instrument errors are estimated first and the logs
+    corrected for them and for their documented sensor positions
+    (:mod:`identify.compat`).
+    """
+    compat = estimate(logs) if compatibility else None
+    if compat is not None:
+        logs = [compat.correct(lg) for lg in logs]
     refs = references(logs)
     fits = [fit_baseline(log, refs[log.condition]) for log in logs if log.maneuver == "doublet"]
     linear = linear_models(fits)
@@ -47,7 +57,7 @@ def identify_logs(logs: list[Log]) -> Identification:
         if incs else None
     g = logs[0].meta["geometry"]
     arm = ((g["aerorp_x_in"] - g["cg_x_in"]) / 12.0, (g["aerorp_z_in"] - g["cg_z_in"]) / 12.0)
-    return Identification(fits, linear, incs, lin_surface, nl_surface, arm)
+    return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat)
 
 
 def _cond_key(c: tuple) -> str:
@@ -115,6 +125,10 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
     if ident.nonlinear_surface:
         text += ["Eq. (9) designs chosen by leave-one-out cross-validation (flap/coefficient: design):",
                  "  " + ", ".join(f"{k}: {v}" for k, v in ident.nonlinear_surface.to_dict()["designs"].items()), ""]
+    if ident.compat is not None:
+        text += [ident.compat.summary(), ""]
+        (out / "compatibility.json").write_text(json.dumps(ident.compat.to_dict(), indent=1, default=float) + "\n")
+        files["compatibility"] = str(out / "compatibility.json")
     text += ["Per-point fits", ""] + [f.summary() + "\n" for f in ident.fits]
     (out / "summary.txt").write_text("\n".join(text))
     files["summary"] = str(out / "summary.txt")
