@@ -26,9 +26,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from identify.compat import APPLY_Z, CompatResult, estimate
 from identify.logs import Log
-from identify.noise_floor import RESOLUTION, NoiseFloor, channel_noise
-from identify.residuals import COEFFS, VARIABLES, residual_data
+from identify.noise_floor import REACH_SE, RESOLUTION, NoiseFloor, channel_noise
+from identify.residuals import COEFFS, SIGNATURES, VARIABLES, residual_data
 
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
 RATES = {"qhat_rad": "velocities/q-aero-rad_sec", "adothat_rad": "aero/alphadot-rad_sec"}
@@ -153,7 +154,17 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
             if b != "gear_norm":
                 terms.append(Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]),
                                   ((0.0, 1.0), rng[b])))
+    for sig in SIGNATURES:  # sensor errors the kinematics cannot see compete with the aero terms
+        v = f"{sig}_{coefficient}"
+        if coefficient and v in data and float(data[v].std()) > 1e-6:
+            terms.append(Term("linear", (v,), (), (0.0,), ((-np.inf, np.inf),)))
     return terms
+
+
+def sensor_of(variable: str) -> tuple[str, str] | None:
+    """(channel, error) if a variable is a sensor error's signature, else None."""
+    head = variable.rsplit("_", 1)[0]
+    return SIGNATURES.get(head) if variable.rsplit("_", 1)[-1] in COEFFS else None
 
 
 class _Lags:
@@ -329,15 +340,26 @@ class Cause:
     curve: dict = field(default_factory=dict)
     size: float = 0.0
     verdict: dict = field(default_factory=dict)
+    kind: str = "aero"
+    channel: str = ""
+    error: str = ""
+    estimate: float = float("nan")
+    se: float = float("nan")
 
     @property
     def label(self) -> str:
+        if self.kind == "sensor":
+            return f"sensor {self.channel} {self.error}"
         return f"{self.coefficient} vs {', '.join(self.variables)}"
 
     def to_dict(self) -> dict:
-        return {"kind": "aero", "coefficient": self.coefficient, "variables": self.variables, "shape": self.shape,
-                "evidence": self.evidence, "peak": self.peak, "size": self.size, "verdict": self.verdict,
-                "terms": [t.label for t in self.terms], "curve": self.curve}
+        common = {"kind": self.kind, "shape": self.shape, "evidence": self.evidence, "peak": self.peak,
+                  "size": self.size, "verdict": self.verdict, "terms": [t.label for t in self.terms],
+                  "curve": self.curve}
+        if self.kind == "sensor":
+            return {**common, "channel": self.channel, "error": self.error, "estimate": self.estimate,
+                    "se": self.se, "coefficient": self.coefficient}
+        return {**common, "coefficient": self.coefficient, "variables": self.variables}
 
 
 def _shape(x: np.ndarray, y: np.ndarray) -> str:
@@ -414,6 +436,16 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
             shape = _shape(cx, cy)
             if len(variables) > 1:
                 shape += f", depends on {', '.join(variables[1:])}"
+            sensor = sensor_of(variables[0]) if len(g) == 1 else None
+            if sensor:
+                # the signature is per unit of the logged value: beta = e / (1 + e) for logged = (1 + e) true
+                beta = float(res.term_beta(g[0])[0])
+                se = _se(full, [designs[t] for t in res.terms], sum(t.width for t in res.terms[:res.terms.index(g[0])]),
+                         n_eff)
+                cause_kw = {"kind": "sensor", "channel": sensor[0], "error": sensor[1],
+                            "estimate": beta / (1.0 - beta), "se": se / (1.0 - beta) ** 2, "shape": "scale factor"}
+            else:
+                cause_kw = {}
             causes.append(Cause(c, variables, g, shape,
                                 {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
                                  "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
@@ -423,8 +455,19 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: _L
                                 {primary: cx.tolist(), f"d{c}": np.asarray(cy).tolist(),
                                  "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}},
                                 float(np.ptp(contrib))))
+            for k, v in cause_kw.items():
+                setattr(causes[-1], k, v)
     causes.sort(key=lambda c: -c.evidence["F"])
     return causes
+
+
+def _se(fit: _Fit, cols: list[np.ndarray], column: int, n_eff: float) -> float:
+    """Standard error of one design column's coefficient (0 is the first after the intercept),
+    inflated by N / N_eff for the residual's autocorrelation."""
+    x = np.column_stack([np.ones(len(fit.resid))] + cols)
+    n, p = x.shape
+    var = np.linalg.pinv(x.T @ x)[1 + column, 1 + column] * fit.rss / max(n - p, 1) * n / max(n_eff, 1.0)
+    return float(np.sqrt(var))
 
 
 #: Fresh noise on logs that already hold noise doubles the regressors' noise, which can halve the
@@ -435,6 +478,11 @@ FLOOR_FACTOR = 2.0
 MIN_HOLDOUT_GAIN = 1.02
 #: A log "sees" a cause where its contribution departs this share of its size from its typical value.
 ACTING_SHARE = 0.2
+
+
+def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
+    """A cause's fitted contribution at the rows of ``data``."""
+    return sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))
 
 
 def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple[float, list[int]]:
@@ -463,7 +511,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     y = data[f"r_{cause.coefficient}"].to_numpy()
     own = [t for t in res.terms if t in cause.terms]
     rest = [t for t in res.terms if t not in cause.terms]
-    full = sum(t.design(data) @ res.term_beta(t) for t in own)
+    full = contribution(res, cause, data)
     typical = float(np.median(full))
     frame = pd.DataFrame({"log": data["log"].to_numpy(), "dev": np.abs(full - typical)})
     acting = [int(i) for i, g in frame.groupby("log") if g["dev"].max() >= ACTING_SHARE * max(cause.size, 1e-300)]
@@ -487,15 +535,22 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
 
 
 def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
-          floors: list[np.ndarray], noisy: list[bool], alpha_in: float = 1e-6) -> None:
-    """Fill each cause's verdict: significant, above the noise floor, better on held-out data.
+          floors: list[np.ndarray], noisy: list[bool], reach: list[dict] | None = None,
+          alpha_in: float = 1e-6) -> None:
+    """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
+    better on held-out data.
 
-    ``floors`` holds each cause's sizes fitted to noise alone; ``noisy`` whether any
-    of its variables carries noise (then errors-in-variables may be underestimated
-    by the simulation, up to a factor :data:`FLOOR_FACTOR`).
+    ``floors`` holds each cause's sizes fitted to noise alone; ``noisy`` whether any of
+    its variables carries noise (then errors-in-variables may be underestimated by the
+    simulation, up to a factor :data:`FLOOR_FACTOR`); ``reach`` what the instrument
+    errors the data compatibility may have left can make of its shape
+    (:meth:`identify.noise_floor.NoiseFloor.reach`). The part of the cause no plausible
+    instrument error makes must be larger than the noise floor.
     """
-    for cause, null, eiv in zip(causes, floors, noisy):
+    reach = reach or [{"made": 0.0, "left": c.size, "alternatives": []} for c in causes]
+    for cause, null, eiv, rc in zip(causes, floors, noisy, reach):
         floor = max((FLOOR_FACTOR if eiv else 1.0) * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
+        beyond = min(cause.size, rc["left"])
         gain, acting = holdout_gain(results[cause.coefficient], cause, data_all)
         reasons = []
         if not cause.evidence["p_value"] < alpha_in:
@@ -503,12 +558,26 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         if not cause.size > floor:
             reasons.append(f"no larger than instrument noise makes it (size {cause.size:.3g}, noise floor "
                            f"{floor:.3g})")
+        elif not beyond > floor:
+            reasons.append(f"instrument errors within {REACH_SE:g} standard errors of the data compatibility "
+                           f"make all but {beyond:.3g} of it (size {cause.size:.3g}, noise floor {floor:.3g})")
         if not gain >= MIN_HOLDOUT_GAIN:
             reasons.append("no held-out data where it acts" if not np.isfinite(gain) else
                            f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+        alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
+                and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE][:3]
+        if alts:
+            cause.evidence["sensor_alternatives"] = alts
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
+                         "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
                          "noise_sizes": [float(v) for v in null], "holdout_gain": gain,
-                         "holdout_logs": acting, "size_over_floor": cause.size / floor}
+                         "holdout_logs": acting, "size_over_floor": beyond / floor}
+
+
+#: An instrument error that alone explains this share of a cause's variance is named beside it [%].
+SENSOR_ALTERNATIVE_PCT = 50.0
+#: ... if the size it needs is within this many of the data compatibility's standard errors.
+SENSOR_ALTERNATIVE_SE = 5.0
 
 
 @dataclass
@@ -531,6 +600,10 @@ class Diagnosis:
         Channel noise levels estimated from the logs.
     unset : list
         Inputs of the model's aerodynamics that no log channel sets.
+    compat : CompatResult or None
+        The data compatibility (instrument errors estimated and corrected first).
+    logs, held_logs : list of Log
+        The logs fitted on and held out, as corrected.
     """
 
     data: pd.DataFrame
@@ -541,10 +614,18 @@ class Diagnosis:
     noise: dict = field(default_factory=dict)
     unset: list = field(default_factory=list)
     first_step: dict = field(default_factory=dict)
+    compat: CompatResult | None = None
+    logs: list = field(default_factory=list)
+    held_logs: list = field(default_factory=list)
 
     @property
     def discrepancy(self) -> bool:
         return bool(self.causes)
+
+    @property
+    def aero_causes(self) -> list[Cause]:
+        """The accepted causes in the aerodynamics (the extension holds these)."""
+        return [c for c in self.causes if c.kind == "aero"]
 
     def predict(self, coefficient: str, frame: pd.DataFrame) -> np.ndarray:
         """The fitted discrepancy of one coefficient at the states of ``frame``."""
@@ -569,6 +650,9 @@ class Diagnosis:
 
     def summary(self) -> str:
         lines = []
+        if self.compat is not None and self.compat.applied:
+            lines.append("Data corrected for instrument errors (data compatibility): " + ", ".join(
+                f"{p.name} {p.estimate:+.4g} +- {p.se:.2g} {p.unit}" for p in self.compat.applied))
         if self.unset:
             lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
         if not self.causes:
@@ -578,14 +662,35 @@ class Diagnosis:
                 lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
         for i, c in enumerate(self.causes, 1):
             e, v = c.evidence, c.verdict
+            if c.kind == "sensor" and not c.terms:
+                lines.append(f"{i}. {c.label}: {c.estimate:+.4g} +- {c.se:.2g} {v.get('unit', '')} "
+                             f"({e['z']:.1f} standard errors, data compatibility); moves {c.coefficient} by up to "
+                             f"{c.size:.3g}; held-out gain x{v['holdout_gain']:.2f} once corrected")
+                if e.get("chosen_because"):
+                    lines.append(f"   {e['chosen_because']}")
+                continue
+            if c.kind == "sensor":
+                lines.append(f"{i}. {c.label}: {c.estimate:+.4g} +- {c.se:.2g} (its signature in the {c.coefficient} "
+                             f"residual: F = {e['F']:.4g}, removes {e['rss_reduction_pct']:.1f} %); size {c.size:.3g} "
+                             f"against a noise floor of {v['noise_floor']:.3g}; held-out gain x{v['holdout_gain']:.2f}")
+                for a in e.get("hardly_separated_from", []):
+                    lines.append(f"   caution: the data hardly separate it from {a['term']} "
+                                 f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+                continue
             p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
+            made = (f", instrument errors could make {v['instrument_errors_make']:.3g} of it"
+                    if v.get("instrument_errors_make") else "")
             lines.append(f"{i}. {c.label}: {c.shape}; peak {c.peak:.4g}; "
                          f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
                          f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
-                         f"noise floor of {v['noise_floor']:.3g}; held-out gain x{v['holdout_gain']:.2f}")
+                         f"noise floor of {v['noise_floor']:.3g}{made}; held-out gain x{v['holdout_gain']:.2f}")
             for a in e.get("hardly_separated_from", []):
                 lines.append(f"   caution: the data hardly separate it from {a['term']} "
                              f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+            for a in e.get("sensor_alternatives", []):
+                lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                             f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
+                             f"0 +- {a['se']:.2g} after correction ({abs(a['needs_se']):.1f} standard errors away)")
         if self.causes and self.rejected:
             lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
         lines.append("")
@@ -595,6 +700,131 @@ class Diagnosis:
             lines.append("   alternatives at the first step: " + "; ".join(
                 f"{a['term']} F={a['F']:.3g}" for a in res.alternatives[:5]))
         return "\n".join(lines)
+
+
+#: A corrected instrument error is named when it moves a coefficient at least this much.
+SENSOR_EFFECT = 1e-4
+#: ... and its estimate is this many standard errors from 0 (the kinematics alone say so), or the
+#: aerodynamic residuals chose it (:func:`arbitrate`: two independent lines of evidence).
+SENSOR_Z = APPLY_Z
+#: A correction the kinematics leave undecided is applied if the residuals get this much smaller
+#: (RMS ratio) with it, on the fitted and on the held-out logs.
+CORROBORATED_GAIN = 1.1
+
+
+def _rms(frame: pd.DataFrame, c: str) -> float:
+    return float(np.sqrt(np.mean(frame[f"r_{c}"].to_numpy() ** 2)))
+
+
+def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
+              step: int | None = None) -> CompatResult:
+    """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
+
+    Two errors the kinematics cannot tell apart (an accelerometer bias and an attitude
+    bias through gravity; a vane's bias and its scale when the trim alphas hardly differ)
+    are each estimated with the other held at 0, and only one may be applied. An estimate
+    3 to 5 standard errors from 0 may be real or a clustered standard error come out small.
+    Each candidate is tried: the one that brings the model closest to the data is applied
+    if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
+    on the fitted logs and on the held-out ones; the others keep what the residuals said.
+    """
+    groups: list[list] = []
+    for p in compat.undecided:
+        g = next((g for g in groups if p.confounded_with in {q.name for q in g}
+                  or p.name in {q.confounded_with for q in g}), None)
+        g.append(p) if g is not None else groups.append([p])
+    for g in groups:
+        tried = []
+        for p in g:
+            trial = compat.choose(p.name, "trial")
+            before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
+            after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
+            c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy()
+                                                               - before[f"r_{k}"].to_numpy()))))
+            gain = _rms(before, c) / max(_rms(after, c), 1e-300)
+            held = float("nan")
+            if raw_held:
+                held = (_rms(residual_data([compat.correct(lg) for lg in raw_held], evaluator, step), c)
+                        / max(_rms(residual_data([trial.correct(lg) for lg in raw_held], evaluator, step), c),
+                              1e-300))
+            tried.append((p, c, gain, held))
+        best = max(tried, key=lambda t: min(t[2], t[3]) if np.isfinite(t[3]) else t[2])
+        for p, c, gain, held in tried:
+            why = (f"the kinematics cannot tell it from {p.confounded_with}" if p.confounded_with else
+                   f"{p.z:.1f} standard errors from the kinematics")
+            said = (f"RMS x{gain:.2f} smaller corrected" + (f", x{held:.2f} on held-out logs" if np.isfinite(held)
+                                                             else ""))
+            if p is best[0] and gain >= CORROBORATED_GAIN and not held < CORROBORATED_GAIN:
+                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {said}")
+            else:
+                compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({said})")
+    return compat
+
+
+def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator, data: pd.DataFrame,
+                  held_data: pd.DataFrame | None, step: int | None) -> list[Cause]:
+    """The instrument errors the data compatibility corrected, as causes with their verdict.
+
+    Each correction is undone in turn and JSBSim evaluates the model again: its
+    effect on the fitted logs' residuals is its size, and the held-out residual
+    RMS without it over the RMS with it is its held-out gain.
+    """
+    causes = []
+    for p in compat.applied:
+        undone = compat.without(p.name)
+        r = residual_data([undone.correct(lg) for lg in raw], evaluator, step)
+        effect = {c: float(np.max(np.abs(r[f"r_{c}"].to_numpy() - data[f"r_{c}"].to_numpy()))) for c in COEFFS}
+        c = max(effect, key=effect.get)
+        gain = float("nan")
+        if raw_held and held_data is not None:
+            h = residual_data([undone.correct(lg) for lg in raw_held], evaluator, step)
+            after = float(np.sqrt(np.mean(held_data[f"r_{c}"] ** 2)))
+            gain = float(np.sqrt(np.mean(h[f"r_{c}"] ** 2))) / after if after > 0 else float("inf")
+        reasons = []
+        if p.z < SENSOR_Z and not p.chosen:
+            reasons.append(f"only {p.z:.1f} standard errors (needs {SENSOR_Z:g}, or the residuals to agree)")
+        if effect[c] < SENSOR_EFFECT:
+            reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {SENSOR_EFFECT:g})")
+        if not gain >= MIN_HOLDOUT_GAIN:
+            reasons.append("no held-out data" if not np.isfinite(gain) else
+                           f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+        cause = Cause(c, [p.channel], [], p.error, {"z": p.z, "F": p.z ** 2, "p_value": 0.0, "dof": [1, 0],
+                                                  "rss_reduction_pct": float("nan"), "method": "data compatibility",
+                                                  "methods": {k: {"estimate": e, "se": se}
+                                                              for k, (e, se) in p.sources.items()},
+                                                  "effect_by_coefficient": effect,
+                                                  **({"confounded_with": p.confounded_with or None,
+                                                      "chosen_because": p.chosen} if p.chosen else {})},
+                      effect[c], size=effect[c], kind="sensor", channel=p.channel, error=p.error,
+                      estimate=p.estimate, se=p.se)
+        cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "holdout_gain": gain,
+                         "noise_floor": SENSOR_EFFECT, "size_over_floor": effect[c] / SENSOR_EFFECT,
+                         "unit": p.unit}
+        causes.append(cause)
+    return causes
+
+
+def _merge_sensors(causes: list[Cause]) -> list[Cause]:
+    """One cause per instrument error: its sightings in several coefficients' residuals become
+    evidence of the strongest (named once, with the others' estimates)."""
+    out, seen = [], {}
+    for c in causes:
+        key = (c.channel, c.error) if c.kind == "sensor" else None
+        if key is None or key not in seen:
+            if key:
+                seen[key] = c
+                c.evidence.setdefault("also_in", [])
+            out.append(c)
+            continue
+        first = seen[key]
+        keep, other = (first, c) if first.evidence["F"] >= c.evidence["F"] else (c, first)
+        keep.evidence.setdefault("also_in", []).append(
+            {"coefficient": other.coefficient, "estimate": other.estimate, "se": other.se, "F": other.evidence["F"]})
+        keep.evidence["also_in"] += other.evidence.get("also_in", [])
+        if keep is c:
+            out[out.index(first)] = c
+            seen[key] = c
+    return out
 
 
 def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
@@ -615,8 +845,8 @@ def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> Stepwise
                           {k: v for k, v in res.close.items() if k in {t.label for t in keep}})
 
 
-def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int = 2, realizations: int = 20,
-             **kw) -> Diagnosis:
+def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
+             compatibility: bool = True, **kw) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
 
     Parameters
@@ -626,29 +856,47 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int = 2, re
     evaluator : ModelEvaluator
     held : list of Log
         Logs not fitted on; the verdict's leave-one-condition-out check uses them too.
-    step : int
-        Thinning of the residual data.
+    step : int or None
+        Thinning of the residual data (default: about 60 samples per second).
     realizations : int
         Noise realizations of the instrument-noise floor.
+    compatibility : bool
+        Estimate the instrument errors first and correct the logs (:mod:`identify.compat`).
     """
     held = list(held)
+    raw, raw_held = list(logs), held
+    compat = estimate(logs) if compatibility else None
+    if compat is not None:
+        compat = arbitrate(compat, raw, raw_held, evaluator, step)
+        logs = [compat.correct(lg) for lg in logs]
+        held = [compat.correct(lg) for lg in held]
     data = residual_data(logs, evaluator, step)
     held_data = residual_data(held, evaluator, step) if held else None
     lags = _Lags(data["log"].to_numpy())
     results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
     causes = name_causes(results, data, lags)
     noise = channel_noise(logs + held)
-    floor = NoiseFloor(logs, evaluator, noise, step, realizations) if causes else None
-    floors = floor.sizes([(c.coefficient, c.terms) for c in causes]) if causes else []
+    floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None)
+             if causes else None)
+    groups = [(c.coefficient, c.terms) for c in causes]
+    floors = floor.sizes(groups) if causes else []
+    aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
+    by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
+                                                                                             data)) for c in aero],
+                                                  data))) if aero else {}
+    reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
     noisy = [floor.noisy(c.variables) for c in causes]
     data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
                          ignore_index=True)
-    judge(causes, results, data_all, floors, noisy, kw.get("alpha_in", 1e-6))
-    accepted = [c for c in causes if c.verdict["accepted"]]
-    rejected = [c for c in causes if not c.verdict["accepted"]]
+    judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
+    sensors = compat_causes(compat, raw, raw_held, evaluator, data, held_data, step) if compat else []
+    sensors.sort(key=lambda c: -c.evidence["z"])
+    accepted = _merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
+    rejected = [c for c in sensors + causes if not c.verdict["accepted"]]
     for c in COEFFS:
-        keep = [t for cause in accepted if cause.coefficient == c for t in cause.terms]
+        keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
         if len(keep) != len(results[c].terms):
             results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
-    return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first)
+    return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
+                     logs, held)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.diagnosis import RATES, VARIABLES, Diagnosis, Term
+from identify.diagnosis import RATES, VARIABLES, Diagnosis, Term, sensor_of
 from identify.export import AXIS
 
 #: Points per table on a variable exported through another property (CL through CL^2).
@@ -99,12 +99,13 @@ def extension_effects(diag: Diagnosis) -> ET.Element:
     """Every selected term (and each coefficient's offset) as an ``<effects>`` element."""
     root = ET.Element("effects")
     for c, res in diag.results.items():
-        if not res.terms:
+        aero = [t for t in res.terms if not sensor_of(t.variables[0])]
+        if not aero:
             continue
         axis = ET.SubElement(root, "axis", name=AXIS[c])
         prod = _fn(axis, f"aero/coefficient/diag-d{c}-offset", c, f"Diagnosed offset of {c}")
         ET.SubElement(prod, "value").text = repr(float(res.beta[0]))
-        for i, t in enumerate(res.terms):
+        for i, t in enumerate(aero):
             slug = "-".join(t.variables).replace("_", "")
             prod = _fn(axis, f"aero/coefficient/diag-d{c}-{i}-{t.kind}-{slug}", c,
                        f"Diagnosed discrepancy of {c}: {t.label}")

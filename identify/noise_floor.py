@@ -22,8 +22,8 @@ import pandas as pd
 
 from identify.coefficients import coefficients
 from identify.logs import Log
-from identify.models import EDGE_S, lowpass
-from identify.residuals import COEFFS, FILTERED, measured_about, variables
+from identify.models import lowpass
+from identify.residuals import COEFFS, FILTERED, kept, measured_about, signatures, variables
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
@@ -35,11 +35,14 @@ SOURCES = {"gear_norm": ("gear_norm",), "alpha_deg": ("alpha_deg",), "mach": ("m
            "qhat_rad": ("q_dps", "tas_kt"),
            "adothat_rad": ("alpha_deg", "beta_deg", "tas_kt", "ax_fps2", "az_fps2", "p_dps", "q_dps", "r_dps",
                            "theta_deg", "phi_deg"),
-           "CL": ("ax_fps2", "az_fps2", "alpha_deg", "qbar_psf", "thrust_lbf", "mass_slug")}
+           "CL": ("ax_fps2", "az_fps2", "alpha_deg", "qbar_psf", "thrust_lbf", "mass_slug"),
+           **{f"thrust_{c}": ("thrust_lbf", "alpha_deg", "qbar_psf") for c in COEFFS}}
 SENSITIVITY_EVERY_S = 0.5
 #: Below this a coefficient change is beyond the evaluation's own resolution (it reproduces
 #: noise-free logs to about 1e-7).
 RESOLUTION = 1e-5
+#: Instrument errors are taken as plausible up to this many standard errors of the data compatibility.
+REACH_SE = 2.0
 
 
 def channel_noise(logs: list[Log]) -> dict[str, float]:
@@ -76,15 +79,24 @@ class NoiseFloor:
     evaluator : ModelEvaluator
     noise : dict
         Channel -> noise level (:func:`channel_noise`).
-    step : int
-        Thinning of the residual data.
+    step : int or None
+        Thinning of the residual data (None: :func:`identify.residuals.kept`'s default).
     realizations : int
     seed : int
+    uncertain : (list of (channel, error), covariance), optional
+        Instrument errors the data compatibility could not pin down (bias and scale
+        in the channel's units, delay in s) and the covariance of their estimates:
+        a second set of realizations draws them, so the floor also holds what an
+        imperfect correction leaves.
     """
 
-    def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int = 2,
-                 realizations: int = 20, seed: int = 0) -> None:
+    def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
+                 realizations: int = 20, seed: int = 0, uncertain=None) -> None:
         self.logs, self.evaluator, self.step = logs, evaluator, step
+        names, cov = uncertain if uncertain is not None else ([], np.zeros((0, 0)))
+        ok = [j for j, (c, _) in enumerate(names) if cov[j, j] > 0 and any(c in lg.data for lg in logs)]
+        self.uncertain = [names[j] for j in ok]
+        self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations, self.seed = realizations, seed
         self._sens = [self._model_sensitivity(log) for log in logs]
@@ -112,49 +124,146 @@ class NoiseFloor:
         """Whether any of the variables is computed from a channel that holds noise."""
         return any(self.noise.get(ch, 0.0) > 0 for v in variables for ch in SOURCES.get(v, (v,)))
 
-    def realization(self, k: int, columns: set[str]) -> pd.DataFrame:
-        """One noise-only residual data set: ``r_CL``... and the variables in ``columns``."""
+    def realization(self, k: int, columns: set[str], noise: bool = True, instruments: bool = False,
+                    errors: np.ndarray | None = None) -> pd.DataFrame:
+        """One residual data set made by noise alone (``noise``), by the instrument errors the
+        correction may have left (``instruments``: drawn from their covariance) or by given
+        ``errors`` (one per :attr:`uncertain`): ``r_CL``... and the variables in ``columns``."""
         frames = []
+        if errors is None:
+            errors = (np.random.default_rng([self.seed, k, 10**6]).multivariate_normal(
+                np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
+                if instruments and self.uncertain else np.zeros(len(self.uncertain)))
         for i, log in enumerate(self.logs):
             d = log.data
             t = d["t_s"].to_numpy()
             dt = float(np.median(np.diff(t)))
             rng = np.random.default_rng([self.seed, k, i])
             chans = [ch for ch in sorted(self.noise) if ch in d]
-            draws = rng.standard_normal((len(d), len(chans))) * np.array([self.noise[ch] for ch in chans])
             noisy = d.copy()
-            noisy[chans] = d[chans].to_numpy() + draws
+            if noise:
+                noisy[chans] = d[chans].to_numpy() + rng.standard_normal((len(d), len(chans))) * np.array(
+                    [self.noise[ch] for ch in chans])
+            for (c, e), z in zip(self.uncertain, errors):  # the same instrument error in every log
+                if c in noisy and z:
+                    x = noisy[c].to_numpy()
+                    noisy[c] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
             meas = _measured(noisy, log.meta, self.evaluator)
             ts, sens = self._sens[i]
-            edge = int(round(EDGE_S / dt))
-            keep = np.arange(edge, len(d) - edge, self.step)
+            keep = kept(len(d), dt, self.step)
             out = {}
             for j, c in enumerate(COEFFS):
                 r = meas[c].to_numpy() - self._meas[i][c].to_numpy()
-                for ch, sj in sens.items():
-                    r = r - np.interp(t, ts, sj[:, j]) * draws[:, chans.index(ch)]
+                for ch, sj in sens.items():  # the model's answer to the changed channels, linearised
+                    r = r - np.interp(t, ts, sj[:, j]) * (noisy[ch].to_numpy() - d[ch].to_numpy())
                 out[f"r_{c}"] = lowpass(r, dt)[keep]
             var = variables(noisy, log.meta, meas["CL"].to_numpy(), sorted(columns))
+            sig = [c for c in columns if c.startswith("thrust_")]
+            if sig:
+                var = pd.concat([var, signatures(noisy, log.meta, self.evaluator, meas)[sig]], axis=1)
             for v in var.columns:
                 x = var[v].to_numpy()
-                out[v] = (lowpass(x, dt) if v in FILTERED else x)[keep]
+                out[v] = (lowpass(x, dt) if v in FILTERED or v in sig else x)[keep]
             frames.append(pd.DataFrame(out))
         return pd.concat(frames, ignore_index=True)
 
-    def sizes(self, groups: list[tuple[str, list]]) -> list[np.ndarray]:
-        """For each (coefficient, terms) group: its size fitted to each noise realization.
+    def sizes(self, groups: list[tuple[str, list]], instruments: bool = False) -> list[np.ndarray]:
+        """For each (coefficient, terms) group: its size fitted to each realization of noise
+        alone, or (``instruments``) of the correction's remaining instrument errors alone
+        (drawn at random; :meth:`reach` asks instead what they can make of a given shape).
 
         ``terms`` are :class:`identify.diagnosis.Term` objects (anything with ``variables`` and ``design``).
-
         The size is the range (max - min) of the fitted contribution over the data.
         """
         columns = {v for _, terms in groups for t in terms for v in t.variables}
+        if instruments and not self.uncertain:
+            return [np.zeros(0) for _ in groups]
         out = [np.empty(self.realizations) for _ in groups]
         for k in range(self.realizations):
-            frame = self.realization(k, columns)
+            frame = self.realization(k, columns, noise=not instruments, instruments=instruments)
             for g, (c, terms) in enumerate(groups):
                 x = np.column_stack([np.ones(len(frame))] + [t.design(frame) for t in terms])
                 beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
                 contrib = x[:, 1:] @ beta[1:]
                 out[g][k] = float(np.ptp(contrib))
         return out
+
+    def instrument_responses(self) -> tuple[np.ndarray, list[pd.DataFrame]]:
+        """The residuals one standard error along each principal axis of the remaining
+        instrument errors' covariance makes, with the axes (columns, in channel units)."""
+        if not self.uncertain:
+            return np.zeros((0, 0)), []
+        w, v = np.linalg.eigh(self.uncertain_cov)
+        keep = w > 1e-12 * max(float(w.max()), 1e-300)
+        axes = v[:, keep] * np.sqrt(w[keep])
+        return axes, [self.realization(0, set(), noise=False, errors=a) for a in axes.T]
+
+    def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
+              radius: float = REACH_SE) -> list[dict]:
+        """What the remaining instrument errors can make of each cause's fitted shape.
+
+        For a cause on coefficient ``c`` with terms ``T`` and fitted contribution ``f``
+        over ``data``, the residuals the instrument errors make are seen through ``T``
+        (projected on its span, as a fit would see them), and the errors within
+        ``radius`` standard errors (Mahalanobis, the data compatibility's covariance)
+        that come closest to ``f`` are found (a trust-region least-squares problem). The
+        part of ``f`` left is what no plausible instrument error can make. Each
+        instrument error alone, at any size, is also fitted to ``f``: the alternatives
+        that make most of it, with the size they would need.
+
+        Returns
+        -------
+        list of dict
+            Per cause: ``made`` and ``left`` (ranges of what the plausible instrument
+            errors make of it and of the rest), ``alternatives`` (channel, error, the
+            size needed in the channel's units and in standard errors, the share of the
+            cause's variance it explains [%]), best first.
+        """
+        axes, resp = self.instrument_responses()
+        se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
+        to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
+        out = []
+        for c, terms, f in causes:
+            f = np.asarray(f, float) - np.mean(f)
+            if not resp:
+                out.append({"made": 0.0, "left": float(np.ptp(f)), "alternatives": []})
+                continue
+            assert all(len(r) == len(data) for r in resp)
+            x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
+            cols = np.column_stack([r[f"r_{c}"].to_numpy() for r in resp])
+            seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
+            seen -= seen.mean(axis=0)
+            made = seen @ _trust_region(seen, f, radius)
+            alts = []
+            ff = float(f @ f)
+            for j, (ch, err) in enumerate(self.uncertain):
+                one = seen @ to_axes[:, j] * se[j]  # one standard error of this error alone
+                nn = float(one @ one)
+                if nn <= 0 or ff <= 0:
+                    continue
+                k = float(one @ f) / nn
+                share = 100.0 * (1.0 - float((f - k * one) @ (f - k * one)) / ff)
+                alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k, "se": float(se[j]),
+                             "explains_pct": share})
+            alts.sort(key=lambda a: -a["explains_pct"])
+            out.append({"made": float(np.ptp(made)), "left": float(np.ptp(f - made)), "alternatives": alts})
+        return out
+
+
+
+def _trust_region(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
+    """``argmin |a z - b|`` subject to ``|z| <= radius``."""
+    from scipy.optimize import brentq
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    keep = s > 1e-10 * max(float(s.max(initial=0.0)), 1e-300)
+    u, s, vt = u[:, keep], s[keep], vt[keep]
+    ub = u.T @ b
+
+    def z(lam: float) -> np.ndarray:
+        return vt.T @ (s * ub / (s ** 2 + lam))
+
+    if not len(s) or np.linalg.norm(z(0.0)) <= radius:
+        return z(0.0) if len(s) else np.zeros(a.shape[1])
+    hi = float(s.max() * np.linalg.norm(ub) / radius)
+    lam = brentq(lambda lam: np.linalg.norm(z(lam)) - radius, 0.0, hi * 1.01 + 1e-300)
+    return z(lam)

@@ -32,6 +32,10 @@ VARIABLES = {
     "adothat_rad": None,  # alpha-dot cbar / 2V: aero/ci2vel * aero/alphadot-rad_sec
     "CL": "aero/cl-squared",  # the measured lift coefficient; exported through CL^2
 }
+#: Sensor errors the kinematics cannot see, as residual signatures: log column -> (channel, error).
+#: ``thrust_CD`` is d(CD measured)/d(relative thrust error): what an engine deck off by a factor
+#: (1 + k) adds to the CD residual, per unit k (likewise for CL and Cm).
+SIGNATURES = {"thrust": ("thrust_lbf", "scale")}
 #: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
 FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
 
@@ -78,6 +82,18 @@ def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
                         index=coef.index)
 
 
+def signatures(data: pd.DataFrame, meta: dict, evaluator, meas: pd.DataFrame) -> pd.DataFrame:
+    """What a relative thrust error adds to each measured coefficient, per unit error.
+
+    Eq. (1) is linear in the thrust, so a unit step gives it exactly.
+    """
+    up = data.copy()
+    up["thrust_lbf"] = up["thrust_lbf"] * 2.0
+    moved = measured_about(coefficients(up, meta), meta, evaluator)
+    return pd.DataFrame({f"thrust_{c}": moved[c].to_numpy() - meas[c].to_numpy() for c in COEFFS},
+                        index=data.index)
+
+
 def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
     out = frame.copy()
     for c in columns:
@@ -86,13 +102,25 @@ def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
     return out
 
 
-def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
+#: Residual data keep about this many samples per second (the filter leaves nothing above 3 Hz).
+KEEP_HZ = 60.0
+
+
+def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
+    """Indices of the samples residual data keep: 0.25 s dropped at both ends (the filter's
+    start-up), then every ``step``-th (default: about :data:`KEEP_HZ` per second)."""
+    step = step or max(1, int(round(1.0 / (KEEP_HZ * dt))))
+    edge = int(round(EDGE_S / dt))
+    return np.arange(edge, n - edge, step)
+
+
+def residual_data(logs: list[Log], evaluator, step: int | None = None) -> pd.DataFrame:
     """Measured minus model coefficients at the measured states, for every log.
 
     The model is evaluated at the raw measured states (exact on noise-free
     data); the measured and model coefficients and the variables then pass
     through the zero-phase low-pass filter of the identification, 0.25 s is
-    dropped at both ends, and every ``step``-th sample is kept.
+    dropped at both ends, and every ``step``-th sample is kept (:func:`kept`).
 
     Returns
     -------
@@ -111,11 +139,13 @@ def residual_data(logs: list[Log], evaluator, step: int = 2) -> pd.DataFrame:
         both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
         both = smooth(both, dt, both.columns)
         var = smooth(variables(d, log.meta, cl), dt, FILTERED)
-        edge = int(round(EDGE_S / dt))
-        keep = np.arange(edge, len(d) - edge, step)
+        sig = smooth(signatures(d, log.meta, evaluator, meas), dt, [f"thrust_{c}" for c in COEFFS])
+        keep = kept(len(d), dt, step)
         out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
         for v in VARIABLES:
             out[v] = var[v].to_numpy()[keep]
+        for c in COEFFS:
+            out[f"thrust_{c}"] = sig[f"thrust_{c}"].to_numpy()[keep]
         for c in COEFFS:
             out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
             out[f"meas_{c}"] = both[c].to_numpy()[keep]

@@ -56,27 +56,28 @@ def _sat(d, knee):
     return np.where(d < knee, np.sin(0.5 * np.pi * d / knee), 1.0)
 
 
-def make(family: str, rng: np.random.Generator, coefficient: str | None = None) -> Hidden:
-    """A random hidden effect of one family."""
+def make(family: str, rng: np.random.Generator, coefficient: str | None = None, scale: float = 1.0) -> Hidden:
+    """A random hidden effect of one family (``scale`` multiplies its size: detection floors)."""
     sign = rng.choice([-1.0, 1.0])
     d = np.linspace(0, 1, 41)
     if family == "gear_saturating":
         c = coefficient or rng.choice(["CL", "CD", "Cm"])
         amp = {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.025), "Cm": rng.uniform(0.01, 0.03)}[c]
-        amp = abs(amp) if c == "CD" else sign * amp
+        amp = scale * (abs(amp) if c == "CD" else sign * amp)
         knee = rng.uniform(0.3, 0.6)
         return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, amp * _sat(d, knee)), family),
                       f"d{c} = {amp:.4f} * saturating(gear, knee {knee:.2f})")
     if family == "gear_bump":
         c = coefficient or rng.choice(["CL", "CD", "Cm"])
-        amp = sign * {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.02), "Cm": rng.uniform(0.01, 0.03)}[c]
+        amp = scale * sign * {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.02),
+                              "Cm": rng.uniform(0.01, 0.03)}[c]
         peak = rng.uniform(0.3, 0.7)
         y = amp * np.sin(np.pi * np.where(d < peak, 0.5 * d / peak, 0.5 + 0.5 * (d - peak) / (1 - peak)))
         return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, y), family),
                       f"d{c} = {amp:.4f} * bump(gear, peak at {peak:.2f})")
     if family == "alpha":
         c = coefficient or rng.choice(["CL", "Cm"])
-        amp = sign * rng.uniform(0.02, 0.04)
+        amp = scale * sign * rng.uniform(0.02, 0.04)
         a0 = rng.uniform(2.0, 8.0)
         a = np.linspace(-10, 20, 61)
         y = amp * 0.5 * (1 + np.tanh((a - a0) / 2.0))
@@ -84,14 +85,14 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None) 
                       f"d{c} = {amp:.4f} * step(alpha around {a0:.1f} deg)")
     if family == "mach":
         c = "CD"
-        amp = rng.uniform(0.004, 0.01)
+        amp = scale * rng.uniform(0.004, 0.01)
         m = np.linspace(0.1, 0.7, 31)
         y = amp * ((m - 0.1) / 0.4) ** 2
         return Hidden(family, c, ("mach",), _wrap(c, _table("velocities/mach", m, y), family),
                       f"dCD = {amp:.4f} * ((M - 0.1)/0.4)^2")
     if family == "gear_x_alpha":
         c = coefficient or rng.choice(["CL", "Cm"])
-        amp = sign * rng.uniform(0.004, 0.008)  # per deg of alpha away from 4 deg
+        amp = scale * sign * rng.uniform(0.004, 0.008)  # per deg of alpha away from 4 deg
         a = np.linspace(-10, 20, 7)
         vals = np.outer(_sat(d, 0.5), amp * (a - 4.0))
         lines = "            " + " ".join(f"{x:g}" for x in a) + "\n" + "\n".join(
@@ -104,7 +105,7 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None) 
     if family == "elevator_derivative":
         c = coefficient or rng.choice(["CL", "Cm"])
         base = {"CL": 0.40, "Cm": -1.4}[c]
-        k = sign * (rng.uniform(0.35, 0.5) if c == "CL" else rng.uniform(0.2, 0.35))
+        k = scale * sign * (rng.uniform(0.35, 0.5) if c == "CL" else rng.uniform(0.2, 0.35))
         body = f"        <property>fcs/elevator-pos-rad</property>\n        <value>{k * base:.6f}</value>"
         return Hidden(family, c, ("elevator_deg",), _wrap(c, body, family),
                       f"d{c}de = {k * base:+.4f} /rad ({k:+.0%} of the model's)")
@@ -126,8 +127,9 @@ OWN_TERMS = [("aero/coefficient/CDgear", 0.0, "CD", "gear_norm"),
 DIAG_MATRIX = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000)), "diagnosis")
 
 
-def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2):
-    """Fly the diagnosis matrix on the model plus a hidden effect, with flight-test noise."""
+def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test"):
+    """Fly the diagnosis matrix on the model plus a hidden effect through an instrument profile
+    (the shipped flight-test one: turbulence, 50 Hz, no qdot, nose-boom vanes, noise)."""
     from pathlib import Path
 
     from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
@@ -142,13 +144,13 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2):
         fx = workdir / "hidden.xml"
         fx.write_text(hidden.xml)
     m = load_matrix(workdir / "m.toml")
-    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(fx)), seed, "flight-test",
+    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(fx)), seed, instruments,
                        m.maneuver_params, m.clmax_by_flap)
     run_campaign(m, cfg, workdir / "data", jobs=jobs, progress=False)
     return workdir / "data", fx
 
 
-def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2) -> dict:
+def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test") -> dict:
     """Fly, diagnose against the bare model, and score the answer against the hidden truth."""
     from pathlib import Path
 
@@ -158,12 +160,13 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2) -> dict:
     from identify.evaluate import ModelEvaluator
     from identify.export import merge_into_aircraft
     workdir = Path(workdir)
-    data, fx = fly_data(workdir, hidden, seed, jobs)
+    data, fx = fly_data(workdir, hidden, seed, jobs, instruments)
     doc = run_diagnosis(data, DEFAULT_AIRCRAFT, workdir / "report", plots=False)
     out = {"doc": doc, "discrepancy": doc["discrepancy"]}
-    if hidden is None or not doc["causes"]:
+    aero = [c for c in doc["causes"] if c["kind"] == "aero"]
+    if hidden is None or not aero:
         return out
-    first = doc["causes"][0]
+    first = aero[0]
     out["coefficient_ok"] = first["coefficient"] == hidden.coefficient
     out["variable_ok"] = first["variables"][0] == hidden.variables[0] and set(hidden.variables) <= set(first["variables"])
     train, _ = split(load_data(data))
@@ -178,3 +181,70 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2) -> dict:
     out["shape_error"] = float(np.max(np.abs(fitted - true)) / np.max(np.abs(true)))
     out["gain"] = doc["gain"]["residual_gain"] if doc["gain"]["coefficient"] == c else float("nan")
     return out
+
+
+SENSOR_FAMILIES = ("alpha_bias", "alpha_scale", "alpha_delay", "accel_bias", "thrust_scale")
+
+
+@dataclass
+class SensorFault:
+    family: str
+    channel: str
+    error: str
+    value: float  # bias in the channel's units, scale factor - 1, delay [s]
+    description: str
+
+    @property
+    def profile(self) -> str:
+        """An instrument profile: the shipped flight-test one with this fault."""
+        key = {"bias": "bias", "scale": "scale", "delay": "delay_s"}[self.error]
+        v = 1.0 + self.value if self.error == "scale" else self.value
+        return f'extends = "flight-test"\n[channels.{self.channel}]\n{key} = {v!r}\n'
+
+
+def make_sensor(family: str, rng: np.random.Generator, value: float | None = None,
+                channel: str | None = None) -> SensorFault:
+    """A random sensor fault of one family (``value`` fixes its size)."""
+    sign = rng.choice([-1.0, 1.0])
+    if family == "alpha_bias":
+        v = value if value is not None else sign * rng.uniform(0.2, 0.6)
+        return SensorFault(family, "alpha_deg", "bias", v, f"alpha vane bias {v:+.3f} deg")
+    if family == "alpha_scale":
+        v = value if value is not None else sign * rng.uniform(0.03, 0.08)
+        return SensorFault(family, "alpha_deg", "scale", v, f"alpha vane scale {1 + v:.3f}")
+    if family == "alpha_delay":
+        v = value if value is not None else rng.uniform(0.03, 0.1)
+        return SensorFault(family, "alpha_deg", "delay", v, f"alpha delayed {v * 1000:.0f} ms")
+    if family == "accel_bias":
+        ch = channel or rng.choice(["ax_fps2", "az_fps2"])
+        v = value if value is not None else sign * rng.uniform(0.03, 0.1) * (2.0 if ch == "az_fps2" else 1.0)
+        return SensorFault(family, ch, "bias", v, f"{ch} bias {v:+.3f} ft/s^2")
+    if family == "thrust_scale":
+        v = value if value is not None else sign * rng.uniform(0.03, 0.08)
+        return SensorFault(family, "thrust_lbf", "scale", v, f"engine deck thrust x{1 + v:.3f}")
+    raise ValueError(family)
+
+
+def score_sensor(workdir, fault: SensorFault, seed: int, hidden: Hidden | None = None, jobs: int = 2) -> dict:
+    """Fly through a faulty instrument (and a hidden aero effect, if given), diagnose, and score:
+    the fault named as a sensor cause, its estimate's error, any aero cause named beside it."""
+    from pathlib import Path
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    prof = workdir / "instruments.toml"
+    prof.write_text(fault.profile)
+    r = score(workdir, hidden, seed, jobs, str(prof))
+    causes = r["doc"]["causes"]
+    named = [c for c in causes if c["kind"] == "sensor" and c["channel"] == fault.channel
+             and c["error"] == fault.error]
+    r["sensor_ok"] = bool(named)
+    r["sensor_first"] = bool(causes) and causes[0] in named
+    if named:
+        c = named[0]
+        r["estimate"], r["se"] = c["estimate"], c["se"]
+        r["estimate_error"] = c["estimate"] - fault.value
+        r["within"] = abs(r["estimate_error"]) <= max(2 * c["se"], 0.1 * abs(fault.value))
+    r["aero_named"] = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in causes if c["kind"] == "aero"]
+    r["other_sensors"] = [f"{c['channel']} {c['error']}" for c in causes
+                          if c["kind"] == "sensor" and c not in named]
+    return r
