@@ -1,4 +1,4 @@
-"""Command line: ``campaign run | fly | points``."""
+"""Command line: ``campaign run | fly | identify | replay | plots | diagnose | import | points``."""
 from __future__ import annotations
 
 import argparse
@@ -107,6 +107,15 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--out", required=True, metavar="DIR", help="new folder for the report")
     dia.add_argument("--no-plots", action="store_true", help="skip the plots")
 
+    imp = sub.add_parser("import", help="measured data in other names, units, rates and formats into logs",
+                         description="Convert measured files (CSV, whitespace ASCII, .mat, Parquet) into logs of the "
+                                     "schema with a channel map (TOML), deriving what the source lacks; identify "
+                                     "and diagnose then read DIR like a campaign folder.")
+    imp.add_argument("files", nargs="+", metavar="FILE", help="measured data files, one manoeuvre each")
+    imp.add_argument("--map", required=True, metavar="MAP.toml", help="channel map: names, units, constants, "
+                                                                       "aircraft data (see the README)")
+    imp.add_argument("--out", required=True, metavar="DIR", help="folder for the logs and the import report")
+
     pts = sub.add_parser("points", help="list the status points of a matrix",
                          description="List the status points of a matrix with their manoeuvres.")
     pts.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
@@ -181,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
             doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out), plots=not args.no_plots)
             print(doc["summary"])
             print(f"report in {args.out}")
+            return 0
+        if args.command == "import":
+            from campaign.importer import import_files, report_text
+            report = import_files(args.files, args.map, Path(args.out))
+            print(report_text(report), end="")
+            print(f"{len(report['logs'])} logs and import.txt in {args.out}")
             return 0
         if args.command == "replay":
             return _replay(Path(args.results), args.case, args.cases, args.jobs)

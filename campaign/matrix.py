@@ -94,6 +94,10 @@ class Matrix:
         }
 
 
+#: Manoeuvre parameters for which 0 means "leave it out" (no stabilizer 2-3-1-1).
+MAY_BE_ZERO = ("stabilizer_amplitude_deg",)
+
+
 def _number(path: str, where: str, value, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{path}: {where}: expected a number, found {value!r}")
@@ -160,7 +164,10 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                     raise UserError(f"{ps}: maneuvers.{name}.hold: expected true or false")
                 items.append((k, v))
             else:
-                items.append((k, _number(ps, f"maneuvers.{name}.{k}", v, positive=True)))
+                x = _number(ps, f"maneuvers.{name}.{k}", v, positive=k not in MAY_BE_ZERO)
+                if x < 0:
+                    raise UserError(f"{ps}: maneuvers.{name}.{k}: must be >= 0, found {v!r}")
+                items.append((k, x))
         try:
             from maneuvers.library import make_maneuver
             make_maneuver(name, **dict(items))

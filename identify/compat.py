@@ -335,7 +335,7 @@ class _Data:
 
 def _select(logs: list[Log]) -> list[Log]:
     """At most MAX_LOGS logs spread over the conditions, 2-3-1-1s first (they excite most)."""
-    ranked = sorted(logs, key=lambda lg: (lg.maneuver != "doublet", lg.gear_down, lg.condition, lg.path))
+    ranked = sorted(logs, key=lambda lg: (lg.transition, lg.gear_down, lg.condition, lg.path))
     out, seen = [], set()
     for lg in ranked:  # one per condition and manoeuvre first
         key = (lg.condition, lg.maneuver)

@@ -20,6 +20,7 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
 #: Channels a log may lack; what takes their place.
 DERIVED = {"qdot_dps2": "derivative of the quintic spline through q_dps, half a JSBSim frame ahead, "
                         "low-passed at 3 Hz with the coefficients"}
+TRANSITIONS = ("gear_extension", "gear_retraction")
 REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
 #: Physically plausible ranges; a value outside is a unit or sign mistake.
 PLAUSIBLE = {"alpha_deg": (-30.0, 60.0), "mach": (0.0, 3.0), "tas_kt": (0.0, 2000.0), "qbar_psf": (0.0, 3000.0),
@@ -65,6 +66,11 @@ class Log:
     @property
     def gear_down(self) -> bool:
         return self.meta["status_point"]["gear"] == "down"
+
+    @property
+    def transition(self) -> bool:
+        """A gear extension or retraction (anything else is an excitation: a 2-3-1-1, say)."""
+        return self.maneuver in TRANSITIONS
 
 
 def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:

@@ -29,6 +29,7 @@ class Identification:
     nonlinear_surface: GearSurface | None
     arm_ft: tuple[float, float]  # AERORP aft of and above the CG [ft]
     compat: CompatResult | None = None  # instrument errors estimated and corrected before eq. (1)
+    notes: tuple[str, ...] = ()  # why a model is missing
 
 
 def identify_logs(logs: list[Log], compatibility: bool = True) -> Identification:
@@ -42,11 +43,11 @@ def identify_logs(logs: list[Log], compatibility: bool = True) -> Identification
     if compat is not None:
         logs = [compat.correct(lg) for lg in logs]
     refs = references(logs)
-    fits = [fit_baseline(log, refs[log.condition]) for log in logs if log.maneuver == "doublet"]
+    fits = [fit_baseline(log, refs[log.condition]) for log in logs if not log.transition]
     linear = linear_models(fits)
     incs = {}
     for log in logs:
-        if log.maneuver in ("gear_extension", "gear_retraction") and log.condition in linear:
+        if log.transition and log.condition in linear:
             incs[log.point] = increments(log, linear[log.condition].derivatives)
     lin_surface = None
     if linear:
@@ -55,9 +56,27 @@ def identify_logs(logs: list[Log], compatibility: bool = True) -> Identification
                                    for c, m in linear.items()])
     nl_surface = fit_surface([(i.condition, i.alpha_trim_deg, i.grid, i.smooth) for i in incs.values()]) \
         if incs else None
-    g = logs[0].meta["geometry"]
-    arm = ((g["aerorp_x_in"] - g["cg_x_in"]) / 12.0, (g["aerorp_z_in"] - g["cg_z_in"]) / 12.0)
-    return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat)
+    g = logs[0].meta["geometry"]  # imported logs may not give the AERORP: then it is taken at the CG
+    arm = ((g.get("aerorp_x_in", 0.0) - g.get("cg_x_in", 0.0)) / 12.0,
+           (g.get("aerorp_z_in", 0.0) - g.get("cg_z_in", 0.0)) / 12.0)
+    return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat, _why_none(logs, linear, incs))
+
+
+def _why_none(logs: list[Log], linear: dict, incs: dict) -> tuple[str, ...]:
+    """Why the gear models are missing, if they are."""
+    notes = []
+    if not linear:
+        up = sorted({_cond_key(lg.condition) for lg in logs if not lg.transition and not lg.gear_down})
+        dn = sorted({_cond_key(lg.condition) for lg in logs if not lg.transition and lg.gear_down})
+        notes.append("No linear gear model (eq. 4): it needs excitation manoeuvres gear up and gear down at one "
+                     f"condition; gear up at {', '.join(up) or 'none'}, gear down at {', '.join(dn) or 'none'}.")
+    if not incs:
+        moves = [lg for lg in logs if lg.transition]
+        notes.append("No nonlinear gear increments (eq. 8): " + (
+            "no gear transition was logged." if not moves else
+            f"the gear transitions ({', '.join(sorted({_cond_key(lg.condition) for lg in moves}))}) are at no "
+            "condition with a linear gear model, whose derivatives they need."))
+    return tuple(notes)
 
 
 def _cond_key(c: tuple) -> str:
@@ -99,7 +118,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
     files.update({k: str(out / f"{k}.csv") for k in ("baseline_parameters", "baseline_fit_statistics",
                                                       "linear_gear_model", "gear_increments")})
 
-    text = ["Identification summary", "=" * 22, ""]
+    text = ["Identification summary", "=" * 22, ""] + [*ident.notes] + ([""] if ident.notes else [])
     if ident.linear:
         head = pd.DataFrame([{"condition": _cond_key(c), "alpha_trim_deg": round(m.alpha_trim_deg, 2),
                               **{f"d{k}_gear": round(m.increment(k), 5) for k in COEFFS}}
@@ -149,6 +168,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         "increments": {p: i.to_dict() for p, i in ident.increments.items()},
         "surfaces": {k: s.to_dict() for k, s in (("linear", ident.linear_surface),
                                                  ("nonlinear", ident.nonlinear_surface)) if s},
+        "notes": list(ident.notes),
         "files": files,
     }
     (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")

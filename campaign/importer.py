@@ -1,0 +1,481 @@
+"""``campaign import``: measured data as flight-test departments deliver it, into the log schema.
+
+A map (TOML) says where each schema channel is in the source file and in which
+unit; units are parsed and converted by pint. Channels the source lacks are
+given as constants or derived: Mach, calibrated airspeed and dynamic pressure
+from true airspeed and pressure altitude through the standard atmosphere
+(ambiance, ISA 1993); the pitch acceleration is left to the identification,
+which derives it from q. Every file is read and checked before anything is
+written; the logs are Parquet in the schema with their metadata, and an import
+report names what was mapped, set and derived.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from campaign.catalog import LOG_COLUMNS
+from campaign.errors import UserError
+from campaign.instruments import POSITIONED
+
+FORMATS = {".csv": "csv", ".txt": "whitespace", ".dat": "whitespace", ".asc": "whitespace", ".mat": "mat",
+           ".parquet": "parquet"}
+SECTIONS = {"source": {"format", "columns", "variable"}, "time": {"column", "unit"}, "channels": None,
+            "constants": None, "positions": None, "aircraft": {"mass", "ixx", "iyy", "izz", "ixz", "S", "cbar", "b", "thrust_z_arm",
+                                            "cg_x", "cg_z", "aerorp_x", "aerorp_z", "latitude"}}
+#: Our channel-name suffixes and the unit each stands for (pint spells them; pint converts).
+SUFFIX_UNITS = (("_dps2", "degree / second ** 2"), ("_dps", "degree / second"), ("_fps2", "foot / second ** 2"),
+                ("_fps", "foot / second"), ("_deg", "degree"), ("_kt", "knot"), ("_ft", "foot"),
+                ("_psf", "force_pound / foot ** 2"), ("_lbf", "force_pound"), ("_slug", "slug"), ("_in", "inch"),
+                ("_norm", "dimensionless"), ("_s", "second"))
+AIRCRAFT_UNITS = {"mass": "slug", "ixx": "slug * foot ** 2", "iyy": "slug * foot ** 2", "izz": "slug * foot ** 2",
+                  "ixz": "slug * foot ** 2", "S": "foot ** 2", "cbar": "foot", "b": "foot", "thrust_z_arm": "foot",
+                  "cg_x": "inch", "cg_z": "inch", "aerorp_x": "inch", "aerorp_z": "inch", "latitude": "degree"}
+#: Schema channels eq. (1) and the states need; Mach and the dynamic pressure can be derived.
+NEEDED = ("alt_ft", "tas_kt", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps", "ax_fps2", "az_fps2",
+          "thrust_lbf", "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm")
+DERIVABLE = ("mach", "qbar_psf", "ias_kt")
+#: Sampling-interval jitter (share of the median interval) above which the log is put on a uniform grid,
+#: and gaps (in intervals) that are refused.
+JITTER, GAP = 0.01, 2.5
+#: Status points of imported logs: conditions this close are one condition (gear up/down pairs).
+ALT_GRID_FT, MACH_GRID = 500.0, 0.01
+
+
+_UREG = None
+
+
+def ureg():
+    """The shared pint registry."""
+    global _UREG
+    if _UREG is None:
+        import pint
+        _UREG = pint.UnitRegistry()
+    return _UREG
+
+
+def schema_unit(column: str) -> str:
+    """The unit a schema column's name carries."""
+    if column == "mach":
+        return "dimensionless"
+    for suffix, unit in SUFFIX_UNITS:
+        if column.endswith(suffix):
+            return unit
+    return "dimensionless"
+
+
+def factor(path: str, where: str, unit: str, target: str) -> float:
+    """Multiplier from ``unit`` to ``target`` (pint), or a one-line error naming the key."""
+    import pint
+    u = ureg()
+    if not unit:
+        if u.Quantity(1.0, target).dimensionless and target == "dimensionless":
+            return 1.0
+        raise UserError(f"{path}: {where}: needs a unit (the schema column is in {target})")
+    try:
+        q = u.Quantity(1.0, unit)
+    except (pint.errors.UndefinedUnitError, pint.errors.DefinitionSyntaxError, AttributeError, TypeError,
+            ValueError, AssertionError) as exc:
+        raise UserError(f"{path}: {where}: unit {unit!r} does not parse ({type(exc).__name__})") from None
+    try:
+        return float(q.to(target).magnitude)
+    except pint.errors.DimensionalityError:
+        raise UserError(f"{path}: {where}: unit {unit!r} is {q.dimensionality}, not {u.Quantity(1.0, target).dimensionality} "
+                        f"as {target}") from None
+    except pint.errors.OffsetUnitCalculusError:
+        raise UserError(f"{path}: {where}: unit {unit!r} has an offset; give it in an absolute unit") from None
+
+
+def _split(text: str) -> tuple[str, str]:
+    """``"NAME unit..."`` -> (name, unit); the unit may hold spaces."""
+    parts = text.strip().split(None, 1)
+    return (parts[0], parts[1].strip()) if len(parts) == 2 else (parts[0] if parts else "", "")
+
+
+def _quantity(path: str, where: str, value, target: str) -> float:
+    """A constant: a number (in the target's unit) or ``"number unit"``."""
+    if isinstance(value, bool):
+        raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    if not isinstance(value, str):
+        raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
+    num, unit = _split(value)
+    try:
+        x = float(num)
+    except ValueError:
+        raise UserError(f"{path}: {where}: {value!r} does not start with a number") from None
+    return x * factor(path, where, unit, target) if unit else x
+
+
+@dataclass(frozen=True)
+class ImportMap:
+    """A parsed, checked import map.
+
+    Attributes
+    ----------
+    channels : tuple of (schema column, source column, factor to the schema unit)
+    constants : tuple of (schema column, value in the schema unit)
+    aircraft : tuple of (key, value in slug, ft, slug ft^2, in, deg)
+    """
+
+    path: str
+    sha256: str
+    format: str | None = None
+    columns: tuple[str, ...] = ()
+    variable: str | None = None
+    time_column: str = ""
+    time_factor: float = 1.0
+    channels: tuple[tuple[str, str, float], ...] = ()
+    constants: tuple[tuple[str, float], ...] = ()
+    aircraft: tuple[tuple[str, float], ...] = ()
+    positions: tuple[tuple[str, tuple[float, float, float]], ...] = ()  # documented sensor positions [ft]
+    units: dict = field(default_factory=dict, compare=False, hash=False)  # schema column -> source unit text
+
+
+def load_map(path: str | Path) -> ImportMap:
+    """Parse and check an import map.
+
+    Raises
+    ------
+    UserError
+        One line naming the file and the key: unknown sections, keys or schema
+        columns, units that do not parse or have the wrong dimension, a missing
+        time column, a needed channel neither mapped nor constant.
+    """
+    p = Path(path)
+    ps = str(p)
+    if not p.is_file():
+        raise UserError(f"{ps}: import map not found")
+    raw = p.read_bytes()
+    try:
+        doc = tomllib.loads(raw.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{ps}: TOML does not parse: {exc}") from None
+    for sec, v in doc.items():
+        if sec not in SECTIONS:
+            raise UserError(f"{ps}: [{sec}]: unknown section (allowed: {', '.join(SECTIONS)})")
+        if not isinstance(v, dict):
+            raise UserError(f"{ps}: {sec}: expected a table [{sec}]")
+        allowed = SECTIONS[sec]
+        if allowed is not None and set(v) - allowed:
+            raise UserError(f"{ps}: {sec}.{sorted(set(v) - allowed)[0]}: unknown key (allowed: "
+                            f"{', '.join(sorted(allowed))})")
+    src, tim = doc.get("source", {}), doc.get("time", {})
+    fmt = src.get("format")
+    if fmt is not None and fmt not in set(FORMATS.values()):
+        raise UserError(f"{ps}: source.format: {fmt!r} is not one of csv, whitespace, mat, parquet")
+    cols = src.get("columns", [])
+    if not isinstance(cols, list) or not all(isinstance(c, str) and c for c in cols):
+        raise UserError(f"{ps}: source.columns: expected a list of column names")
+    if len(set(cols)) != len(cols):
+        raise UserError(f"{ps}: source.columns: {next(c for c in cols if cols.count(c) > 1)!r} appears twice")
+    var = src.get("variable")
+    if var is not None and not isinstance(var, str):
+        raise UserError(f"{ps}: source.variable: expected the name of a variable in the .mat file")
+    if not isinstance(tim.get("column"), str) or not tim.get("column"):
+        raise UserError(f"{ps}: time.column: missing (the source column holding time)")
+    t_factor = factor(ps, "time.unit", str(tim.get("unit", "s")), "second")
+    channels, units = [], {}
+    for col, spec in doc.get("channels", {}).items():
+        where = f"channels.{col}"
+        if col not in LOG_COLUMNS or col == "t_s":
+            raise UserError(f"{ps}: {where}: {col!r} is not a log-schema column")
+        if not isinstance(spec, str) or not spec.strip():
+            raise UserError(f"{ps}: {where}: expected \"SOURCE_COLUMN unit\"")
+        name, unit = _split(spec)
+        channels.append((col, name, factor(ps, where, unit, schema_unit(col))))
+        units[col] = unit
+    constants = []
+    for col, value in doc.get("constants", {}).items():
+        where = f"constants.{col}"
+        if col not in LOG_COLUMNS or col == "t_s":
+            raise UserError(f"{ps}: {where}: {col!r} is not a log-schema column")
+        if col in dict((c, 0) for c, *_ in channels):
+            raise UserError(f"{ps}: {where}: {col!r} is mapped in [channels] too")
+        constants.append((col, _quantity(ps, where, value, schema_unit(col))))
+    aircraft = []
+    for key, value in doc.get("aircraft", {}).items():
+        aircraft.append((key, _quantity(ps, f"aircraft.{key}", value, AIRCRAFT_UNITS[key])))
+    positions = []
+    for col, value in doc.get("positions", {}).items():
+        where = f"positions.{col}"
+        if col not in POSITIONED:
+            raise UserError(f"{ps}: {where}: a documented position applies only to {', '.join(POSITIONED)}")
+        if not isinstance(value, list) or len(value) != 3:
+            raise UserError(f"{ps}: {where}: expected [x, y, z] from the CG, body axes (numbers in ft, or "
+                            f"\"number unit\" strings)")
+        positions.append((col, tuple(_quantity(ps, where, v, "foot") for v in value)))
+    have = {c for c, *_ in channels} | {c for c, _ in constants}
+    if "mass_slug" not in have and "mass" not in dict(aircraft):
+        raise UserError(f"{ps}: aircraft.mass: missing (or map mass_slug)")
+    for col in NEEDED:
+        if col not in have:
+            hint = " (a missing stabilizer, flap or gear must be given as a constant)" if col in (
+                "stabilizer_deg", "flap_deg", "gear_norm") else ""
+            raise UserError(f"{ps}: {col}: neither mapped in [channels] nor given in [constants]{hint}")
+    for ref in ("S", "cbar"):
+        if ref not in dict(aircraft):
+            raise UserError(f"{ps}: aircraft.{ref}: missing (eq. 1 needs the reference area and chord)")
+    return ImportMap(ps, hashlib.sha256(raw).hexdigest(), fmt, tuple(cols), var, tim["column"], t_factor,
+                     tuple(channels), tuple(constants), tuple(aircraft), tuple(positions), units)
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def _mat(path: Path, m: ImportMap) -> pd.DataFrame:
+    from scipy.io import loadmat
+    try:
+        doc = loadmat(path, squeeze_me=True, struct_as_record=False)
+    except Exception as exc:  # scipy raises several types for a bad file
+        raise UserError(f"{path}: not a readable .mat file ({type(exc).__name__}: {exc})") from None
+    names = [k for k in doc if not k.startswith("__")]
+    if m.variable is not None:
+        if m.variable not in doc:
+            raise UserError(f"{path}: source.variable: {m.variable!r} is not in the file ({', '.join(names)})")
+        obj = doc[m.variable]
+        if hasattr(obj, "_fieldnames"):
+            return pd.DataFrame({f: np.ravel(getattr(obj, f)) for f in obj._fieldnames})
+        arr = np.atleast_2d(np.asarray(obj, dtype=float))
+        if arr.shape[0] == len(m.columns) and arr.shape[1] != len(m.columns):
+            arr = arr.T
+        if arr.shape[1] != len(m.columns):
+            raise UserError(f"{path}: source.columns: {m.variable!r} has {arr.shape[1]} columns, the map names "
+                            f"{len(m.columns)}")
+        return pd.DataFrame(arr, columns=list(m.columns))
+    vectors = {k: np.ravel(doc[k]) for k in names if np.ndim(doc[k]) == 1 and np.size(doc[k]) > 1}
+    if not vectors:
+        raise UserError(f"{path}: source.variable: no vectors at the top of the file; name the array or struct")
+    return pd.DataFrame(vectors)
+
+
+def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
+    """The source file as a table of named columns (one line naming the file on failure)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: file not found")
+    fmt = m.format or FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise UserError(f"{path}: cannot tell the format from {path.suffix!r}; set source.format in {m.path}")
+    names = list(m.columns) or None
+    try:
+        if fmt == "csv":
+            df = pd.read_csv(path, header=None if names else "infer", names=names, skipinitialspace=True)
+        elif fmt == "whitespace":
+            df = pd.read_csv(path, sep=r"\s+", header=None if names else "infer", names=names, comment="#")
+        elif fmt == "parquet":
+            df = pd.read_parquet(path)
+        else:
+            df = _mat(path, m)
+    except UserError:
+        raise
+    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not readable as {fmt} ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
+    if names and fmt in ("parquet",):
+        missing = [c for c in names if c not in df.columns]
+        if missing:
+            raise UserError(f"{path}: source.columns: {missing[0]!r} is not a column of the file")
+    df.columns = [str(c).strip() for c in df.columns]
+    return df
+
+
+def _numeric(path: Path, df: pd.DataFrame, col: str, where: str) -> np.ndarray:
+    if col not in df.columns:
+        raise UserError(f"{path}: {where}: source column {col!r} not in the file (it has "
+                        f"{', '.join(map(str, df.columns[:12]))}{'...' if len(df.columns) > 12 else ''})")
+    values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise UserError(f"{path}: column {col!r}, row {bad[0] + 1}: not a finite number ({df[col].iloc[bad[0]]!r})")
+    return values
+
+
+# ----------------------------------------------------------------------------- standard atmosphere
+
+
+def _isa(alt_ft: np.ndarray):
+    """ISA pressure [Pa], temperature [K], density [kg/m^3] and speed of sound [m/s] at a
+    pressure altitude (geopotential) [ft]."""
+    from ambiance import Atmosphere
+    h_geop = np.clip(np.asarray(alt_ft, float) * 0.3048, -5000.0, 80000.0)
+    atm = Atmosphere(Atmosphere.geop2geom_height(h_geop))
+    return atm.pressure, atm.temperature, atm.density, atm.speed_of_sound
+
+
+def air_data(alt_ft: np.ndarray, tas_kt: np.ndarray) -> dict[str, np.ndarray]:
+    """Mach, calibrated airspeed [kt] and dynamic pressure [psf] from true airspeed and pressure
+    altitude, in the standard atmosphere (ISA temperature: a 10 K warmer day makes Mach 1.7 %
+    smaller)."""
+    u = ureg()
+    p, t, rho, a = _isa(alt_ft)
+    v = np.asarray(tas_kt, float) * u.Quantity(1.0, "knot").to("m/s").magnitude
+    mach = v / a
+    qbar = 0.5 * rho * v ** 2 * u.Quantity(1.0, "Pa").to("force_pound / foot ** 2").magnitude
+    p0, a0 = 101325.0, 340.29398803
+    qc = p * ((1.0 + 0.2 * mach ** 2) ** 3.5 - 1.0)  # subsonic pitot impact pressure
+    cas = a0 * np.sqrt(5.0 * ((qc / p0 + 1.0) ** (2.0 / 7.0) - 1.0))
+    return {"mach": mach, "qbar_psf": qbar, "ias_kt": cas / u.Quantity(1.0, "knot").to("m/s").magnitude}
+
+
+# ----------------------------------------------------------------------------- conversion
+
+
+@dataclass
+class Imported:
+    """One converted file: the log, its metadata and its report entry."""
+
+    source: str
+    name: str
+    log: pd.DataFrame
+    meta: dict
+    report: dict
+
+
+def _time(path: Path, df: pd.DataFrame, m: ImportMap) -> np.ndarray:
+    t = _numeric(path, df, m.time_column, "time.column") * m.time_factor
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        i = bad[0] + 1
+        raise UserError(f"{path}: time column {m.time_column!r}, row {i + 1}: time does not increase "
+                        f"({t[i]:g} s after {t[i - 1]:g} s)")
+    if len(t) < 10:
+        raise UserError(f"{path}: only {len(t)} rows")
+    step = float(np.median(dt))
+    gaps = np.flatnonzero(dt > GAP * step)
+    if gaps.size:
+        raise UserError(f"{path}: time column {m.time_column!r}, row {gaps[0] + 2}: a gap of {dt[gaps[0]]:g} s "
+                        f"in {step:g} s samples (split the file there)")
+    return t
+
+
+def _maneuver(gear: np.ndarray) -> str:
+    if gear[0] <= 0.05 and gear[-1] >= 0.95:
+        return "gear_extension"
+    if gear[0] >= 0.95 and gear[-1] <= 0.05:
+        return "gear_retraction"
+    return "excitation"
+
+
+def convert(path: str | Path, m: ImportMap) -> Imported:
+    """One source file in the log schema, with its metadata and report entry."""
+    path = Path(path)
+    df = read_source(path, m)
+    t = _time(path, df, m)
+    cols, report = {}, {"mapped": {}, "constants": {}, "derived": {}, "source": str(path)}
+    for col, src, k in m.channels:
+        cols[col] = _numeric(path, df, src, f"channels.{col}") * k
+        report["mapped"][col] = f"{src} [{m.units.get(col) or '-'}]"
+    step = float(np.median(np.diff(t)))
+    jitter = float(np.max(np.abs(np.diff(t) - step)) / step)
+    t0 = t - t[0]
+    if jitter > JITTER:
+        grid = np.arange(0.0, t0[-1] + 0.5 * step, step)
+        cols = {c: np.interp(grid, t0, x) for c, x in cols.items()}
+        report["resampled"] = f"onto a uniform {1 / step:.4g} Hz grid (interval jitter {jitter:.1%})"
+        t0 = grid
+    n = len(t0)
+    for col, v in m.constants:
+        cols[col] = np.full(n, v)
+        report["constants"][col] = v
+    air = dict(m.aircraft)
+    if "mass_slug" not in cols:
+        cols["mass_slug"] = np.full(n, air["mass"])
+        report["constants"]["mass_slug"] = air["mass"]
+    derived = {}
+    need = [c for c in DERIVABLE if c not in cols]
+    if need:
+        ad = air_data(cols["alt_ft"], cols["tas_kt"])
+        for c in need:
+            cols[c] = ad[c]
+            derived[c] = "from tas_kt and alt_ft (pressure altitude) through the ISA standard atmosphere"
+    if "qdot_dps2" not in cols:
+        derived["qdot_dps2"] = ("not written: the identification derives it from q_dps (quintic spline "
+                                "derivative, low-passed at 3 Hz with the coefficients)")
+    report["derived"] = derived
+    order = [c for c in LOG_COLUMNS if c in cols]
+    log = pd.DataFrame({"t_s": t0, **{c: cols[c] for c in order if c != "t_s"}})
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem)
+    head = log[log.t_s < 1.0]
+    gear0 = float(log.gear_norm.iloc[0])
+    alt = round(float(head.alt_ft.mean()) / ALT_GRID_FT) * ALT_GRID_FT
+    mach = round(float(head.mach.mean()) / MACH_GRID) * MACH_GRID
+    meta = {
+        "point": name,
+        "maneuver": _maneuver(log.gear_norm.to_numpy()),
+        "status_point": {"id": name, "alt_ft": alt, "mach": round(mach, 4), "flap_deg": float(head.flap_deg.mean()),
+                         "gear": "down" if gear0 >= 0.5 else "up"},
+        "inertia_slugft2": {k: air.get(k, 0.0) for k in ("ixx", "iyy", "izz", "ixz")},
+        "geometry": {"S_ft2": air["S"], "cbar_ft": air["cbar"], "b_ft": air.get("b", 0.0),
+                     "thrust_z_arm_ft": air.get("thrust_z_arm", 0.0),
+                     **{f"{k}_in": air[k] for k in ("cg_x", "cg_z", "aerorp_x", "aerorp_z") if k in air}},
+        "dt_s": step,
+        "sensor_positions_ft": {c: list(r) for c, r in m.positions},
+        "derived_channels": derived,
+        "imported": {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256},
+        **({"latitude_deg": air["latitude"]} if "latitude" in air else {}),
+    }
+    report.update({"log": f"{name}.parquet", "rows": n, "rate_hz": round(1.0 / step, 4),
+                   "duration_s": round(float(t0[-1]), 3), "maneuver": meta["maneuver"],
+                   "status_point": meta["status_point"]})
+    return Imported(str(path), name, log, meta, report)
+
+
+def import_files(files: list[str | Path], map_path: str | Path, out: str | Path) -> dict:
+    """Convert every file, check them all, then write the logs and the report into ``out``.
+
+    Nothing is written if any file or the map is bad, and no existing log is overwritten.
+    """
+    from campaign.store import write_json, write_log
+    from identify.logs import read_parquet
+    m = load_map(map_path)
+    if not files:
+        raise UserError("campaign import: no input files")
+    done = [convert(f, m) for f in files]
+    names = [d.name for d in done]
+    dup = next((n for n in names if names.count(n) > 1), None)
+    if dup:
+        raise UserError(f"{done[names.index(dup)].source}: two input files make the log {dup}.parquet")
+    out = Path(out)
+    clash = [out / f"{n}.parquet" for n in names if (out / f"{n}.parquet").exists()]
+    if clash or (out / "manifest.json").exists():
+        raise UserError(f"{clash[0] if clash else out / 'manifest.json'}: exists; will not overwrite (choose "
+                        f"another --out)")
+    out.mkdir(parents=True, exist_ok=True)
+    for d in done:
+        write_log(out / f"{d.name}.parquet", d.log, d.meta)
+    for d in done:  # what identify and diagnose will read
+        read_parquet(out / f"{d.name}.parquet")
+    for d in done:
+        d.report["map"] = m.path
+    report = {"maps": {m.path: m.sha256}, "logs": [d.report for d in done]}
+    previous = out / "import.json"
+    whole = json.loads(previous.read_text()) if previous.exists() else {"maps": {}, "logs": []}
+    whole = {"maps": {**whole["maps"], **report["maps"]}, "logs": whole["logs"] + report["logs"]}
+    write_json(out / "import.json", whole)  # several imports into one folder: one report
+    (out / "import.txt").write_text(report_text(whole))
+    return report
+
+
+def report_text(report: dict) -> str:
+    lines = [f"Import with {', '.join(report['maps'])}", ""]
+    for r in report["logs"]:
+        lines.append(f"{r['source']} -> {r['log']}: {r['rows']} rows at {r['rate_hz']:g} Hz, {r['duration_s']:g} s, "
+                     f"{r['maneuver']}, condition {r['status_point']['alt_ft']:g} ft / M{r['status_point']['mach']:g} / "
+                     f"flap {r['status_point']['flap_deg']:g} / gear {r['status_point']['gear']}")
+        lines.append("  mapped: " + ", ".join(f"{k} <- {v}" for k, v in r["mapped"].items()))
+        if r["constants"]:
+            lines.append("  constants: " + ", ".join(f"{k} = {v:g}" for k, v in r["constants"].items()))
+        for k, v in r["derived"].items():
+            lines.append(f"  derived: {k}: {v}")
+        if "resampled" in r:
+            lines.append(f"  resampled {r['resampled']}")
+    return "\n".join(lines) + "\n"
