@@ -67,6 +67,9 @@ PLAUSIBLE = {"deg": 5.0, "kt": 20.0, "ft/s^2": 1.0, "deg/s": 1.0, "-": 0.3, "s":
 LATERAL_SPAN = {"beta_deg": 4.0, "phi_deg": 10.0}
 #: Span of pitch attitude a pitch-angle bias needs to be told from an accelerometer bias [deg].
 THETA_BIAS_SPAN = 15.0
+#: Above this RMS vertical gust in the reconstruction [ft/s] the air-data time shifts are not identifiable:
+#: the aircraft's answer to the gusts biases them (null flights at 1.5 ft/s: +15 to +45 ms on alpha).
+TURBULENT_FPS = 0.5
 #: Knot spacing of each log's gust [s]: Dryden turbulence has most of its power below V / (2 pi L),
 #: about 0.04 Hz at 1750 ft scale length; a 2-3-1-1 excites 0.15-1 Hz.
 GUST_KNOT_S = 3.0
@@ -150,13 +153,15 @@ class CompatResult:
     residual_rms: dict = field(default_factory=dict)
     positions: dict = field(default_factory=dict)
     covariance: list = field(default_factory=list)  # [(parameter names, covariance matrix)] per stage
+    turbulence_fps: float = float("nan")  # RMS vertical gust the reconstruction needed [ft/s]
 
     def uncertainty(self) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
         covariance of their estimates: how wrong the corrected data may still be."""
         names, blocks = [], []
+        ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
         for ns, cov in self.covariance:
-            keep = [j for j, n in enumerate(ns) if n.split(".")[1] in ("bias", "scale", "delay")]
+            keep = [j for j, n in enumerate(ns) if n.split(".")[1] in ("bias", "scale", "delay") and n in ok]
             names += [tuple(ns[j].split(".")) for j in keep]
             blocks.append(cov[np.ix_(keep, keep)])
         total = np.zeros((len(names), len(names)))
@@ -188,6 +193,12 @@ class CompatResult:
                   for p in self.parameters]
         return replace(self, parameters=params)
 
+    @property
+    def unmeasured(self) -> list[tuple[str, str]]:
+        """Air-data errors the manoeuvres could have shown but the conditions hid (turbulence)."""
+        return [(p.channel, p.error) for p in self.parameters
+                if not p.identifiable and p.reason.startswith("turbulence") and p.channel == "alpha_deg"]
+
     def get(self, name: str) -> Parameter:
         return next(p for p in self.parameters if p.name == name)
 
@@ -202,7 +213,8 @@ class CompatResult:
 
     def to_dict(self) -> dict:
         return {"parameters": [p.to_dict() for p in self.parameters], "logs": self.logs,
-                "residual_rms": self.residual_rms, "documented_positions_ft": self.positions}
+                "residual_rms": self.residual_rms, "documented_positions_ft": self.positions,
+                "vertical_gust_rms_fps": self.turbulence_fps}
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([p.to_dict() for p in self.parameters])
@@ -223,6 +235,8 @@ class CompatResult:
                          + (f"  [{how}]" if how else ""))
         for ch, v in self.residual_rms.items():
             lines.append(f"  residual RMS {ch}: {v['before']:.4g} -> {v['after']:.4g}")
+        if np.isfinite(self.turbulence_fps):
+            lines.append(f"  vertical gust in the reconstruction: {self.turbulence_fps:.2g} ft/s RMS")
         return "\n".join(lines)
 
     def correct(self, log: Log) -> Log:
@@ -867,77 +881,24 @@ def estimate(logs: list[Log]) -> CompatResult:
                      data.ch["alt_ft"][:, 0]], 1)
     x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
     rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
-    _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2, covs)
-    _combine_delay(by["alpha_deg.delay"], lift_delay(chosen, positions, by["alpha_deg.position"]))
+    x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
+                      covs)
+    per = x2[len(s2):].reshape(L, n_per)
+    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust])
+    turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
+    if turbulence > TURBULENT_FPS:
+        for c in ("alpha_deg", "beta_deg", "tas_kt"):
+            p = by[f"{c}.delay"]
+            if p.identifiable:
+                p.identifiable = False
+                p.reason = (f"turbulence: the reconstruction's vertical gust is {turbulence:.2g} ft/s RMS, and the "
+                            f"aircraft's answer to it biases the kinematic time shift by tens of ms (fly the "
+                            f"compatibility manoeuvres in calm air); kinematic estimate {p.estimate * 1000:+.0f} ms")
     for ch, k in (("theta_deg", D2R), ("phi_deg", D2R), ("alpha_deg", D2R), ("beta_deg", D2R),
                   ("tas_kt", FT_PER_KT)):
         if ch in rms:
             rms[ch] = {key: v / k for key, v in rms[ch].items()}
-    delay = by["alpha_deg.delay"]
-    for names_, cov in covs:  # the combined time shift's error replaces the kinematic one
-        if delay.name in names_ and delay.sources:
-            j = names_.index(delay.name)
-            cov[j, :] *= delay.se / delay.sources["kinematics"][1]
-            cov[:, j] *= delay.se / delay.sources["kinematics"][1]
-    return CompatResult(params, [lg.path for lg in chosen], rms, positions, covs)
-
-
-def lift_delay(logs: list[Log], positions: dict, position: Parameter) -> tuple[float, float] | None:
-    """Time shift of the alpha channel against the measured lift [s], with its standard error.
-
-    Lift answers the air-relative alpha the vane reads, gusts included, at once;
-    a delayed vane lags it. Per log, the low-passed lift coefficient is fitted by
-    a constant, elevator, stabilizer, q cbar/2V and alpha(t + tau), tau scanned;
-    the estimate is the mean over the logs, its error their spread. Unlike the
-    kinematic reconstruction, turbulence does not bias it; in still air alpha and
-    q move together and tau is poorly determined (its error says so).
-    """
-    from identify.coefficients import coefficients
-    from identify.models import lowpass
-
-    pos = dict(positions)
-    if "alpha_deg" not in pos and position.identifiable and position.applied:
-        pos["alpha_deg"] = [position.estimate, 0.0, 0.0]
-    taus = np.arange(-0.2, 0.3 + 1e-9, 0.0025)
-    best = []
-    for lg in logs:
-        d = at_cg(lg.data, pos)
-        t = d["t_s"].to_numpy(dtype=float)
-        dt = float(np.median(np.diff(t)))
-        k = int(round(0.5 / dt))
-        if len(t) < 4 * k or float(np.std(d["alpha_deg"])) < 0.3:
-            continue
-        cl = lowpass(coefficients(d, lg.meta)["CL"].to_numpy(), dt)[k:-k]
-        qhat = d["q_dps"].to_numpy() * D2R * lg.meta["geometry"]["cbar_ft"] / (2 * d["tas_kt"].to_numpy() * FT_PER_KT)
-        base = [np.ones(len(t)), qhat] + [d[c].to_numpy(dtype=float) for c in ("elevator_deg", "stabilizer_deg")
-                                          if c in d and float(np.std(d[c])) > 0]
-        base = np.column_stack([lowpass(c, dt) for c in base])[k:-k]
-        a = d["alpha_deg"].to_numpy(dtype=float)
-        rss = []
-        for tau in taus:
-            x = np.column_stack([base, lowpass(np.interp(t + tau, t, a), dt)[k:-k]])
-            beta, *_ = np.linalg.lstsq(x, cl, rcond=None)
-            e = cl - x @ beta
-            rss.append(float(e @ e))
-        i = int(np.argmin(rss))
-        if 0 < i < len(taus) - 1:  # parabola through the three best
-            y0, y1, y2 = rss[i - 1], rss[i], rss[i + 1]
-            den = y0 - 2 * y1 + y2
-            best.append(taus[i] + (0.5 * (y0 - y2) / den * (taus[1] - taus[0]) if den > 0 else 0.0))
-    if len(best) < 3:
-        return None
-    return float(np.mean(best)), float(np.std(best, ddof=1) / np.sqrt(len(best)))
-
-
-def _combine_delay(p: Parameter, lift: tuple[float, float] | None) -> None:
-    """Inverse-variance combination of the kinematic and the lift estimates of alpha's time shift:
-    each is precise where the other is weak (still air, turbulence)."""
-    if not p.identifiable or lift is None or not lift[1] > 0 or not p.se > 0:
-        return
-    p.sources = {"kinematics": (p.estimate, p.se), "lift": lift}
-    w1, w2 = 1 / p.se ** 2, 1 / lift[1] ** 2
-    p.estimate = (p.estimate * w1 + lift[0] * w2) / (w1 + w2)
-    p.se = 1 / np.sqrt(w1 + w2)
+    return CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
 
 
 def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,

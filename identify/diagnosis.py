@@ -19,7 +19,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 
 import numpy as np
@@ -485,13 +485,13 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
     return sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))
 
 
-def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple[float, list[int]]:
+def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple[float, list[int], dict]:
     """Leave-one-condition-out check of one cause on every condition flown.
 
     For each flight condition, the coefficient's selected terms are fitted on
     the others and predict it; the gain is the residual RMS without the cause's
-    part of that prediction over the RMS with it, pooled over the logs where
-    the cause acts.
+    part of that prediction over the RMS with it, over the logs where the cause
+    acts: pooled, and per condition.
 
     Parameters
     ----------
@@ -504,9 +504,11 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     Returns
     -------
     gain : float
-        NaN if no log sees the cause, or it was flown at a single condition.
+        Pooled; NaN if no log sees the cause, or it was flown at a single condition.
     acting : list of int
         The logs (``log`` values) where it acts.
+    by_condition : dict
+        Condition -> gain over its logs where the cause acts.
     """
     y = data[f"r_{cause.coefficient}"].to_numpy()
     own = [t for t in res.terms if t in cause.terms]
@@ -517,7 +519,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     acting = [int(i) for i, g in frame.groupby("log") if g["dev"].max() >= ACTING_SHARE * max(cause.size, 1e-300)]
     conds = data["condition"].to_numpy()
     if not acting or len(set(conds)) < 2:
-        return float("nan"), acting
+        return float("nan"), acting, {}
     x_own = np.column_stack([t.design(data) for t in own])
     x_rest = np.column_stack([np.ones(len(y))] + [t.design(data) for t in rest])
     x = np.hstack([x_rest, x_own])
@@ -530,8 +532,13 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
         before[out] = base
         after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]
     sel = np.isin(data["log"].to_numpy(), acting)
-    ss_after = float(after[sel] @ after[sel])
-    return (float(np.sqrt(before[sel] @ before[sel] / ss_after)) if ss_after > 0 else float("inf")), acting
+
+    def ratio(m: np.ndarray) -> float:
+        ss = float(after[m] @ after[m])
+        return float(np.sqrt(before[m] @ before[m] / ss)) if ss > 0 else float("inf")
+
+    by = {str(c): ratio(sel & (conds == c)) for c in sorted(set(conds[sel]))}
+    return ratio(sel), acting, by
 
 
 def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
@@ -551,7 +558,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
     for cause, null, eiv, rc in zip(causes, floors, noisy, reach):
         floor = max((FLOOR_FACTOR if eiv else 1.0) * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
         beyond = min(cause.size, rc["left"])
-        gain, acting = holdout_gain(results[cause.coefficient], cause, data_all)
+        gain, acting, by_condition = holdout_gain(results[cause.coefficient], cause, data_all)
+        worst = min(by_condition.values(), default=float("nan"))
         reasons = []
         if not cause.evidence["p_value"] < alpha_in:
             reasons.append(f"not significant (p = {cause.evidence['p_value']:.2g}, needs < {alpha_in:g})")
@@ -564,20 +572,28 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         if not gain >= MIN_HOLDOUT_GAIN:
             reasons.append("no held-out data where it acts" if not np.isfinite(gain) else
                            f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+        elif not worst >= MIN_HOLDOUT_GAIN:
+            c_worst = min(by_condition, key=by_condition.get)
+            reasons.append(f"does not improve every condition it acts on when that condition is left out "
+                           f"(x{worst:.3f} at {c_worst}, needs x{MIN_HOLDOUT_GAIN})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
-                and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE][:3]
+                and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
+                and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]
         if alts:
             cause.evidence["sensor_alternatives"] = alts
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
                          "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
                          "noise_sizes": [float(v) for v in null], "holdout_gain": gain,
+                         "holdout_gain_by_condition": by_condition,
                          "holdout_logs": acting, "size_over_floor": beyond / floor}
 
 
 #: An instrument error that alone explains this share of a cause's variance is named beside it [%].
 SENSOR_ALTERNATIVE_PCT = 50.0
-#: ... if the size it needs is within this many of the data compatibility's standard errors.
+#: ... if the size it needs is within this many of the data compatibility's standard errors
+#: (or, for an error the compatibility could not measure, within these sizes: delay [s], scale [-]).
 SENSOR_ALTERNATIVE_SE = 5.0
+UNMEASURED_PLAUSIBLE = {"delay": 0.2, "scale": 0.1, "bias": 1.0}
 
 
 @dataclass
@@ -688,6 +704,11 @@ class Diagnosis:
                 lines.append(f"   caution: the data hardly separate it from {a['term']} "
                              f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
             for a in e.get("sensor_alternatives", []):
+                if a.get("unmeasured"):
+                    lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                                 f"{a['explains_pct']:.0f} % of it; the data compatibility could not measure that "
+                                 f"error in these data, so they cannot tell the two apart")
+                    continue
                 lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
                              f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
                              f"0 +- {a['se']:.2g} after correction ({abs(a['needs_se']):.1f} standard errors away)")
@@ -758,6 +779,93 @@ def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluat
                 compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {said}")
             else:
                 compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({said})")
+    return compat
+
+
+#: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).
+RESIDUAL_DELAY_ITERATIONS = 3
+
+
+def _with_estimate(compat: CompatResult, name: str, estimate: float, se: float, chosen: str) -> CompatResult:
+    """The same result with one parameter estimated by the residuals and applied."""
+    return replace(compat, parameters=[
+        replace(q, identifiable=True, estimate=estimate, se=se, sources={"residuals": (estimate, se)}, chosen=chosen)
+        if q.name == name else q for q in compat.parameters])
+
+
+def _time_shift(data: pd.DataFrame, head: str) -> tuple[float, float, float, str] | None:
+    """Time shift [s] the signature columns ``<head>_<C>`` fit in the residuals: the estimate,
+    its delete-one-log jackknife error, the share of the residual explained and the coefficient
+    whose residual it explains best (each residual less its mean per log)."""
+    logs = data["log"].to_numpy()
+    ids = np.unique(logs)
+    if len(ids) < 3:
+        return None
+    per = {}
+    for c in COEFFS:
+        y, x = _demean_by(data[f"r_{c}"].to_numpy(), logs), _demean_by(data[f"{head}_{c}"].to_numpy(), logs)
+        if not float(x @ x) > 0:
+            continue
+        tau = float(x @ y / (x @ x))
+        jack = np.array([float(x[logs != i] @ y[logs != i] / (x[logs != i] @ x[logs != i])) for i in ids])
+        se = float(np.sqrt((len(ids) - 1) / len(ids) * np.sum((jack - jack.mean()) ** 2)))
+        per[c] = (tau, se, 1.0 - float((y - tau * x) @ (y - tau * x)) / max(float(y @ y), 1e-300), c)
+    return max(per.values(), key=lambda v: v[2]) if per else None
+
+
+def _demean_by(x: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    _, inv = np.unique(groups, return_inverse=True)
+    return x - (np.bincount(inv, x) / np.bincount(inv))[inv]
+
+
+def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
+                    step: int | None = None) -> CompatResult:
+    """Time the vanes the kinematics could not (turbulence) from the aerodynamic residuals.
+
+    A vane ``tau`` late leaves ``tau`` times the model's rate of change along the
+    vane's own reading in every residual (:func:`identify.residuals.delay_signature`).
+    The residual of each coefficient, less its mean per log, is fitted by that
+    signature; the coefficient whose residual it explains best gives the delay, with
+    a delete-one-log jackknife standard error. The delay is applied only if the residuals get at least
+    :data:`CORROBORATED_GAIN` times smaller with it, on the fitted logs and on the
+    held-out ones. A model whose own rate derivatives are wrong leaves a similar
+    signature: then the delay and the derivative cannot be told apart, and the
+    report says so beside the aerodynamic cause.
+    """
+    for ch, err in compat.unmeasured:
+        if err != "delay" or not raw_held:
+            continue
+        name, head = f"{ch}.{err}", ch.split("_")[0] + "delay"
+        tau, first, found = 0.0, None, None
+        for _ in range(RESIDUAL_DELAY_ITERATIONS):  # Gauss-Newton: the signature again at the corrected reading
+            cur = _with_estimate(compat, name, tau, float("nan"), "trial") if tau else compat
+            found = _time_shift(residual_data([cur.correct(lg) for lg in raw], evaluator, step, delays=(ch,)), head)
+            if found is None:
+                break
+            first = first or found
+            tau += found[0]
+            if abs(found[0]) < 1e-3:
+                break
+        if found is None:
+            continue
+        se, (_, _, r2, best) = found[1], first
+        trial = _with_estimate(compat, name, tau, se, "trial")
+        if not trial.get(name).correctable:
+            compat = compat.note(name, f"the residuals put it at {tau * 1000:+.0f} +- {se * 1000:.0f} ms, not a "
+                                       f"correction to make")
+            continue
+        before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
+        after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
+        c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
+        gain = _rms(before, c) / max(_rms(after, c), 1e-300)
+        held = (_rms(residual_data([compat.correct(lg) for lg in raw_held], evaluator, step), c)
+                / max(_rms(residual_data([trial.correct(lg) for lg in raw_held], evaluator, step), c), 1e-300))
+        said = (f"{tau * 1000:+.0f} +- {se * 1000:.1f} ms from the {best} residual (explains {100 * r2:.0f} % of "
+                f"it); the {c} residual RMS x{gain:.2f} smaller, x{held:.2f} on held-out logs")
+        if gain >= CORROBORATED_GAIN and held >= CORROBORATED_GAIN:
+            compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}")
+        else:
+            compat = compat.note(name, f"the residuals put it at {said}: not applied")
     return compat
 
 
@@ -868,6 +976,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     compat = estimate(logs) if compatibility else None
     if compat is not None:
         compat = arbitrate(compat, raw, raw_held, evaluator, step)
+        compat = residual_delays(compat, raw, raw_held, evaluator, step)
         logs = [compat.correct(lg) for lg in logs]
         held = [compat.correct(lg) for lg in held]
     data = residual_data(logs, evaluator, step)
@@ -876,8 +985,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
     causes = name_causes(results, data, lags)
     noise = channel_noise(logs + held)
-    floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None)
-             if causes else None)
+    floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None,
+                        unmeasured=compat.unmeasured if compat else ()) if causes else None)
     groups = [(c.coefficient, c.terms) for c in causes]
     floors = floor.sizes(groups) if causes else []
     aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error

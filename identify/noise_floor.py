@@ -88,10 +88,14 @@ class NoiseFloor:
         in the channel's units, delay in s) and the covariance of their estimates:
         a second set of realizations draws them, so the floor also holds what an
         imperfect correction leaves.
+    unmeasured : list of (channel, error)
+        Instrument errors the data compatibility could not measure at all: named
+        beside a cause they could make (:meth:`reach`), with the size they would need.
     """
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
-                 realizations: int = 20, seed: int = 0, uncertain=None) -> None:
+                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=()) -> None:
+        self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step = logs, evaluator, step
         names, cov = uncertain if uncertain is not None else ([], np.zeros((0, 0)))
         ok = [j for j, (c, _) in enumerate(names) if cov[j, j] > 0 and any(c in lg.data for lg in logs)]
@@ -125,15 +129,17 @@ class NoiseFloor:
         return any(self.noise.get(ch, 0.0) > 0 for v in variables for ch in SOURCES.get(v, (v,)))
 
     def realization(self, k: int, columns: set[str], noise: bool = True, instruments: bool = False,
-                    errors: np.ndarray | None = None) -> pd.DataFrame:
+                    errors: np.ndarray | None = None, names: list | None = None) -> pd.DataFrame:
         """One residual data set made by noise alone (``noise``), by the instrument errors the
         correction may have left (``instruments``: drawn from their covariance) or by given
-        ``errors`` (one per :attr:`uncertain`): ``r_CL``... and the variables in ``columns``."""
+        ``errors`` (one per :attr:`uncertain`, or per ``names``): ``r_CL``... and the variables in
+        ``columns``."""
         frames = []
         if errors is None:
             errors = (np.random.default_rng([self.seed, k, 10**6]).multivariate_normal(
                 np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
                 if instruments and self.uncertain else np.zeros(len(self.uncertain)))
+        names = self.uncertain if names is None else names
         for i, log in enumerate(self.logs):
             d = log.data
             t = d["t_s"].to_numpy()
@@ -144,7 +150,7 @@ class NoiseFloor:
             if noise:
                 noisy[chans] = d[chans].to_numpy() + rng.standard_normal((len(d), len(chans))) * np.array(
                     [self.noise[ch] for ch in chans])
-            for (c, e), z in zip(self.uncertain, errors):  # the same instrument error in every log
+            for (c, e), z in zip(names, errors):  # the same instrument error in every log
                 if c in noisy and z:
                     x = noisy[c].to_numpy()
                     noisy[c] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
@@ -222,29 +228,39 @@ class NoiseFloor:
         axes, resp = self.instrument_responses()
         se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
         to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
+        unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
+        blind = [(ch, e, self.realization(0, set(), noise=False, errors=np.array([unit[e]]), names=[(ch, e)]))
+                 for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
         out = []
         for c, terms, f in causes:
             f = np.asarray(f, float) - np.mean(f)
-            if not resp:
-                out.append({"made": 0.0, "left": float(np.ptp(f)), "alternatives": []})
-                continue
-            assert all(len(r) == len(data) for r in resp)
-            x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
-            cols = np.column_stack([r[f"r_{c}"].to_numpy() for r in resp])
-            seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
-            seen -= seen.mean(axis=0)
-            made = seen @ _trust_region(seen, f, radius)
-            alts = []
             ff = float(f @ f)
-            for j, (ch, err) in enumerate(self.uncertain):
-                one = seen @ to_axes[:, j] * se[j]  # one standard error of this error alone
+            x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
+
+            def through_terms(cols: np.ndarray) -> np.ndarray:
+                seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
+                return seen - seen.mean(axis=0)
+
+            def alone(one: np.ndarray) -> tuple[float, float]:
                 nn = float(one @ one)
                 if nn <= 0 or ff <= 0:
-                    continue
+                    return 0.0, -np.inf
                 k = float(one @ f) / nn
-                share = 100.0 * (1.0 - float((f - k * one) @ (f - k * one)) / ff)
-                alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k, "se": float(se[j]),
-                             "explains_pct": share})
+                return k, 100.0 * (1.0 - float((f - k * one) @ (f - k * one)) / ff)
+
+            alts, made = [], np.zeros(len(f))
+            if resp:
+                assert all(len(r) == len(data) for r in resp)
+                seen = through_terms(np.column_stack([r[f"r_{c}"].to_numpy() for r in resp]))
+                made = seen @ _trust_region(seen, f, radius)
+                for j, (ch, err) in enumerate(self.uncertain):
+                    k, share = alone(seen @ to_axes[:, j] * se[j])  # one standard error of this error alone
+                    alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k, "se": float(se[j]),
+                                 "explains_pct": share})
+            for ch, err, r in blind:  # errors the data compatibility could not measure: no standard error
+                k, share = alone(through_terms(r[f"r_{c}"].to_numpy()[:, None])[:, 0])
+                alts.append({"channel": ch, "error": err, "needs": k * unit[err], "needs_se": 0.0,
+                             "se": float("nan"), "explains_pct": share, "unmeasured": True})
             alts.sort(key=lambda a: -a["explains_pct"])
             out.append({"made": float(np.ptp(made)), "left": float(np.ptp(f - made)), "alternatives": alts})
         return out

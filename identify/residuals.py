@@ -36,6 +36,8 @@ VARIABLES = {
 #: ``thrust_CD`` is d(CD measured)/d(relative thrust error): what an engine deck off by a factor
 #: (1 + k) adds to the CD residual, per unit k (likewise for CL and Cm).
 SIGNATURES = {"thrust": ("thrust_lbf", "scale")}
+#: Time step of the delay signature's difference quotient [s].
+DELAY_STEP_S = 0.05
 #: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
 FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
 
@@ -94,6 +96,23 @@ def signatures(data: pd.DataFrame, meta: dict, evaluator, meas: pd.DataFrame) ->
                         index=data.index)
 
 
+def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: pd.DataFrame,
+                    channel: str = "alpha_deg") -> pd.DataFrame:
+    """What a time shift of ``channel`` adds to each residual, per second of delay [1/s].
+
+    A vane ``tau`` late reads ``x(t - tau)``; the model evaluated there misses
+    ``C(x(t)) - C(x(t - tau))``, about ``tau`` times the model's change when the
+    channel is read :data:`DELAY_STEP_S` earlier, over that step.
+    """
+    t = data["t_s"].to_numpy(dtype=float)
+    early = data.copy()
+    early[channel] = np.interp(t + DELAY_STEP_S, t, data[channel].to_numpy(dtype=float))
+    moved = evaluator.predict(early, cl)
+    head = channel.split("_")[0] + "delay"
+    return pd.DataFrame({f"{head}_{c}": (moved[c].to_numpy() - model[c].to_numpy()) / DELAY_STEP_S for c in COEFFS},
+                        index=data.index)
+
+
 def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
     out = frame.copy()
     for c in columns:
@@ -114,7 +133,7 @@ def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
     return np.arange(edge, n - edge, step)
 
 
-def residual_data(logs: list[Log], evaluator, step: int | None = None) -> pd.DataFrame:
+def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = ()) -> pd.DataFrame:
     """Measured minus model coefficients at the measured states, for every log.
 
     The model is evaluated at the raw measured states (exact on noise-free
@@ -127,7 +146,8 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None) -> pd.Dat
     DataFrame
         One row per sample: ``log`` (index into ``logs``), ``t_s``, the
         variables, measured ``CL``/``CD``/``Cm``, the model's ``model_CL``...
-        and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP).
+        and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP); for each
+        channel in ``delays``, its time-shift signature (:func:`delay_signature`).
     """
     frames = []
     for i, log in enumerate(logs):
@@ -139,13 +159,16 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None) -> pd.Dat
         both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
         both = smooth(both, dt, both.columns)
         var = smooth(variables(d, log.meta, cl), dt, FILTERED)
-        sig = smooth(signatures(d, log.meta, evaluator, meas), dt, [f"thrust_{c}" for c in COEFFS])
+        sig = signatures(d, log.meta, evaluator, meas)
+        for ch in delays:
+            sig = pd.concat([sig, delay_signature(d, evaluator, cl, pred, ch)], axis=1)
+        sig = smooth(sig, dt, sig.columns)
         keep = kept(len(d), dt, step)
         out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
         for v in VARIABLES:
             out[v] = var[v].to_numpy()[keep]
-        for c in COEFFS:
-            out[f"thrust_{c}"] = sig[f"thrust_{c}"].to_numpy()[keep]
+        for c in sig.columns:
+            out[c] = sig[c].to_numpy()[keep]
         for c in COEFFS:
             out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
             out[f"meas_{c}"] = both[c].to_numpy()[keep]

@@ -3,7 +3,8 @@
 Each identifiable error must come back within 2 standard errors or 10 % of
 its size, whichever is larger, in still air and in the flight-test profile's
 turbulence; errors not injected must not be applied; what the manoeuvres
-cannot separate is reported as such, with the reason.
+cannot separate is reported as such, with the reason. In turbulence the
+air-data time shifts are such: the aircraft's answer to the gusts biases them.
 """
 import json
 
@@ -47,11 +48,17 @@ def test_injected_instrument_errors_are_recovered(tmp_path, sigma_fps):
         p = by[name]
         if name == "theta_deg.delay":  # JSBSim integrates the attitude by rectangular Euler
             want += 0.5 / 120  # (simulation/integrator/position/rotational = 1): half a frame behind its rates
+        if name == "alpha_deg.delay" and sigma_fps > 0:
+            # the aircraft's answer to the gusts biases the kinematic time shift: said, not applied
+            assert not p.identifiable and p.reason.startswith("turbulence"), p.reason
+            assert ("alpha_deg", "delay") in res.unmeasured
+            assert res.to_dict()["vertical_gust_rms_fps"] > 0.5
+            continue
         assert p.identifiable, (name, p.reason)
         assert abs(p.estimate - want) <= max(2 * p.se, 0.1 * abs(want)), (name, p.estimate, p.se, want)
         assert p.correctable, name
     applied = {p.name for p in res.applied}
-    assert applied >= {n for n in INJECTED if by[n].z >= 5} - {"ax_fps2.bias"}
+    assert applied >= {n for n in INJECTED if by[n].identifiable and by[n].z >= 5} - {"ax_fps2.bias"}
     # the x-accelerometer trades with a pitch-attitude bias through gravity: held back, the partner named
     assert by["ax_fps2.bias"].confounded_with == "theta_deg.bias" or "ax_fps2.bias" in applied
     for name in applied - set(INJECTED):

@@ -39,14 +39,28 @@ SENSOR_CASES = [("alpha_bias", 0.4, None), ("alpha_scale", 0.06, None), ("alpha_
                          ids=[f"{f}-{c or v}" for f, v, c in SENSOR_CASES])
 def test_sensor_fault_is_named_as_a_sensor_fault_with_its_size(tmp_path, family, value, channel):
     """No aerodynamic cause may be invented for it; the estimate holds the injected error within
-    2 standard errors or 10 %."""
+    2 standard errors or 10 %. A vane's time shift is measurable in calm air only (see the next test)."""
     fault = make_sensor(family, np.random.default_rng(0), value, channel)
+    fault.still_air = family == "alpha_delay"
     r = score_sensor(tmp_path, fault, seed=2000 + SENSOR_CASES.index((family, value, channel)))
     assert r["sensor_first"], (fault.description, [c.get("channel") or c["coefficient"] for c in r["doc"]["causes"]])
     assert r["within"], (fault.description, r["estimate"], r["se"])
     assert not r["aero_named"] and not r["other_sensors"], (fault.description, r["aero_named"], r["other_sensors"])
     cause = r["doc"]["causes"][0]
     assert cause["kind"] == "sensor" and {"channel", "error", "estimate", "se"} <= set(cause)
+
+
+def test_a_vane_delay_in_turbulence_is_timed_by_the_aerodynamic_residuals(tmp_path):
+    """In turbulence the kinematics cannot time the vane (they say so); the model's own answer to a
+    late alpha, fitted to the residuals, times it, and no rate derivative is invented for it."""
+    fault = make_sensor("alpha_delay", np.random.default_rng(0), 0.06)
+    r = score_sensor(tmp_path, fault, seed=2200)
+    comp = {p["channel"] + "." + p["error"]: p for p in r["doc"]["data_compatibility"]["parameters"]}
+    delay = comp["alpha_deg.delay"]
+    assert "turbulence" in delay["reason"] and delay["chosen_because"].startswith("timed by the aerodynamic")
+    assert set(delay["methods"]) == {"residuals"}
+    assert r["sensor_first"] and r["within"], (r.get("estimate"), r.get("se"))
+    assert not r["aero_named"] and not r["other_sensors"], (r["aero_named"], r["other_sensors"])
 
 
 def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
