@@ -197,37 +197,30 @@ def main(argv: list[str] | None = None) -> int:
             print(report_text(report), end="")
             print(f"{len(report['logs'])} logs and import.txt in {args.out}")
             return 0
+        from campaign.store import holding
         if args.command == "replay":
-            return _replay(Path(args.results), args.case, args.cases, args.jobs)
+            results = Path(args.results)
+            if not (results / "manifest.json").exists():
+                raise UserError(f"{results}: no manifest.json (not a campaign folder)")
+            with holding(results, "replay"):
+                return _replay(results, args.case, args.cases, args.jobs)
         if args.command == "identify":
-            return _identify(Path(args.results), args.out and Path(args.out), args.model, args.plots)
+            results = Path(args.results)
+            if not results.is_dir():
+                return _identify(results, args.out and Path(args.out), args.model, args.plots)
+            with holding(results, "identify"):
+                return _identify(results, args.out and Path(args.out), args.model, args.plots)
         matrix, config = _config(args)
         if args.command == "run":
-            from campaign.runner import run_campaign
             out = Path(args.out) if args.out else Path("results") / matrix.name
-            summary = run_campaign(matrix, config, out, jobs=args.jobs,
-                                   progress=not args.quiet and sys.stderr.isatty())
-            print(summary.text())
-            print(f"logs and manifest in {out}")
-            if summary.all_failed:
-                print("no point flew: nothing to identify")
-                return 1
-            if args.no_identify:
-                return 0
-            _identify(out, None, None, "paper")
-            if args.no_replay:
-                return 0
-            if not (out / "identification" / "aircraft_nonlinear").is_dir():
-                print("replays skipped: no gear models were identified (the matrix needs a condition flown "
-                      "gear up and gear down, with a gear extension)")
-                return 0
-            return _replay(out, None, None, args.jobs)
+            with holding(out, "run"):
+                return _run(args, matrix, config, out)
         if args.command == "fly":
             from campaign.runner import fly_point
             point = matrix.point(args.point_id)
             out = Path(args.out)
-            out.mkdir(parents=True, exist_ok=True)
-            rec = fly_point(point, config, out, overwrite=False)
+            with holding(out, "fly"):
+                rec = fly_point(point, config, out, overwrite=False)
             if rec["status"] != "ok":
                 print(f"{point.id}: failed: {rec['reason']}")
                 return 1
@@ -244,6 +237,28 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write("campaign: interrupted; run the same command again to resume\n")
         return 130
     return 0
+
+
+def _run(args, matrix, config, out: Path) -> int:
+    """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
+    from campaign.runner import run_campaign
+    summary = run_campaign(matrix, config, out, jobs=args.jobs,
+                           progress=not args.quiet and sys.stderr.isatty())
+    print(summary.text())
+    print(f"logs and manifest in {out}")
+    if summary.all_failed:
+        print("no point flew: nothing to identify")
+        return 1
+    if args.no_identify:
+        return 0
+    _identify(out, None, None, "paper")
+    if args.no_replay:
+        return 0
+    if not (out / "identification" / "aircraft_nonlinear").is_dir():
+        print("replays skipped: no gear models were identified (the matrix needs a condition flown "
+              "gear up and gear down, with a gear extension)")
+        return 0
+    return _replay(out, None, None, args.jobs)
 
 
 if __name__ == "__main__":

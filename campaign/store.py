@@ -1,9 +1,11 @@
 """The results store: Parquet logs written atomically, and the manifest."""
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import pandas as pd
@@ -14,6 +16,8 @@ from campaign.errors import UserError
 
 META_KEY = b"gearid"
 MANIFEST = "manifest.json"
+#: The lock a command holds on the campaign folder it writes (the kernel drops it when the process dies).
+LOCK = ".campaign.lock"
 
 
 def log_name(point_id: str, maneuver: str) -> str:
@@ -84,3 +88,27 @@ def readable_log(path: Path) -> bool:
         return True
     except (OSError, ValueError):
         return False
+
+
+@contextmanager
+def holding(folder: Path, command: str):
+    """Hold ``folder`` for one command: a second command on it is refused with a UserError.
+
+    The lock is an ``flock`` on :data:`LOCK`: the kernel releases it when the
+    holder exits, however it exits, so a lock left by a killed run never blocks
+    the resume. The file stays, empty (removing it would race with the next holder;
+    writing into it would change a folder that a refused command must leave alone).
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = os.open(folder / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise UserError(f"{folder}: another campaign command (run, fly, identify or replay) is writing this "
+                        f"folder; wait for it to finish, or choose another folder") from None
+    try:
+        yield
+    finally:
+        os.close(fd)

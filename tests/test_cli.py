@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from campaign.cli import main
-from campaign.store import read_log
+from campaign.store import LOCK, read_log
 from tests.support import matrix_toml, one_line_error
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
@@ -151,11 +151,12 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     proc.wait()
     partial = json.loads((killed / "manifest.json").read_text())
     assert 2 <= len(partial["points"]) < 9 and not partial["complete"]
+    assert (killed / LOCK).exists()  # the killed run's lock file is left behind; it must not block the resume
     assert main(["run", "--matrix", str(m), "--out", str(killed), "--no-identify"]) == 0
     final = json.loads((killed / "manifest.json").read_text())
     assert final["complete"] and len(final["points"]) == 9
     ref_files = {p.name: p.read_bytes() for p in ref.glob("*.parquet")}
-    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.is_file() and p.name != "manifest.json"}
+    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.is_file() and p.name not in ("manifest.json", LOCK)}
     assert got == ref_files
     assert final["points"] == json.loads((ref / "manifest.json").read_text())["points"]
 
@@ -228,3 +229,27 @@ def test_run_fails_when_no_point_flies_and_limits_amplitudes(tmp_path, capsys, s
     big.write_text(small_matrix.read_text().replace("tail_s = 2.0", "tail_s = 2.0\namplitude_deg = 40"))
     one_line_error(capsys, ["run", "--matrix", str(big), "--out", str(tmp_path / "g")], str(big),
                     "maneuvers.doublet", "amplitude_deg")
+
+
+def test_a_folder_a_running_campaign_holds_is_refused(tmp_path, capsys):
+    """run, fly, identify and replay on a folder another command writes: one line, exit 2; the
+    first run finishes intact."""
+    m = tmp_path / "m.toml"
+    m.write_text(matrix_toml([(g, 0, [0.3, 0.5], [2000, 10000]) for g in ("up", "down")]))
+    out = tmp_path / "c"
+    proc = subprocess.Popen([sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--out", str(out),
+                             "--quiet", "--no-identify"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and not (out / "manifest.json").exists():
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run finished before it could be disturbed"
+    for argv in (["run", "--matrix", str(m), "--out", str(out), "--no-identify"],
+                 ["fly", "h02000_m0.30_f00_gup", "--matrix", str(m), "--out", str(out)],
+                 ["identify", str(out)], ["replay", str(out)]):
+        one_line_error(capsys, argv, str(out), "another campaign command")
+    assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["complete"] and all(r["status"] == "ok" for r in man["points"])
+    assert sorted(f for r in man["points"] for f in r["files"]) == sorted(p.name for p in out.glob("*.parquet"))
+    assert not list(out.glob(".*.tmp"))
+    assert main(["run", "--matrix", str(m), "--out", str(out), "--no-identify"]) == 0  # free again
