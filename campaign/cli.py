@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      "already holds the same campaign.")
     _common(run)
     run.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
+    run.add_argument("--cluster", metavar="tcp://HOST:PORT",
+                     help="fly the points on the Dask cluster whose scheduler is there (identification and "
+                          "replays stay local, on --jobs workers)")
     run.add_argument("--out", metavar="DIR", help="campaign folder (default results/<matrix name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
@@ -243,7 +246,7 @@ def _run(args, matrix, config, out: Path) -> int:
     """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
     from campaign.runner import run_campaign
     summary = run_campaign(matrix, config, out, jobs=args.jobs,
-                           progress=not args.quiet and sys.stderr.isatty())
+                           progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
     print(summary.text())
     print(f"logs and manifest in {out}")
     if summary.all_failed:

@@ -45,7 +45,42 @@ def excursions(log) -> dict[str, float]:
     return {f"{c}_max_dev": float(np.abs(log[c] - first[c]).max()) for c in ("alpha_deg", "mach", "alt_ft")}
 
 
-def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bool = True) -> dict:
+def fly_logs(point: StatusPoint, config: FlightConfig) -> tuple[dict, list[tuple[str, object, dict]]]:
+    """Fly every manoeuvre of one point.
+
+    Returns
+    -------
+    record : dict
+        ``{"id", "status", "reason", "files", "seeds", "excursions"}``.
+    logs : list of (file name, DataFrame, metadata)
+        What was flown (up to the manoeuvre that failed to trim, if one did).
+    """
+    logs, seeds, exc = [], {}, {}
+    status, reason = "ok", ""
+    for name in point.maneuvers:
+        try:
+            flight = fly(point, name, config)
+        except TrimError as err:
+            status, reason = "failed", f"{name}: {err}"
+            break
+        fname = log_name(point.id, name)
+        logs.append((fname, flight.log, flight.meta))
+        seeds[fname] = flight.meta["seed"]
+        if name.startswith("gear_"):
+            exc[name] = excursions(flight.log)
+    return ({"id": point.id, "status": status, "reason": reason, "files": [f for f, _, _ in logs], "seeds": seeds,
+             "excursions": exc}, logs)
+
+
+def store(record: dict, logs: list, out: Path) -> dict:
+    """Write a point's logs into ``out`` (atomically, one by one) and return its record."""
+    for fname, log, meta in logs:
+        write_log(Path(out) / fname, log, meta)
+    return record
+
+
+def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bool = True,
+              flyer=None) -> dict:
     """Fly every manoeuvre of one point and write its logs.
 
     Parameters
@@ -56,28 +91,20 @@ def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bo
         Campaign folder.
     overwrite : bool
         If False, refuse to replace an existing log (``campaign fly``).
+    flyer : callable, optional
+        ``flyer(point, config) -> (record, logs)``; :func:`fly_logs` by default.
 
     Returns
     -------
     dict
         ``{"id", "status", "reason", "files", "seeds", "excursions"}``.
     """
-    files, seeds, exc = [], {}, {}
-    for name in point.maneuvers:
-        path = Path(out) / log_name(point.id, name)
-        if path.exists() and not overwrite:
-            raise UserError(f"{path}: exists; will not overwrite (choose another --out)")
-        try:
-            flight = fly(point, name, config)
-        except TrimError as err:
-            return {"id": point.id, "status": "failed", "reason": f"{name}: {err}", "files": files,
-                    "seeds": seeds, "excursions": exc}
-        write_log(path, flight.log, flight.meta)
-        files.append(path.name)
-        seeds[path.name] = flight.meta["seed"]
-        if name.startswith("gear_"):
-            exc[name] = excursions(flight.log)
-    return {"id": point.id, "status": "ok", "reason": "", "files": files, "seeds": seeds, "excursions": exc}
+    if not overwrite:
+        for name in point.maneuvers:
+            path = Path(out) / log_name(point.id, name)
+            if path.exists():
+                raise UserError(f"{path}: exists; will not overwrite (choose another --out)")
+    return store(*(flyer or fly_logs)(point, config), out)
 
 
 @dataclass
@@ -110,8 +137,13 @@ class Summary:
 
 
 def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
-                 progress: bool = True, points: list[StatusPoint] | None = None) -> Summary:
+                 progress: bool = True, points: list[StatusPoint] | None = None,
+                 cluster: str | None = None, flyer=None) -> Summary:
     """Fly the matrix into ``out``; resume if ``out`` holds the same campaign.
+
+    ``jobs`` local worker processes (joblib, loky), or the Dask cluster whose
+    scheduler is at ``cluster`` (``tcp://HOST:PORT``; :mod:`campaign.cluster`).
+    ``flyer(point, config) -> (record, logs)`` flies one point (default :func:`fly_logs`).
 
     Raises
     ------
@@ -134,8 +166,9 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
         if diff:
             raise UserError(f"{out / MANIFEST}: settings.{diff[0]}: {prev.get(diff[0])!r} differs from "
                             f"this run's {want[diff[0]]!r}; will not overwrite (choose another --out)")
-        for rec in old.get("points", []):  # a missing or unreadable log flies again
-            if rec["status"] != "ok" or all(readable_log(out / f) for f in rec["files"]):
+        for rec in old.get("points", []):  # a missing or unreadable log, or a worker's death, flies again
+            if (rec["status"] != "ok" and not rec.get("transient")) or (
+                    rec["status"] == "ok" and all(readable_log(out / f) for f in rec["files"])):
                 done[rec["id"]] = rec
     clean_temporaries(out)
     todo = [p for p in (points or matrix.points) if p.id not in done]
@@ -159,8 +192,12 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
 
     write_json(out / MANIFEST, manifest(False))
     skipped = len(done)
-    results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
-        delayed(fly_point)(p, config, out) for p in todo)
+    if cluster:
+        from campaign.cluster import fly_on_cluster
+        results = (store(rec, logs, out) for rec, logs in fly_on_cluster(cluster, todo, config, flyer or fly_logs))
+    else:
+        results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
+            delayed(fly_point)(p, config, out, True, flyer) for p in todo)
     bar = tqdm(results, total=len(todo), desc="status points", unit="pt", disable=not progress)
     for rec in bar:
         done[rec["id"]] = rec

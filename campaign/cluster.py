@@ -1,0 +1,160 @@
+"""Fly status points on a Dask cluster (dask.distributed).
+
+The workers may be other machines: the aircraft folder and the effect overlay
+travel as data (:class:`Shipment`), each worker writes them once into its own
+temporary folder and builds its own FGFDMExec there. The logs come back as
+data and the client writes them, atomically, as a local run does; they are
+bit-identical to a local run's (the folder path is in no log).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable, Iterator
+
+from campaign.aircraft import AircraftSource, Effects
+from campaign.engine import FlightConfig
+from campaign.errors import UserError
+from campaign.matrix import StatusPoint
+
+
+@dataclass(frozen=True)
+class Shipment:
+    """An aircraft folder and its overlay as bytes.
+
+    Attributes
+    ----------
+    name : str
+        The aircraft's folder name.
+    sha256 : str
+        The folder's hash (the worker's copy is stored under it).
+    files : tuple of (str, bytes)
+        Every file of the folder, by POSIX path relative to it.
+    effects : bytes or None
+        The overlay file, if any.
+    """
+
+    name: str
+    sha256: str
+    files: tuple[tuple[str, bytes], ...]
+    effects: bytes | None
+
+
+def pack(source: AircraftSource) -> Shipment:
+    """The aircraft folder and overlay of ``source`` as data."""
+    folder = Path(source.folder)
+    files = tuple((p.relative_to(folder).as_posix(), p.read_bytes())
+                  for p in sorted(folder.rglob("*")) if p.is_file() and "__pycache__" not in p.parts)
+    fx = Path(source.effects.path).read_bytes() if source.effects.path else None
+    return Shipment(source.name, source.sha256, files, fx)
+
+
+def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
+    """``config`` with its aircraft and overlay read from this machine's copy of ``shipment``
+    (written once per worker machine, atomically)."""
+    home = Path(tempfile.gettempdir()) / "gearid-cluster" / shipment.sha256
+    folder = home / shipment.name
+    if not (home / "complete").exists():
+        tmp = Path(tempfile.mkdtemp(prefix=".unpack-", dir=_mkdir(home.parent)))
+        for rel, data in shipment.files:
+            dest = tmp / shipment.name / rel
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(data)
+        if shipment.effects is not None:
+            (tmp / "effects.xml").write_bytes(shipment.effects)
+        (tmp / "complete").write_text("")
+        try:
+            os.rename(tmp, home)
+        except OSError:  # another worker on this machine got there first
+            pass
+    fx = config.aircraft.effects
+    effects = Effects(str(home / "effects.xml") if shipment.effects is not None else None, fx.functions)
+    return replace(config, aircraft=AircraftSource(str(folder), effects))
+
+
+def _mkdir(p: Path) -> Path:
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def fly_shipped(point: StatusPoint, config: FlightConfig, shipment: Shipment, fly: Callable):
+    """On a worker: fly one point with the shipped aircraft; ``fly(point, config)`` returns
+    ``(record, logs)``."""
+    return fly(point, unpack(shipment, config))
+
+
+def connect(address: str, timeout_s: float = 10.0):
+    """A client of the scheduler at ``address`` (``tcp://HOST:PORT``)."""
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover - distributed is a dependency
+        raise UserError("--cluster: dask.distributed is not installed (pip install distributed)") from None
+    try:
+        return Client(address, timeout=timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise UserError(f"--cluster {address}: no Dask scheduler answers ({type(exc).__name__}: "
+                        f"{str(exc).splitlines()[0] if str(exc) else 'no reply'})") from None
+
+
+def fly_on_cluster(address: str, points: list[StatusPoint], config: FlightConfig,
+                   fly: Callable) -> Iterator[tuple[dict, list]]:
+    """Fly ``points`` on the cluster, yielding ``(record, logs)`` as each finishes.
+
+    A point whose worker dies (abort, segfault, out of memory) more often than the
+    scheduler allows (``distributed.scheduler.allowed-failures``) is flown again at
+    the end, alone on the cluster (it may only have shared the worker with the point
+    that killed it); if its worker dies then, it comes back failed with the reason.
+    The others are unaffected.
+    """
+    from distributed import as_completed
+
+    client = connect(address)
+    try:
+        ship = pack(config.aircraft)  # in each task, not scattered: a dead worker's copy would cancel the rest
+
+        def submit(p: StatusPoint):
+            return client.submit(fly_shipped, p, config, ship, fly, pure=False,
+                                 key=f"fly-{p.id}-{os.urandom(4).hex()}")
+
+        futures = {submit(p): p for p in points}
+        killed = []
+        for fut in as_completed(list(futures), loop=client.loop):
+            p = futures[fut]
+            outcome = _outcome(fut, p)
+            if outcome is None:  # it may only have shared a worker with the point that killed it
+                killed.append(p)
+                continue
+            yield outcome
+        for p in killed:  # once more, alone on the cluster: a death now is its own
+            fut = submit(p)
+            yield _outcome(fut, p, last=True)
+    finally:
+        client.close()
+
+
+def _outcome(fut, p: StatusPoint, last: bool = False):
+    """``(record, logs)`` of a finished future; None if its worker died (or the cluster cancelled it)
+    and it may be tried again."""
+    from distributed.client import FutureCancelledError
+    try:
+        return fut.result()
+    except UserError:
+        raise
+    except FutureCancelledError as exc:
+        if not last:
+            return None
+        return _failed(p, f"cancelled on the cluster ({exc})"), []
+    except Exception as exc:  # noqa: BLE001 - a worker's death or error fails its point only
+        kind = type(exc).__name__
+        if kind == "KilledWorker" and not last:
+            return None
+        why = "its worker died while flying it, alone on the cluster" if kind == "KilledWorker" else "a worker raised"
+        rec = _failed(p, f"{why} ({kind}: {str(exc).splitlines()[0] if str(exc) else ''})")
+        rec["transient"] = True  # not the aircraft's doing: a resume flies it again
+        return rec, []
+
+
+def _failed(point: StatusPoint, reason: str) -> dict:
+    return {"id": point.id, "status": "failed", "reason": reason, "files": [], "seeds": {}, "excursions": {}}

@@ -1,0 +1,75 @@
+"""A campaign on a Dask cluster (a LocalCluster on 127.0.0.1): the same logs as a local run, bit for bit;
+a point whose worker dies fails alone; a scheduler that does not answer is one line."""
+import json
+import os
+
+import dask
+import pytest
+from distributed import LocalCluster
+
+from campaign.cli import main
+from campaign.runner import fly_logs, run_campaign
+from tests.support import matrix_toml, one_line_error
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    # one task per worker thread, and a worker's death fails its task at once
+    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.scheduler.allowed-failures": 0}):
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address="127.0.0.1:0", silence_logs=50) as c:
+            yield c
+
+
+def _matrix(tmp_path):
+    m = tmp_path / "m.toml"
+    m.write_text(matrix_toml([(g, 0, [0.3, 0.5], 2000) for g in ("up", "down")]))
+    return m
+
+
+def test_cluster_logs_equal_a_local_runs_bit_for_bit(tmp_path, cluster):
+    m = _matrix(tmp_path)
+    common = ["--matrix", str(m), "--noise", "flight-test", "--seed", "3", "--no-identify", "--quiet"]
+    assert main(["run", "--out", str(tmp_path / "local"), "--jobs", "2"] + common) == 0
+    assert main(["run", "--out", str(tmp_path / "dask"), "--cluster", cluster.scheduler_address] + common) == 0
+    local = {p.name: p.read_bytes() for p in (tmp_path / "local").glob("*.parquet")}
+    dask_ = {p.name: p.read_bytes() for p in (tmp_path / "dask").glob("*.parquet")}
+    assert len(local) == 6 and dask_ == local
+    a, b = (json.loads((tmp_path / f / "manifest.json").read_text()) for f in ("local", "dask"))
+    assert a["points"] == b["points"] and b["complete"]
+
+
+def test_a_point_that_kills_its_worker_fails_alone(tmp_path, cluster):
+    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.engine import FlightConfig
+    from campaign.instruments import load_profile
+    from campaign.matrix import load_matrix
+
+    matrix = load_matrix(str(_matrix(tmp_path)))
+    config = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects("none")), 0, load_profile("none"),
+                          matrix.maneuver_params, matrix.clmax_by_flap)
+    doomed = matrix.points[1].id
+
+    def killer(point, cfg):  # pickled by value: the worker aborts on one point, as a segfault would
+        if point.id == doomed:
+            os.abort()
+        return fly_logs(point, cfg)
+
+    out = tmp_path / "c"
+    summary = run_campaign(matrix, config, out, progress=False, cluster=cluster.scheduler_address, flyer=killer)
+    assert [pid for pid, _ in summary.failed] == [doomed], summary.failed
+    assert "worker died" in summary.failed[0][1]
+    man = json.loads((out / "manifest.json").read_text())
+    ok = [r for r in man["points"] if r["status"] == "ok"]
+    assert len(ok) == 3 and man["complete"]
+    assert sorted(f for r in ok for f in r["files"]) == sorted(p.name for p in out.glob("*.parquet"))
+    # the resume flies the failed point again, on a sound worker this time
+    summary = run_campaign(matrix, config, out, progress=False, cluster=cluster.scheduler_address)
+    man = json.loads((out / "manifest.json").read_text())
+    assert not summary.failed and len(list(out.glob("*.parquet"))) == sum(len(r["files"]) for r in man["points"]) == 6
+
+
+def test_a_scheduler_that_does_not_answer_is_one_line(tmp_path, capsys):
+    one_line_error(capsys, ["run", "--matrix", str(_matrix(tmp_path)), "--out", str(tmp_path / "c"),
+                            "--cluster", "tcp://127.0.0.1:9", "--no-identify"], "--cluster", "no Dask scheduler")
