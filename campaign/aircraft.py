@@ -27,13 +27,16 @@ def file_hash(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def folder_files(path: Path) -> list[tuple[str, Path]]:
+    """Every file of a folder, sorted, as (POSIX path relative to it, path); caches left out."""
+    files = sorted(p for p in Path(path).rglob("*") if p.is_file())
+    return [(rel, f) for f in files if "__pycache__" not in (rel := f.relative_to(path).as_posix())]
+
+
 def folder_hash(path: Path) -> str:
     """SHA-256 over the relative names and bytes of every file in a folder [hex]."""
     h = hashlib.sha256()
-    for f in sorted(p for p in Path(path).rglob("*") if p.is_file()):
-        rel = f.relative_to(path).as_posix()
-        if "__pycache__" in rel:
-            continue
+    for rel, f in folder_files(path):
         h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()
 

@@ -13,8 +13,9 @@ import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
+from urllib.parse import urlsplit
 
-from campaign.aircraft import AircraftSource, Effects
+from campaign.aircraft import AircraftSource, Effects, folder_files
 from campaign.engine import FlightConfig
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
@@ -44,9 +45,7 @@ class Shipment:
 
 def pack(source: AircraftSource) -> Shipment:
     """The aircraft folder and overlay of ``source`` as data."""
-    folder = Path(source.folder)
-    files = tuple((p.relative_to(folder).as_posix(), p.read_bytes())
-                  for p in sorted(folder.rglob("*")) if p.is_file() and "__pycache__" not in p.parts)
+    files = tuple((rel, f.read_bytes()) for rel, f in folder_files(Path(source.folder)))
     fx = Path(source.effects.path).read_bytes() if source.effects.path else None
     return Shipment(source.name, source.sha256, files, fx)
 
@@ -57,7 +56,8 @@ def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
     home = Path(tempfile.gettempdir()) / "gearid-cluster" / shipment.sha256
     folder = home / shipment.name
     if not (home / "complete").exists():
-        tmp = Path(tempfile.mkdtemp(prefix=".unpack-", dir=_mkdir(home.parent)))
+        home.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".unpack-", dir=home.parent))
         for rel, data in shipment.files:
             dest = tmp / shipment.name / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
@@ -74,11 +74,6 @@ def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
     return replace(config, aircraft=AircraftSource(str(folder), effects))
 
 
-def _mkdir(p: Path) -> Path:
-    p.mkdir(parents=True, exist_ok=True)
-    return p
-
-
 def fly_shipped(point: StatusPoint, config: FlightConfig, shipment: Shipment, fly: Callable):
     """On a worker: fly one point with the shipped aircraft; ``fly(point, config)`` returns
     ``(record, logs)``."""
@@ -91,6 +86,13 @@ def connect(address: str, timeout_s: float = 10.0):
         from distributed import Client
     except ImportError:  # pragma: no cover - distributed is a dependency
         raise UserError("--cluster: dask.distributed is not installed (pip install distributed)") from None
+    parts = urlsplit(address)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
+        raise UserError(f"--cluster {address}: expected a scheduler address tcp://HOST:PORT")
     try:
         return Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
@@ -98,9 +100,10 @@ def connect(address: str, timeout_s: float = 10.0):
                         f"{str(exc).splitlines()[0] if str(exc) else 'no reply'})") from None
 
 
-def fly_on_cluster(address: str, points: list[StatusPoint], config: FlightConfig,
+def fly_on_cluster(client, points: list[StatusPoint], config: FlightConfig,
                    fly: Callable) -> Iterator[tuple[dict, list]]:
-    """Fly ``points`` on the cluster, yielding ``(record, logs)`` as each finishes.
+    """Fly ``points`` on the cluster of ``client`` (:func:`connect`; closed at the end), yielding
+    ``(record, logs)`` as each finishes.
 
     A point whose worker dies (abort, segfault, out of memory) more often than the
     scheduler allows (``distributed.scheduler.allowed-failures``) is flown again at
@@ -110,7 +113,6 @@ def fly_on_cluster(address: str, points: list[StatusPoint], config: FlightConfig
     """
     from distributed import as_completed
 
-    client = connect(address)
     try:
         ship = pack(config.aircraft)  # in each task, not scattered: a dead worker's copy would cancel the rest
 

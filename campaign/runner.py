@@ -170,6 +170,10 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
             if (rec["status"] != "ok" and not rec.get("transient")) or (
                     rec["status"] == "ok" and all(readable_log(out / f) for f in rec["files"])):
                 done[rec["id"]] = rec
+    client = None
+    if cluster:  # before anything is written: a scheduler that does not answer changes nothing
+        from campaign.cluster import connect, fly_on_cluster
+        client = connect(cluster)
     clean_temporaries(out)
     todo = [p for p in (points or matrix.points) if p.id not in done]
     order = {p.id: i for i, p in enumerate(matrix.points)}
@@ -192,9 +196,8 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
 
     write_json(out / MANIFEST, manifest(False))
     skipped = len(done)
-    if cluster:
-        from campaign.cluster import fly_on_cluster
-        results = (store(rec, logs, out) for rec, logs in fly_on_cluster(cluster, todo, config, flyer or fly_logs))
+    if client is not None:
+        results = (store(rec, logs, out) for rec, logs in fly_on_cluster(client, todo, config, flyer or fly_logs))
     else:
         results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
             delayed(fly_point)(p, config, out, True, flyer) for p in todo)

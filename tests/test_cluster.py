@@ -70,6 +70,8 @@ def test_a_point_that_kills_its_worker_fails_alone(tmp_path, cluster):
     assert not summary.failed and len(list(out.glob("*.parquet"))) == sum(len(r["files"]) for r in man["points"]) == 6
 
 
-def test_a_scheduler_that_does_not_answer_is_one_line(tmp_path, capsys):
-    one_line_error(capsys, ["run", "--matrix", str(_matrix(tmp_path)), "--out", str(tmp_path / "c"),
-                            "--cluster", "tcp://127.0.0.1:9", "--no-identify"], "--cluster", "no Dask scheduler")
+def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_path, capsys):
+    argv = ["run", "--matrix", str(_matrix(tmp_path)), "--out", str(tmp_path / "c"), "--no-identify"]
+    one_line_error(capsys, argv + ["--cluster", "tcp://127.0.0.1:9"], "--cluster", "no Dask scheduler")
+    one_line_error(capsys, argv + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
+    assert not (tmp_path / "c" / "manifest.json").exists() and not list((tmp_path / "c").glob("*.parquet"))
