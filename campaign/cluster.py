@@ -8,6 +8,7 @@ bit-identical to a local run's (the folder path is in no log).
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from dataclasses import dataclass, replace
@@ -19,6 +20,7 @@ from campaign.aircraft import AircraftSource, Effects, folder_files
 from campaign.engine import FlightConfig
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
+from campaign.runner import failed_record
 
 
 @dataclass(frozen=True)
@@ -30,7 +32,7 @@ class Shipment:
     name : str
         The aircraft's folder name.
     sha256 : str
-        The folder's hash (the worker's copy is stored under it).
+        The hash of the folder and the overlay (the worker's copy is stored under it).
     files : tuple of (str, bytes)
         Every file of the folder, by POSIX path relative to it.
     effects : bytes or None
@@ -47,12 +49,18 @@ def pack(source: AircraftSource) -> Shipment:
     """The aircraft folder and overlay of ``source`` as data."""
     files = tuple((rel, f.read_bytes()) for rel, f in folder_files(Path(source.folder)))
     fx = Path(source.effects.path).read_bytes() if source.effects.path else None
-    return Shipment(source.name, source.sha256, files, fx)
+    key = hashlib.sha256(source.sha256.encode() + b"\0" + (fx if fx is not None else b"none")).hexdigest()
+    return Shipment(source.name, key, files, fx)
 
 
 def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
-    """``config`` with its aircraft and overlay read from this machine's copy of ``shipment``
-    (written once per worker machine, atomically)."""
+    """``config`` with its aircraft and overlay read from this machine's copy of ``shipment``."""
+    return replace(config, aircraft=unpack_source(shipment, config.aircraft.effects))
+
+
+def unpack_source(shipment: Shipment, effects: Effects) -> AircraftSource:
+    """The aircraft of ``shipment`` (and its overlay, parsed as ``effects``) from this machine's
+    copy, written once per worker machine, atomically."""
     home = Path(tempfile.gettempdir()) / "gearid-cluster" / shipment.sha256
     folder = home / shipment.name
     if not (home / "complete").exists():
@@ -69,9 +77,8 @@ def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
             os.rename(tmp, home)
         except OSError:  # another worker on this machine got there first
             pass
-    fx = config.aircraft.effects
-    effects = Effects(str(home / "effects.xml") if shipment.effects is not None else None, fx.functions)
-    return replace(config, aircraft=AircraftSource(str(folder), effects))
+    return AircraftSource(str(folder), Effects(str(home / "effects.xml") if shipment.effects is not None else None,
+                                               effects.functions))
 
 
 def fly_shipped(point: StatusPoint, config: FlightConfig, shipment: Shipment, fly: Callable):
@@ -147,16 +154,12 @@ def _outcome(fut, p: StatusPoint, last: bool = False):
     except FutureCancelledError as exc:
         if not last:
             return None
-        return _failed(p, f"cancelled on the cluster ({exc})"), []
+        return failed_record(p, f"cancelled on the cluster ({exc})"), []
     except Exception as exc:  # noqa: BLE001 - a worker's death or error fails its point only
         kind = type(exc).__name__
         if kind == "KilledWorker" and not last:
             return None
         why = "its worker died while flying it, alone on the cluster" if kind == "KilledWorker" else "a worker raised"
-        rec = _failed(p, f"{why} ({kind}: {str(exc).splitlines()[0] if str(exc) else ''})")
-        rec["transient"] = True  # not the aircraft's doing: a resume flies it again
-        return rec, []
+        return failed_record(p, f"{why} ({kind}: {str(exc).splitlines()[0] if str(exc) else ''})",
+                             transient=True), []
 
-
-def _failed(point: StatusPoint, reason: str) -> dict:
-    return {"id": point.id, "status": "failed", "reason": reason, "files": [], "seeds": {}, "excursions": {}}

@@ -2,13 +2,17 @@
 from __future__ import annotations
 
 import platform
+import shutil
+import tempfile
 import time
+from concurrent.futures import BrokenExecutor, as_completed
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
-from joblib import Parallel, delayed
+from joblib.externals.loky import ProcessPoolExecutor
 from tqdm import tqdm
 
 from campaign.engine import FlightConfig, TrimError, fly
@@ -107,6 +111,78 @@ def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bo
     return store(*(flyer or fly_logs)(point, config), out)
 
 
+def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer, marks: Path) -> dict:
+    """In a local worker: leave a mark that ``point`` started, then fly it (the mark names the
+    suspect if the worker dies)."""
+    (marks / point.id).touch()
+    return fly_point(point, config, out, True, flyer)
+
+
+def failed_record(point: StatusPoint, reason: str, transient: bool = False) -> dict:
+    """The manifest record of a point that did not fly; a ``transient`` failure (not the aircraft's
+    doing, e.g. a worker's death) is flown again on resume."""
+    rec = {"id": point.id, "status": "failed", "reason": reason, "files": [], "seeds": {}, "excursions": {}}
+    if transient:
+        rec["transient"] = True
+    return rec
+
+
+def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int,
+              flyer=None) -> Iterator[dict]:
+    """Fly ``points`` into ``out`` on ``jobs`` local worker processes (loky), yielding each record
+    as it finishes.
+
+    A worker that dies (abort, segfault, out of memory) breaks the pool: the points
+    finished so far are kept, those that had not started go on in a new pool, and
+    those the dead workers had started are flown again at the end, each alone in a
+    pool of its own. A point whose lone worker dies comes back failed with the
+    reason (transient: a resume flies it again). The others are unaffected.
+    """
+    if jobs == 1:  # in this process, as before: nothing to isolate
+        for p in points:
+            yield fly_point(p, config, out, True, flyer)
+        return
+    marks = Path(tempfile.mkdtemp(prefix="gearid-started-"))
+    try:
+        queue, suspects = list(points), []
+        while queue:
+            broke, futures = None, {}
+            with ProcessPoolExecutor(max_workers=min(jobs, len(queue))) as pool:
+                futures = {pool.submit(_fly_marked, p, config, out, flyer, marks): p for p in queue}
+                for fut in as_completed(futures):
+                    if isinstance(fut.exception(), BrokenExecutor):
+                        broke = fut.exception()
+                        break
+                    yield fut.result()
+                    del futures[fut]
+            queue = []
+            if broke is None:
+                break
+            for fut, p in futures.items():
+                if fut.done() and fut.exception() is None:
+                    yield fut.result()
+                elif (marks / p.id).exists():
+                    suspects.append((p, broke))
+                else:
+                    queue.append(p)
+        for p, _ in suspects:
+            with ProcessPoolExecutor(max_workers=1) as pool:
+                fut = pool.submit(_fly_marked, p, config, out, flyer, marks)
+                try:
+                    yield fut.result()
+                except BrokenExecutor as exc:
+                    yield failed_record(p, f"its worker died while flying it, alone ({type(exc).__name__}: "
+                                           f"{_first_line(exc)})", transient=True)
+    finally:
+        shutil.rmtree(marks, ignore_errors=True)
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    codes = [ln for ln in lines if "exit code" in ln]
+    return codes[0] if codes else (lines[0] if lines else "")
+
+
 @dataclass
 class Summary:
     """What a campaign run did."""
@@ -199,8 +275,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
     if client is not None:
         results = (store(rec, logs, out) for rec, logs in fly_on_cluster(client, todo, config, flyer or fly_logs))
     else:
-        results = Parallel(n_jobs=jobs, return_as="generator_unordered")(
-            delayed(fly_point)(p, config, out, True, flyer) for p in todo)
+        results = fly_local(todo, config, out, jobs, flyer)
     bar = tqdm(results, total=len(todo), desc="status points", unit="pt", disable=not progress)
     for rec in bar:
         done[rec["id"]] = rec
