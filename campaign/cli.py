@@ -57,8 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     _common(run)
     run.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     run.add_argument("--cluster", metavar="tcp://HOST:PORT",
-                     help="fly the points on the Dask cluster whose scheduler is there (identification and "
-                          "replays stay local, on --jobs workers)")
+                     help="fly the points and the replays on the Dask cluster whose scheduler is there "
+                          "(identification stays local)")
     run.add_argument("--out", metavar="DIR", help="campaign folder (default results/<matrix name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
@@ -92,6 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
     rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
     rep.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
+    rep.add_argument("--cluster", metavar="tcp://HOST:PORT",
+                     help="fly the replays on the Dask cluster whose scheduler is there")
 
     plo = sub.add_parser("plots", help="redraw the replay plots and metrics from stored logs (no flying)",
                          description="Redraw the comparison plots (and metrics) from RESULTS_DIR/replays "
@@ -144,8 +146,11 @@ def _config(args):
 
 
 def _identify(results: Path, out: Path | None, model: str | None, plots: str) -> int:
+    from campaign.aircraft import check_aircraft_folder
     from identify.logs import LogError
     from identify.pipeline import identify_campaign
+    if model:
+        check_aircraft_folder(model)
     try:
         files = identify_campaign(results, out, Path(model) if model else None, plots)
     except LogError as exc:
@@ -156,13 +161,14 @@ def _identify(results: Path, out: Path | None, model: str | None, plots: str) ->
     return 0
 
 
-def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int) -> int:
+def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
+            cluster: str | None = None) -> int:
     from campaign.replay import load_cases, run_replays, select
     from campaign.replay_report import write_report
     if not (results / "manifest.json").exists():
         raise UserError(f"{results}: no manifest.json (not a campaign folder)")
     cases = select(load_cases(cases_file), names)
-    failures = run_replays(results, cases, jobs)
+    failures = run_replays(results, cases, jobs, cases_file, cluster)
     for why in failures:
         print(f"replay failed: {why}")
     files = write_report(results, names)
@@ -184,7 +190,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "plots":
             from campaign.replay_report import write_report
-            files = write_report(Path(args.results), args.case)
+            from campaign.store import holding
+            results = Path(args.results)
+            with holding(results, "plots"):
+                files = write_report(results, args.case)
             print(files.pop("table"))
             print(f"{sum(1 for k in files if k.startswith('plot'))} plots in {Path(args.results) / 'replays' / 'plots'}")
             return 0
@@ -206,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
             if not (results / "manifest.json").exists():
                 raise UserError(f"{results}: no manifest.json (not a campaign folder)")
             with holding(results, "replay"):
-                return _replay(results, args.case, args.cases, args.jobs)
+                return _replay(results, args.case, args.cases, args.jobs, args.cluster)
         if args.command == "identify":
             results = Path(args.results)
             if not results.is_dir():
@@ -261,7 +270,7 @@ def _run(args, matrix, config, out: Path) -> int:
         print("replays skipped: no gear models were identified (the matrix needs a condition flown "
               "gear up and gear down, with a gear extension)")
         return 0
-    return _replay(out, None, None, args.jobs)
+    return _replay(out, None, None, args.jobs, args.cluster)
 
 
 if __name__ == "__main__":

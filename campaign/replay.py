@@ -18,7 +18,7 @@ from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effect
 from campaign.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
-from campaign.store import write_log
+from campaign.store import atomic_write, clean_temporaries, write_log
 
 DEFAULT_CASES = Path(__file__).resolve().parent / "cases" / "replays.toml"
 CASE_KEYS = {"name", "alt_ft", "ias_kt", "flap_deg", "gear", "weight_lb", "pre_s", "post_s"}
@@ -134,25 +134,73 @@ def fly_case(case: ReplayCase, source: AircraftSource, loop: str):
     return flight
 
 
-def _fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str, out: Path) -> tuple[str, str]:
-    path = out / f"{case.name}__{model}__{loop}.parquet"
+def _fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> tuple[object, dict, str]:
+    """``(log, meta, "")`` of one replay flight, or ``(None, {}, why)`` if it did not trim."""
     try:
         flight = fly_case(case, source, loop)
     except TrimError as exc:
-        return str(path), f"{case.name} on {model}: {exc}"
+        return None, {}, f"{case.name} on {model}: {exc}"
     flight.meta["model"] = model
-    write_log(path, flight.log, flight.meta)
-    return str(path), ""
+    return flight.log, flight.meta, ""
 
 
-def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1) -> list[str]:
-    """Fly every case x model x loop into ``results/replays``; return failures."""
+def _fly_shipped(case: ReplayCase, model: str, shipment, effects, loop: str):
+    """On a cluster worker: :func:`_fly_one` on this machine's copy of the shipped aircraft."""
+    from campaign.cluster import unpack_source
+    return _fly_one(case, model, unpack_source(shipment, effects), loop)
+
+
+def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_file: str | Path | None = None,
+                cluster: str | None = None) -> list[str]:
+    """Fly every case x model x loop into ``results/replays``; return failures.
+
+    ``jobs`` local processes, or the Dask cluster whose scheduler is at ``cluster``
+    (the aircraft travel as data; the logs come back and are written here).
+    ``cases_file`` names the cases in error messages.
+    """
     results = Path(results)
     sources = aircraft_for(results)
-    check_flaps(sources["reference"], [(f"case {c.name}.flap_deg", c.flap_deg) for c in cases])
+    where = Path(cases_file) if cases_file else DEFAULT_CASES
+    check_flaps(sources["reference"], [(f"{where}: case {c.name}.flap_deg", c.flap_deg) for c in cases])
+    client = None
+    if cluster:  # before anything is written
+        from campaign.cluster import connect
+        client = connect(cluster)
     out = results / "replays"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "cases.json").write_text(json.dumps([vars(c) for c in cases], indent=1) + "\n")
-    jobs_list = [(c, m, sources[m], lp) for c in cases for m in MODELS for lp in LOOPS]
-    res = Parallel(n_jobs=jobs)(delayed(_fly_one)(c, m, s, lp, out) for c, m, s, lp in jobs_list)
-    return [why for _, why in res if why]
+    clean_temporaries(out)
+    text = json.dumps([vars(c) for c in cases], indent=1) + "\n"
+    atomic_write(out / "cases.json", lambda tmp: Path(tmp).write_text(text))
+    flights = [(c, m, lp) for c in cases for m in MODELS for lp in LOOPS]
+    if client is None:
+        res = Parallel(n_jobs=jobs, return_as="generator")(
+            delayed(_fly_one)(c, m, sources[m], lp) for c, m, lp in flights)
+    else:
+        res = _on_cluster(client, flights, sources)
+    failures = []
+    for (c, m, lp), (log, meta, why) in zip(flights, res):
+        if why:
+            failures.append(why)
+        else:
+            write_log(out / f"{c.name}__{m}__{lp}.parquet", log, meta)
+    return failures
+
+
+def _on_cluster(client, flights: list, sources: dict[str, AircraftSource]):
+    """Each flight's ``(log, meta, why)`` from the cluster, in order; a worker's death or error
+    fails that flight only."""
+    from campaign.cluster import pack
+    try:
+        ships = {m: pack(s) for m, s in sources.items()}
+        futures = [client.submit(_fly_shipped, c, m, ships[m], sources[m].effects, lp, pure=False)
+                   for c, m, lp in flights]
+        for (c, m, _), fut in zip(flights, futures):
+            try:
+                yield fut.result()
+            except UserError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a worker's death or error fails its flight only
+                first = (str(exc).splitlines() or [""])[0]
+                yield None, {}, f"{c.name} on {m}: on the cluster ({type(exc).__name__}: {first})"
+    finally:
+        client.close()

@@ -74,4 +74,20 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
     argv = ["run", "--matrix", str(_matrix(tmp_path)), "--out", str(tmp_path / "c"), "--no-identify"]
     one_line_error(capsys, argv + ["--cluster", "tcp://127.0.0.1:9"], "--cluster", "no Dask scheduler")
     one_line_error(capsys, argv + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
-    assert not (tmp_path / "c" / "manifest.json").exists() and not list((tmp_path / "c").glob("*.parquet"))
+    assert not (tmp_path / "c").exists()  # not even the folder, nor its lock
+
+
+def test_replays_on_the_cluster_equal_local_replays_bit_for_bit(tmp_path, cluster):
+    import shutil
+    m = tmp_path / "m.toml"
+    m.write_text(matrix_toml([(g, 5, 0.3, 2000) for g in ("up", "down")], "r",
+                             "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"))
+    local = tmp_path / "local"
+    assert main(["run", "--matrix", str(m), "--out", str(local), "--no-replay", "--quiet"]) == 0
+    shutil.copytree(local, tmp_path / "dask")
+    assert main(["replay", str(local), "--case", "landing-135kt", "--jobs", "2"]) == 0
+    assert main(["replay", str(tmp_path / "dask"), "--case", "landing-135kt", "--cluster",
+                 cluster.scheduler_address]) == 0
+    a, b = ({p.name: p.read_bytes() for p in (tmp_path / f / "replays").rglob("*") if p.is_file()}
+            for f in ("local", "dask"))
+    assert len([k for k in a if k.endswith(".parquet")]) == 6 and a == b
