@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from campaign.errors import UserError
+from identify.model import unsafe_folder, unsafe_xml
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_AIRCRAFT = REPO_ROOT / "aircraft" / "737"
@@ -74,6 +75,9 @@ def load_effects(path: str | Path | None) -> Effects:
     p = Path(path)
     if not p.is_file():
         raise UserError(f"{p}: effects file not found")
+    why = unsafe_xml(p)
+    if why:
+        raise UserError(f"{p}: {why}")
     try:
         root = ET.parse(p).getroot()
     except ET.ParseError as exc:
@@ -126,6 +130,9 @@ def check_aircraft_folder(folder: str | Path) -> Path:
     xml = f / f"{f.name}.xml"
     if not xml.is_file():
         raise UserError(f"{f}: aircraft file {xml.name} not found in the folder")
+    bad = unsafe_folder(f)
+    if bad:
+        raise UserError(f"{bad[0]}: {bad[1]}")
     try:
         root = ET.parse(xml).getroot()
     except ET.ParseError as exc:

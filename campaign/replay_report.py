@@ -18,7 +18,7 @@ import pandas as pd  # noqa: E402
 from joblib import Parallel, delayed  # noqa: E402
 
 from campaign.errors import UserError  # noqa: E402
-from campaign.store import read_log  # noqa: E402
+from campaign.store import atomic_write, clean_temporaries, read_log  # noqa: E402
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
             ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
@@ -138,7 +138,7 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
 
 def _save_plot(replays: dict, case: str, loop: str, path: Path) -> str:
     fig = plot_case(replays, case, loop)
-    fig.savefig(path, dpi=100)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     plt.close(fig)
     return str(path)
 
@@ -150,8 +150,9 @@ def write_report(results: Path, names: list[str] | None = None) -> dict[str, str
     replays = load_replays(results, names)
     out = results / "replays"
     df = metrics(load_replays(results) if names else replays)
-    df.to_csv(out / "metrics.csv", index=False)
-    (out / "metrics.txt").write_text(metrics_text(df))
+    clean_temporaries(out)
+    atomic_write(out / "metrics.csv", lambda tmp: df.to_csv(tmp, index=False))
+    atomic_write(out / "metrics.txt", lambda tmp: Path(tmp).write_text(metrics_text(df)))
     files = {"metrics_csv": str(out / "metrics.csv"), "metrics_txt": str(out / "metrics.txt")}
     plots = out / "plots"
     plots.mkdir(exist_ok=True)

@@ -1,6 +1,7 @@
 """The results store: Parquet logs written atomically, and the manifest."""
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -31,7 +32,10 @@ def _umask() -> int:
     return mask
 
 
-def _atomic_write(path: Path, write) -> None:
+def atomic_write(path: Path, write) -> None:
+    """Write ``path`` through ``write(tmp)`` into a temporary beside it, then rename: readers see the
+    old file or the new one, never a part (a killed writer leaves a ``.*.tmp`` that
+    :func:`clean_temporaries` removes)."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
@@ -48,7 +52,7 @@ def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
     table = pa.Table.from_pandas(log, preserve_index=False)
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                            META_KEY: json.dumps(meta, sort_keys=True).encode()})
-    _atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd"))
 
 
 def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
@@ -61,7 +65,7 @@ def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
 def write_json(path: Path, obj: dict) -> None:
     """Write JSON atomically."""
     text = json.dumps(obj, indent=2, sort_keys=False) + "\n"
-    _atomic_write(Path(path), lambda tmp: Path(tmp).write_text(text))
+    atomic_write(Path(path), lambda tmp: Path(tmp).write_text(text))
 
 
 def read_manifest(folder: Path) -> dict | None:
@@ -76,8 +80,8 @@ def read_manifest(folder: Path) -> dict | None:
 
 
 def clean_temporaries(folder: Path) -> None:
-    """Remove temporaries left by a killed run."""
-    for tmp in Path(folder).glob(".*.tmp"):
+    """Remove temporaries left by a killed run in ``folder`` and the folders below it."""
+    for tmp in Path(folder).rglob(".*.tmp"):
         tmp.unlink(missing_ok=True)
 
 
@@ -97,18 +101,30 @@ def holding(folder: Path, command: str):
     The lock is an ``flock`` on :data:`LOCK`: the kernel releases it when the
     holder exits, however it exits, so a lock left by a killed run never blocks
     the resume. The file stays, empty (removing it would race with the next holder;
-    writing into it would change a folder that a refused command must leave alone).
+    writing into it would change a folder that a refused command must leave alone),
+    except after a UserError: bad input leaves neither the lock file nor the folder
+    if this command made them.
     """
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{folder}: is a file, not a folder")
+    created, fresh = not folder.exists(), not (folder / LOCK).exists()
     folder.mkdir(parents=True, exist_ok=True)
     fd = os.open(folder / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         os.close(fd)
-        raise UserError(f"{folder}: another campaign command (run, fly, identify or replay) is writing this "
+        raise UserError(f"{folder}: another campaign command (run, fly, identify, replay or plots) is writing this "
                         f"folder; wait for it to finish, or choose another folder") from None
     try:
         yield
+    except UserError:  # bad input leaves no lock file, nor a folder, that were not there
+        if fresh:
+            (folder / LOCK).unlink(missing_ok=True)
+        if created:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
     finally:
         os.close(fd)

@@ -29,6 +29,7 @@ The compatibility never reads an instrument profile; it sees the logs only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -212,7 +213,7 @@ class CompatResult:
         return [p for p in self.parameters if p.applied]
 
     def to_dict(self) -> dict:
-        return {"parameters": [p.to_dict() for p in self.parameters], "logs": self.logs,
+        return {"parameters": [p.to_dict() for p in self.parameters], "logs": [Path(p).name for p in self.logs],
                 "residual_rms": self.residual_rms, "documented_positions_ft": self.positions,
                 "vertical_gust_rms_fps": self.turbulence_fps}
 

@@ -125,7 +125,10 @@ def read_csv(path: str | Path) -> Log:
         meta = json.loads(side.read_text())
     except json.JSONDecodeError as exc:
         raise LogError(f"{side}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
-    df = pd.read_csv(path)
+    try:
+        df = pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError) as exc:  # pandas' ParserError and EmptyDataError are ValueErrors
+        raise LogError(f"{path}: not a readable CSV log ({str(exc).splitlines()[0][:120]})") from None
     _validate(str(path), df, meta)
     return Log(str(path), df.astype({c: float for c in REQUIRED_COLUMNS}), _derive(meta, df))
 
@@ -137,7 +140,10 @@ def read_campaign(folder: str | Path) -> list[Log]:
         raise LogError(f"{folder}: not a folder")
     manifest = folder / "manifest.json"
     if manifest.exists():
-        man = json.loads(manifest.read_text())
+        try:
+            man = json.loads(manifest.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise LogError(f"{manifest}: not valid JSON ({getattr(exc, 'msg', exc)})") from None
         files = [folder / f for p in man.get("points", []) if p["status"] == "ok" for f in p["files"]]
         return [read_parquet(f) for f in files]
     csvs = sorted(folder.glob("*.csv"))

@@ -10,11 +10,12 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
+import re
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
@@ -35,6 +36,48 @@ FCS_SECTIONS = ("flight_control", "autopilot", "system")
 SWEEP_POINTS = 401
 #: Axes whose functions make CL, CD and Cm (wind, body and body axial/normal frames).
 LONGITUDINAL_AXES = ("DRAG", "LIFT", "PITCH", "X", "Z", "AXIAL", "NORMAL")
+
+
+_ENTITY = re.compile(rb"<!ENTITY", re.I)
+_EXTERNAL_DTD = re.compile(rb"<!DOCTYPE[^>\[]*\b(?:SYSTEM|PUBLIC)\b", re.I)
+_XINCLUDE = re.compile(rb"XInclude|<[\w.-]+:include\b")
+
+
+def unsafe_xml(path: Path) -> str | None:
+    """Why an input XML file could make a parser read or run something beyond it, or None.
+
+    Aircraft and overlay XML are data: entity declarations (external or expanding),
+    external DTDs and XInclude are refused, and so is a ``file`` attribute (JSBSim's
+    include of systems, engines, thrusters) that is absolute or climbs out with ``..``.
+    """
+    data = Path(path).read_bytes()
+    if _ENTITY.search(data):
+        return "declares an XML entity (refused: aircraft and overlay XML are data)"
+    if _EXTERNAL_DTD.search(data):
+        return "names an external DTD (refused: nothing outside the aircraft folder is read)"
+    if _XINCLUDE.search(data):
+        return "uses XInclude (refused: nothing outside the aircraft folder is read)"
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError:
+        return None  # not well-formed: the caller's parse says where
+    for el in root.iter():
+        ref = el.get("file")
+        if ref is None:
+            continue
+        posix = PurePosixPath(ref.replace("\\", "/"))
+        if posix.is_absolute() or PureWindowsPath(ref).is_absolute() or ".." in posix.parts:
+            return f"<{el.tag} file=\"{ref}\">: reaches outside the aircraft folder (refused)"
+    return None
+
+
+def unsafe_folder(folder: Path) -> tuple[Path, str] | None:
+    """The first XML file of an aircraft folder that :func:`unsafe_xml` refuses, and why."""
+    for path in sorted(Path(folder).rglob("*.xml")):
+        why = unsafe_xml(path)
+        if why:
+            return path, why
+    return None
 
 
 def _collector(lines: list[str]):

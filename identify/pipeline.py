@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,14 +164,14 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
 
     doc = {
         "points": {f.point: {"gear": "down" if f.gear_down else "up",
-                             "reference": vars(f.reference),
+                             "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
                              **{c: f.fits[c].to_dict() for c in COEFFS}} for f in ident.fits},
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
         "increments": {p: i.to_dict() for p, i in ident.increments.items()},
         "surfaces": {k: s.to_dict() for k, s in (("linear", ident.linear_surface),
                                                  ("nonlinear", ident.nonlinear_surface)) if s},
         "notes": list(ident.notes),
-        "files": files,
+        "files": {k: str(Path(v).relative_to(out)) for k, v in files.items()},
     }
     (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     files["json"] = str(out / "identification.json")
@@ -205,8 +207,18 @@ def _plots(ident: Identification, out: Path, which: str) -> dict[str, str]:
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
                       plots: str = "paper") -> dict[str, str]:
-    """Identify everything from a campaign folder; return the files written."""
+    """Identify everything from a campaign folder; return the files written.
+
+    The outputs are written into a staging folder beside ``out`` and swapped in
+    when complete: a killed identification leaves the previous results, never a
+    mixture.
+    """
     results = Path(results)
+    final = (Path(out) if out else results / "identification").resolve()
+    recover(final)
+    if final.exists() and (not final.is_dir() or (any(final.iterdir())
+                                                  and not (final / "identification.json").exists())):
+        raise LogError(f"{final}: exists and holds no identification; will not overwrite (choose another --out)")
     logs = read_campaign(results)
     if not logs:
         raise LogError(f"{results}: no logs of flown points to identify from")
@@ -215,5 +227,34 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
     ident = identify_logs(logs)
-    return write_outputs(ident, Path(out) if out else results / "identification",
-                         Path(model_dir) if model_dir else None, plots)
+    stage = _sibling(final, "partial")
+    files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots)
+    _swap(stage, final)
+    return {k: str(final / Path(v).relative_to(stage)) for k, v in files.items()}
+
+
+def _sibling(folder: Path, what: str) -> Path:
+    return folder.parent / f".{folder.name}.{what}"
+
+
+def recover(folder: Path) -> None:
+    """Undo what a killed identification left beside ``folder``: its half-written staging
+    folder goes; if it died between moving the old results aside and the new ones in, the old
+    ones come back."""
+    folder, old = Path(folder), _sibling(Path(folder), "old")
+    shutil.rmtree(_sibling(folder, "partial"), ignore_errors=True)
+    if old.is_dir():
+        if folder.exists():
+            shutil.rmtree(old)
+        else:
+            os.rename(old, folder)
+
+
+def _swap(stage: Path, final: Path) -> None:
+    """Put the complete ``stage`` in place of ``final``: readers see the old results or the new
+    ones, never a mixture."""
+    old = _sibling(final, "old")
+    if final.exists():
+        os.rename(final, old)
+    os.rename(stage, final)
+    shutil.rmtree(old, ignore_errors=True)
