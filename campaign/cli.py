@@ -76,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--plots", choices=("paper", "all", "none"), default="paper",
                        help="fit plots for the paper's 2000 ft/M0.3/flap-up points only (default), every point, "
                             "or none")
+    ident.add_argument("--jobs", type=_jobs, default=1, help="parallel workers for the per-point fits (default 1)")
 
     fly = sub.add_parser("fly", help="re-fly one status point",
                          description="Re-fly one status point; its logs are bit-identical to the "
@@ -145,14 +146,14 @@ def _config(args):
     return matrix, config
 
 
-def _identify(results: Path, out: Path | None, model: str | None, plots: str) -> int:
+def _identify(results: Path, out: Path | None, model: str | None, plots: str, jobs: int = 1) -> int:
     from campaign.aircraft import check_aircraft_folder
     from identify.logs import LogError
     from identify.pipeline import identify_campaign
     if model:
         check_aircraft_folder(model)
     try:
-        files = identify_campaign(results, out, Path(model) if model else None, plots)
+        files = identify_campaign(results, out, Path(model) if model else None, plots, jobs)
     except LogError as exc:
         raise UserError(str(exc)) from None
     print(f"identification in {Path(files['json']).parent}: "
@@ -182,6 +183,12 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1, user_api="blas"):  # the matrices are small: a second BLAS thread costs 10x
+        return _main(args)
+
+
+def _main(args) -> int:
     try:
         if args.command == "points":
             from campaign.matrix import load_matrix
@@ -219,9 +226,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "identify":
             results = Path(args.results)
             if not results.is_dir():
-                return _identify(results, args.out and Path(args.out), args.model, args.plots)
+                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs)
             with holding(results, "identify"):
-                return _identify(results, args.out and Path(args.out), args.model, args.plots)
+                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs)
         matrix, config = _config(args)
         if args.command == "run":
             out = Path(args.out) if args.out else Path("results") / matrix.name
@@ -263,7 +270,7 @@ def _run(args, matrix, config, out: Path) -> int:
         return 1
     if args.no_identify:
         return 0
-    _identify(out, None, None, "paper")
+    _identify(out, None, None, "paper", args.jobs)
     if args.no_replay:
         return 0
     if not (out / "identification" / "aircraft_nonlinear").is_dir():

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 
 from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
@@ -34,23 +35,24 @@ class Identification:
     notes: tuple[str, ...] = ()  # why a model is missing
 
 
-def identify_logs(logs: list[Log], compatibility: bool = True) -> Identification:
+def identify_logs(logs: list[Log], compatibility: bool = True, jobs: int = 1) -> Identification:
     """Baseline fits, linear gear models, increments and the eq. (9) surfaces.
 
     With ``compatibility`` the instrument errors are estimated first and the logs
     corrected for them and for their documented sensor positions
-    (:mod:`identify.compat`).
+    (:mod:`identify.compat`). The per-point fits and the increments run on ``jobs``
+    processes.
     """
     compat = estimate(logs) if compatibility else None
     if compat is not None:
         logs = [compat.correct(lg) for lg in logs]
     refs = references(logs)
-    fits = [fit_baseline(log, refs[log.condition]) for log in logs if not log.transition]
+    run = Parallel(n_jobs=jobs)
+    fits = run(delayed(fit_baseline)(log, refs[log.condition]) for log in logs if not log.transition)
     linear = linear_models(fits)
-    incs = {}
-    for log in logs:
-        if log.transition and log.condition in linear:
-            incs[log.point] = increments(log, linear[log.condition].derivatives)
+    moves = [log for log in logs if log.transition and log.condition in linear]
+    incs = dict(zip((log.point for log in moves),
+                    run(delayed(increments)(log, linear[log.condition].derivatives) for log in moves)))
     lin_surface = None
     if linear:
         lin_surface = fit_surface([(c, m.alpha_trim_deg, np.array([0.0, 1.0]),
@@ -206,7 +208,7 @@ def _plots(ident: Identification, out: Path, which: str) -> dict[str, str]:
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
-                      plots: str = "paper") -> dict[str, str]:
+                      plots: str = "paper", jobs: int = 1) -> dict[str, str]:
     """Identify everything from a campaign folder; return the files written.
 
     The outputs are written into a staging folder beside ``out`` and swapped in
@@ -226,7 +228,7 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
-    ident = identify_logs(logs)
+    ident = identify_logs(logs, jobs=jobs)
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots)
     _swap(stage, final)
