@@ -40,7 +40,7 @@ LONGITUDINAL_AXES = ("DRAG", "LIFT", "PITCH", "X", "Z", "AXIAL", "NORMAL")
 
 _ENTITY = re.compile(rb"<!ENTITY", re.I)
 _EXTERNAL_DTD = re.compile(rb"<!DOCTYPE[^>\[]*\b(?:SYSTEM|PUBLIC)\b", re.I)
-_XINCLUDE = re.compile(rb"XInclude|<[\w.-]+:include\b")
+_XINCLUDE = re.compile(rb"w3\.org/2001/XInclude|<[\w.-]+:include\b")
 
 
 def unsafe_xml(path: Path) -> str | None:

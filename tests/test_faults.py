@@ -231,6 +231,12 @@ def _cases(t: Path, c: Path, m: Path) -> dict:
         "effects: unknown axis": lambda: (run + ["--effects", _write(t, "e.xml", GOOD_FX.replace("DRAG", "UP"))],
                                   ["e.xml", "UP"]),
         "effects: missing file": lambda: (run + ["--effects", str(t / "nope.xml")], ["nope.xml", "not found"]),
+        "effects: prose that names XInclude": lambda: (
+            run + ["--effects", _write(t, "f.xml", "Notes: XInclude and <!DOCTYPE are words here.\n")],
+            ["f.xml", "not well-formed"]),
+        "effects: XInclude": lambda: (
+            run + ["--effects", _write(t, "g.xml", '<effects xmlns:xi="http://www.w3.org/2001/XInclude">'
+                                                   '<xi:include href="/etc/passwd"/></effects>')], ["g.xml", "XInclude"]),
         # aircraft folders
         "aircraft: missing folder": lambda: (run + ["--aircraft", str(t / "nowhere")], ["nowhere", "not found"]),
         "aircraft: no aircraft XML": lambda: (run + ["--aircraft", str((t / "empty" / "737").mkdir(parents=True) or
