@@ -280,6 +280,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
     for rec in bar:
         done[rec["id"]] = rec
         write_json(out / MANIFEST, manifest(False))
+    clean_temporaries(out)  # a worker the pool terminated (another's death broke it) may have been writing
     write_json(out / MANIFEST, manifest(len(done) == len(matrix.points)))
     failed = [(r["id"], r["reason"]) for r in sorted(done.values(), key=lambda r: order[r["id"]])
               if r["status"] != "ok"]
