@@ -162,10 +162,10 @@ def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: 
                 if fut.done() and fut.exception() is None:
                     yield fut.result()
                 elif (marks / p.id).exists():
-                    suspects.append((p, broke))
+                    suspects.append(p)
                 else:
                     queue.append(p)
-        for p, _ in suspects:
+        for p in suspects:
             with ProcessPoolExecutor(max_workers=1) as pool:
                 fut = pool.submit(_fly_marked, p, config, out, flyer, marks)
                 try:
