@@ -1,6 +1,6 @@
 """Hit rate, false positives, invented causes, shape and sensor-estimate errors, detection floors.
 
-    python benchmarks/diagnosis_hit_rate.py [N_SEEDS] [N_NULL] [N_STOCK_NULL] [N_SENSOR]
+    python benchmarks/diagnosis_hit_rate.py [N_SEEDS] [N_NULL] [N_STOCK_NULL] [N_SENSOR] [N_FLOOR_SEEDS]
 
 Every flight goes through the shipped flight-test instrument profile (Dryden
 turbulence at 1.5 ft/s, 50 Hz after anti-alias filtering, no qdot channel,
@@ -24,7 +24,7 @@ nose-boom vanes 62 ft ahead of the CG, sensor noise), with fresh seeds.
    found at every seed tried, and at every larger size.
 
 Run by hand, outside CI: well over an hour on 2 cores with the defaults. N_SEEDS=0
-skips stage 1.
+skips stage 1, N_FLOOR_SEEDS=0 stage 7.
 """
 from __future__ import annotations
 
@@ -191,6 +191,8 @@ def _floor(sizes, found: dict) -> float:
 
 def detection_floors(n_seeds: int = 2) -> dict:
     out = {}
+    if n_seeds == 0:
+        return out
     for fam in FAMILIES:
         found = {}
         for k in sorted(AERO_SCALES, reverse=True):
@@ -223,7 +225,8 @@ def detection_floors(n_seeds: int = 2) -> dict:
     return out
 
 
-def main(n_seeds: int = 8, n_null: int = 15, n_stock_null: int = 10, n_sensor: int = 6) -> None:
+def main(n_seeds: int = 8, n_null: int = 20, n_stock_null: int = 10, n_sensor: int = 6,
+         n_floor_seeds: int = 2) -> None:
     t0 = time.perf_counter()
     rows = hidden_effects(n_seeds)
     fp_ours = nulls_ours(n_null)
@@ -231,7 +234,7 @@ def main(n_seeds: int = 8, n_null: int = 15, n_stock_null: int = 10, n_sensor: i
     own = stock_terms()
     sens = sensor_faults(n_sensor)
     both = sensor_and_aero(n_sensor)
-    floors = detection_floors()
+    floors = detection_floors(n_floor_seeds)
     hits = np.array([r["hit"] for r in rows], dtype=bool)
     shape = np.array([r["shape"] for r in rows], dtype=float)
     gain = np.array([r["gain"] for r in rows], dtype=float)
@@ -271,4 +274,4 @@ def main(n_seeds: int = 8, n_null: int = 15, n_stock_null: int = 10, n_sensor: i
 
 
 if __name__ == "__main__":
-    main(*(int(a) for a in sys.argv[1:5]))
+    main(*(int(a) for a in sys.argv[1:6]))
