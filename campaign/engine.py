@@ -7,6 +7,7 @@ workers or on a Dask cluster.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -337,7 +338,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     uvw_nodes = [node(cat.HOLD_INPUTS[c]) for c in ("u_fps", "v_fps", "w_fps")]
 
     def speed() -> float:
-        return float(np.sqrt(sum(n.get_double_value() ** 2 for n in uvw_nodes)))
+        return math.sqrt(sum(n.get_double_value() ** 2 for n in uvw_nodes))
 
     elev_cmd = node(cat.CONTROLS["elevator"])
     trim_cmd = node(cat.CONTROLS["pitch_trim"])
@@ -359,48 +360,63 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     n_state = len(state_nodes)
     n_truth = len(truth_nodes)
-    rows = np.empty((prog.max_steps, n_state + 3 + 3 + n_truth + len(rot_nodes)))
+    # the inputs as plain floats, evaluated once (a transition's tail only if it is flown)
+    signals = [prog.elevator_deg, prog.stabilizer_deg if dh_gain else None,
+               prog.gear_cmd or (lambda k: gear0), prog.throttle if hold is None else None]
+    inputs = [[] if f is not None else None for f in signals]
+
+    def evaluate_inputs(upto: int) -> None:
+        for f, values in zip(signals, inputs):
+            if f is not None:
+                values.extend(f(k) for k in range(len(values), min(upto, prog.max_steps)))
+
+    evaluate_inputs(prog.n_steps)
+    elev_in, stab_in, gear_in, thr_in = inputs
+    gust_in = gusts.tolist() if gust_nodes else None
+    sc = state_scale.tolist()
+    i_mass = idx["mass_slug"]
+    s_alt, s_theta, s_q, s_mass, s_gear = sc[i_alt], sc[i_theta], sc[i_q], sc[i_mass], sc[i_gear]
+    stab_const = stab[1]
+    out = []
     elevator_deg = tr.elevator_deg
     throttle = tr.throttle
     h, theta, q = fdm["atmosphere/pressure-altitude"], tr.theta_deg, 0.0
     end = prog.n_steps if gear_final is None else prog.max_steps
     k = 0
     while k < end:
+        if k == len(elev_in):
+            evaluate_inputs(k + 120)
         if hold is not None:
             elevator_deg, throttle = hold.step(h, hdot_node.get_double_value(), speed(), theta, q)
             for t in thr_cmd:
                 t.set_double_value(throttle)
-        elif prog.throttle is not None:
+        elif thr_in is not None:
             for t in thr_cmd:
-                t.set_double_value(min(max(tr.throttle + prog.throttle(k), 0.0), 1.0))
-        elev_cmd.set_double_value(tr.elevator_cmd_norm
-                                  + (elevator_deg - tr.elevator_deg + prog.elevator_deg(k)) / de_gain)
+                t.set_double_value(min(max(tr.throttle + thr_in[k], 0.0), 1.0))
+        elev_cmd.set_double_value(tr.elevator_cmd_norm + (elevator_deg - tr.elevator_deg + elev_in[k]) / de_gain)
         if dh_gain:
-            trim_cmd.set_double_value(tr.pitch_trim_norm + prog.stabilizer_deg(k) / dh_gain)
-        gear_cmd.set_double_value(gear0 if prog.gear_cmd is None else prog.gear_cmd(k))
-        for j, n in enumerate(gust_nodes):
-            n.set_double_value(gusts[k, j])
+            trim_cmd.set_double_value(tr.pitch_trim_norm + stab_in[k] / dh_gain)
+        gear_cmd.set_double_value(gear_in[k])
+        if gust_in is not None:
+            for n, v in zip(gust_nodes, gust_in[k]):
+                n.set_double_value(v)
         fdm.run()
-        row = rows[k]
-        for j, n in enumerate(state_nodes):
-            row[j] = n.get_double_value()
-        row[:n_state] *= state_scale
-        mass = row[idx["mass_slug"]]
-        for j, n in enumerate(force_nodes):
-            row[n_state + j] = n.get_double_value() / mass
-        row[n_state + 3] = stab_node.get_double_value() if stab_node else stab[1]
-        row[n_state + 4] = flap_node.get_double_value()
-        row[n_state + 5] = sum(t.get_double_value() for t in thr_nodes) / n_eng
-        for j, n in enumerate(truth_nodes):
-            row[n_state + 6 + j] = n.get_double_value()
-        for j, n in enumerate(rot_nodes):
-            row[n_state + 6 + n_truth + j] = n.get_double_value()
-        h, theta, q = row[i_alt], row[i_theta], row[i_q]
-        if (gear_final is not None and end == prog.max_steps and prog.gear_cmd(k) == gear_final
-                and abs(row[i_gear] - gear_final) < 1e-9):
+        row = [n.get_double_value() for n in state_nodes]  # scaled after the loop, the same products
+        mass = row[i_mass] * s_mass
+        row += [n.get_double_value() / mass for n in force_nodes]
+        row.append(stab_node.get_double_value() if stab_node else stab_const)
+        row.append(flap_node.get_double_value())
+        row.append(sum(t.get_double_value() for t in thr_nodes) / n_eng)
+        row += [n.get_double_value() for n in truth_nodes]
+        row += [n.get_double_value() for n in rot_nodes]
+        out.append(row)
+        h, theta, q = row[i_alt] * s_alt, row[i_theta] * s_theta, row[i_q] * s_q
+        if (gear_final is not None and end == prog.max_steps and gear_in[k] == gear_final
+                and abs(row[i_gear] * s_gear - gear_final) < 1e-9):
             end = k + 1 + prog.post_travel_steps
         k += 1
-    rows = rows[:end]
+    rows = np.array(out, dtype=float).reshape(len(out), n_state + 3 + 3 + n_truth + len(rot_nodes))
+    rows[:, :n_state] *= state_scale
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
         raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
     _check_envelope(rows, idx, tr)
