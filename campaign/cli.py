@@ -112,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--model", required=True, metavar="AIRCRAFT_DIR", help="the model aircraft folder")
     dia.add_argument("--out", required=True, metavar="DIR", help="new folder for the report")
     dia.add_argument("--no-plots", action="store_true", help="skip the plots")
+    dia.add_argument("--jobs", type=_jobs, default=1,
+                     help="parallel workers for the noise floor, the replays and the plots (default 1)")
+    dia.add_argument("--quiet", action="store_true", help="no progress bar")
 
     imp = sub.add_parser("import", help="measured data in other names, units, rates and formats into logs",
                          description="Convert measured files (CSV, whitespace ASCII, .mat, Parquet) into logs of the "
@@ -206,7 +209,8 @@ def _main(args) -> int:
             return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis
-            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out), plots=not args.no_plots)
+            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out), plots=not args.no_plots,
+                                jobs=args.jobs, progress=not args.quiet and sys.stderr.isatty())
             print(doc["summary"])
             print(f"report in {args.out}")
             return 0

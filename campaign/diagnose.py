@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
+from tqdm import tqdm
 
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
 from campaign.engine import FlightConfig, TrimError, fly
@@ -93,8 +95,26 @@ def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[st
             for ch in REPLAY_CHANNELS}
 
 
-def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = True) -> dict:
-    """The whole diagnosis; returns what ``diagnosis.json`` holds."""
+#: The stages the progress bar counts, in order.
+STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
+          "verdict", "extension", "replays", "plots")
+
+
+def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = True, jobs: int = 1,
+                  progress: bool = False) -> dict:
+    """The whole diagnosis; returns what ``diagnosis.json`` holds.
+
+    Parameters
+    ----------
+    data_path, model_dir, out : Path
+        Measured logs (:func:`load_data`), the model aircraft folder, a new report folder.
+    plots : bool
+        Draw the plots.
+    jobs : int
+        Worker processes for the noise floor, the replays and the plots.
+    progress : bool
+        A progress bar of the stages on stderr.
+    """
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
@@ -105,10 +125,18 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
         evaluator = ModelEvaluator(model)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
+               "[{elapsed}]")
+
+    def stage(name: str) -> None:
+        bar.n = STAGES.index(name)
+        bar.set_description(name)
+
     try:
-        diag = diagnose(train, evaluator, held)
+        diag = diagnose(train, evaluator, held, jobs=jobs, progress=stage)
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
         evaluator.close()
+        bar.close()
         raise UserError(str(exc)) from None
     out.mkdir(parents=True, exist_ok=True)
     doc: dict = {"discrepancy": diag.discrepancy,
@@ -127,11 +155,13 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
     before = diag.held
     held = diag.held_logs  # as corrected for instrument errors
     extended_eval = None
+    run = Parallel(n_jobs=jobs)
     if diag.aero_causes:
+        stage("extension")
         xml = write_extension(diag, out / "extension.xml")
         folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
         doc["extension"], doc["extension_xml"] = str(folder), str(xml)
-        extended_eval = ModelEvaluator(folder)
+        extended_eval = ModelEvaluator(folder, jobs=jobs)
         after = residual_data(held, extended_eval)
         rms = {c: {"before": float(np.sqrt(np.mean(before[f"r_{c}"] ** 2))),
                    "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2)))} for c in COEFFS}
@@ -147,10 +177,12 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
             v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
         src_model = AircraftSource(str(model), load_effects(None))
         src_ext = AircraftSource(str(folder), load_effects(None))
+        stage("replays")
+        logs_flown = run(delayed(replay)(lg, src) for lg in held for src in (src_model, src_ext))
         replays = {}
         flown = {}
-        for lg in held:
-            fb, fa = replay(lg, src_model), replay(lg, src_ext)
+        for i, lg in enumerate(held):
+            fb, fa = logs_flown[2 * i], logs_flown[2 * i + 1]
             flown[lg.path] = (fb, fa)
             eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
             replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}
@@ -164,9 +196,13 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                        "residual_rms": rms_acting, "residual_rms_all_held_out": rms,
                        "replay_max_error": worst, "replay_per_log": replays}
         if plots:
-            _plots(diag, held, before, after, flown, out)
+            stage("plots")
+            _plots(diag, held, before, after, flown, out, run)
     elif plots:
-        _plots(diag, held, before, None, {}, out)
+        stage("plots")
+        _plots(diag, held, before, None, {}, out, run)
+    bar.update(len(STAGES) - bar.n)
+    bar.close()
     doc["summary"] = _report(diag, doc)
     (out / "diagnosis.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     (out / "diagnosis.txt").write_text(doc["summary"])
@@ -183,26 +219,32 @@ def _exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
 
 
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
-           flown: dict, out: Path) -> None:
+           flown: dict, out: Path, run: Parallel) -> None:
     import matplotlib.pyplot as plt
 
-    from identify.diagnosis_plots import plot_residual_history, plot_residuals, plot_response
+    from identify.diagnosis_plots import plot_residuals
     (out / "plots").mkdir(exist_ok=True)
     fig = plot_residuals(diag)
     fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
     plt.close(fig)
-    for i, lg in enumerate(held):
-        name = Path(lg.path).stem
-        b = before[before.log == i]
-        a = after[after.log == i] if after is not None else None
-        fig = plot_residual_history(b, a, f"held out: {name}")
-        fig.savefig(out / "plots" / f"residuals_{name}.png", dpi=90)
+    run(delayed(_log_plots)(Path(lg.path).stem, lg.data, before[before.log == i],
+                            after[after.log == i] if after is not None else None,
+                            *flown.get(lg.path, (None, None)), out / "plots") for i, lg in enumerate(held))
+
+
+def _log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
+               flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path) -> None:
+    """A held-out log's residual history and, if it was replayed, its response."""
+    import matplotlib.pyplot as plt
+
+    from identify.diagnosis_plots import plot_residual_history, plot_response
+    fig = plot_residual_history(before, after, f"held out: {name}")
+    fig.savefig(folder / f"residuals_{name}.png", dpi=90)
+    plt.close(fig)
+    if flown_before is not None:
+        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs")
+        fig.savefig(folder / f"response_{name}.png", dpi=90)
         plt.close(fig)
-        fb, fa = flown.get(lg.path, (None, None))
-        if fb is not None:
-            fig = plot_response(lg.data, fb, fa, f"held out: {name}, same start and inputs")
-            fig.savefig(out / "plots" / f"response_{name}.png", dpi=90)
-            plt.close(fig)
 
 
 def _names(files: list[str], n: int = 3) -> str:

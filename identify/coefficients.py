@@ -54,6 +54,19 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm, "Cx": fx / qs, "Cz": fz / qs}, index=data.index)
 
 
+def thrust_share(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
+    """What the logged thrust contributes to each eq. (1) coefficient (same columns as
+    :func:`coefficients`): eq. (1) is linear in the thrust, so this is also the change a
+    relative thrust error of 1 makes."""
+    g = meta["geometry"]
+    a = data["alpha_deg"].to_numpy() * D2R
+    qs = data["qbar_psf"].to_numpy() * g["S_ft2"]
+    t = data["thrust_lbf"].to_numpy()
+    return pd.DataFrame({"CL": -t * np.sin(a) / qs, "CD": t * np.cos(a) / qs,
+                         "Cm": g.get("thrust_z_arm_ft", 0.0) * t / (qs * g["cbar_ft"]), "Cx": -t / qs,
+                         "Cz": np.zeros(len(t))}, index=data.index)
+
+
 def qhat(data: pd.DataFrame, meta: dict) -> np.ndarray:
     """Normalized pitch rate q cbar / (2 V) [rad]."""
     v = data["tas_kt"].to_numpy() * FT_PER_KT

@@ -168,25 +168,34 @@ def sensor_of(variable: str) -> tuple[str, str] | None:
 
 
 class _Lags:
-    """Sample pairs ``(i, i + k)`` within one log, for k = 1..max_lag (cached per dataset)."""
+    """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
+
+    Each log's samples sit in one padded vector, ``max_lag`` zeros apart, so a
+    single FFT gives every within-log lag product at once.
+    """
 
     def __init__(self, log_id: np.ndarray, max_lag: int = 300) -> None:
+        from scipy.fft import next_fast_len
         n = len(log_id)
-        self.pairs = [np.flatnonzero(log_id[k:] == log_id[:n - k]) for k in range(1, max_lag + 1)]
+        starts = np.flatnonzero(np.r_[True, log_id[1:] != log_id[:-1]]) if n else np.zeros(0, int)
+        self.max_lag = max_lag
+        self.pos = np.arange(n) + max_lag * np.searchsorted(starts, np.arange(n), side="right")
+        self.nfft = next_fast_len(int(self.pos[-1]) + 1 + max_lag if n else 1, real=True)
 
     def n_eff(self, resid: np.ndarray) -> float:
         """Effective number of independent samples: N / (1 + 2 sum rho_k), rho up to its first zero."""
+        from scipy import fft
         n = len(resid)
         e = resid - resid.mean()
         r0 = float(e @ e) / n
         if r0 <= 0:
             return float(n)
-        tau = 1.0
-        for k, idx in enumerate(self.pairs, start=1):
-            rho = float(e[idx + k] @ e[idx]) / n / r0
-            if rho <= 0:
-                break
-            tau += 2.0 * rho
+        z = np.zeros(self.nfft)
+        z[self.pos] = e
+        f = fft.rfft(z)
+        rho = fft.irfft(f.real ** 2 + f.imag ** 2, self.nfft)[1:self.max_lag + 1] / n / r0
+        stop = np.flatnonzero(rho <= 0)
+        tau = 1.0 + 2.0 * float(np.sum(rho[:stop[0] if stop.size else len(rho)]))
         return max(n / tau, 2.0)
 
 
@@ -203,6 +212,59 @@ def _fit(y: np.ndarray, cols: list[np.ndarray], terms: list[Term]) -> _Fit:
     beta, *_ = np.linalg.lstsq(x, y, rcond=None)
     r = y - x @ beta
     return _Fit(list(terms), beta, r, float(r @ r))
+
+
+def _solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients from the normal equations of unit-norm columns, directions
+    below 1e-12 of the largest eigenvalue dropped (as a rank-revealing solver would)."""
+    w, v = np.linalg.eigh(gram)
+    keep = w > 1e-12 * w[-1]
+    return v[:, keep] @ ((v[:, keep].T @ xty) / w[keep])
+
+
+class _Gram:
+    """Least-squares fits of ``y`` on any subset of candidate terms, from one cross-product matrix.
+
+    The columns are scaled to unit norm before their cross products are taken; a
+    subset's normal equations are solved through an eigendecomposition (directions
+    below 1e-12 of the largest dropped, as a rank-revealing solver would), and the
+    residual is computed from the data, so its sum of squares does not suffer the
+    normal equations' cancellation. Stepwise tries hundreds of subsets; each costs
+    one pass over the data instead of a full least-squares solve.
+    """
+
+    BLOCK = 8192
+
+    def __init__(self, y: np.ndarray, designs: dict) -> None:
+        self.y, self.designs = y, designs
+        self.index, at = {}, 1
+        for t, x in designs.items():
+            self.index[t] = np.arange(at, at + x.shape[1])
+            at += x.shape[1]
+        gram = np.zeros((at + 1, at + 1))
+        for lo in range(0, len(y), self.BLOCK):  # in row blocks: the full design would be large
+            hi = min(lo + self.BLOCK, len(y))
+            a = np.empty((hi - lo, at + 1), order="F")
+            a[:, 0] = 1.0
+            for t, x in designs.items():
+                a[:, self.index[t]] = x[lo:hi]
+            a[:, -1] = y[lo:hi]
+            gram += a.T @ a
+        self.scale = np.sqrt(np.diag(gram))
+        self.scale[self.scale == 0] = 1.0
+        self.gram = gram / np.outer(self.scale, self.scale)
+
+    def fit(self, terms: list[Term]) -> _Fit:
+        idx = np.concatenate([[0]] + [self.index[t] for t in terms]).astype(int)
+        b = _solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, -1])
+        beta = b * self.scale[-1] / self.scale[idx]
+        r = self.y - beta[0]
+        at = 1
+        for t in terms:
+            k = self.designs[t].shape[1]
+            r = r - self.designs[t] @ beta[at:at + k]
+            at += k
+        return _Fit(list(terms), beta, r, float(r @ r))
 
 
 def _f_test(small: _Fit, big: _Fit, k: int, n_eff: float, p_big: int) -> tuple[float, float]:
@@ -252,9 +314,10 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or _Lags(data["log"].to_numpy())
     designs = {t: t.design(data) for t in terms}
+    gram = _Gram(y, designs)
     chosen: list[Term] = []
     close: dict[str, list] = {}
-    current = _fit(y, [], [])
+    current = gram.fit([])
     rss0 = current.rss
     rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
     alternatives = []
@@ -265,7 +328,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if t in chosen or (t.kind in ("linear", "quadratic") and any(
                     c.kind in ("smooth", "quadratic") and c.variables == t.variables for c in chosen)):
                 continue
-            big = _fit(y, [designs[c] for c in chosen] + [designs[t]], chosen + [t])
+            big = gram.fit(chosen + [t])
             n_eff = lags.n_eff(big.resid)
             f, p = _f_test(current, big, t.width, n_eff, p_now + t.width)
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
@@ -297,18 +360,19 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         current = best["fit"]
         for t in list(chosen[:-1]):  # backward step
             rest = [c for c in chosen if c != t]
-            small = _fit(y, [designs[c] for c in rest], rest)
+            small = gram.fit(rest)
             f, p = _f_test(small, current, t.width, lags.n_eff(current.resid),
                            1 + sum(c.width for c in chosen))
             if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
                 chosen.remove(t)
                 current = small
     evidence = {}
+    current = _fit(y, [designs[c] for c in chosen], chosen)  # the answer itself by a rank-revealing solver
     n_eff = lags.n_eff(current.resid)
     p_all = 1 + sum(t.width for t in chosen)
     for t in chosen:
         rest = [c for c in chosen if c != t]
-        small = _fit(y, [designs[c] for c in rest], rest)
+        small = gram.fit(rest)
         f, p = _f_test(small, current, t.width, n_eff, p_all)
         evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
                              "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
@@ -523,11 +587,15 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     x_own = np.column_stack([t.design(data) for t in own])
     x_rest = np.column_stack([np.ones(len(y))] + [t.design(data) for t in rest])
     x = np.hstack([x_rest, x_own])
+    scale = np.sqrt(np.einsum("ij,ij->j", x, x))
+    scale[scale == 0] = 1.0
+    xs = x / scale
+    gram, xty = xs.T @ xs, xs.T @ y
     before = np.zeros(len(y))
     after = np.zeros(len(y))
     for c in set(conds):
         out = conds == c
-        beta, *_ = np.linalg.lstsq(x[~out], y[~out], rcond=None)
+        beta = _solve_normal(gram - xs[out].T @ xs[out], xty - xs[out].T @ y[out]) / scale  # fitted without c
         base = y[out] - x_rest[out] @ beta[:x_rest.shape[1]]
         before[out] = base
         after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]
@@ -954,7 +1022,7 @@ def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> Stepwise
 
 
 def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
-             compatibility: bool = True, **kw) -> Diagnosis:
+             compatibility: bool = True, jobs: int = 1, progress=None, **kw) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
 
     Parameters
@@ -970,25 +1038,37 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         Noise realizations of the instrument-noise floor.
     compatibility : bool
         Estimate the instrument errors first and correct the logs (:mod:`identify.compat`).
+    jobs : int
+        Worker processes for the residuals and the noise floor's realizations (sets ``evaluator.jobs``).
+    progress : callable, optional
+        Called with the name of each stage as it starts (see ``campaign.diagnose.STAGES``).
     """
+    stage = progress or (lambda name: None)
+    evaluator.jobs = jobs
     held = list(held)
     raw, raw_held = list(logs), held
+    stage("data compatibility")
     compat = estimate(logs) if compatibility else None
     if compat is not None:
         compat = arbitrate(compat, raw, raw_held, evaluator, step)
+        stage("instrument delays")
         compat = residual_delays(compat, raw, raw_held, evaluator, step)
         logs = [compat.correct(lg) for lg in logs]
         held = [compat.correct(lg) for lg in held]
+    stage("residuals")
     data = residual_data(logs, evaluator, step)
     held_data = residual_data(held, evaluator, step) if held else None
+    stage("stepwise")
     lags = _Lags(data["log"].to_numpy())
     results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
     causes = name_causes(results, data, lags)
     noise = channel_noise(logs + held)
+    stage("noise floor")
     floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None,
-                        unmeasured=compat.unmeasured if compat else ()) if causes else None)
+                        unmeasured=compat.unmeasured if compat else (), jobs=jobs) if causes else None)
     groups = [(c.coefficient, c.terms) for c in causes]
     floors = floor.sizes(groups) if causes else []
+    stage("instrument reach")
     aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
     by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
                                                                                              data)) for c in aero],
@@ -997,6 +1077,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     noisy = [floor.noisy(c.variables) for c in causes]
     data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
                          ignore_index=True)
+    stage("verdict")
     judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
     sensors = compat_causes(compat, raw, raw_held, evaluator, data, held_data, step) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])

@@ -1,4 +1,7 @@
-"""Diagnosis plots. Each takes ``ax=``/``axes=`` and returns the figure."""
+"""Diagnosis plots. Each takes ``ax=``/``axes=`` and returns the figure.
+
+Fixed margins rather than a layout engine: the diagnosis draws a hundred of these, and
+constrained layout took half of their time."""
 from __future__ import annotations
 
 import matplotlib
@@ -15,7 +18,8 @@ LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
 def plot_residuals(diag: Diagnosis, axes=None):
     """Residual of each coefficient against the variable of its first cause, with the fit."""
     if axes is None:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), constrained_layout=True)
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.12, top=0.9, wspace=0.28)
     d = diag.data
     first = {}
     for cause in diag.causes:
@@ -40,7 +44,8 @@ def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame 
     chans = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
              ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
     if axes is None:
-        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 11), sharex=True, constrained_layout=True)
+        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 11), sharex=True)
+        fig.subplots_adjust(left=0.1, right=0.98, bottom=0.05, top=0.95, hspace=0.12)
     for ax, (ch, label) in zip(axes, chans):
         ax.plot(data.t_s, data[ch], color="0.3", lw=3, alpha=0.4, label="measured")
         ax.plot(before.t_s, before[ch], "r--", lw=1.2, label="model")
@@ -57,7 +62,8 @@ def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame 
 def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
     """Residual time histories of a held-out log, before and after the extension."""
     if axes is None:
-        fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
+        fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+        fig.subplots_adjust(left=0.12, right=0.98, bottom=0.08, top=0.93, hspace=0.12)
     for ax, c in zip(axes, COEFFS):
         ax.plot(log_frame.t_s, log_frame[f"r_{c}"], "r-", lw=1, label="model")
         if after is not None:

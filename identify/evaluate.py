@@ -24,6 +24,7 @@ model's CG.
 """
 from __future__ import annotations
 
+import hashlib
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
@@ -143,6 +144,26 @@ class UnsetInput:
         return f"{self.name} (held at {self.value:g})"
 
 
+@dataclass(frozen=True)
+class Reference:
+    """A model's reference geometry: what eq. (1)'s coefficients need to be put in its terms.
+
+    Attributes
+    ----------
+    S : float
+        Wing area [ft^2].
+    cbar : float
+        Reference chord [ft].
+    aerorp_in, cg_in : tuple
+        AERORP and CG, structural x, y, z [in].
+    """
+
+    S: float
+    cbar: float
+    aerorp_in: tuple
+    cg_in: tuple
+
+
 class ModelEvaluator:
     """Evaluate a model aircraft's CL, CD and Cm (about its AERORP) at measured states.
 
@@ -160,12 +181,16 @@ class ModelEvaluator:
         not set; they keep the value shown (normally 0, as in level flight).
     frame_s : float
         JSBSim's frame [s]: α̇, β̇ and CL² are taken this long before each sample.
+    jobs : int
+        Worker processes :func:`identify.residuals.residual_data` spreads the logs over
+        (each evaluates the same model with JSBSim of its own).
     aerorp_in, cg_in : tuple
         The model's AERORP and CG, structural x, y, z [in].
     """
 
-    def __init__(self, model_dir: Path) -> None:
+    def __init__(self, model_dir: Path, jobs: int = 1) -> None:
         self.model_dir = Path(model_dir)
+        self.jobs = jobs
         name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
         try:
@@ -196,6 +221,11 @@ class ModelEvaluator:
         self.unset = [UnsetInput(p, float(fdm[p]) if p in self.names else 0.0) for p in sorted(inputs)
                       if p not in settable and not p.startswith(STATE_DERIVED) and not p.startswith("eval/")
                       and not (p.startswith("fcs/mag-") and "fcs/" + p[8:] in settable)]
+
+    @property
+    def reference(self) -> Reference:
+        """The model's reference geometry, without JSBSim (it pickles to worker processes)."""
+        return Reference(self.S, self.cbar, self.aerorp_in, self.cg_in)
 
     def _controls(self, data: pd.DataFrame) -> dict[str, np.ndarray]:
         """Every FCS output to set, from the measured control channels."""
@@ -298,3 +328,24 @@ class ModelEvaluator:
     def close(self) -> None:
         shutil.rmtree(self._tmp, ignore_errors=True)
 
+
+
+_EVALUATORS: dict[tuple[str, str], ModelEvaluator] = {}
+
+
+def evaluator_for(model_dir: Path) -> ModelEvaluator:
+    """This process's evaluator of a model folder, made once per folder content (in worker processes).
+
+    Its temporary copies are removed at once: JSBSim has read every file by then.
+    """
+    model_dir = Path(model_dir)
+    digest = hashlib.sha1()
+    for f in sorted(p for p in model_dir.rglob("*") if p.is_file()):
+        digest.update(str(f.relative_to(model_dir)).encode() + b"\0" + f.read_bytes())
+    key = (str(model_dir.resolve()), digest.hexdigest())
+    if key not in _EVALUATORS:
+        ev = ModelEvaluator(model_dir)
+        ev.close()
+        _EVALUATORS.clear()  # one model at a time: a worker serves one diagnosis
+        _EVALUATORS[key] = ev
+    return _EVALUATORS[key]

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 
 from identify.coefficients import coefficients
+from identify.evaluate import evaluator_for
 from identify.logs import Log
 from identify.models import lowpass
 from identify.residuals import COEFFS, FILTERED, kept, measured_about, signatures, variables
@@ -69,6 +71,35 @@ def _measured(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
     return measured_about(coefficients(data, meta), meta, evaluator)
 
 
+def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """d(model CL, CD, Cm)/d(channel) at a subsample of the log (JSBSim finite differences,
+    one noise level ``noise[channel]`` up); channels the model's inputs do not see are left out."""
+    d = log.data
+    t = d["t_s"].to_numpy()
+    dt = float(np.median(np.diff(t)))
+    rows = np.unique(np.linspace(0, len(d) - 1, max(int((t[-1] - t[0]) / SENSITIVITY_EVERY_S), 2)).astype(int))
+    ev = evaluator
+    inputs = ev.inputs(d, _measured(d, log.meta, ev)["CL"].to_numpy())
+    base = ev.evaluate(inputs, rows).to_numpy()
+    out = {}
+    for ch, sigma in noise.items():
+        if ch not in d:
+            continue
+        moved = d.copy()
+        moved[ch] = moved[ch] + sigma
+        cl = _measured(moved, log.meta, ev)["CL"].to_numpy()
+        changed = ev.inputs(moved, cl)
+        if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
+            continue
+        out[ch] = (ev.evaluate(changed, rows).to_numpy() - base) / sigma
+    return t[rows] if dt > 0 else rows.astype(float), out
+
+
+def _remote_sensitivity(model_dir, logs: list[Log], noise: dict[str, float]) -> list:
+    ev = evaluator_for(model_dir)
+    return [model_sensitivity(log, ev, noise) for log in logs]
+
+
 class NoiseFloor:
     """Sizes of the diagnosis's terms fitted to instrument noise alone.
 
@@ -91,38 +122,46 @@ class NoiseFloor:
     unmeasured : list of (channel, error)
         Instrument errors the data compatibility could not measure at all: named
         beside a cause they could make (:meth:`reach`), with the size they would need.
+    jobs : int
+        Worker processes the realizations are spread over (they need no JSBSim).
     """
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
-                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=()) -> None:
+                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
-        self.logs, self.evaluator, self.step = logs, evaluator, step
+        self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
+        self.ref = evaluator.reference
         names, cov = uncertain if uncertain is not None else ([], np.zeros((0, 0)))
         ok = [j for j, (c, _) in enumerate(names) if cov[j, j] > 0 and any(c in lg.data for lg in logs)]
         self.uncertain = [names[j] for j in ok]
         self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations, self.seed = realizations, seed
-        self._sens = [self._model_sensitivity(log) for log in logs]
-        self._meas = [_measured(log.data, log.meta, evaluator) for log in logs]
+        if jobs > 1 and len(logs) > 1:
+            chunks = np.array_split(np.arange(len(logs)), min(jobs, len(logs)))
+            parts = Parallel(n_jobs=len(chunks))(delayed(_remote_sensitivity)(
+                evaluator.model_dir, [logs[i] for i in c], self.noise) for c in chunks)
+            self._sens = [x for part in parts for x in part]
+        else:
+            self._sens = [model_sensitivity(log, evaluator, self.noise) for log in logs]
+        self._meas = [_measured(log.data, log.meta, self.ref) for log in logs]
+        self._numbers = [log.data.select_dtypes("number").astype(float) for log in logs]  # one block: cheap copies
+        self._metas = [log.meta for log in logs]
 
-    def _model_sensitivity(self, log: Log) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """d(model CL, CD, Cm)/d(channel) at a subsample of the log (JSBSim finite differences)."""
-        d = log.data
-        t = d["t_s"].to_numpy()
-        dt = float(np.median(np.diff(t)))
-        rows = np.unique(np.linspace(0, len(d) - 1, max(int((t[-1] - t[0]) / SENSITIVITY_EVERY_S), 2)).astype(int))
-        ev = self.evaluator
-        base = ev.evaluate(ev.inputs(d, _measured(d, log.meta, ev)["CL"].to_numpy()), rows).to_numpy()
-        out = {}
-        for ch, sigma in self.noise.items():
-            if ch not in d:
-                continue
-            moved = d.copy()
-            moved[ch] = moved[ch] + sigma
-            cl = _measured(moved, log.meta, ev)["CL"].to_numpy()
-            out[ch] = (ev.evaluate(ev.inputs(moved, cl), rows).to_numpy() - base) / sigma
-        return t[rows] if dt > 0 else rows.astype(float), out
+    def __getstate__(self) -> dict:  # to workers: no JSBSim, and the numbers only once
+        return {k: v for k, v in self.__dict__.items() if k not in ("evaluator", "logs")}
+
+    def _spread(self, method: str, items: list, *args) -> list:
+        """``method(chunk, *args)`` over ``items`` in :attr:`jobs` chunks, the results joined in order."""
+        if self.jobs <= 1 or len(items) < 2:
+            return getattr(self, method)(items, *args)
+        chunks = [c for c in np.array_split(np.arange(len(items)), min(self.jobs, len(items))) if len(c)]
+        parts = Parallel(n_jobs=len(chunks))(delayed(getattr(self, method))([items[i] for i in c], *args)
+                                             for c in chunks)
+        return [x for part in parts for x in part]
+
+    def _frames(self, specs: list[dict]) -> list[pd.DataFrame]:
+        return [self.realization(**spec) for spec in specs]
 
     def noisy(self, variables) -> bool:
         """Whether any of the variables is computed from a channel that holds noise."""
@@ -140,8 +179,8 @@ class NoiseFloor:
                 np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
                 if instruments and self.uncertain else np.zeros(len(self.uncertain)))
         names = self.uncertain if names is None else names
-        for i, log in enumerate(self.logs):
-            d = log.data
+        for i, meta in enumerate(self._metas):
+            d = self._numbers[i]
             t = d["t_s"].to_numpy()
             dt = float(np.median(np.diff(t)))
             rng = np.random.default_rng([self.seed, k, i])
@@ -154,19 +193,20 @@ class NoiseFloor:
                 if c in noisy and z:
                     x = noisy[c].to_numpy()
                     noisy[c] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
-            meas = _measured(noisy, log.meta, self.evaluator)
+            meas = _measured(noisy, meta, self.ref)
             ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
             out = {}
+            moved = noisy[list(sens)].to_numpy(dtype=float) - d[list(sens)].to_numpy(dtype=float)
             for j, c in enumerate(COEFFS):
                 r = meas[c].to_numpy() - self._meas[i][c].to_numpy()
-                for ch, sj in sens.items():  # the model's answer to the changed channels, linearised
-                    r = r - np.interp(t, ts, sj[:, j]) * (noisy[ch].to_numpy() - d[ch].to_numpy())
+                for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
+                    r = r - np.interp(t, ts, sj[:, j]) * moved[:, m]
                 out[f"r_{c}"] = lowpass(r, dt)[keep]
-            var = variables(noisy, log.meta, meas["CL"].to_numpy(), sorted(columns))
+            var = variables(noisy, meta, meas["CL"].to_numpy(), sorted(columns))
             sig = [c for c in columns if c.startswith("thrust_")]
             if sig:
-                var = pd.concat([var, signatures(noisy, log.meta, self.evaluator, meas)[sig]], axis=1)
+                var = pd.concat([var, signatures(noisy, meta, self.ref)[sig]], axis=1)
             for v in var.columns:
                 x = var[v].to_numpy()
                 out[v] = (lowpass(x, dt) if v in FILTERED or v in sig else x)[keep]
@@ -184,14 +224,20 @@ class NoiseFloor:
         columns = {v for _, terms in groups for t in terms for v in t.variables}
         if instruments and not self.uncertain:
             return [np.zeros(0) for _ in groups]
-        out = [np.empty(self.realizations) for _ in groups]
-        for k in range(self.realizations):
+        sizes = np.array(self._spread("_sizes", list(range(self.realizations)), groups, columns, instruments))
+        return [sizes[:, g].copy() for g in range(len(groups))] if len(sizes) else [np.zeros(0) for _ in groups]
+
+    def _sizes(self, ks: list[int], groups: list[tuple[str, list]], columns: set[str],
+               instruments: bool) -> list[list[float]]:
+        out = []
+        for k in ks:
             frame = self.realization(k, columns, noise=not instruments, instruments=instruments)
-            for g, (c, terms) in enumerate(groups):
+            row = []
+            for c, terms in groups:
                 x = np.column_stack([np.ones(len(frame))] + [t.design(frame) for t in terms])
                 beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
-                contrib = x[:, 1:] @ beta[1:]
-                out[g][k] = float(np.ptp(contrib))
+                row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
+            out.append(row)
         return out
 
     def instrument_responses(self) -> tuple[np.ndarray, list[pd.DataFrame]]:
@@ -202,7 +248,7 @@ class NoiseFloor:
         w, v = np.linalg.eigh(self.uncertain_cov)
         keep = w > 1e-12 * max(float(w.max()), 1e-300)
         axes = v[:, keep] * np.sqrt(w[keep])
-        return axes, [self.realization(0, set(), noise=False, errors=a) for a in axes.T]
+        return axes, self._spread("_frames", [{"k": 0, "columns": set(), "noise": False, "errors": a} for a in axes.T])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
               radius: float = REACH_SE) -> list[dict]:
@@ -229,8 +275,10 @@ class NoiseFloor:
         se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
         to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
-        blind = [(ch, e, self.realization(0, set(), noise=False, errors=np.array([unit[e]]), names=[(ch, e)]))
-                 for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
+        shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
+        frames = self._spread("_frames", [{"k": 0, "columns": set(), "noise": False,
+                                            "errors": np.array([unit[e]]), "names": [(ch, e)]} for ch, e in shown])
+        blind = [(ch, e, r) for (ch, e), r in zip(shown, frames)]
         out = []
         for c, terms, f in causes:
             f = np.asarray(f, float) - np.mean(f)

@@ -10,11 +10,14 @@ zero-phase low-pass filter.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 
-from identify.coefficients import D2R, FT_PER_KT, coefficients
-from identify.evaluate import moment_transfer
+from identify.coefficients import D2R, FT_PER_KT, coefficients, thrust_share
+from identify.evaluate import evaluator_for, moment_transfer
 from identify.kinematics import angle_rates
 from identify.logs import Log
 from identify.models import EDGE_S, lowpass
@@ -84,16 +87,13 @@ def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
                         index=coef.index)
 
 
-def signatures(data: pd.DataFrame, meta: dict, evaluator, meas: pd.DataFrame) -> pd.DataFrame:
+def signatures(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
     """What a relative thrust error adds to each measured coefficient, per unit error.
 
-    Eq. (1) is linear in the thrust, so a unit step gives it exactly.
+    Eq. (1) is linear in the thrust: the thrust's own share is exactly that.
     """
-    up = data.copy()
-    up["thrust_lbf"] = up["thrust_lbf"] * 2.0
-    moved = measured_about(coefficients(up, meta), meta, evaluator)
-    return pd.DataFrame({f"thrust_{c}": moved[c].to_numpy() - meas[c].to_numpy() for c in COEFFS},
-                        index=data.index)
+    moved = measured_about(thrust_share(data, meta), meta, evaluator)
+    return pd.DataFrame({f"thrust_{c}": moved[c].to_numpy() for c in COEFFS}, index=data.index)
 
 
 def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: pd.DataFrame,
@@ -136,6 +136,28 @@ def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
 def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = ()) -> pd.DataFrame:
     """Measured minus model coefficients at the measured states, for every log.
 
+    The logs are spread over ``evaluator.jobs`` worker processes, each with its own
+    JSBSim evaluation of the same model (:func:`identify.evaluate.evaluator_for`);
+    see :func:`_residual_data` for the rest.
+    """
+    jobs = min(getattr(evaluator, "jobs", 1), len(logs))
+    if jobs <= 1:
+        return _residual_data(logs, evaluator, step, delays)
+    chunks = np.array_split(np.arange(len(logs)), jobs)
+    parts = Parallel(n_jobs=jobs)(delayed(_remote_residual_data)(evaluator.model_dir, [logs[i] for i in c], step,
+                                                                 delays, int(c[0])) for c in chunks)
+    return pd.concat(parts, ignore_index=True)
+
+
+def _remote_residual_data(model_dir: Path, logs: list[Log], step: int | None, delays: tuple,
+                          offset: int) -> pd.DataFrame:
+    return _residual_data(logs, evaluator_for(model_dir), step, delays, offset)
+
+
+def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (),
+                   offset: int = 0) -> pd.DataFrame:
+    """Measured minus model coefficients at the measured states, for every log.
+
     The model is evaluated at the raw measured states (exact on noise-free
     data); the measured and model coefficients and the variables then pass
     through the zero-phase low-pass filter of the identification, 0.25 s is
@@ -144,7 +166,7 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
     Returns
     -------
     DataFrame
-        One row per sample: ``log`` (index into ``logs``), ``t_s``, the
+        One row per sample: ``log`` (index into ``logs``, plus ``offset``), ``t_s``, the
         variables, measured ``CL``/``CD``/``Cm``, the model's ``model_CL``...
         and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP); for each
         channel in ``delays``, its time-shift signature (:func:`delay_signature`).
@@ -159,12 +181,12 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
         both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
         both = smooth(both, dt, both.columns)
         var = smooth(variables(d, log.meta, cl), dt, FILTERED)
-        sig = signatures(d, log.meta, evaluator, meas)
+        sig = signatures(d, log.meta, evaluator)
         for ch in delays:
             sig = pd.concat([sig, delay_signature(d, evaluator, cl, pred, ch)], axis=1)
         sig = smooth(sig, dt, sig.columns)
         keep = kept(len(d), dt, step)
-        out = pd.DataFrame({"log": i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
+        out = pd.DataFrame({"log": offset + i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
         for v in VARIABLES:
             out[v] = var[v].to_numpy()[keep]
         for c in sig.columns:
