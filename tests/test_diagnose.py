@@ -106,10 +106,34 @@ def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     for name in ("diagnosis.txt", "extension.xml", "plots/residuals_vs_cause.png"):
         assert (out / name).stat().st_size > 0
     assert list((out / "plots").glob("response_*.png"))
+    # two workers (residuals, noise floor, replays and plots spread out) give the same diagnosis
+    out2 = tmp_path / "report2"
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out2),
+                 "--jobs", "2", "--quiet"]) == 0
+    doc2 = json.loads((out2 / "diagnosis.json").read_text())
+    _same(doc, doc2, "", skip={"path", "model", "extension", "extension_xml", "summary"})
+    assert sorted(p.name for p in (out / "plots").iterdir()) == sorted(p.name for p in (out2 / "plots").iterdir())
     # the report is never written over
     capsys.readouterr()
     assert main(["diagnose", "--data", str(data), "--model", doc["model"], "--out", str(out)]) == 2
     assert "will not overwrite" in capsys.readouterr().err
+
+
+def _same(a, b, where: str, skip=()) -> None:
+    """Equal structure and text, numbers to 1e-6 relative (worker processes evaluate in another order)."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), where
+        for k in a:
+            if k not in skip:
+                _same(a[k], b[k], f"{where}/{k}", skip)
+    elif isinstance(a, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{where}[{i}]", skip)
+    elif isinstance(a, float) and isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-6, abs=1e-12, nan_ok=True), where
+    else:
+        assert a == b, where
 
 
 def test_diagnose_bad_inputs(tmp_path, capsys):
