@@ -349,3 +349,15 @@ def evaluator_for(model_dir: Path) -> ModelEvaluator:
         _EVALUATORS.clear()  # one model at a time: a worker serves one diagnosis
         _EVALUATORS[key] = ev
     return _EVALUATORS[key]
+
+
+def in_chunks(func, items: list, jobs: int, *args) -> list:
+    """``func(chunk, *args)`` (a list back) over ``items`` cut into ``jobs`` contiguous chunks, each
+    in a worker process (in this one if ``jobs`` is 1), the results joined in order."""
+    jobs = min(jobs, len(items))
+    if jobs <= 1:
+        return func(list(items), *args)
+    from joblib import Parallel, delayed
+    chunks = np.array_split(np.arange(len(items)), jobs)
+    parts = Parallel(n_jobs=jobs)(delayed(func)([items[i] for i in c], *args) for c in chunks)
+    return [x for part in parts for x in part]

@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from identify.coefficients import coefficients
-from identify.evaluate import evaluator_for
+from identify.evaluate import evaluator_for, in_chunks
 from identify.logs import Log
 from identify.models import lowpass
 from identify.residuals import COEFFS, FILTERED, kept, measured_about, signatures, variables
@@ -95,7 +94,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     return t[rows] if dt > 0 else rows.astype(float), out
 
 
-def _remote_sensitivity(model_dir, logs: list[Log], noise: dict[str, float]) -> list:
+def _remote_sensitivity(logs: list[Log], model_dir, noise: dict[str, float]) -> list:
     ev = evaluator_for(model_dir)
     return [model_sensitivity(log, ev, noise) for log in logs]
 
@@ -137,13 +136,8 @@ class NoiseFloor:
         self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations, self.seed = realizations, seed
-        if jobs > 1 and len(logs) > 1:
-            chunks = np.array_split(np.arange(len(logs)), min(jobs, len(logs)))
-            parts = Parallel(n_jobs=len(chunks))(delayed(_remote_sensitivity)(
-                evaluator.model_dir, [logs[i] for i in c], self.noise) for c in chunks)
-            self._sens = [x for part in parts for x in part]
-        else:
-            self._sens = [model_sensitivity(log, evaluator, self.noise) for log in logs]
+        self._sens = (in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, self.noise) if jobs > 1
+                      else [model_sensitivity(log, evaluator, self.noise) for log in logs])
         self._meas = [_measured(log.data, log.meta, self.ref) for log in logs]
         self._numbers = [log.data.select_dtypes("number").astype(float) for log in logs]  # one block: cheap copies
         self._metas = [log.meta for log in logs]
@@ -153,12 +147,7 @@ class NoiseFloor:
 
     def _spread(self, method: str, items: list, *args) -> list:
         """``method(chunk, *args)`` over ``items`` in :attr:`jobs` chunks, the results joined in order."""
-        if self.jobs <= 1 or len(items) < 2:
-            return getattr(self, method)(items, *args)
-        chunks = [c for c in np.array_split(np.arange(len(items)), min(self.jobs, len(items))) if len(c)]
-        parts = Parallel(n_jobs=len(chunks))(delayed(getattr(self, method))([items[i] for i in c], *args)
-                                             for c in chunks)
-        return [x for part in parts for x in part]
+        return in_chunks(getattr(self, method), items, self.jobs, *args)
 
     def _frames(self, specs: list[dict]) -> list[pd.DataFrame]:
         return [self.realization(**spec) for spec in specs]

@@ -14,10 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from identify.coefficients import D2R, FT_PER_KT, coefficients, thrust_share
-from identify.evaluate import evaluator_for, moment_transfer
+from identify.evaluate import evaluator_for, in_chunks, moment_transfer
 from identify.kinematics import angle_rates
 from identify.logs import Log
 from identify.models import EDGE_S, lowpass
@@ -140,18 +139,15 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
     JSBSim evaluation of the same model (:func:`identify.evaluate.evaluator_for`);
     see :func:`_residual_data` for the rest.
     """
-    jobs = min(getattr(evaluator, "jobs", 1), len(logs))
-    if jobs <= 1:
+    if getattr(evaluator, "jobs", 1) <= 1:
         return _residual_data(logs, evaluator, step, delays)
-    chunks = np.array_split(np.arange(len(logs)), jobs)
-    parts = Parallel(n_jobs=jobs)(delayed(_remote_residual_data)(evaluator.model_dir, [logs[i] for i in c], step,
-                                                                 delays, int(c[0])) for c in chunks)
-    return pd.concat(parts, ignore_index=True)
+    return pd.concat(in_chunks(_remote_residual_data, list(enumerate(logs)), evaluator.jobs, evaluator.model_dir,
+                               step, delays), ignore_index=True)
 
 
-def _remote_residual_data(model_dir: Path, logs: list[Log], step: int | None, delays: tuple,
-                          offset: int) -> pd.DataFrame:
-    return _residual_data(logs, evaluator_for(model_dir), step, delays, offset)
+def _remote_residual_data(numbered: list[tuple[int, Log]], model_dir: Path, step: int | None,
+                          delays: tuple) -> list[pd.DataFrame]:
+    return [_residual_data([lg for _, lg in numbered], evaluator_for(model_dir), step, delays, numbered[0][0])]
 
 
 def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (),
