@@ -571,14 +571,16 @@ class _Blocks:
 
     def __init__(self, Js: np.ndarray, Jp: np.ndarray, e: np.ndarray, rows: list[np.ndarray]) -> None:
         self.rows = rows
-        self.A = [Jp[r] for r in rows]
-        self.B = [Js[r] for r in rows]
-        self.e = [e[r] for r in rows]
         self.Hss = Js.T @ Js
         self.gs = Js.T @ e
-        self.Hll = [a.T @ a for a in self.A]
-        self.Hsl = [b.T @ a for a, b in zip(self.A, self.B)]
-        self.gl = [a.T @ ee for a, ee in zip(self.A, self.e)]
+        self.Hll, self.Hsl, self.gl, self.Bb, self.gb = [], [], [], [], []  # each log's products only
+        for r in rows:
+            a, b, ee = Jp[r], Js[r], e[r]
+            self.Hll.append(a.T @ a)
+            self.Hsl.append(b.T @ a)
+            self.gl.append(a.T @ ee)
+            self.Bb.append(b.T @ b)
+            self.gb.append(b.T @ ee)
 
     def step(self, lam: float) -> tuple[np.ndarray, list[np.ndarray]]:
         """Damped Gauss-Newton step: shared part and each log's part."""
@@ -603,11 +605,11 @@ class _Blocks:
         if not len(self.gs):
             return np.zeros((0, 0))
         hll_inv = [np.linalg.pinv(h) for h in self.Hll]
-        own = [b.T @ b - h @ hi @ h.T for b, h, hi in zip(self.B, self.Hsl, hll_inv)]
+        own = [bb - h @ hi @ h.T for bb, h, hi in zip(self.Bb, self.Hsl, hll_inv)]
         S = self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv))
         L = len(self.rows)
-        d = np.array([np.linalg.pinv(S - s_l) @ (b.T @ ee - h @ hi @ (a.T @ ee))
-                      for a, b, ee, h, hi, s_l in zip(self.A, self.B, self.e, self.Hsl, hll_inv, own)])
+        d = np.array([np.linalg.pinv(S - s_l) @ (gb - h @ hi @ g)
+                      for gb, g, h, hi, s_l in zip(self.gb, self.gl, self.Hsl, hll_inv, own)])
         d -= d.mean(axis=0)
         return d.T @ d * ((L - 1) / L)
 

@@ -203,7 +203,7 @@ class _Lags:
 class _Fit:
     terms: list[Term]
     beta: np.ndarray
-    resid: np.ndarray
+    resid: np.ndarray | None
     rss: float
 
 
@@ -220,6 +220,17 @@ def _solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:
     w, v = np.linalg.eigh(gram)
     keep = w > 1e-12 * w[-1]
     return v[:, keep] @ ((v[:, keep].T @ xty) / w[keep])
+
+
+def _compact(x: np.ndarray):
+    """A design matrix as it is cheapest to hold: sparse (CSR) if most of it is zero (the hat
+    columns of a smooth term), else dense."""
+    from scipy import sparse
+    return sparse.csr_array(x) if np.count_nonzero(x) < 0.5 * x.size else x
+
+
+def _dense(x) -> np.ndarray:
+    return x.toarray() if hasattr(x, "toarray") else x
 
 
 class _Gram:
@@ -247,7 +258,7 @@ class _Gram:
             a = np.empty((hi - lo, at + 1), order="F")
             a[:, 0] = 1.0
             for t, x in designs.items():
-                a[:, self.index[t]] = x[lo:hi]
+                a[:, self.index[t]] = _dense(x[lo:hi])
             a[:, -1] = y[lo:hi]
             gram += a.T @ a
         self.scale = np.sqrt(np.diag(gram))
@@ -313,7 +324,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     """
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or _Lags(data["log"].to_numpy())
-    designs = {t: t.design(data) for t in terms}
+    designs = {t: _compact(t.design(data)) for t in terms}
     gram = _Gram(y, designs)
     chosen: list[Term] = []
     close: dict[str, list] = {}
@@ -331,6 +342,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             big = gram.fit(chosen + [t])
             n_eff = lags.n_eff(big.resid)
             f, p = _f_test(current, big, t.width, n_eff, p_now + t.width)
+            big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
                          "n_eff": n_eff, "fit": big})
         if not rows:
@@ -357,7 +369,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if r is not best and r["p_value"] < alpha_in and r["F"] >= 0.5 * best["F"]
             and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
         chosen.append(best["term"])
-        current = best["fit"]
+        current = gram.fit(chosen)
         for t in list(chosen[:-1]):  # backward step
             rest = [c for c in chosen if c != t]
             small = gram.fit(rest)
@@ -367,7 +379,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 chosen.remove(t)
                 current = small
     evidence = {}
-    current = _fit(y, [designs[c] for c in chosen], chosen)  # the answer itself by a rank-revealing solver
+    current = _fit(y, [_dense(designs[c]) for c in chosen], chosen)  # the answer itself by a rank-revealing solver
     n_eff = lags.n_eff(current.resid)
     p_all = 1 + sum(t.width for t in chosen)
     for t in chosen:

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import jsbsim
 import numpy as np
-import pytest
 
 from campaign.cli import main
 from campaign.store import LOCK, read_log
