@@ -101,9 +101,10 @@ class Parameter:
 
     @property
     def correctable(self) -> bool:
-        """At least :data:`CANDIDATE_Z` standard errors, larger than the channel's resolution, plausible."""
-        return bool(self.identifiable and self.z >= CANDIDATE_Z and MATTERS[self.unit] <= abs(self.estimate)
-                    <= PLAUSIBLE[self.unit])
+        """At least :data:`CANDIDATE_Z` standard errors (or measured by the kinematics and refined by the
+        aerodynamic residuals), larger than the channel's resolution, plausible."""
+        return bool(self.identifiable and (self.z >= CANDIDATE_Z or {"kinematics", "residuals"} <= set(self.sources))
+                    and MATTERS[self.unit] <= abs(self.estimate) <= PLAUSIBLE[self.unit])
 
     @property
     def applied(self) -> bool:

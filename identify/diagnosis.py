@@ -949,6 +949,62 @@ def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], e
     return compat
 
 
+#: An instrument error the accepted aero causes of at least two coefficients each owe this share
+#: of their variance to [%] ...
+AGREE_PCT = 80.0
+#: ... at sizes this close (largest over smallest, same sign) ...
+AGREE_RATIO = 1.5
+#: ... and within this many of the data compatibility's standard errors of its own estimate, is
+#: an instrument error: the residuals refine the correction instead of naming aero causes.
+AGREE_SE = 2.5
+
+
+def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict]) -> CompatResult | None:
+    """An air-data error the kinematics measured loosely and the aerodynamic residuals pin down.
+
+    A vane's scale or bias error moves the model's CL, CD and Cm together, each along its
+    own derivative; an aerodynamic error moves one coefficient. When one instrument
+    error explains the accepted causes of two coefficients or more (each at least
+    :data:`AGREE_PCT` % of its variance), at consistent sizes, and the correction it
+    adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate,
+    the two independent measurements agree: the correction is refined to what the
+    residuals need (the median over the coefficients), and the diagnosis runs again
+    on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
+
+    Returns
+    -------
+    CompatResult or None
+        The refined data compatibility, or None if no instrument error qualifies.
+    """
+    needs: dict[tuple[str, str], dict[str, float]] = {}
+    for cause, rc in zip(causes, reach):
+        if cause.kind != "aero" or not cause.verdict["accepted"]:
+            continue
+        for a in rc["alternatives"]:
+            if not a.get("unmeasured") and a["explains_pct"] >= AGREE_PCT:
+                needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
+    best = None
+    for (ch, err), by in needs.items():
+        v = np.array(list(by.values()))
+        if len(v) < 2 or not (np.all(v > 0) or np.all(v < 0)) or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v)):
+            continue
+        p = compat.get(f"{ch}.{err}")
+        total = (p.estimate if p.applied else 0.0) + float(np.median(v))
+        gap = abs(total - p.estimate) / p.se if p.se > 0 else np.inf
+        if gap <= AGREE_SE and (best is None or gap < best[0]):
+            best = (gap, p, total, by)
+    if best is None:
+        return None
+    gap, p, total, by = best
+    said = ", ".join(f"{c} {x:+.4g}" for c, x in by.items())
+    why = (f"the residuals of {', '.join(by)} each need it (a further {said}); {total:+.4g} in all, "
+           f"{gap:.1f} standard errors from the kinematics' {p.estimate:+.4g} +- {p.se:.2g}")
+    return replace(compat, parameters=[
+        replace(q, estimate=total, sources={**(q.sources or {"kinematics": (q.estimate, q.se)}),
+                                            "residuals": (total, q.se)}, chosen=why)
+        if q is p else q for q in compat.parameters])
+
+
 def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator, data: pd.DataFrame,
                   held_data: pd.DataFrame | None, step: int | None) -> list[Cause]:
     """The instrument errors the data compatibility corrected, as causes with their verdict.
@@ -1067,30 +1123,36 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         compat = residual_delays(compat, raw, raw_held, evaluator, step)
         logs = [compat.correct(lg) for lg in logs]
         held = [compat.correct(lg) for lg in held]
-    stage("residuals")
-    data = residual_data(logs, evaluator, step)
-    held_data = residual_data(held, evaluator, step) if held else None
-    stage("stepwise")
-    lags = _Lags(data["log"].to_numpy())
-    results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
-    causes = name_causes(results, data, lags)
-    noise = channel_noise(logs + held)
-    stage("noise floor")
-    floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None,
-                        unmeasured=compat.unmeasured if compat else (), jobs=jobs) if causes else None)
-    groups = [(c.coefficient, c.terms) for c in causes]
-    floors = floor.sizes(groups) if causes else []
-    stage("instrument reach")
-    aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
-    by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
-                                                                                             data)) for c in aero],
-                                                  data))) if aero else {}
-    reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
-    noisy = [floor.noisy(c.variables) for c in causes]
-    data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
-                         ignore_index=True)
-    stage("verdict")
-    judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
+    for refined in (False, True):
+        stage("residuals")
+        data = residual_data(logs, evaluator, step)
+        held_data = residual_data(held, evaluator, step) if held else None
+        stage("stepwise")
+        lags = _Lags(data["log"].to_numpy())
+        results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
+        causes = name_causes(results, data, lags)
+        noise = channel_noise(logs + held)
+        stage("noise floor")
+        floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None,
+                            unmeasured=compat.unmeasured if compat else (), jobs=jobs) if causes else None)
+        groups = [(c.coefficient, c.terms) for c in causes]
+        floors = floor.sizes(groups) if causes else []
+        stage("instrument reach")
+        aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
+        by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
+                                                                                                 data)) for c in aero],
+                                                      data))) if aero else {}
+        reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
+        noisy = [floor.noisy(c.variables) for c in causes]
+        data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
+                             ignore_index=True)
+        stage("verdict")
+        judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
+        better = None if refined or compat is None else residual_refinement(compat, causes, reach)
+        if better is None:
+            break
+        compat = better
+        logs, held = [compat.correct(lg) for lg in raw], [compat.correct(lg) for lg in raw_held]
     sensors = compat_causes(compat, raw, raw_held, evaluator, data, held_data, step) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
     accepted = _merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])

@@ -63,6 +63,21 @@ def test_a_vane_delay_in_turbulence_is_timed_by_the_aerodynamic_residuals(tmp_pa
     assert not r["aero_named"] and not r["other_sensors"], (r["aero_named"], r["other_sensors"])
 
 
+def test_a_vane_scale_the_kinematics_leave_undecided_is_refined_by_the_residuals(tmp_path):
+    """In turbulence the kinematics put a 4 % vane scale at about 3 standard errors, too few to
+    correct on their word alone; the model's CL, CD and Cm residuals each call for the same scale,
+    within the kinematics' error of their estimate: the vane is corrected, no aero cause named."""
+    fault = make_sensor("alpha_scale", np.random.default_rng(0), 0.04)
+    r = score_sensor(tmp_path, fault, seed=91_003)
+    comp = {p["channel"] + "." + p["error"]: p for p in r["doc"]["data_compatibility"]["parameters"]}
+    scale = comp["alpha_deg.scale"]
+    assert set(scale["methods"]) == {"kinematics", "residuals"}, scale
+    assert scale["methods"]["kinematics"]["estimate"] / scale["methods"]["kinematics"]["se"] < 5.0, scale
+    assert scale["applied"] and "residuals of CL, CD, Cm" in scale["chosen_because"], scale
+    assert r["sensor_first"] and r["within"], (r.get("estimate"), r.get("se"))
+    assert not r["aero_named"] and not r["other_sensors"], (r["aero_named"], r["other_sensors"])
+
+
 def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
     fault = make_sensor("alpha_bias", np.random.default_rng(0), 0.4)
     hidden = make("gear_saturating", np.random.default_rng(7), "CD")
