@@ -5,7 +5,11 @@
 Every stage runs as the command a user types (``campaign ...``) in a fresh process, on
 the paper's matrix with the flight-test instrument profile. Peak memory is each
 process's high-water mark (``VmHWM`` in ``/proc``), sampled every 50 ms over the
-command and all its workers: the main process and the largest worker are reported.
+command and all its workers: the main process and the largest worker are reported. RSS
+counts the shared libraries' pages in every process (about 80 MB of numpy, scipy,
+pandas and JSBSim code that the workers share); the largest unique memory (USS:
+``Private_Clean + Private_Dirty`` of ``/proc/<pid>/smaps_rollup``, sampled) is what a
+worker adds on its own.
 
 Last part: a campaign N times the paper's points (each paper point repeated at N
 altitudes 150 ft apart), flown and identified with 2 jobs, once per noise seed, and
@@ -40,6 +44,14 @@ def _hwm_kb(pid: int) -> int:
     return 0
 
 
+def _uss_kb(pid: int) -> int:
+    try:
+        lines = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
+    except OSError:
+        return 0
+    return sum(int(ln.split()[1]) for ln in lines if ln.startswith(("Private_Clean:", "Private_Dirty:")))
+
+
 def _descendants(pid: int) -> list[int]:
     out, todo = [], [pid]
     while todo:
@@ -53,18 +65,21 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
-def timed(args: list[str]) -> tuple[float, float, float, str]:
-    """Wall time [s], main process and largest worker peak RSS [MB], stdout of one command."""
+def timed(args: list[str]) -> tuple[float, float, float, str, float]:
+    """Wall time [s], main process and largest worker peak RSS [MB], stdout of one command, and the
+    largest worker's peak unique memory (USS) [MB]."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     t0 = time.perf_counter()
     proc = subprocess.Popen(CAMPAIGN + args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     peaks: dict[int, int] = {}
+    uss: dict[int, int] = {}
 
     def sample() -> None:
         while proc.poll() is None:
             for p in [proc.pid] + _descendants(proc.pid):
                 peaks[p] = max(peaks.get(p, 0), _hwm_kb(p))
+                uss[p] = max(uss.get(p, 0), _uss_kb(p))
             time.sleep(0.05)
 
     th = threading.Thread(target=sample, daemon=True)
@@ -76,7 +91,8 @@ def timed(args: list[str]) -> tuple[float, float, float, str]:
         raise SystemExit(f"campaign {' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
     main = peaks.pop(proc.pid, 0) / 1024
     worker = max((v for p, v in peaks.items() if v > 60_000), default=0) / 1024  # not the resource trackers
-    return wall, main, worker, out
+    unique = max((v for p, v in uss.items() if p != proc.pid), default=0) / 1024
+    return wall, main, worker, out, unique
 
 
 def stepping() -> tuple[float, str]:
@@ -131,11 +147,11 @@ def main() -> None:
              "--quiet"] + j)
     for name, r in stages.items():
         rows.append(f"| {name} | {r[1][0]:.1f} | {r[2][0]:.1f} | x{r[1][0] / r[2][0]:.2f} | {r[2][1]:.0f} | "
-                    f"{r[2][2]:.0f} |")
+                    f"{r[2][2]:.0f} | {r[2][4]:.0f} |")
     print(f"flying loop / raw fdm.run(): {ratio:.2f}\n")
     print("| stage (paper matrix, flight-test profile) | 1 job [s] | 2 jobs [s] | speed-up | main process peak "
-          "[MB], 2 jobs | largest worker peak [MB], 2 jobs |")
-    print("|---|---|---|---|---|---|")
+          "[MB], 2 jobs | largest worker peak [MB], 2 jobs | largest worker unique (USS) [MB], 2 jobs |")
+    print("|---|---|---|---|---|---|---|")
     print("\n".join(rows), flush=True)
     if a.skip_scale:
         shutil.rmtree(work, ignore_errors=True)
@@ -150,9 +166,9 @@ def main() -> None:
     total = 0.0
     for seed in range(a.seeds):
         camp = work / f"scaled-{seed}"
-        fw, fm, fk, _ = timed(["run", "--matrix", str(matrix), "--noise", "flight-test", "--seed", str(seed),
+        fw, fm, fk, *_ = timed(["run", "--matrix", str(matrix), "--noise", "flight-test", "--seed", str(seed),
                                "--no-identify", "--quiet", "--jobs", "2", "--out", str(camp)])
-        iw, im, ik, _ = timed(["identify", str(camp), "--jobs", "2", "--plots", "none"])
+        iw, im, ik, *_ = timed(["identify", str(camp), "--jobs", "2", "--plots", "none"])
         total += fw + iw
         print(f"| {seed} | {fw:.1f} | {iw:.1f} | {fw + iw:.1f} | {fw / n * 1000:.0f} | {max(fm, im):.0f} / "
               f"{max(fk, ik):.0f} |", flush=True)
