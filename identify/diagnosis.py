@@ -813,10 +813,6 @@ SENSOR_Z = APPLY_Z
 CORROBORATED_GAIN = 1.1
 
 
-def _rms(frame: pd.DataFrame, c: str) -> float:
-    return float(np.sqrt(np.mean(frame[f"r_{c}"].to_numpy() ** 2)))
-
-
 def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
               step: int | None = None) -> CompatResult:
     """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
@@ -827,7 +823,8 @@ def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluat
     3 to 5 standard errors from 0 may be real or a clustered standard error come out small.
     Each candidate is tried: the one that brings the model closest to the data is applied
     if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
-    on the fitted logs and on the held-out ones; the others keep what the residuals said.
+    on the fitted logs and on the held-out ones, as they are or beside the aerodynamic
+    terms the stepwise search fits (:func:`_trial`); the others keep what the residuals said.
     """
     groups: list[list] = []
     for p in compat.undecided:
@@ -835,31 +832,71 @@ def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluat
                   or p.name in {q.confounded_with for q in g}), None)
         g.append(p) if g is not None else groups.append([p])
     for g in groups:
-        tried = []
-        for p in g:
-            trial = compat.choose(p.name, "trial")
-            before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
-            after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
-            c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy()
-                                                               - before[f"r_{k}"].to_numpy()))))
-            gain = _rms(before, c) / max(_rms(after, c), 1e-300)
-            held = float("nan")
-            if raw_held:
-                held = (_rms(residual_data([compat.correct(lg) for lg in raw_held], evaluator, step), c)
-                        / max(_rms(residual_data([trial.correct(lg) for lg in raw_held], evaluator, step), c),
-                              1e-300))
-            tried.append((p, c, gain, held))
-        best = max(tried, key=lambda t: min(t[2], t[3]) if np.isfinite(t[3]) else t[2])
-        for p, c, gain, held in tried:
+        tried = [(p, *_trial(compat, compat.choose(p.name, "trial"), raw, raw_held, evaluator, step)) for p in g]
+        best = max(tried, key=lambda t: _score(t[2]))
+        for p, c, gains in tried:
             why = (f"the kinematics cannot tell it from {p.confounded_with}" if p.confounded_with else
                    f"{p.z:.1f} standard errors from the kinematics")
-            said = (f"RMS x{gain:.2f} smaller corrected" + (f", x{held:.2f} on held-out logs" if np.isfinite(held)
-                                                             else ""))
-            if p is best[0] and gain >= CORROBORATED_GAIN and not held < CORROBORATED_GAIN:
-                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {said}")
+            if p is best[0] and _agrees(gains):
+                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {_said(gains)}")
             else:
-                compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({said})")
+                compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({_said(gains)})")
     return compat
+
+
+def _trial(compat: CompatResult, trial: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
+           step: int | None) -> tuple[str, dict[str, tuple[float, float]]]:
+    """How much closer a trial correction brings the model to the data.
+
+    The coefficient whose residual the correction moves most is judged: its RMS before
+    over after, on the fitted logs and on the held-out ones (nan without), taken two ways:
+    ``as is``, and ``beside aero terms``, what is left after the aerodynamic terms the
+    stepwise search fits to each version (the held-out logs predicted by the terms fitted
+    on the others). An aerodynamic error in the same residual (a drag rise with Mach
+    beside an accelerometer bias) hides a real correction's gain in the first but not in
+    the second; an aerodynamic term that mimics the correction (a pitch-rate term for a
+    late vane) hides it in the second but not in the first.
+    """
+    before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
+    after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
+    c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
+    held = ((residual_data([compat.correct(lg) for lg in raw_held], evaluator, step),
+             residual_data([trial.correct(lg) for lg in raw_held], evaluator, step)) if raw_held else None)
+
+    def ratio(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(a ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+
+    def left(frame: pd.DataFrame, other: pd.DataFrame | None) -> tuple[np.ndarray, np.ndarray | None]:
+        res = stepwise(frame, c, candidate_terms(frame, c))
+        return (frame[f"r_{c}"].to_numpy() - res.predict(frame),
+                None if other is None else other[f"r_{c}"].to_numpy() - res.predict(other))
+
+    (lb, lbh), (la, lah) = left(before, held[0] if held else None), left(after, held[1] if held else None)
+    nan = float("nan")
+    return c, {"as is": (ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
+                         ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan),
+               "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan)}
+
+
+def _agrees(gains: dict[str, tuple[float, float]]) -> bool:
+    """As is: at least :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out
+    ones. Beside aero terms the fitted logs say little (the terms were fitted to them, and can
+    mimic the correction there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the
+    fitted ones not lose."""
+    g, h = gains["as is"]
+    gb, hb = gains["beside aero terms"]
+    return (g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN) or (gb >= 1.0 and hb >= CORROBORATED_GAIN)
+
+
+def _score(gains: dict[str, tuple[float, float]]) -> float:
+    g, h = gains["as is"]
+    gb, hb = gains["beside aero terms"]
+    return max(min(g, h) if np.isfinite(h) else g, min(gb, hb) if np.isfinite(hb) and gb >= 1.0 else 0.0)
+
+
+def _said(gains: dict[str, tuple[float, float]]) -> str:
+    return "; ".join(f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h)
+                                                                else "") for k, (g, h) in gains.items())
 
 
 #: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).
@@ -934,15 +971,10 @@ def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], e
             compat = compat.note(name, f"the residuals put it at {tau * 1000:+.0f} +- {se * 1000:.0f} ms, not a "
                                        f"correction to make")
             continue
-        before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
-        after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
-        c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
-        gain = _rms(before, c) / max(_rms(after, c), 1e-300)
-        held = (_rms(residual_data([compat.correct(lg) for lg in raw_held], evaluator, step), c)
-                / max(_rms(residual_data([trial.correct(lg) for lg in raw_held], evaluator, step), c), 1e-300))
+        c, gains = _trial(compat, trial, raw, raw_held, evaluator, step)
         said = (f"{tau * 1000:+.0f} +- {se * 1000:.1f} ms from the {best} residual (explains {100 * r2:.0f} % of "
-                f"it); the {c} residual RMS x{gain:.2f} smaller, x{held:.2f} on held-out logs")
-        if gain >= CORROBORATED_GAIN and held >= CORROBORATED_GAIN:
+                f"it); the {c} residual {_said(gains)}")
+        if _agrees(gains):
             compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}")
         else:
             compat = compat.note(name, f"the residuals put it at {said}: not applied")
@@ -1006,14 +1038,29 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
 
 
 def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator, data: pd.DataFrame,
-                  held_data: pd.DataFrame | None, step: int | None) -> list[Cause]:
+                  held_data: pd.DataFrame | None, step: int | None,
+                  aero: dict[str, list[Term]] | None = None) -> list[Cause]:
     """The instrument errors the data compatibility corrected, as causes with their verdict.
 
     Each correction is undone in turn and JSBSim evaluates the model again: its
     effect on the fitted logs' residuals is its size, and the held-out residual
-    RMS without it over the RMS with it is its held-out gain.
+    RMS without it over the RMS with it is its held-out gain. Where the stepwise search
+    found aerodynamic terms in the same coefficient (``aero``: coefficient -> terms), the
+    gain is also taken beside them (the terms fitted to each version, the held-out logs
+    predicted): an aerodynamic error must not hide an instrument error's gain. The larger counts.
     """
     causes = []
+    aero = aero or {}
+
+    def rms(x: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x ** 2)))
+
+    def beside(frame: pd.DataFrame, held: pd.DataFrame, c: str) -> np.ndarray:
+        y = frame[f"r_{c}"].to_numpy()
+        fit = _fit(y, [t.design(frame) for t in aero[c]], aero[c])
+        x = np.column_stack([np.ones(len(held))] + [t.design(held) for t in aero[c]])
+        return held[f"r_{c}"].to_numpy() - x @ fit.beta
+
     for p in compat.applied:
         undone = compat.without(p.name)
         r = residual_data([undone.correct(lg) for lg in raw], evaluator, step)
@@ -1022,8 +1069,10 @@ def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], eva
         gain = float("nan")
         if raw_held and held_data is not None:
             h = residual_data([undone.correct(lg) for lg in raw_held], evaluator, step)
-            after = float(np.sqrt(np.mean(held_data[f"r_{c}"] ** 2)))
-            gain = float(np.sqrt(np.mean(h[f"r_{c}"] ** 2))) / after if after > 0 else float("inf")
+            after = rms(held_data[f"r_{c}"].to_numpy())
+            gain = rms(h[f"r_{c}"].to_numpy()) / after if after > 0 else float("inf")
+            if aero.get(c):
+                gain = max(gain, rms(beside(r, h, c)) / max(rms(beside(data, held_data, c)), 1e-300))
         reasons = []
         if p.z < SENSOR_Z and not p.chosen:
             reasons.append(f"only {p.z:.1f} standard errors (needs {SENSOR_Z:g}, or the residuals to agree)")
@@ -1153,7 +1202,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             break
         compat = better
         logs, held = [compat.correct(lg) for lg in raw], [compat.correct(lg) for lg in raw_held]
-    sensors = compat_causes(compat, raw, raw_held, evaluator, data, held_data, step) if compat else []
+    aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
+    sensors = compat_causes(compat, raw, raw_held, evaluator, data, held_data, step, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
     accepted = _merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
     rejected = [c for c in sensors + causes if not c.verdict["accepted"]]

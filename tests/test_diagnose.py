@@ -91,6 +91,21 @@ def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
     assert {"coefficient", "variables"} <= set(aero) and "channel" not in aero
 
 
+def test_an_accelerometer_bias_beside_a_drag_rise_is_named_with_it(tmp_path):
+    """The kinematics measure the x-accelerometer's bias precisely but cannot tell it from a pitch
+    attitude bias; a drag rise with Mach in the same residual hides the correction's gain in the
+    raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version."""
+    rng = np.random.default_rng(95_003)
+    fault = make_sensor("accel_bias", rng)
+    hidden = make("mach", rng)
+    assert fault.channel == "ax_fps2" and hidden.coefficient == "CD"
+    r = score_sensor(tmp_path, fault, seed=96_003, hidden=hidden)
+    assert r["sensor_ok"] and r["within"], (r.get("estimate"), r.get("se"), r["doc"]["rejected"][:1])
+    assert r["coefficient_ok"] and r["variable_ok"], r["aero_named"]
+    comp = {p["channel"] + "." + p["error"]: p for p in r["doc"]["data_compatibility"]["parameters"]}
+    assert "beside aero terms" in comp["ax_fps2.bias"]["chosen_because"]
+
+
 @pytest.mark.parametrize("seed", [21, 22])
 def test_noise_alone_is_no_discrepancy(tmp_path, seed):
     r = score(tmp_path, None, seed=seed)
