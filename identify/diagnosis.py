@@ -850,9 +850,9 @@ def _trial(compat: CompatResult, trial: CompatResult, raw: list[Log], raw_held: 
 
     The coefficient whose residual the correction moves most is judged: its RMS before
     over after, on the fitted logs and on the held-out ones (nan without), taken two ways:
-    ``as is``, and ``beside aero terms``, what is left after the aerodynamic terms the
-    stepwise search fits to each version (the held-out logs predicted by the terms fitted
-    on the others). An aerodynamic error in the same residual (a drag rise with Mach
+    ``as is``, and ``beside aero terms``, what is left after the terms the stepwise search
+    fits to each version (aerodynamic, and the thrust-scale signature; the held-out logs
+    predicted by the terms fitted on the others). An aerodynamic error in the same residual (a drag rise with Mach
     beside an accelerometer bias) hides a real correction's gain in the first but not in
     the second; an aerodynamic term that mimics the correction (a pitch-rate term for a
     late vane) hides it in the second but not in the first.
@@ -1182,7 +1182,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         causes = name_causes(results, data, lags)
         noise = channel_noise(logs + held)
         stage("noise floor")
-        floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=compat.uncertainty() if compat else None,
+        floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
+                            uncertain=compat.uncertainty() if compat else None,
                             unmeasured=compat.unmeasured if compat else (), jobs=jobs) if causes else None)
         groups = [(c.coefficient, c.terms) for c in causes]
         floors = floor.sizes(groups) if causes else []
