@@ -981,8 +981,8 @@ def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], e
     return compat
 
 
-#: An instrument error the accepted aero causes of at least two coefficients each owe this share
-#: of their variance to [%] ...
+#: An instrument error the significant aero causes of at least two coefficients each owe this
+#: share of their variance to [%] ...
 AGREE_PCT = 80.0
 #: ... at sizes this close (largest over smallest, same sign) ...
 AGREE_RATIO = 1.5
@@ -991,13 +991,15 @@ AGREE_RATIO = 1.5
 AGREE_SE = 2.5
 
 
-def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict]) -> CompatResult | None:
+def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict],
+                        alpha_in: float = 1e-6) -> CompatResult | None:
     """An air-data error the kinematics measured loosely and the aerodynamic residuals pin down.
 
     A vane's scale or bias error moves the model's CL, CD and Cm together, each along its
     own derivative; an aerodynamic error moves one coefficient. When one instrument
-    error explains the accepted causes of two coefficients or more (each at least
-    :data:`AGREE_PCT` % of its variance), at consistent sizes, and the correction it
+    error explains the causes of two coefficients or more (each at least :data:`AGREE_PCT`
+    % of its variance; significant and above the noise floor, whether or not the held-out
+    checks accepted them), at consistent sizes, and the correction it
     adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate,
     the two independent measurements agree: the correction is refined to what the
     residuals need (the median over the coefficients), and the diagnosis runs again
@@ -1010,7 +1012,8 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     """
     needs: dict[tuple[str, str], dict[str, float]] = {}
     for cause, rc in zip(causes, reach):
-        if cause.kind != "aero" or not cause.verdict["accepted"]:
+        if (cause.kind != "aero" or not cause.evidence["p_value"] < alpha_in
+                or not cause.size > cause.verdict["noise_floor"]):
             continue
         for a in rc["alternatives"]:
             if not a.get("unmeasured") and a["explains_pct"] >= AGREE_PCT:
@@ -1198,7 +1201,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                              ignore_index=True)
         stage("verdict")
         judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
-        better = None if refined or compat is None else residual_refinement(compat, causes, reach)
+        better = (None if refined or compat is None else
+                  residual_refinement(compat, causes, reach, kw.get("alpha_in", 1e-6)))
         if better is None:
             break
         compat = better
