@@ -90,6 +90,7 @@ class Parameter:
     sources: dict = field(default_factory=dict)  # method -> (estimate, se) when several methods combine
     confounded_with: str = ""  # the parameter the kinematics cannot tell it from (held at 0)
     chosen: str = ""  # why it is applied although confounded (the aerodynamic residuals chose it)
+    beside_aero: bool = False  # the residuals agreed only beside the aerodynamic terms fitted to them
 
     @property
     def name(self) -> str:
@@ -173,9 +174,10 @@ class CompatResult:
             i += len(b)
         return names, total
 
-    def choose(self, name: str, why: str) -> "CompatResult":
+    def choose(self, name: str, why: str, beside_aero: bool = False) -> "CompatResult":
         """The same result with a confounded parameter applied (its partner held at 0), and why."""
-        return replace(self, parameters=[replace(p, chosen=why) if p.name == name else p for p in self.parameters])
+        return replace(self, parameters=[replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p
+                                         for p in self.parameters])
 
     def note(self, name: str, text: str) -> "CompatResult":
         """The same result with a note added to one parameter's reason."""

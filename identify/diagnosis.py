@@ -837,8 +837,10 @@ def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluat
         for p, c, gains in tried:
             why = (f"the kinematics cannot tell it from {p.confounded_with}" if p.confounded_with else
                    f"{p.z:.1f} standard errors from the kinematics")
-            if p is best[0] and _agrees(gains):
-                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {_said(gains)}")
+            way = _agrees(gains) if p is best[0] else ""
+            if way:
+                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {_said(gains)}",
+                                       beside_aero=way != "as is")
             else:
                 compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({_said(gains)})")
     return compat
@@ -878,14 +880,15 @@ def _trial(compat: CompatResult, trial: CompatResult, raw: list[Log], raw_held: 
                "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan)}
 
 
-def _agrees(gains: dict[str, tuple[float, float]]) -> bool:
-    """As is: at least :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out
-    ones. Beside aero terms the fitted logs say little (the terms were fitted to them, and can
-    mimic the correction there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the
-    fitted ones not lose."""
+def _agrees(gains: dict[str, tuple[float, float]]) -> str:
+    """The way the residuals agree with a correction ("" if neither). As is: at least
+    :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out ones. Beside aero
+    terms the fitted logs say little (the terms were fitted to them, and can mimic the correction
+    there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the fitted ones not lose."""
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
-    return (g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN) or (gb >= 1.0 and hb >= CORROBORATED_GAIN)
+    return ("as is" if g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN else
+            "beside aero terms" if gb >= 1.0 and hb >= CORROBORATED_GAIN else "")
 
 
 def _score(gains: dict[str, tuple[float, float]]) -> float:
@@ -903,10 +906,12 @@ def _said(gains: dict[str, tuple[float, float]]) -> str:
 RESIDUAL_DELAY_ITERATIONS = 3
 
 
-def _with_estimate(compat: CompatResult, name: str, estimate: float, se: float, chosen: str) -> CompatResult:
+def _with_estimate(compat: CompatResult, name: str, estimate: float, se: float, chosen: str,
+                   beside_aero: bool = False) -> CompatResult:
     """The same result with one parameter estimated by the residuals and applied."""
     return replace(compat, parameters=[
-        replace(q, identifiable=True, estimate=estimate, se=se, sources={"residuals": (estimate, se)}, chosen=chosen)
+        replace(q, identifiable=True, estimate=estimate, se=se, sources={"residuals": (estimate, se)}, chosen=chosen,
+                beside_aero=beside_aero)
         if q.name == name else q for q in compat.parameters])
 
 
@@ -974,8 +979,10 @@ def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], e
         c, gains = _trial(compat, trial, raw, raw_held, evaluator, step)
         said = (f"{tau * 1000:+.0f} +- {se * 1000:.1f} ms from the {best} residual (explains {100 * r2:.0f} % of "
                 f"it); the {c} residual {_said(gains)}")
-        if _agrees(gains):
-            compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}")
+        way = _agrees(gains)
+        if way:
+            compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}",
+                                    beside_aero=way != "as is")
         else:
             compat = compat.note(name, f"the residuals put it at {said}: not applied")
     return compat
@@ -1047,10 +1054,13 @@ def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], eva
 
     Each correction is undone in turn and JSBSim evaluates the model again: its
     effect on the fitted logs' residuals is its size, and the held-out residual
-    RMS without it over the RMS with it is its held-out gain. Where the stepwise search
-    found aerodynamic terms in the same coefficient (``aero``: coefficient -> terms), the
-    gain is also taken beside them (the terms fitted to each version, the held-out logs
-    predicted): an aerodynamic error must not hide an instrument error's gain. The larger counts.
+    RMS without it over the RMS with it is its held-out gain. A correction the residuals
+    chose only beside the aerodynamic terms (:func:`_trial`) is judged the same way: where
+    the stepwise search found aerodynamic terms in its coefficient (``aero``: coefficient
+    -> terms), the gain is also taken beside them (the terms fitted to each version, the
+    held-out logs predicted), and the larger counts. A correction the kinematics made on
+    their own word is not: with few conditions, fitted terms leave offsets between them
+    that any correction shaped like 1/qbar can seem to explain.
     """
     causes = []
     aero = aero or {}
@@ -1074,7 +1084,7 @@ def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], eva
             h = residual_data([undone.correct(lg) for lg in raw_held], evaluator, step)
             after = rms(held_data[f"r_{c}"].to_numpy())
             gain = rms(h[f"r_{c}"].to_numpy()) / after if after > 0 else float("inf")
-            if aero.get(c):
+            if aero.get(c) and p.beside_aero:
                 gain = max(gain, rms(beside(r, h, c)) / max(rms(beside(data, held_data, c)), 1e-300))
         reasons = []
         if p.z < SENSOR_Z and not p.chosen:
