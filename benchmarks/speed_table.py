@@ -1,6 +1,6 @@
 """One table of the tool's speed on this machine: stages with 1 and 2 jobs, peak memory, scaling.
 
-    python benchmarks/speed_table.py [--scale N] [--seeds K] [--skip-scale]
+    python benchmarks/speed_table.py [--scale N] [--seeds K] [--skip-scale | --only-scale]
 
 Every stage runs as the command a user types (``campaign ...``) in a fresh process, on
 the paper's matrix with the flight-test instrument profile. Peak memory is each
@@ -126,12 +126,16 @@ def main() -> None:
     ap.add_argument("--scale", type=int, default=10)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--skip-scale", action="store_true")
+    ap.add_argument("--only-scale", action="store_true", help="the scaled campaign only (and the paper matrix's "
+                                                             "flying with 2 jobs, its reference)")
     a = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="speed-"))
     rows = []
-    ratio, _ = stepping()
     stages = {}
-    for jobs in (1, 2):
+    if a.only_scale:
+        stages["fly (138 manoeuvres)"] = {2: timed(["run", "--noise", "flight-test", "--no-identify", "--quiet",
+                                                    "--out", str(work / "paper"), "--jobs", "2"])}
+    for jobs in () if a.only_scale else (1, 2):
         camp = work / f"paper-j{jobs}"
         j = ["--jobs", str(jobs)]
         stages.setdefault("fly (138 manoeuvres)", {})[jobs] = timed(
@@ -145,14 +149,15 @@ def main() -> None:
         stages.setdefault("diagnose (full matrix)", {})[jobs] = timed(
             ["diagnose", "--data", str(camp), "--model", "aircraft/737", "--out", str(work / f"diag-j{jobs}"),
              "--quiet"] + j)
-    for name, r in stages.items():
+    for name, r in stages.items() if not a.only_scale else ():
         rows.append(f"| {name} | {r[1][0]:.1f} | {r[2][0]:.1f} | x{r[1][0] / r[2][0]:.2f} | {r[2][1]:.0f} | "
                     f"{r[2][2]:.0f} | {r[2][4]:.0f} |")
-    print(f"flying loop / raw fdm.run(): {ratio:.2f}\n")
-    print("| stage (paper matrix, flight-test profile) | 1 job [s] | 2 jobs [s] | speed-up | main process peak "
-          "[MB], 2 jobs | largest worker peak [MB], 2 jobs | largest worker unique (USS) [MB], 2 jobs |")
-    print("|---|---|---|---|---|---|---|")
-    print("\n".join(rows), flush=True)
+    if not a.only_scale:
+        print(f"flying loop / raw fdm.run(): {stepping()[0]:.2f}\n")
+        print("| stage (paper matrix, flight-test profile) | 1 job [s] | 2 jobs [s] | speed-up | main process peak "
+              "[MB], 2 jobs | largest worker peak [MB], 2 jobs | largest worker unique (USS) [MB], 2 jobs |")
+        print("|---|---|---|---|---|---|---|")
+        print("\n".join(rows), flush=True)
     if a.skip_scale:
         shutil.rmtree(work, ignore_errors=True)
         return
