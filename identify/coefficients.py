@@ -36,12 +36,8 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     """
     g = meta["geometry"]
     inertia = meta["inertia_slugft2"]
-    s, cbar = g["S_ft2"], g["cbar_ft"]
-    a = data["alpha_deg"].to_numpy() * D2R
-    qs = data["qbar_psf"].to_numpy() * s
-    m = data["mass_slug"].to_numpy()
-    fx = m * data["ax_fps2"].to_numpy() - data["thrust_lbf"].to_numpy()
-    fz = m * data["az_fps2"].to_numpy()
+    cbar = g["cbar_ft"]
+    a, qs, fx, fz = _aero_forces(data, meta)
     cl = (-fz * np.cos(a) + fx * np.sin(a)) / qs
     cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
@@ -52,6 +48,22 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     moment_thrust = -g.get("thrust_z_arm_ft", 0.0) * data["thrust_lbf"].to_numpy()
     cm = (moment - moment_thrust) / (qs * cbar)
     return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm, "Cx": fx / qs, "Cz": fz / qs}, index=data.index)
+
+
+def _aero_forces(data: pd.DataFrame, meta: dict) -> tuple[np.ndarray, ...]:
+    """Alpha [rad], qbar S [lbf] and the body-axis aero forces fx (forward), fz (down) [lbf]."""
+    a = data["alpha_deg"].to_numpy() * D2R
+    qs = data["qbar_psf"].to_numpy() * meta["geometry"]["S_ft2"]
+    m = data["mass_slug"].to_numpy()
+    fx = m * data["ax_fps2"].to_numpy() - data["thrust_lbf"].to_numpy()
+    fz = m * data["az_fps2"].to_numpy()
+    return a, qs, fx, fz
+
+
+def lift_coefficient(data: pd.DataFrame, meta: dict) -> np.ndarray:
+    """CL alone (eq. 1a), as :func:`coefficients` gives it, without the pitch acceleration's cost [-]."""
+    a, qs, fx, fz = _aero_forces(data, meta)
+    return (-fz * np.cos(a) + fx * np.sin(a)) / qs
 
 
 def thrust_share(data: pd.DataFrame, meta: dict) -> pd.DataFrame:

@@ -15,6 +15,8 @@ alpha rate follows the measured alpha.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import pandas as pd
 from scipy.integrate import cumulative_trapezoid
@@ -106,22 +108,32 @@ JSBSIM_FRAME_S = 1.0 / 120.0
 ANCHOR_S = 0.25
 
 
+@lru_cache(maxsize=64)
+def _end_weights(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights giving, from ``m`` samples, a least-squares quadratic's value at the first and
+    at the last of them (the fit is linear in the samples)."""
+    v = np.vander(np.arange(m, dtype=float), 3)
+    pinv = np.linalg.pinv(v)
+    return v[0] @ pinv, v[-1] @ pinv
+
+
 def odd_extension(x: np.ndarray, pad: int, anchor: int) -> np.ndarray:
     """``x`` with ``pad`` samples reflected oddly at each end, about the value a quadratic
     fitted to its first (last) ``anchor`` samples takes there.
 
     Reflecting about the end sample itself (scipy's ``padtype="odd"``) pins a
     zero-phase filter's output to that one noisy sample; the fit keeps a ramp a
-    ramp (and a curve nearly one) without it.
+    ramp (and a curve nearly one) without it. A 2-D ``x`` is extended along axis 0,
+    each column on its own.
     """
     x = np.asarray(x, dtype=float)
     pad = min(pad, len(x) - 1)
     if pad <= 0:
         return x
     m = max(min(anchor, len(x)), 3)
-    k = np.arange(m)
-    left = np.polyval(np.polyfit(k, x[:m], 2), 0)
-    right = np.polyval(np.polyfit(k, x[-m:], 2), m - 1)
+    w_first, w_last = _end_weights(m)
+    left = w_first @ x[:m]
+    right = w_last @ x[-m:]
     return np.concatenate([2 * left - x[pad:0:-1], x, 2 * right - x[-2:-pad - 2:-1]])
 
 

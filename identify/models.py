@@ -45,11 +45,12 @@ def _butter(wn: float) -> tuple[np.ndarray, np.ndarray]:
 
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Zero-phase 4th-order Butterworth low-pass filter, the ends padded by
-    :func:`identify.kinematics.odd_extension`."""
+    :func:`identify.kinematics.odd_extension`. A 2-D ``x`` is filtered along axis 0,
+    each column on its own (one call for many signals of the same record)."""
     b, a = _butter(cutoff_hz * 2.0 * dt)
     x = np.asarray(x, dtype=float)
     pad = min(len(x) - 1, 3 * max(len(a), len(b)) * 20)
-    y = filtfilt(b, a, odd_extension(x, pad, int(round(ANCHOR_S / dt))), padtype=None)
+    y = filtfilt(b, a, odd_extension(x, pad, int(round(ANCHOR_S / dt))), axis=0, padtype=None)
     return y[pad:pad + len(x)]
 
 
@@ -119,9 +120,9 @@ def regressors(log: Log, ref: Reference) -> pd.DataFrame:
 def _filtered(log: Log, frame: pd.DataFrame) -> pd.DataFrame:
     dt = _dt(log)
     out = frame.copy()
-    for c in frame.columns:
-        if c != "const":
-            out[c] = lowpass(frame[c].to_numpy(), dt)
+    cols = [c for c in frame.columns if c != "const"]
+    if cols:
+        out[cols] = lowpass(frame[cols].to_numpy(dtype=float), dt)
     return out
 
 

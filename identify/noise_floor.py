@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from identify.coefficients import coefficients
+from identify.coefficients import coefficients, lift_coefficient
 from identify.evaluate import evaluator_for, in_chunks
 from identify.logs import Log
 from identify.models import lowpass
@@ -70,6 +70,11 @@ def _measured(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
     return measured_about(coefficients(data, meta), meta, evaluator)
 
 
+def _measured_cl(data: pd.DataFrame, meta: dict, evaluator) -> np.ndarray:
+    """The measured CL in the model's reference, as :func:`_measured` gives it."""
+    return lift_coefficient(data, meta) * (meta["geometry"]["S_ft2"] / evaluator.S)
+
+
 def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """d(model CL, CD, Cm)/d(channel) at a subsample of the log (JSBSim finite differences,
     one noise level ``noise[channel]`` up); channels the model's inputs do not see are left out."""
@@ -78,7 +83,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     dt = float(np.median(np.diff(t)))
     rows = np.unique(np.linspace(0, len(d) - 1, max(int((t[-1] - t[0]) / SENSITIVITY_EVERY_S), 2)).astype(int))
     ev = evaluator
-    inputs = ev.inputs(d, _measured(d, log.meta, ev)["CL"].to_numpy())
+    inputs = ev.inputs(d, _measured_cl(d, log.meta, ev))
     base = ev.evaluate(inputs, rows).to_numpy()
     out = {}
     for ch, sigma in noise.items():
@@ -86,7 +91,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
             continue
         moved = d.copy()
         moved[ch] = moved[ch] + sigma
-        cl = _measured(moved, log.meta, ev)["CL"].to_numpy()
+        cl = _measured_cl(moved, log.meta, ev)
         changed = ev.inputs(moved, cl)
         if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
             continue
@@ -185,20 +190,19 @@ class NoiseFloor:
             meas = _measured(noisy, meta, self.ref)
             ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
-            out = {}
             moved = noisy[list(sens)].to_numpy(dtype=float) - d[list(sens)].to_numpy(dtype=float)
-            for j, c in enumerate(COEFFS):
-                r = meas[c].to_numpy() - self._meas[i][c].to_numpy()
-                for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
-                    r = r - np.interp(t, ts, sj[:, j]) * moved[:, m]
-                out[f"r_{c}"] = lowpass(r, dt)[keep]
+            r = meas[list(COEFFS)].to_numpy() - self._meas[i][list(COEFFS)].to_numpy()
+            for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
+                r = r - np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) * moved[:, [m]]
+            out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
             var = variables(noisy, meta, meas["CL"].to_numpy(), sorted(columns))
             sig = [c for c in columns if c.startswith("thrust_")]
             if sig:
                 var = pd.concat([var, signatures(noisy, meta, self.ref)[sig]], axis=1)
-            for v in var.columns:
-                x = var[v].to_numpy()
-                out[v] = (lowpass(x, dt) if v in FILTERED or v in sig else x)[keep]
+            smoothed = [v for v in var.columns if v in FILTERED or v in sig]
+            if smoothed:
+                out.update(zip(smoothed, lowpass(var[smoothed].to_numpy(dtype=float), dt)[keep].T))
+            out.update((v, var[v].to_numpy()[keep]) for v in var.columns if v not in out)
             frames.append(pd.DataFrame(out))
         return pd.concat(frames, ignore_index=True)
 

@@ -114,9 +114,9 @@ def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: pd.Dat
 
 def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
     out = frame.copy()
-    for c in columns:
-        if c in out:
-            out[c] = lowpass(out[c].to_numpy(), dt)
+    cols = [c for c in columns if c in out]
+    if cols:
+        out[cols] = lowpass(out[cols].to_numpy(dtype=float), dt)
     return out
 
 
