@@ -111,7 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="measured logs: a campaign folder, a folder of CSV logs with JSON sidecars, or a file")
     dia.add_argument("--model", required=True, metavar="AIRCRAFT_DIR", help="the model aircraft folder")
     dia.add_argument("--out", required=True, metavar="DIR", help="new folder for the report")
-    dia.add_argument("--no-plots", action="store_true", help="skip the plots")
+    which = dia.add_mutually_exclusive_group()
+    which.add_argument("--plots", choices=("key", "all", "none"), default="key",
+                       help="'key' (default): the overview and the held-out manoeuvres where the first cause acts "
+                            "(without a cause, those with the largest residuals); 'all': every held-out manoeuvre")
+    which.add_argument("--no-plots", action="store_true", help="no plots (same as --plots none)")
     dia.add_argument("--jobs", type=_jobs, default=1,
                      help="parallel workers for the noise floor, the replays and the plots (default 1)")
     dia.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -209,8 +213,9 @@ def _main(args) -> int:
             return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis
-            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out), plots=not args.no_plots,
-                                jobs=args.jobs, progress=not args.quiet and sys.stderr.isatty())
+            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out),
+                                plots="none" if args.no_plots else args.plots, jobs=args.jobs,
+                                progress=not args.quiet and sys.stderr.isatty())
             print(doc["summary"])
             print(f"report in {args.out}")
             return 0

@@ -100,7 +100,12 @@ STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "n
           "verdict", "extension", "replays", "plots")
 
 
-def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = True, jobs: int = 1,
+#: Which held-out logs get plots of their own: ``key`` those where the first aerodynamic cause acts
+#: (without one, those with the largest residual of each coefficient), ``all`` every one.
+PLOTS = ("key", "all", "none")
+
+
+def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
                   progress: bool = False) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
@@ -108,13 +113,17 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
     ----------
     data_path, model_dir, out : Path
         Measured logs (:func:`load_data`), the model aircraft folder, a new report folder.
-    plots : bool
-        Draw the plots.
+    plots : {"key", "all", "none"} or bool
+        Which plots to draw (:data:`PLOTS`; True is ``key``, False ``none``). The overview of
+        the residuals against each cause is always drawn unless ``none``.
     jobs : int
         Worker processes for the noise floor, the replays and the plots.
     progress : bool
         A progress bar of the stages on stderr.
     """
+    plots = {True: "key", False: "none"}.get(plots, plots)
+    if plots not in PLOTS:
+        raise UserError(f"plots: {plots!r} is not one of {', '.join(PLOTS)}")
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
@@ -151,7 +160,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                  "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
                  "data": {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
                           "held_out": [lg.path for lg in held]},
-                 "model": str(model)}
+                 "model": str(model), "plotted_logs": []}
     before = diag.held
     held = diag.held_logs  # as corrected for instrument errors
     extended_eval = None
@@ -195,12 +204,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: bool = Tru
                        "residual_gain": rms_acting[top]["gain"], "coefficient": top,
                        "residual_rms": rms_acting, "residual_rms_all_held_out": rms,
                        "replay_max_error": worst, "replay_per_log": replays}
-        if plots:
+        if plots != "none":
             stage("plots")
-            _plots(diag, held, before, after, flown, out, run)
-    elif plots:
+            doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, run,
+                                         None if plots == "all" else acting)
+    elif plots != "none":
         stage("plots")
-        _plots(diag, held, before, None, {}, out, run)
+        doc["plotted_logs"] = _plots(diag, held, before, None, {}, out, run,
+                                     None if plots == "all" else _largest(before))
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = _report(diag, doc)
@@ -218,8 +229,16 @@ def _exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
     return out or sorted(int(i) for i in frame.log.unique())
 
 
+def _largest(frame: pd.DataFrame) -> list[int]:
+    """The held-out logs with the largest residual RMS of each coefficient."""
+    rms = frame.groupby("log")[[f"r_{c}" for c in COEFFS]].agg(lambda r: float(np.sqrt(np.mean(r ** 2))))
+    return sorted({int(rms[col].idxmax()) for col in rms.columns})
+
+
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
-           flown: dict, out: Path, run: Parallel) -> None:
+           flown: dict, out: Path, run: Parallel, which: list[int] | None = None) -> list[str]:
+    """The overview, and the residual history and response of the held-out logs ``which`` (None: all);
+    returns the names of the logs plotted."""
     import matplotlib.pyplot as plt
 
     from identify.diagnosis_plots import plot_residuals
@@ -227,9 +246,11 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
     fig = plot_residuals(diag)
     fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
     plt.close(fig)
-    run(delayed(_log_plots)(Path(lg.path).stem, lg.data, before[before.log == i],
+    which = range(len(held)) if which is None else which
+    run(delayed(_log_plots)(Path(held[i].path).stem, held[i].data, before[before.log == i],
                             after[after.log == i] if after is not None else None,
-                            *flown.get(lg.path, (None, None)), out / "plots") for i, lg in enumerate(held))
+                            *flown.get(held[i].path, (None, None)), out / "plots") for i in which)
+    return [Path(held[i].path).name for i in which]
 
 
 def _log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
@@ -270,4 +291,8 @@ def _report(diag: Diagnosis, doc: dict) -> str:
         for ch, v in g["replay_max_error"].items():
             lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
         lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
+    n = len(doc["plotted_logs"])
+    if n and n < len(doc["data"]["held_out"]):
+        lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "
+                     f"({'where the first cause acts' if g else 'with the largest residuals'}; --plots all: every one)")
     return "\n".join(lines) + "\n"

@@ -7,6 +7,7 @@ injected through instrument profiles and must be named as sensor faults, with
 their size. Only these tests read the overlay or the profile, to score the answer.
 """
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -136,13 +137,21 @@ def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     for name in ("diagnosis.txt", "extension.xml", "plots/residuals_vs_cause.png"):
         assert (out / name).stat().st_size > 0
     assert list((out / "plots").glob("response_*.png"))
+    # by default, plots of the held-out manoeuvres where the first cause acts, and only those
+    plotted = sorted(Path(p).stem for p in doc["plotted_logs"])
+    assert plotted == sorted(Path(p).stem for p in doc["gain"]["cause_exercised_in"])
+    assert sorted(p.stem[len("response_"):] for p in (out / "plots").glob("response_*.png")) == plotted
+    assert sorted(p.stem[len("residuals_"):] for p in (out / "plots").glob("residuals_*.png")
+                  if p.stem != "residuals_vs_cause") == plotted
     # two workers (residuals, noise floor, replays and plots spread out) give the same diagnosis
     out2 = tmp_path / "report2"
     assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out2),
-                 "--jobs", "2", "--quiet"]) == 0
+                 "--jobs", "2", "--quiet", "--plots", "all"]) == 0
     doc2 = json.loads((out2 / "diagnosis.json").read_text())
-    _same(doc, doc2, "", skip={"path", "model", "extension", "extension_xml", "summary"})
-    assert sorted(p.name for p in (out / "plots").iterdir()) == sorted(p.name for p in (out2 / "plots").iterdir())
+    _same(doc, doc2, "", skip={"path", "model", "extension", "extension_xml", "summary", "plotted_logs"})
+    # --plots all: every held-out manoeuvre
+    assert {p.name for p in (out / "plots").iterdir()} <= {p.name for p in (out2 / "plots").iterdir()}
+    assert len(list((out2 / "plots").glob("response_*.png"))) == len(doc["gain"]["held_out_logs"])
     # the report is never written over
     capsys.readouterr()
     assert main(["diagnose", "--data", str(data), "--model", doc["model"], "--out", str(out)]) == 2
