@@ -144,7 +144,8 @@ class NoiseFloor:
         self._sens = (in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, self.noise) if jobs > 1
                       else [model_sensitivity(log, evaluator, self.noise) for log in logs])
         self._meas = [_measured(log.data, log.meta, self.ref) for log in logs]
-        self._numbers = [log.data.select_dtypes("number").astype(float) for log in logs]  # one block: cheap copies
+        numbers = [log.data.select_dtypes("number") for log in logs]
+        self._numbers = [(d.columns, d.to_numpy(dtype=float)) for d in numbers]  # an Index: no new one per frame
         self._metas = [log.meta for log in logs]
 
     def __getstate__(self) -> dict:  # to workers: no JSBSim, and the numbers only once
@@ -174,23 +175,25 @@ class NoiseFloor:
                 if instruments and self.uncertain else np.zeros(len(self.uncertain)))
         names = self.uncertain if names is None else names
         for i, meta in enumerate(self._metas):
-            d = self._numbers[i]
-            t = d["t_s"].to_numpy()
+            cols, d = self._numbers[i]
+            at = {c: j for j, c in enumerate(cols)}
+            t = d[:, at["t_s"]]
             dt = float(np.median(np.diff(t)))
             rng = np.random.default_rng([self.seed, k, i])
-            chans = [ch for ch in sorted(self.noise) if ch in d]
+            chans = [at[ch] for ch in sorted(self.noise) if ch in at]
             noisy = d.copy()
             if noise:
-                noisy[chans] = d[chans].to_numpy() + rng.standard_normal((len(d), len(chans))) * np.array(
-                    [self.noise[ch] for ch in chans])
+                noisy[:, chans] = d[:, chans] + rng.standard_normal((len(d), len(chans))) * np.array(
+                    [self.noise[cols[j]] for j in chans])
             for (c, e), z in zip(names, errors):  # the same instrument error in every log
-                if c in noisy and z:
-                    x = noisy[c].to_numpy()
-                    noisy[c] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
+                if c in at and z:
+                    x = noisy[:, at[c]].copy()
+                    noisy[:, at[c]] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
+            moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
+            noisy = pd.DataFrame(noisy, columns=cols, copy=False)
             meas = _measured(noisy, meta, self.ref)
             ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
-            moved = noisy[list(sens)].to_numpy(dtype=float) - d[list(sens)].to_numpy(dtype=float)
             r = meas[list(COEFFS)].to_numpy() - self._meas[i][list(COEFFS)].to_numpy()
             for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
                 r = r - np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) * moved[:, [m]]
