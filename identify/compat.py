@@ -423,7 +423,8 @@ def _frame_rates(data: _Data, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     earth = EARTH_RATE * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], -1)
     transport = np.stack([ve / r, -vn / r, -ve * np.tan(lat) / r], -1)
     n2b = np.swapaxes(_body_to_ned(th, ph, ps), -1, -2)
-    return (np.einsum("lnij,lnj->lni", n2b, earth + transport), np.einsum("lnij,lnj->lni", n2b, earth))
+    return (np.einsum("lnij,lnj->lni", n2b, earth + transport, optimize=True),
+            np.einsum("lnij,lnj->lni", n2b, earth, optimize=True))
 
 
 def _shift(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
@@ -531,8 +532,8 @@ def _responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: n
         R = _skew_exp(0.5 * (w[:, k] + w[:, k + 1]), data.dt)
         Phi[:, k + 1] = R @ Phi[:, k]
         X[:, k + 1] = R @ (X[:, k] + 0.5 * h * forcing[:, k]) + 0.5 * h * forcing[:, k + 1]
-    rate_phi = np.einsum("lni,lnij->lnj", c, Phi)
-    rate_x = np.einsum("lni,lnij->lnj", c, X)
+    rate_phi = np.einsum("lni,lnij->lnj", c, Phi, optimize=True)
+    rate_x = np.einsum("lni,lnij->lnj", c, X, optimize=True)
     dt = data.dt[:, None, None]
     HPhi = np.concatenate([np.zeros((L, 1, 3)), np.cumsum(0.5 * dt * (rate_phi[:, 1:] + rate_phi[:, :-1]), 1)], 1)
     HX = np.concatenate([np.zeros((L, 1, 6)), np.cumsum(0.5 * dt * (rate_x[:, 1:] + rate_x[:, :-1]), 1)], 1)
@@ -810,11 +811,12 @@ def estimate(logs: list[Log]) -> CompatResult:
         per = x[len(s2):].reshape(L, n_per)
         lin = np.concatenate([[1.0], [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
                               [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R]])
-        inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3]) + X @ lin
-        h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3]) + HX @ lin
-        vel = inertial - np.einsum("lnk,lck->lnc", gust, per[:, g0:].reshape(L, 3, k_gust))  # air = inertial - gust
+        inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3], optimize=True) + X @ lin
+        h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3], optimize=True) + HX @ lin
+        # air = inertial - gust
+        vel = inertial - np.einsum("lnk,lck->lnc", gust, per[:, g0:].reshape(L, 3, k_gust), optimize=True)
         if n_wind:
-            vel = vel - np.einsum("lncw,lw->lnc", wind_dirs, per[:, 4:6])
+            vel = vel - np.einsum("lncw,lw->lnc", wind_dirs, per[:, 4:6], optimize=True)
         return v, per, vel, h, inertial
 
     def model2(x):
@@ -832,7 +834,7 @@ def estimate(logs: list[Log]) -> CompatResult:
                 "tas_kt": (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"])
                 + v["tas_kt.bias"] * FT_PER_KT,
                 "alt_ft": h,
-                **({c: np.einsum("lnij,lnj->lni", b2n, inertial)[..., i] for i, c in enumerate(INS[1:])}
+                **({c: np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True)[..., i] for i, c in enumerate(INS[1:])}
                    if ins else {})}
 
     def resid2(x):
@@ -873,9 +875,9 @@ def estimate(logs: list[Log]) -> CompatResult:
                 d[..., 3] = 1.0
             elif c in INS:
                 d = np.zeros((L, vel.shape[1], n_per))
-                d[..., :3] = np.einsum("lnij,lnjk->lnik", b2n, Phi)[..., INS.index(c) - 1, :]
+                d[..., :3] = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True)[..., INS.index(c) - 1, :]
             else:
-                d = np.einsum("lnc,lncp->lnp", d_out[c], dvel)
+                d = np.einsum("lnc,lncp->lnp", d_out[c], dvel, optimize=True)
                 k = 1 + v[f"{c}.scale"]
                 d = k * np.stack([_shift(d[..., j], data.t, v[f"{c}.delay"]) for j in range(n_per)], -1)
             blocks.append((-d / sig[c]).reshape(-1, n_per)[valid])
@@ -890,7 +892,7 @@ def estimate(logs: list[Log]) -> CompatResult:
     x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
                       covs)
     per = x2[len(s2):].reshape(L, n_per)
-    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust])
+    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
     turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
     if turbulence > TURBULENT_FPS:
         for c in ("alpha_deg", "beta_deg", "tas_kt"):
