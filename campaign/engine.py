@@ -359,7 +359,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     gear_final = maneuver.gear_final if isinstance(maneuver, GearTransition) else None
 
     n_state = len(state_nodes)
-    n_truth = len(truth_nodes)
+    read_nodes = (state_nodes + force_nodes + ([stab_node] if stab_node else []) + [flap_node] + thr_nodes
+                  + truth_nodes + rot_nodes)
     # the inputs as plain floats, evaluated once (a transition's tail only if it is flown)
     signals = [prog.elevator_deg, prog.stabilizer_deg if dh_gain else None,
                prog.gear_cmd or (lambda k: gear0), prog.throttle if hold is None else None]
@@ -401,22 +402,23 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
             for n, v in zip(gust_nodes, gust_in[k]):
                 n.set_double_value(v)
         fdm.run()
-        row = [n.get_double_value() for n in state_nodes]  # scaled after the loop, the same products
-        mass = row[i_mass] * s_mass
-        row += [n.get_double_value() / mass for n in force_nodes]
-        row.append(stab_node.get_double_value() if stab_node else stab_const)
-        row.append(flap_node.get_double_value())
-        row.append(sum(t.get_double_value() for t in thr_nodes) / n_eng)
-        row += [n.get_double_value() for n in truth_nodes]
-        row += [n.get_double_value() for n in rot_nodes]
+        row = [n.get_double_value() for n in read_nodes]  # scaled, divided and averaged after the loop
         out.append(row)
         h, theta, q = row[i_alt] * s_alt, row[i_theta] * s_theta, row[i_q] * s_q
         if (gear_final is not None and end == prog.max_steps and gear_in[k] == gear_final
                 and abs(row[i_gear] * s_gear - gear_final) < 1e-9):
             end = k + 1 + prog.post_travel_steps
         k += 1
-    rows = np.array(out, dtype=float).reshape(len(out), n_state + 3 + 3 + n_truth + len(rot_nodes))
-    rows[:, :n_state] *= state_scale
+    raw = np.array(out, dtype=float).reshape(len(out), len(read_nodes))
+    n_force, n_stab = len(force_nodes), int(stab_node is not None)
+    mass = raw[:, i_mass] * s_mass
+    at = n_state + n_force + n_stab + 1  # the engines' throttle positions
+    rows = np.column_stack([raw[:, :n_state] * state_scale,
+                            raw[:, n_state:n_state + n_force] / mass[:, None],
+                            raw[:, n_state + n_force] if n_stab else np.full(len(raw), stab_const),
+                            raw[:, at - 1],
+                            sum(raw[:, at + e] for e in range(n_eng)) / n_eng,
+                            raw[:, at + n_eng:]])
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
         raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
     _check_envelope(rows, idx, tr)
