@@ -70,6 +70,11 @@ def _measured(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
     return measured_about(coefficients(data, meta), meta, evaluator)
 
 
+def _columns(frame: pd.DataFrame, names) -> np.ndarray:
+    """The columns ``names`` as one array (one column at a time: a list index costs far more)."""
+    return np.column_stack([frame[c].to_numpy(dtype=float) for c in names])
+
+
 def _measured_cl(data: pd.DataFrame, meta: dict, evaluator) -> np.ndarray:
     """The measured CL in the model's reference, as :func:`_measured` gives it."""
     return lift_coefficient(data, meta) * (meta["geometry"]["S_ft2"] / evaluator.S)
@@ -143,9 +148,9 @@ class NoiseFloor:
         self.realizations, self.seed = realizations, seed
         self._sens = (in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, self.noise) if jobs > 1
                       else [model_sensitivity(log, evaluator, self.noise) for log in logs])
-        self._meas = [_measured(log.data, log.meta, self.ref) for log in logs]
+        self._meas = [_columns(_measured(log.data, log.meta, self.ref), COEFFS) for log in logs]
         numbers = [log.data.select_dtypes("number") for log in logs]
-        self._numbers = [(d.columns, d.to_numpy(dtype=float)) for d in numbers]  # an Index: no new one per frame
+        self._numbers = [(pd.Index(d.columns, dtype=object), d.to_numpy(dtype=float)) for d in numbers]
         self._metas = [log.meta for log in logs]
 
     def __getstate__(self) -> dict:  # to workers: no JSBSim, and the numbers only once
@@ -194,18 +199,20 @@ class NoiseFloor:
             meas = _measured(noisy, meta, self.ref)
             ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
-            r = meas[list(COEFFS)].to_numpy() - self._meas[i][list(COEFFS)].to_numpy()
+            r = _columns(meas, COEFFS) - self._meas[i]
             for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
                 r = r - np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) * moved[:, [m]]
             out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
             var = variables(noisy, meta, meas["CL"].to_numpy(), sorted(columns))
+            var = {v: var[v].to_numpy() for v in var.columns}
             sig = [c for c in columns if c.startswith("thrust_")]
             if sig:
-                var = pd.concat([var, signatures(noisy, meta, self.ref)[sig]], axis=1)
-            smoothed = [v for v in var.columns if v in FILTERED or v in sig]
+                shares = signatures(noisy, meta, self.ref)
+                var.update((c, shares[c].to_numpy()) for c in sig)
+            smoothed = [v for v in var if v in FILTERED or v in sig]
             if smoothed:
-                out.update(zip(smoothed, lowpass(var[smoothed].to_numpy(dtype=float), dt)[keep].T))
-            out.update((v, var[v].to_numpy()[keep]) for v in var.columns if v not in out)
+                out.update(zip(smoothed, lowpass(np.array([var[v] for v in smoothed], dtype=float).T, dt)[keep].T))
+            out.update((v, x[keep]) for v, x in var.items() if v not in out)
             frames.append(pd.DataFrame(out))
         return pd.concat(frames, ignore_index=True)
 
