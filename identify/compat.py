@@ -215,6 +215,10 @@ class CompatResult:
     def applied(self) -> list[Parameter]:
         return [p for p in self.parameters if p.applied]
 
+    def correction_key(self) -> tuple:
+        """What :meth:`correct` does, as a hashable value: results with equal keys correct every log alike."""
+        return tuple((p.name, float(p.estimate)) for p in self.applied), repr(sorted(self.positions.items()))
+
     def to_dict(self) -> dict:
         return {"parameters": [p.to_dict() for p in self.parameters], "logs": [Path(p).name for p in self.logs],
                 "residual_rms": self.residual_rms, "documented_positions_ft": self.positions,

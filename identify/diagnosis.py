@@ -813,6 +813,26 @@ SENSOR_Z = APPLY_Z
 CORROBORATED_GAIN = 1.1
 
 
+def corrected_residuals(compat: CompatResult, raw: list[Log], evaluator, step: int | None = None,
+                        delays: tuple = ()) -> pd.DataFrame:
+    """:func:`identify.residuals.residual_data` of the ``raw`` logs corrected by ``compat``.
+
+    Within :func:`diagnose` each is computed once (``evaluator.residual_memo``): the
+    arbitration, the delays, the residuals and the sensor causes ask for the same
+    corrections again. A frame with delay signatures serves a request without them.
+    """
+    memo = getattr(evaluator, "residual_memo", None)
+    if memo is None:
+        return residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays)
+    done = memo.setdefault((compat.correction_key(), tuple(map(id, raw)), step), {})
+    for have, frame in done.items():
+        if set(delays) <= set(have):
+            extra = [f"{ch.split('_')[0]}delay_{c}" for ch in set(have) - set(delays) for c in COEFFS]
+            return frame.drop(columns=extra)
+    done[tuple(delays)] = residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays)
+    return done[tuple(delays)].copy()
+
+
 def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
               step: int | None = None) -> CompatResult:
     """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
@@ -859,11 +879,11 @@ def _trial(compat: CompatResult, trial: CompatResult, raw: list[Log], raw_held: 
     the second; an aerodynamic term that mimics the correction (a pitch-rate term for a
     late vane) hides it in the second but not in the first.
     """
-    before = residual_data([compat.correct(lg) for lg in raw], evaluator, step)
-    after = residual_data([trial.correct(lg) for lg in raw], evaluator, step)
+    before = corrected_residuals(compat, raw, evaluator, step)
+    after = corrected_residuals(trial, raw, evaluator, step)
     c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
-    held = ((residual_data([compat.correct(lg) for lg in raw_held], evaluator, step),
-             residual_data([trial.correct(lg) for lg in raw_held], evaluator, step)) if raw_held else None)
+    held = ((corrected_residuals(compat, raw_held, evaluator, step),
+             corrected_residuals(trial, raw_held, evaluator, step)) if raw_held else None)
 
     def ratio(a: np.ndarray, b: np.ndarray) -> float:
         return float(np.sqrt(np.mean(a ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
@@ -961,7 +981,7 @@ def residual_delays(compat: CompatResult, raw: list[Log], raw_held: list[Log], e
         tau, first, found = 0.0, None, None
         for _ in range(RESIDUAL_DELAY_ITERATIONS):  # Gauss-Newton: the signature again at the corrected reading
             cur = _with_estimate(compat, name, tau, float("nan"), "trial") if tau else compat
-            found = _time_shift(residual_data([cur.correct(lg) for lg in raw], evaluator, step, delays=(ch,)), head)
+            found = _time_shift(corrected_residuals(cur, raw, evaluator, step, delays=(ch,)), head)
             if found is None:
                 break
             first = first or found
@@ -1076,12 +1096,12 @@ def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], eva
 
     for p in compat.applied:
         undone = compat.without(p.name)
-        r = residual_data([undone.correct(lg) for lg in raw], evaluator, step)
+        r = corrected_residuals(undone, raw, evaluator, step)
         effect = {c: float(np.max(np.abs(r[f"r_{c}"].to_numpy() - data[f"r_{c}"].to_numpy()))) for c in COEFFS}
         c = max(effect, key=effect.get)
         gain = float("nan")
         if raw_held and held_data is not None:
-            h = residual_data([undone.correct(lg) for lg in raw_held], evaluator, step)
+            h = corrected_residuals(undone, raw_held, evaluator, step)
             after = rms(held_data[f"r_{c}"].to_numpy())
             gain = rms(h[f"r_{c}"].to_numpy()) / after if after > 0 else float("inf")
             if aero.get(c) and p.beside_aero:
@@ -1174,7 +1194,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         Called with the name of each stage as it starts (see ``campaign.diagnose.STAGES``).
     """
     stage = progress or (lambda name: None)
-    evaluator.jobs = jobs
+    evaluator.jobs, evaluator.residual_memo = jobs, {}
     held = list(held)
     raw, raw_held = list(logs), held
     stage("data compatibility")
@@ -1187,8 +1207,12 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         held = [compat.correct(lg) for lg in held]
     for refined in (False, True):
         stage("residuals")
-        data = residual_data(logs, evaluator, step)
-        held_data = residual_data(held, evaluator, step) if held else None
+        if compat is None:
+            data = residual_data(logs, evaluator, step)
+            held_data = residual_data(held, evaluator, step) if held else None
+        else:
+            data = corrected_residuals(compat, raw, evaluator, step)
+            held_data = corrected_residuals(compat, raw_held, evaluator, step) if held else None
         stage("stepwise")
         lags = _Lags(data["log"].to_numpy())
         results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
@@ -1227,5 +1251,6 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         if len(keep) != len(results[c].terms):
             results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
+    evaluator.residual_memo = None
     return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
                      logs, held)

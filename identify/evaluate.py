@@ -191,6 +191,7 @@ class ModelEvaluator:
     def __init__(self, model_dir: Path, jobs: int = 1) -> None:
         self.model_dir = Path(model_dir)
         self.jobs = jobs
+        self.residual_memo = None  # while a diagnosis runs, its residual data by correction (identify.diagnosis)
         name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
         try:

@@ -9,6 +9,7 @@ air-data time shifts are such: the aircraft's answer to the gusts biases them.
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from campaign.aircraft import DEFAULT_AIRCRAFT
@@ -77,14 +78,27 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     """Seed 42 is a null whose clustered standard error of the alpha scale came out 4x small (z 4.5):
     the kinematics alone apply nothing below 5 standard errors, and the residuals refuse it."""
     from campaign.diagnose import split
-    from identify.diagnosis import diagnose
+    from identify.diagnosis import corrected_residuals, diagnose
     from identify.evaluate import ModelEvaluator
+    from identify.residuals import residual_data
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=42)
     res = estimate(load_data(data))
     assert not res.applied, res.summary()
     train, held = split(load_data(data))
-    diag = diagnose(train, ModelEvaluator(DEFAULT_AIRCRAFT), held)
+    evaluator = ModelEvaluator(DEFAULT_AIRCRAFT)
+    diag = diagnose(train, evaluator, held)
     assert not diag.compat.applied and not diag.discrepancy, (diag.compat.summary(), diag.summary())
+    assert evaluator.residual_memo is None  # the diagnosis's residual data are not kept beyond it
+    # within a diagnosis the residuals of a correction are computed once; a frame with a delay's
+    # signature serves the request without it, as a fresh computation gives it
+    evaluator.residual_memo = {}
+    timed = corrected_residuals(res, train, evaluator, delays=("alpha_deg",))
+    served = corrected_residuals(res, train, evaluator)
+    assert len(evaluator.residual_memo) == 1 and "alphadelay_CL" in timed and "alphadelay_CL" not in served
+    fresh = residual_data([res.correct(lg) for lg in train], ModelEvaluator(DEFAULT_AIRCRAFT))
+    pd.testing.assert_frame_equal(served, fresh, check_exact=False, rtol=1e-10, atol=1e-12)
+    timed.loc[:, "r_CL"] = 0.0  # a caller's change does not reach the memo
+    assert np.allclose(corrected_residuals(res, train, evaluator)["r_CL"], fresh["r_CL"], rtol=1e-10, atol=1e-12)
     log = load_data(data)[0]
     corrected = res.correct(log)
     # the boom's documented position is still taken out: alpha at the CG
