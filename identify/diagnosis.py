@@ -28,7 +28,7 @@ from scipy import stats
 
 from identify.compat import APPLY_Z, CompatResult, estimate
 from identify.logs import Log
-from identify.noise_floor import REACH_SE, RESOLUTION, NoiseFloor, channel_noise
+from identify.noise_floor import REACH_SE, RESOLUTION, NoiseFloor, channel_noise, model_sensitivities
 from identify.residuals import COEFFS, SIGNATURES, VARIABLES, residual_data
 
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
@@ -1213,15 +1213,18 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         else:
             data = corrected_residuals(compat, raw, evaluator, step)
             held_data = corrected_residuals(compat, raw_held, evaluator, step) if held else None
+        noise = channel_noise(logs + held)
+        early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None  # beside the stepwise search
         stage("stepwise")
         lags = _Lags(data["log"].to_numpy())
         results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
         causes = name_causes(results, data, lags)
-        noise = channel_noise(logs + held)
         stage("noise floor")
+        sens = early() if early else None  # wanted or not: the workers are then free for what comes next
         floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
                             uncertain=compat.uncertainty() if compat else None,
-                            unmeasured=compat.unmeasured if compat else (), jobs=jobs) if causes else None)
+                            unmeasured=compat.unmeasured if compat else (), jobs=jobs,
+                            sensitivities=(lambda: sens) if early else None) if causes else None)
         groups = [(c.coefficient, c.terms) for c in causes]
         floors = floor.sizes(groups) if causes else []
         stage("instrument reach")

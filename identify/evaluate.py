@@ -352,13 +352,20 @@ def evaluator_for(model_dir: Path) -> ModelEvaluator:
     return _EVALUATORS[key]
 
 
-def in_chunks(func, items: list, jobs: int, *args) -> list:
+def in_chunks(func, items: list, jobs: int, *args, wait: bool = True):
     """``func(chunk, *args)`` (a list back) over ``items`` cut into ``jobs`` contiguous chunks, each
-    in a worker process (in this one if ``jobs`` is 1), the results joined in order."""
+    in a worker process (in this one if ``jobs`` is 1), the results joined in order.
+
+    With ``wait=False`` a callable that returns them is returned instead: the workers start
+    at once and this process goes on meanwhile (with one job the work is done on the call).
+    """
     jobs = min(jobs, len(items))
     if jobs <= 1:
-        return func(list(items), *args)
+        return func(list(items), *args) if wait else lambda: func(list(items), *args)
     from joblib import Parallel, delayed
     chunks = np.array_split(np.arange(len(items)), jobs)
-    parts = Parallel(n_jobs=jobs)(delayed(func)([items[i] for i in c], *args) for c in chunks)
-    return [x for part in parts for x in part]
+    parts = Parallel(n_jobs=jobs, return_as="generator")(delayed(func)([items[i] for i in c], *args) for c in chunks)
+
+    def joined() -> list:
+        return [x for part in parts for x in part]
+    return joined() if wait else joined

@@ -109,6 +109,16 @@ def _remote_sensitivity(logs: list[Log], model_dir, noise: dict[str, float]) -> 
     return [model_sensitivity(log, ev, noise) for log in logs]
 
 
+def model_sensitivities(logs: list[Log], evaluator, noise: dict[str, float], jobs: int = 1):
+    """:func:`model_sensitivity` of every log (channels without noise left out), as a callable
+    that returns them: with ``jobs`` > 1 the workers start at once and the caller goes on
+    meanwhile (:func:`identify.evaluate.in_chunks`)."""
+    noise = {ch: s for ch, s in noise.items() if s > 0}
+    if jobs > 1:
+        return in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, noise, wait=False)
+    return lambda: [model_sensitivity(log, evaluator, noise) for log in logs]
+
+
 class NoiseFloor:
     """Sizes of the diagnosis's terms fitted to instrument noise alone.
 
@@ -133,10 +143,13 @@ class NoiseFloor:
         beside a cause they could make (:meth:`reach`), with the size they would need.
     jobs : int
         Worker processes the realizations are spread over (they need no JSBSim).
+    sensitivities : callable, optional
+        :func:`model_sensitivities` of these logs, evaluator and noise, started earlier.
     """
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
-                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1) -> None:
+                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
+                 sensitivities=None) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
         self.ref = evaluator.reference
@@ -146,12 +159,12 @@ class NoiseFloor:
         self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations, self.seed = realizations, seed
-        self._sens = (in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, self.noise) if jobs > 1
-                      else [model_sensitivity(log, evaluator, self.noise) for log in logs])
+        pending = sensitivities or model_sensitivities(logs, evaluator, self.noise, jobs)
         self._meas = [_columns(_measured(log.data, log.meta, self.ref), COEFFS) for log in logs]
         numbers = [log.data.select_dtypes("number") for log in logs]
         self._numbers = [(pd.Index(d.columns, dtype=object), d.to_numpy(dtype=float)) for d in numbers]
         self._metas = [log.meta for log in logs]
+        self._sens = pending()
 
     def __getstate__(self) -> dict:  # to workers: no JSBSim, and the numbers only once
         return {k: v for k, v in self.__dict__.items() if k not in ("evaluator", "logs")}
