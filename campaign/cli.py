@@ -101,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "without flying or identifying again.")
     plo.add_argument("results", metavar="RESULTS_DIR", help="campaign folder with replays")
     plo.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
+    plo.add_argument("--jobs", type=_jobs, default=1, help="parallel workers drawing the plots (default 1)")
 
     dia = sub.add_parser("diagnose", help="find what the model gets wrong in measured data, extend it, "
                                           "measure the gain",
@@ -179,7 +180,7 @@ def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs
     failures = run_replays(results, cases, jobs, cases_file, cluster)
     for why in failures:
         print(f"replay failed: {why}")
-    files = write_report(results, names)
+    files = write_report(results, names, jobs)
     print(files.pop("table"))
     print(f"replay logs, metrics and plots in {results / 'replays'}")
     return 1 if failures else 0
@@ -207,9 +208,10 @@ def _main(args) -> int:
             from campaign.store import holding
             results = Path(args.results)
             with holding(results, "plots"):
-                files = write_report(results, args.case)
+                files = write_report(results, args.case, args.jobs)
             print(files.pop("table"))
-            print(f"{sum(1 for k in files if k.startswith('plot'))} plots in {Path(args.results) / 'replays' / 'plots'}")
+            n_plots = sum(1 for k in files if k.startswith("plot"))
+            print(f"{n_plots} plots in {Path(args.results) / 'replays' / 'plots'}")
             return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis

@@ -143,9 +143,10 @@ def _save_plot(replays: dict, case: str, loop: str, path: Path) -> str:
     return str(path)
 
 
-def write_report(results: Path, names: list[str] | None = None) -> dict[str, str]:
+def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -> dict[str, str]:
     """metrics.csv and metrics.txt over every stored replay, and one figure per
-    case and loop for the cases ``names`` selects (all by default)."""
+    case and loop for the cases ``names`` selects (all by default), drawn by ``jobs``
+    worker processes (in this one if 1)."""
     results = Path(results)
     replays = load_replays(results, names)
     out = results / "replays"
@@ -158,7 +159,7 @@ def write_report(results: Path, names: list[str] | None = None) -> dict[str, str
     plots.mkdir(exist_ok=True)
     todo = sorted({(c, lp) for c, m, lp in replays if m == "reference"})
     subsets = [{k: v for k, v in replays.items() if k[0] == case and k[2] == loop} for case, loop in todo]
-    paths = Parallel(n_jobs=min(2, len(todo)) or 1)(
+    paths = Parallel(n_jobs=max(1, min(jobs, len(todo))))(
         delayed(_save_plot)(sub, case, loop, plots / f"{case}__{loop}.png")
         for sub, (case, loop) in zip(subsets, todo))
     files.update({f"plot_{case}_{loop}": p for (case, loop), p in zip(todo, paths)})

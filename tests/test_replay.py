@@ -92,8 +92,8 @@ def test_plots_redraw_from_stored_logs_without_jsbsim(replayed, tmp_path):
     for png in (replayed / "replays" / "plots").glob("*.png"):
         png.unlink()
     env = {**os.environ, "PYTHONPATH": str(stub.parent)}
-    res = subprocess.run([sys.executable, "-m", "campaign.cli", "plots", str(replayed), "--case", "landing"],
-                         capture_output=True, text=True, env=env)
+    res = subprocess.run([sys.executable, "-m", "campaign.cli", "plots", str(replayed), "--case", "landing",
+                          "--jobs", "2"], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
     pngs = sorted(p.name for p in (replayed / "replays" / "plots").glob("*.png"))
     assert pngs == ["landing-135kt__closed.png", "landing-135kt__open.png",
