@@ -142,7 +142,7 @@ def main() -> None:
             ["run", "--noise", "flight-test", "--no-identify", "--quiet", "--out", str(camp)] + j)
         stages.setdefault("identify", {})[jobs] = timed(["identify", str(camp)] + j)
         stages.setdefault("replay", {})[jobs] = timed(["replay", str(camp)] + j)
-        stages.setdefault("plots (redrawn)", {})[jobs] = timed(["plots", str(camp)])
+        stages.setdefault("plots (redrawn)", {})[jobs] = timed(["plots", str(camp)] + j)
         whole = work / f"whole-j{jobs}"
         stages.setdefault("run: fly through plots", {})[jobs] = timed(
             ["run", "--noise", "flight-test", "--quiet", "--out", str(whole)] + j)
