@@ -38,7 +38,7 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     inertia = meta["inertia_slugft2"]
     cbar = g["cbar_ft"]
     a, qs, fx, fz = _aero_forces(data, meta)
-    cl = (-fz * np.cos(a) + fx * np.sin(a)) / qs
+    cl = _lift(a, qs, fx, fz)
     cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
     qdot = pitch_acceleration(data) * D2R
@@ -62,7 +62,11 @@ def _aero_forces(data: pd.DataFrame, meta: dict) -> tuple[np.ndarray, ...]:
 
 def lift_coefficient(data: pd.DataFrame, meta: dict) -> np.ndarray:
     """CL alone (eq. 1a), as :func:`coefficients` gives it, without the pitch acceleration's cost [-]."""
-    a, qs, fx, fz = _aero_forces(data, meta)
+    return _lift(*_aero_forces(data, meta))
+
+
+def _lift(a: np.ndarray, qs: np.ndarray, fx: np.ndarray, fz: np.ndarray) -> np.ndarray:
+    """Eq. (1a): the aero force normal to the airspeed over qbar S [-]."""
     return (-fz * np.cos(a) + fx * np.sin(a)) / qs
 
 
