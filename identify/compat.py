@@ -438,6 +438,21 @@ def _shift(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     return np.stack([np.interp(t[i] - tau, t[i], x[i]) for i in range(len(x))])
 
 
+def _shift_columns(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """:func:`_shift` of every column of ``x`` (L, n, P) at once: the interpolation
+    weights are the same for all of a log's columns."""
+    if tau == 0.0:
+        return x
+    out = np.empty_like(x)
+    for i in range(len(x)):
+        ti = t[i]
+        tq = ti - tau
+        j = np.clip(np.searchsorted(ti, tq, side="right") - 1, 0, len(ti) - 2)
+        w = np.clip((tq - ti[j]) / (ti[j + 1] - ti[j]), 0.0, 1.0)[:, None]
+        out[i] = x[i, j] + w * (x[i, j + 1] - x[i, j])
+    return out
+
+
 # ------------------------------------------------------------------------ attitude
 
 
@@ -808,6 +823,7 @@ def estimate(logs: list[Log]) -> CompatResult:
     n_per = g0 + 3 * k_gust
     b2n = _body_to_ned(th_r, ph_r, ps_r)
     wind_dirs = np.swapaxes(b2n, -1, -2)[..., :2]  # (L, n, 3, 2): north and east in body axes
+    ins_phi = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True) if ins else None  # d(v_NED)/d(v0)
 
     def state(x):
         """Shared values, per-log values, air-relative and inertial body velocity, altitude."""
@@ -838,7 +854,7 @@ def estimate(logs: list[Log]) -> CompatResult:
                 "tas_kt": (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"])
                 + v["tas_kt.bias"] * FT_PER_KT,
                 "alt_ft": h,
-                **({c: np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True)[..., i] for i, c in enumerate(INS[1:])}
+                **(dict(zip(INS[1:], np.moveaxis(np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True), -1, 0)))
                    if ins else {})}
 
     def resid2(x):
@@ -865,27 +881,27 @@ def estimate(logs: list[Log]) -> CompatResult:
         }
         # d vel / d per-log parameters: Phi for the initial velocity, -basis for the gust coefficients,
         # minus the north and east directions for the wind
-        dvel = np.zeros((L, vel.shape[1], 3, n_per))
-        dvel[..., :3] = Phi
-        if n_wind:
-            dvel[..., 4:6] = -wind_dirs
-        for c in range(3):
-            dvel[:, :, c, g0 + c * k_gust:g0 + (c + 1) * k_gust] = -gust
-        blocks = []
-        for c in outs2:
+        n_valid = int(valid.sum())
+        out = np.zeros((len(outs2) * n_valid, n_per))
+        for b, c in enumerate(outs2):
+            block = out[b * n_valid:(b + 1) * n_valid]
             if c == "alt_ft":
-                d = np.zeros((L, vel.shape[1], n_per))
-                d[..., :3] = HPhi
-                d[..., 3] = 1.0
+                block[:, :3] = HPhi.reshape(-1, 3)[valid]
+                block[:, 3] = 1.0
             elif c in INS:
-                d = np.zeros((L, vel.shape[1], n_per))
-                d[..., :3] = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True)[..., INS.index(c) - 1, :]
+                block[:, :3] = ins_phi[..., INS.index(c) - 1, :].reshape(-1, 3)[valid]
             else:
-                d = np.einsum("lnc,lncp->lnp", d_out[c], dvel, optimize=True)
-                k = 1 + v[f"{c}.scale"]
-                d = k * np.stack([_shift(d[..., j], data.t, v[f"{c}.delay"]) for j in range(n_per)], -1)
-            blocks.append((-d / sig[c]).reshape(-1, n_per)[valid])
-        return np.concatenate(blocks)
+                dc = d_out[c]
+                d = np.zeros((L, vel.shape[1], n_per))
+                d[..., :3] = np.einsum("lnc,lncj->lnj", dc, Phi, optimize=True)
+                if n_wind:
+                    d[..., 4:6] = -np.einsum("lnc,lncw->lnw", dc, wind_dirs, optimize=True)
+                for j in range(3):
+                    d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust] = dc[..., j, None] * -gust
+                block[:] = _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per)[valid]
+                block *= 1 + v[f"{c}.scale"]
+            block /= -sig[c]
+        return out
 
     a0, b0 = data.ch["alpha_deg"][:, 0], data.ch["beta_deg"][:, 0]
     v0 = data.ch["tas_kt"][:, 0]
