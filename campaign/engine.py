@@ -28,6 +28,7 @@ from campaign.turbulence import dryden_gusts  # noqa: E402
 from identify.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
+from maneuvers.signals import Constant  # noqa: E402
 
 DT_S = 1.0 / 120.0
 FT_PER_KT = 1.6878098571011957
@@ -363,13 +364,13 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
                   + truth_nodes + rot_nodes)
     # the inputs as plain floats, evaluated once (a transition's tail only if it is flown)
     signals = [prog.elevator_deg, prog.stabilizer_deg if dh_gain else None,
-               prog.gear_cmd or (lambda k: gear0), prog.throttle if hold is None else None]
+               prog.gear_cmd or Constant(gear0), prog.throttle if hold is None else None]
     inputs = [[] if f is not None else None for f in signals]
 
     def evaluate_inputs(upto: int) -> None:
         for f, values in zip(signals, inputs):
             if f is not None:
-                values.extend(f(k) for k in range(len(values), min(upto, prog.max_steps)))
+                values.extend(f.series(len(values), min(upto, prog.max_steps)).tolist())
 
     evaluate_inputs(prog.n_steps)
     elev_in, stab_in, gear_in, thr_in = inputs

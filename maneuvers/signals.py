@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 
 class Signal:
     """Base class: a scalar input as a function of the step index ``k``.
@@ -16,6 +18,13 @@ class Signal:
 
     def __call__(self, k: int) -> float:
         return self.value(k)
+
+    def series(self, start: int, stop: int) -> np.ndarray:
+        """The values at steps ``start <= k < stop``, equal to :meth:`value`'s bit for bit.
+
+        Subclasses vectorise it; this fallback calls :meth:`value` step by step.
+        """
+        return np.array([self.value(k) for k in range(start, stop)], dtype=float)
 
     def __add__(self, other: "Signal") -> "Signal":
         return Sum((self, other))
@@ -35,6 +44,9 @@ class Constant(Signal):
     def value(self, k: int) -> float:
         return self.level
 
+    def series(self, start: int, stop: int) -> np.ndarray:
+        return np.full(max(stop - start, 0), self.level, dtype=float)
+
 
 @dataclass(frozen=True)
 class Step(Signal):
@@ -52,6 +64,11 @@ class Step(Signal):
             return 0.0
         return self.amplitude
 
+    def series(self, start: int, stop: int) -> np.ndarray:
+        k = np.arange(start, stop)
+        on = (k >= self.start) & ((k < self.stop) if self.stop is not None else True)
+        return np.where(on, float(self.amplitude), 0.0)
+
 
 @dataclass(frozen=True)
 class Sum(Signal):
@@ -61,6 +78,12 @@ class Sum(Signal):
 
     def value(self, k: int) -> float:
         return sum(t.value(k) for t in self.terms)
+
+    def series(self, start: int, stop: int) -> np.ndarray:
+        out = np.zeros(max(stop - start, 0))
+        for t in self.terms:  # in order, as sum() adds
+            out = out + t.series(start, stop)
+        return out
 
 
 @dataclass(frozen=True)
@@ -73,6 +96,9 @@ class Scaled(Signal):
     def value(self, k: int) -> float:
         return self.gain * self.signal.value(k)
 
+    def series(self, start: int, stop: int) -> np.ndarray:
+        return self.gain * self.signal.series(start, stop)
+
 
 @dataclass(frozen=True)
 class Sampled(Signal):
@@ -82,6 +108,10 @@ class Sampled(Signal):
 
     def value(self, k: int) -> float:
         return self.values[min(k, len(self.values) - 1)]
+
+    def series(self, start: int, stop: int) -> np.ndarray:
+        v = np.asarray(self.values, dtype=float)
+        return v[np.minimum(np.arange(start, stop), len(v) - 1)]
 
 
 def multistep(start: int, durations: tuple[int, ...], levels: tuple[float, ...]) -> Signal:

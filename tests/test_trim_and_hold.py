@@ -145,3 +145,23 @@ def test_status_point_weight_is_flown(reference_config, weight):
     assert meta["trim"]["weight_lb"] == pytest.approx(weight)
     assert log.mass_slug.iloc[0] * 32.174049 == pytest.approx(weight, rel=1e-6)
     assert meta["inertia_slugft2"]["iyy"] == pytest.approx(2482936.0)  # the payload sits at the CG
+
+
+@pytest.mark.parametrize("name", ["doublet", "gear_extension", "gear_retraction", "recorded"])
+def test_signal_series_equal_their_values_bit_for_bit(name):
+    """The flying loop takes its inputs from ``Signal.series``: it must give ``value(k)``'s floats
+    exactly (the logs stay bit-identical), in chunks, past the end and for an empty range."""
+    from maneuvers.library import Recorded, make_maneuver
+    rng = np.random.default_rng(3)
+    m = (Recorded(0.0, *(tuple(rng.normal(size=50)) for _ in range(4))) if name == "recorded"
+         else make_maneuver(name))
+    prog = m.program(1 / 120, 0.7)
+    signals = [s for s in (prog.elevator_deg, prog.stabilizer_deg, prog.gear_cmd, prog.throttle) if s is not None]
+    assert len(signals) >= 2
+    n = prog.max_steps + 40
+    for s in signals:
+        want = np.array([s.value(k) for k in range(n)], dtype=float)
+        got = np.concatenate([s.series(a, min(a + 97, n)) for a in range(0, n, 97)])
+        assert got.tobytes() == want.tobytes()
+        assert s.series(5, 5).shape == (0,)
+    assert np.ptp(np.array([prog.elevator_deg.value(k) for k in range(n)])) > 0 or name.startswith("gear")
