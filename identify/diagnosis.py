@@ -28,7 +28,8 @@ from scipy import stats
 
 from identify.compat import APPLY_Z, CompatResult, estimate
 from identify.logs import Log
-from identify.noise_floor import REACH_SE, RESOLUTION, NoiseFloor, channel_noise, model_sensitivities
+from identify.noise_floor import (REACH_SE, RESOLUTION, NoiseFloor, channel_noise, design_matrix,
+                                  model_sensitivities)
 from identify.residuals import COEFFS, SIGNATURES, VARIABLES, residual_data
 
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
@@ -41,14 +42,15 @@ MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, 
 GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
 
 
-def _hats(x: np.ndarray, knots: tuple[float, ...]) -> np.ndarray:
-    """Piecewise-linear basis: column j is 1 at knots[j], 0 at the others (flat outside)."""
-    cols = []
-    for j in range(len(knots)):
+def _hats(x: np.ndarray, knots: tuple[float, ...], out: np.ndarray | None = None) -> np.ndarray:
+    """Piecewise-linear basis without the first knot's column (the reference): column j is 1 at
+    knots[j + 1], 0 at the other knots (flat outside); written into ``out`` (n, len(knots) - 1) if given."""
+    out = np.empty((len(x), len(knots) - 1)) if out is None else out
+    for j in range(1, len(knots)):
         y = np.zeros(len(knots))
         y[j] = 1.0
-        cols.append(np.interp(x, knots, y))
-    return np.column_stack(cols)
+        out[:, j - 1] = np.interp(x, knots, y)
+    return out
 
 
 @dataclass(frozen=True)
@@ -83,19 +85,24 @@ class Term:
         lo, hi = self.ranges[i]
         return np.clip(frame[v].to_numpy(), lo, hi) - self.centers[i]
 
-    def design(self, frame: pd.DataFrame) -> np.ndarray:
-        if self.kind == "linear":
-            return self._lin(frame, 0)[:, None]
+    def design(self, frame: pd.DataFrame, out: np.ndarray | None = None) -> np.ndarray:
+        """The term's columns over ``frame`` (n, :attr:`width`), written into ``out`` if given."""
+        out = np.empty((len(frame), self.width)) if out is None else out
+        if self.kind in ("smooth", "smooth_x_linear"):
+            k = len(self.knots) - 1
+            h = _hats(frame[self.variables[0]].to_numpy(), self.knots, out[:, :k])
+            if self.kind == "smooth_x_linear":
+                np.multiply(h, self._lin(frame, 1)[:, None], out=out[:, k:])
+            return out
+        a = self._lin(frame, 0)
+        out[:, 0] = a
         if self.kind == "quadratic":
-            a = self._lin(frame, 0)
-            return np.column_stack([a, a * a])
-        if self.kind == "smooth":
-            return _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
-        if self.kind == "product":
-            a, b = self._lin(frame, 0), self._lin(frame, 1)
-            return np.column_stack([a, b, a * b])
-        h = _hats(frame[self.variables[0]].to_numpy(), self.knots)[:, 1:]
-        return np.hstack([h, h * self._lin(frame, 1)[:, None]])
+            out[:, 1] = a * a
+        elif self.kind == "product":
+            b = self._lin(frame, 1)
+            out[:, 1] = b
+            out[:, 2] = a * b
+        return out
 
     @property
     def width(self) -> int:
@@ -465,7 +472,7 @@ def _share(y: np.ndarray, x: np.ndarray) -> float:
     knots = np.linspace(float(x.min()), float(x.max()), 6)
     if knots[-1] <= knots[0]:
         return 0.0
-    design = np.column_stack([np.ones(len(x)), _hats(x, tuple(knots))[:, 1:]])
+    design = np.column_stack([np.ones(len(x)), _hats(x, tuple(knots))])
     beta, *_ = np.linalg.lstsq(design, y, rcond=None)
     e = y - design @ beta
     ss = float(((y - y.mean()) ** 2).sum())
@@ -597,7 +604,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     if not acting or len(set(conds)) < 2:
         return float("nan"), acting, {}
     x_own = np.column_stack([t.design(data) for t in own])
-    x_rest = np.column_stack([np.ones(len(y))] + [t.design(data) for t in rest])
+    x_rest = design_matrix(rest, data)
     x = np.hstack([x_rest, x_own])
     scale = np.sqrt(np.einsum("ij,ij->j", x, x))
     scale[scale == 0] = 1.0
@@ -1091,7 +1098,7 @@ def compat_causes(compat: CompatResult, raw: list[Log], raw_held: list[Log], eva
     def beside(frame: pd.DataFrame, held: pd.DataFrame, c: str) -> np.ndarray:
         y = frame[f"r_{c}"].to_numpy()
         fit = _fit(y, [t.design(frame) for t in aero[c]], aero[c])
-        x = np.column_stack([np.ones(len(held))] + [t.design(held) for t in aero[c]])
+        x = design_matrix(aero[c], held)
         return held[f"r_{c}"].to_numpy() - x @ fit.beta
 
     for p in compat.applied:

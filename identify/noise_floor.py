@@ -104,6 +104,19 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     return t[rows] if dt > 0 else rows.astype(float), out
 
 
+def design_matrix(terms, frame: pd.DataFrame) -> np.ndarray:
+    """``[1, each term's design]`` (n, 1 + widths), built in place column block by column block
+    (no per-term copies to stack: the noise floor builds it for every realization). ``terms`` are
+    :class:`identify.diagnosis.Term` objects (anything with ``width`` and ``design(frame, out)``)."""
+    x = np.empty((len(frame), 1 + sum(t.width for t in terms)))
+    x[:, 0] = 1.0
+    j = 1
+    for t in terms:
+        t.design(frame, x[:, j:j + t.width])
+        j += t.width
+    return x
+
+
 def _remote_sensitivity(logs: list[Log], model_dir, noise: dict[str, float]) -> list:
     ev = evaluator_for(model_dir)
     return [model_sensitivity(log, ev, noise) for log in logs]
@@ -250,7 +263,7 @@ class NoiseFloor:
             frame = self.realization(k, columns, noise=not instruments, instruments=instruments)
             row = []
             for c, terms in groups:
-                x = np.column_stack([np.ones(len(frame))] + [t.design(frame) for t in terms])
+                x = design_matrix(terms, frame)
                 beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
                 row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
             out.append(row)
@@ -299,7 +312,7 @@ class NoiseFloor:
         for c, terms, f in causes:
             f = np.asarray(f, float) - np.mean(f)
             ff = float(f @ f)
-            x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
+            x = design_matrix(terms, data)
 
             def through_terms(cols: np.ndarray) -> np.ndarray:
                 seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
