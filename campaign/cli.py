@@ -196,7 +196,17 @@ def main(argv: list[str] | None = None) -> int:
         return _main(args)
 
 
+#: What each command's worker processes import: a server imports it once while the command
+#: starts its own work, and the workers are forks of it (:mod:`identify.workers`).
+PRELOAD = {"run": ("identify.pipeline", "campaign.replay", "campaign.replay_report"),
+           "identify": ("identify.pipeline",), "replay": ("campaign.replay", "campaign.replay_report"),
+           "plots": ("campaign.replay_report",), "diagnose": ("campaign.diagnose",)}
+
+
 def _main(args) -> int:
+    if getattr(args, "jobs", 1) > 1 and args.command in PRELOAD:
+        from identify.workers import warm
+        warm(PRELOAD[args.command])
     try:
         if args.command == "points":
             from campaign.matrix import load_matrix

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 from tqdm import tqdm
 
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
@@ -26,6 +25,7 @@ from identify.diagnosis_export import write_extension
 from identify.evaluate import ModelEvaluator
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
+from identify.workers import pmap
 from maneuvers.library import Recorded
 
 REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
@@ -164,7 +164,6 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     before = diag.held
     held = diag.held_logs  # as corrected for instrument errors
     extended_eval = None
-    run = Parallel(n_jobs=jobs)
     if diag.aero_causes:
         stage("extension")
         xml = write_extension(diag, out / "extension.xml")
@@ -187,7 +186,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         src_model = AircraftSource(str(model), load_effects(None))
         src_ext = AircraftSource(str(folder), load_effects(None))
         stage("replays")
-        logs_flown = run(delayed(replay)(lg, src) for lg in held for src in (src_model, src_ext))
+        logs_flown = pmap(replay, [(lg, src) for lg in held for src in (src_model, src_ext)], jobs)
         replays = {}
         flown = {}
         for i, lg in enumerate(held):
@@ -206,11 +205,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                        "replay_max_error": worst, "replay_per_log": replays}
         if plots != "none":
             stage("plots")
-            doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, run,
+            doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs,
                                          None if plots == "all" else acting)
     elif plots != "none":
         stage("plots")
-        doc["plotted_logs"] = _plots(diag, held, before, None, {}, out, run,
+        doc["plotted_logs"] = _plots(diag, held, before, None, {}, out, jobs,
                                      None if plots == "all" else _largest(before))
     bar.update(len(STAGES) - bar.n)
     bar.close()
@@ -236,7 +235,7 @@ def _largest(frame: pd.DataFrame) -> list[int]:
 
 
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
-           flown: dict, out: Path, run: Parallel, which: list[int] | None = None) -> list[str]:
+           flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all);
     returns the names of the logs plotted."""
     import matplotlib.pyplot as plt
@@ -247,9 +246,9 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
     fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
     plt.close(fig)
     which = range(len(held)) if which is None else which
-    run(delayed(_log_plots)(Path(held[i].path).stem, held[i].data, before[before.log == i],
-                            after[after.log == i] if after is not None else None,
-                            *flown.get(held[i].path, (None, None)), out / "plots") for i in which)
+    pmap(_log_plots, [(Path(held[i].path).stem, held[i].data, before[before.log == i],
+                       after[after.log == i] if after is not None else None,
+                       *flown.get(held[i].path, (None, None)), out / "plots") for i in which], jobs)
     return [Path(held[i].path).name for i in which]
 
 

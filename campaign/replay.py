@@ -12,13 +12,12 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from joblib import Parallel, delayed
-
 from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
 from campaign.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
 from campaign.store import atomic_write, clean_temporaries, write_log
+from identify import workers
 
 DEFAULT_CASES = Path(__file__).resolve().parent / "cases" / "replays.toml"
 CASE_KEYS = {"name", "alt_ft", "ias_kt", "flap_deg", "gear", "weight_lb", "pre_s", "post_s"}
@@ -173,8 +172,8 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
     atomic_write(out / "cases.json", lambda tmp: Path(tmp).write_text(text))
     flights = [(c, m, lp) for c in cases for m in MODELS for lp in LOOPS]
     if client is None:
-        res = Parallel(n_jobs=jobs, return_as="generator")(
-            delayed(_fly_one)(c, m, sources[m], lp) for c, m, lp in flights)
+        calls = [(c, m, sources[m], lp) for c, m, lp in flights]
+        res = workers.results(workers.submit(_fly_one, calls, jobs)) if jobs > 1 else (_fly_one(*a) for a in calls)
     else:
         res = _on_cluster(client, flights, sources)
     failures = []

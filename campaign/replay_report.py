@@ -15,10 +15,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from joblib import Parallel, delayed  # noqa: E402
 
 from campaign.errors import UserError  # noqa: E402
 from campaign.store import atomic_write, clean_temporaries, read_log  # noqa: E402
+from identify.workers import pmap  # noqa: E402
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
             ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
@@ -159,9 +159,8 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     plots.mkdir(exist_ok=True)
     todo = sorted({(c, lp) for c, m, lp in replays if m == "reference"})
     subsets = [{k: v for k, v in replays.items() if k[0] == case and k[2] == loop} for case, loop in todo]
-    paths = Parallel(n_jobs=max(1, min(jobs, len(todo))))(
-        delayed(_save_plot)(sub, case, loop, plots / f"{case}__{loop}.png")
-        for sub, (case, loop) in zip(subsets, todo))
+    paths = pmap(_save_plot, [(sub, case, loop, plots / f"{case}__{loop}.png")
+                              for sub, (case, loop) in zip(subsets, todo)], jobs)
     files.update({f"plot_{case}_{loop}": p for (case, loop), p in zip(todo, paths)})
     selected = df[df.case.isin({c for c, _, _ in replays})]
     files["table"] = metrics_text(selected)

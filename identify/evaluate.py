@@ -359,13 +359,12 @@ def in_chunks(func, items: list, jobs: int, *args, wait: bool = True):
     With ``wait=False`` a callable that returns them is returned instead: the workers start
     at once and this process goes on meanwhile (with one job the work is done on the call).
     """
-    jobs = min(jobs, len(items))
-    if jobs <= 1:
+    n = min(jobs, len(items))
+    if n <= 1:
         return func(list(items), *args) if wait else lambda: func(list(items), *args)
-    from joblib import Parallel, delayed
-    chunks = np.array_split(np.arange(len(items)), jobs)
-    parts = Parallel(n_jobs=jobs, return_as="generator")(delayed(func)([items[i] for i in c], *args) for c in chunks)
+    from identify.workers import results, submit
+    futures = submit(func, [([items[i] for i in c], *args) for c in np.array_split(np.arange(len(items)), n)], jobs)
 
     def joined() -> list:
-        return [x for part in parts for x in part]
+        return [x for part in results(futures) for x in part]
     return joined() if wait else joined

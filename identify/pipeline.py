@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
@@ -17,6 +16,7 @@ from identify.logs import Log, LogError, read_campaign
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
                              LinearGearModel, PointFit, fit_baseline, fit_surface, increments,
                              linear_models, references)
+from identify.workers import pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
 
@@ -47,12 +47,11 @@ def identify_logs(logs: list[Log], compatibility: bool = True, jobs: int = 1) ->
     if compat is not None:
         logs = [compat.correct(lg) for lg in logs]
     refs = references(logs)
-    run = Parallel(n_jobs=jobs)
-    fits = run(delayed(fit_baseline)(log, refs[log.condition]) for log in logs if not log.transition)
+    fits = pmap(fit_baseline, [(log, refs[log.condition]) for log in logs if not log.transition], jobs)
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
     incs = dict(zip((log.point for log in moves),
-                    run(delayed(increments)(log, linear[log.condition].derivatives) for log in moves)))
+                    pmap(increments, [(log, linear[log.condition].derivatives) for log in moves], jobs)))
     lin_surface = None
     if linear:
         lin_surface = fit_surface([(c, m.alpha_trim_deg, np.array([0.0, 1.0]),

@@ -1,0 +1,88 @@
+"""Local worker processes, forked from a server that has already imported what they need.
+
+A worker started afresh (joblib's loky, ``spawn``) spends 1.2-1.5 s importing numpy,
+scipy, pandas and JSBSim before its first task, and every command that fans out paid
+that once per pool. Here the standard library's ``forkserver`` imports the modules
+once, in one process, from the moment :func:`warm` is called (the caller goes on with
+its own serial work meanwhile); each worker is a fork of that server, ready in
+milliseconds, sharing the imported code's pages. Where ``forkserver`` does not exist
+(Windows) the workers are spawned.
+
+The pool is kept for the life of the process, so a worker's caches (its JSBSim
+evaluator, :func:`identify.evaluate.evaluator_for`) serve the next call; it is made
+again if a worker died. Each worker does its linear algebra on one BLAS thread: the
+matrices are small and the cores are the workers'.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Callable, Iterable, Iterator
+
+_POOL: dict[int, ProcessPoolExecutor] = {}  # at most one pool: {jobs: pool}
+
+
+def _context():
+    return mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+
+
+def warm(modules: Iterable[str]) -> None:
+    """Start the fork server now, importing ``modules`` once (in the background: this returns at
+    once). Only the first call of a process chooses the modules; later workers import the rest
+    themselves on first use."""
+    ctx = _context()
+    if ctx.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+    ctx.set_forkserver_preload(sorted(set(modules)))
+    forkserver.ensure_running()
+
+
+def _one_blas_thread() -> None:
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(limits=1, user_api="blas")
+
+
+def executor(jobs: int) -> ProcessPoolExecutor:
+    """This process's pool of ``jobs`` workers (made on first use, or again if the number changed)."""
+    pool = _POOL.get(jobs)
+    if pool is None:
+        for old in _POOL.values():
+            old.shutdown(wait=False, cancel_futures=True)
+        _POOL.clear()
+        pool = _POOL[jobs] = ProcessPoolExecutor(jobs, mp_context=_context(), initializer=_one_blas_thread)
+    return pool
+
+
+def _in(cwd: str, func: Callable, args: tuple):
+    os.chdir(cwd)  # a worker is forked from the server: relative paths mean the caller's
+    return func(*args)
+
+
+def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
+    """``func(*args)`` for each ``args`` in ``calls`` on the pool of ``jobs`` workers, started now
+    (in the caller's working directory); a pool a dead worker broke is made again first."""
+    cwd = os.getcwd()
+    for attempt in (0, 1):
+        try:
+            return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
+        except BrokenProcessPool:
+            if attempt:
+                raise
+            _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
+    raise AssertionError("unreachable")
+
+
+def results(futures: list[Future]) -> Iterator:
+    """Each future's result in order, as it comes (a task's exception is raised here)."""
+    for f in futures:
+        yield f.result()
+
+
+def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
+    """``[func(*args) for args in calls]`` on ``jobs`` workers (in this process if 1), in order."""
+    if jobs <= 1 or len(calls) <= 1:
+        return [func(*args) for args in calls]
+    return list(results(submit(func, calls, jobs)))

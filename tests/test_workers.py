@@ -1,0 +1,91 @@
+"""Local worker processes (identify.workers): forks of a warm server, in order, deaths survived."""
+import os
+import subprocess
+import sys
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+
+import pytest
+
+from identify.workers import pmap, submit
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _square(x):
+    return os.getpid(), x * x
+
+
+def _fail(x):
+    raise ValueError(f"bad {x}")
+
+
+def _die(x):
+    if x == 1:
+        os._exit(3)
+    return x
+
+
+def _cwd():
+    return os.getcwd()
+
+
+def test_results_come_back_in_order_from_two_workers():
+    out = pmap(_square, [(i,) for i in range(40)], 2)
+    assert [v for _, v in out] == [i * i for i in range(40)]
+    assert os.getpid() not in {p for p, _ in out}
+
+
+def test_a_tasks_exception_reaches_the_caller():
+    with pytest.raises(ValueError, match="bad 3"):
+        pmap(_fail, [(3,), (4,)], 2)
+
+
+def test_a_dead_worker_breaks_that_call_only(tmp_path):
+    with pytest.raises(BrokenProcessPool):
+        pmap(_die, [(0,), (1,), (2,)], 2)
+    assert [v for _, v in pmap(_square, [(2,), (3,)], 2)] == [4, 9]  # a new pool
+
+
+def test_workers_run_in_the_callers_directory(tmp_path):
+    assert set(pmap(_cwd, [()] * 4, 2)) == {str(tmp_path)}
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    os.chdir(sub)
+    assert set(pmap(_cwd, [()] * 4, 2)) == {str(sub)}
+
+
+WARM = """
+import sys, time
+from identify.workers import submit, warm
+
+def probe():
+    return "identify.pipeline" in sys.modules
+
+if __name__ == "__main__":
+    warm(["identify.pipeline"])
+    [first] = submit(probe, [()], 2)  # waits for the server to have imported
+    t0 = time.perf_counter()
+    [f] = submit(probe, [()], 3)  # a new pool: new forks of the warm server
+    print(first.result(), f.result(), time.perf_counter() - t0)
+"""
+
+
+def test_a_worker_is_a_fork_of_the_warm_server_with_the_modules_imported(tmp_path):
+    """A new worker has identify.pipeline (scipy, pandas, numpy) imported before its task asks for
+    it, and is ready far sooner than an import of it takes (over a second on this machine class)."""
+    script = tmp_path / "warm.py"
+    script.write_text(WARM)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    first, loaded, delay = out.stdout.split()
+    assert first == loaded == "True"
+    t_import = subprocess.run([sys.executable, "-c", "import time; t = time.perf_counter(); import identify.pipeline; "
+                               "print(time.perf_counter() - t)"], capture_output=True, text=True, env=env, timeout=120)
+    assert float(delay) < 0.5 * float(t_import.stdout), (delay, t_import.stdout)
+
+
+def test_one_job_runs_here():
+    assert {p for p, _ in pmap(_square, [(1,), (2,)], 1)} == {os.getpid()}
+    assert len(submit(_square, [(1,), (2,)], 2)) == 2
