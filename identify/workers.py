@@ -65,14 +65,14 @@ def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
     """``func(*args)`` for each ``args`` in ``calls`` on the pool of ``jobs`` workers, started now
     (in the caller's working directory); a pool a dead worker broke is made again first."""
     cwd = os.getcwd()
-    for attempt in (0, 1):
-        try:
-            return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
-        except BrokenProcessPool:
-            if attempt:
-                raise
-            _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
-    raise AssertionError("unreachable")
+
+    def start() -> list[Future]:
+        return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
+    try:
+        return start()
+    except BrokenProcessPool:  # a worker died in an earlier call
+        _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
+        return start()
 
 
 def results(futures: list[Future]) -> Iterator:
