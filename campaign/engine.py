@@ -6,6 +6,7 @@ workers or on a Dask cluster.
 """
 from __future__ import annotations
 
+import array
 import hashlib
 import math
 import os
@@ -338,8 +339,10 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     hdot_node = node(cat.HOLD_INPUTS["hdot_fps"])
     uvw_nodes = [node(cat.HOLD_INPUTS[c]) for c in ("u_fps", "v_fps", "w_fps")]
 
+    get_u, get_v, get_w = (n.get_double_value for n in uvw_nodes)
+
     def speed() -> float:
-        return math.sqrt(sum(n.get_double_value() ** 2 for n in uvw_nodes))
+        return math.sqrt(get_u() ** 2 + get_v() ** 2 + get_w() ** 2)
 
     elev_cmd = node(cat.CONTROLS["elevator"])
     trim_cmd = node(cat.CONTROLS["pitch_trim"])
@@ -379,7 +382,11 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     i_mass = idx["mass_slug"]
     s_alt, s_theta, s_q, s_mass, s_gear = sc[i_alt], sc[i_theta], sc[i_q], sc[i_mass], sc[i_gear]
     stab_const = stab[1]
-    out = []
+    # every step's row appended to one flat buffer: no Python list per step for the collector to track
+    buf = array.array("d")
+    append_row = buf.extend
+    get = type(read_nodes[0]).get_double_value
+    n_read = len(read_nodes)
     elevator_deg = tr.elevator_deg
     throttle = tr.throttle
     h, theta, q = fdm["atmosphere/pressure-altitude"], tr.theta_deg, 0.0
@@ -403,14 +410,15 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
             for n, v in zip(gust_nodes, gust_in[k]):
                 n.set_double_value(v)
         fdm.run()
-        row = [n.get_double_value() for n in read_nodes]  # scaled, divided and averaged after the loop
-        out.append(row)
-        h, theta, q = row[i_alt] * s_alt, row[i_theta] * s_theta, row[i_q] * s_q
+        append_row(map(get, read_nodes))  # scaled, divided and averaged after the loop
+        row = k * n_read
+        if hold is not None:
+            h, theta, q = buf[row + i_alt] * s_alt, buf[row + i_theta] * s_theta, buf[row + i_q] * s_q
         if (gear_final is not None and end == prog.max_steps and gear_in[k] == gear_final
-                and abs(row[i_gear] * s_gear - gear_final) < 1e-9):
+                and abs(buf[row + i_gear] * s_gear - gear_final) < 1e-9):
             end = k + 1 + prog.post_travel_steps
         k += 1
-    raw = np.array(out, dtype=float).reshape(len(out), len(read_nodes))
+    raw = np.frombuffer(buf, dtype=float).reshape(-1, n_read)
     n_force, n_stab = len(force_nodes), int(stab_node is not None)
     mass = raw[:, i_mass] * s_mass
     at = n_state + n_force + n_stab + 1  # the engines' throttle positions
