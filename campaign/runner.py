@@ -11,8 +11,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Iterator
 
+import cloudpickle
 import numpy as np
-from joblib.externals.loky import ProcessPoolExecutor
 from tqdm import tqdm
 
 from campaign.engine import FlightConfig, TrimError, fly
@@ -111,11 +111,11 @@ def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bo
     return store(*(flyer or fly_logs)(point, config), out)
 
 
-def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer, marks: Path) -> dict:
+def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer: bytes | None, marks: Path) -> dict:
     """In a local worker: leave a mark that ``point`` started, then fly it (the mark names the
-    suspect if the worker dies)."""
+    suspect if the worker dies). ``flyer`` comes cloudpickled (a caller's local function may fly)."""
     (marks / point.id).touch()
-    return fly_point(point, config, out, True, flyer)
+    return fly_point(point, config, out, True, cloudpickle.loads(flyer) if flyer else None)
 
 
 def failed_record(point: StatusPoint, reason: str, transient: bool = False) -> dict:
@@ -129,32 +129,36 @@ def failed_record(point: StatusPoint, reason: str, transient: bool = False) -> d
 
 def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int,
               flyer=None) -> Iterator[dict]:
-    """Fly ``points`` into ``out`` on ``jobs`` local worker processes (loky), yielding each record
-    as it finishes.
+    """Fly ``points`` into ``out`` on ``jobs`` local worker processes (forks of the warm server,
+    :mod:`identify.workers`), yielding each record as it finishes.
 
     A worker that dies (abort, segfault, out of memory) breaks the pool: the points
     finished so far are kept, those that had not started go on in a new pool, and
     those the dead workers had started are flown again at the end, each alone in a
-    pool of its own. A point whose lone worker dies comes back failed with the
+    process of its own. A point whose lone worker dies comes back failed with the
     reason (transient: a resume flies it again). The others are unaffected.
     """
     if jobs == 1:  # in this process, as before: nothing to isolate
         for p in points:
             yield fly_point(p, config, out, True, flyer)
         return
+    from identify.workers import WorkerDied, alone, submit
     marks = Path(tempfile.mkdtemp(prefix="gearid-started-"))
+    blob = cloudpickle.dumps(flyer) if flyer is not None else None
+    futures: dict = {}
     try:
         queue, suspects = list(points), []
         while queue:
-            broke, futures = None, {}
-            with ProcessPoolExecutor(max_workers=min(jobs, len(queue))) as pool:
-                futures = {pool.submit(_fly_marked, p, config, out, flyer, marks): p for p in queue}
-                for fut in as_completed(futures):
-                    if isinstance(fut.exception(), BrokenExecutor):
-                        broke = fut.exception()
-                        break
-                    yield fut.result()
-                    del futures[fut]
+            broke = None
+            futures = dict(zip(submit(_fly_marked, [(p, config, out, blob, marks) for p in queue], jobs), queue))
+            for fut in as_completed(futures):
+                if isinstance(fut.exception(), BrokenExecutor):
+                    broke = fut.exception()
+                    break
+                yield fut.result()
+                del futures[fut]
+            for fut in futures:  # a broken pool fails them all: wait for that before sorting them
+                fut.exception()
             queue = []
             if broke is None:
                 break
@@ -166,21 +170,14 @@ def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: 
                 else:
                     queue.append(p)
         for p in suspects:
-            with ProcessPoolExecutor(max_workers=1) as pool:
-                fut = pool.submit(_fly_marked, p, config, out, flyer, marks)
-                try:
-                    yield fut.result()
-                except BrokenExecutor as exc:
-                    yield failed_record(p, f"its worker died while flying it, alone ({type(exc).__name__}: "
-                                           f"{_first_line(exc)})", transient=True)
+            try:
+                yield alone(_fly_marked, (p, config, out, blob, marks))
+            except WorkerDied as exc:
+                yield failed_record(p, f"its worker died while flying it, alone ({exc})", transient=True)
     finally:
+        for fut in futures:  # the caller stopped early: what has not started is not flown
+            fut.cancel()
         shutil.rmtree(marks, ignore_errors=True)
-
-
-def _first_line(exc: BaseException) -> str:
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    codes = [ln for ln in lines if "exit code" in ln]
-    return codes[0] if codes else (lines[0] if lines else "")
 
 
 @dataclass
@@ -217,7 +214,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
                  cluster: str | None = None, flyer=None) -> Summary:
     """Fly the matrix into ``out``; resume if ``out`` holds the same campaign.
 
-    ``jobs`` local worker processes (joblib, loky), or the Dask cluster whose
+    ``jobs`` local worker processes (:func:`fly_local`), or the Dask cluster whose
     scheduler is at ``cluster`` (``tcp://HOST:PORT``; :mod:`campaign.cluster`).
     ``flyer(point, config) -> (record, logs)`` flies one point (default :func:`fly_logs`).
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, Iterator
@@ -86,3 +87,44 @@ def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
     if jobs <= 1 or len(calls) <= 1:
         return [func(*args) for args in calls]
     return list(results(submit(func, calls, jobs)))
+
+
+class WorkerDied(RuntimeError):
+    """The worker process of :func:`alone` died (a signal or an exit) before it answered."""
+
+
+def _alone(send, cwd: str, func: Callable, args: tuple) -> None:
+    try:
+        answer = (True, _in(cwd, func, args))
+    except BaseException as exc:  # handed back to the caller, raised there
+        answer = (False, exc)
+    send.send(answer)
+
+
+def alone(func: Callable, args: tuple):
+    """``func(*args)`` in a worker process of its own (a fork of the warm server), in the caller's
+    working directory; its exception is raised here.
+
+    Raises
+    ------
+    WorkerDied
+        If the worker dies first, with its exit code (a signal by name: ``SIGABRT(-6)``).
+    """
+    ctx = _context()
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_alone, args=(send, os.getcwd(), func, args))
+    proc.start()
+    send.close()
+    try:
+        ok, value = recv.recv()
+    except EOFError:
+        proc.join()
+        code = proc.exitcode
+        name = f"{signal.Signals(-code).name}({code})" if code is not None and code < 0 else str(code)
+        raise WorkerDied(f"exit code {name}") from None
+    finally:
+        recv.close()
+    proc.join()
+    if not ok:
+        raise value
+    return value

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from identify.workers import pmap, submit
+from identify.workers import WorkerDied, alone, pmap, submit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,6 +28,10 @@ def _die(x):
 
 def _cwd():
     return os.getcwd()
+
+
+def _abort():
+    os.abort()
 
 
 def test_results_come_back_in_order_from_two_workers():
@@ -89,3 +93,16 @@ def test_a_worker_is_a_fork_of_the_warm_server_with_the_modules_imported(tmp_pat
 def test_one_job_runs_here():
     assert {p for p, _ in pmap(_square, [(1,), (2,)], 1)} == {os.getpid()}
     assert len(submit(_square, [(1,), (2,)], 2)) == 2
+
+
+def test_alone_answers_raises_and_names_the_signal_that_killed_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    pid, sq = alone(_square, (7,))
+    assert sq == 49 and pid != os.getpid()
+    assert alone(_cwd, ()) == str(tmp_path)
+    with pytest.raises(ValueError, match="bad 2"):
+        alone(_fail, (2,))
+    with pytest.raises(WorkerDied, match=r"exit code SIGABRT\(-6\)"):
+        alone(_abort, ())
+    with pytest.raises(WorkerDied, match="exit code 3"):
+        alone(_die, (1,))
