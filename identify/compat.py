@@ -465,9 +465,25 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0: np.ndarray,
-              ps0: np.ndarray):
+              ps0: np.ndarray, steps: np.ndarray | None = None):
     """Euler angles integrated from the gyros [rad], less the local frame's own rotation when
-    the logs give the latitude and the heading.
+    the logs give the latitude and the heading. ``steps`` are :func:`_rotations` of these
+    biases if already known.
+    """
+    steps = _rotations(data, bp, bq, br) if steps is None else steps
+    (cy, ct, cf), (sy, st, sf) = np.cos(0.5 * np.stack([ps0, th0, ph0])), np.sin(0.5 * np.stack([ps0, th0, ph0]))
+    q0 = np.stack([cf * ct * cy + sf * st * sy, sf * ct * cy - cf * st * sy, cf * st * cy + sf * ct * sy,
+                   cf * ct * sy - sf * st * cy], -1)[:, None]
+    a, b, c, e = np.moveaxis(np.concatenate([q0, _qmul(np.broadcast_to(q0, steps.shape), steps)], 1), -1, 0)
+    th = np.arcsin(np.clip(2.0 * (a * c - e * b), -1.0, 1.0))
+    ph = np.arctan2(2.0 * (a * b + c * e), 1.0 - 2.0 * (b * b + c * c))
+    ps = np.unwrap(np.arctan2(2.0 * (a * e + b * c), 1.0 - 2.0 * (c * c + e * e)), axis=1)
+    ps += np.round((ps0 - ps[:, 0]) / (2.0 * np.pi))[:, None] * 2.0 * np.pi
+    return th, ph, ps
+
+
+def _rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
+    """The body's rotation from the first sample to each later one, as quaternions (L, n-1, 4).
 
     Each step's rotation is the fourth-order Magnus one of rates linear between
     samples (``h w_mean + h^2/12 w_k x w_k+1``); the steps compose by a parallel
@@ -485,15 +501,7 @@ def _attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0
     while d < steps.shape[1]:  # Hillis-Steele scan: steps[k] becomes steps[0] ... steps[k]
         steps = np.concatenate([steps[:, :d], _qmul(steps[:, :-d], steps[:, d:])], 1)
         d *= 2
-    (cy, ct, cf), (sy, st, sf) = np.cos(0.5 * np.stack([ps0, th0, ph0])), np.sin(0.5 * np.stack([ps0, th0, ph0]))
-    q0 = np.stack([cf * ct * cy + sf * st * sy, sf * ct * cy - cf * st * sy, cf * st * cy + sf * ct * sy,
-                   cf * ct * sy - sf * st * cy], -1)[:, None]
-    a, b, c, e = np.moveaxis(np.concatenate([q0, _qmul(np.broadcast_to(q0, steps.shape), steps)], 1), -1, 0)
-    th = np.arcsin(np.clip(2.0 * (a * c - e * b), -1.0, 1.0))
-    ph = np.arctan2(2.0 * (a * b + c * e), 1.0 - 2.0 * (b * b + c * c))
-    ps = np.unwrap(np.arctan2(2.0 * (a * e + b * c), 1.0 - 2.0 * (c * c + e * e)), axis=1)
-    ps += np.round((ps0 - ps[:, 0]) / (2.0 * np.pi))[:, None] * 2.0 * np.pi
-    return th, ph, ps
+    return steps
 
 
 def _body_to_ned(th: np.ndarray, ph: np.ndarray, ps: np.ndarray) -> np.ndarray:
@@ -783,11 +791,17 @@ def estimate(logs: list[Log]) -> CompatResult:
           "phi_deg.delay"]
     outs1 = [c for c in ("theta_deg", "phi_deg", "psi_deg") if c in data.present]
 
+    last_rotations: dict = {}  # the gyro biases of the last evaluation -> its rotations
+
     def model1(x):
         v = dict(zip(s1, x[:len(s1)]))
         per = x[len(s1):].reshape(L, 3)
-        th, ph, ps = _attitude(data, v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R,
-                               per[:, 0], per[:, 1], per[:, 2])
+        biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
+        key = np.array(biases).tobytes()  # bit for bit
+        if key not in last_rotations:  # a difference in an initial angle, a scale or a delay keeps them
+            last_rotations.clear()
+            last_rotations[key] = _rotations(data, *biases)
+        th, ph, ps = _attitude(data, *biases, per[:, 0], per[:, 1], per[:, 2], steps=last_rotations[key])
         return {"theta_deg": (1 + v["theta_deg.scale"]) * _shift(th, data.t, v["theta_deg.delay"]),
                 "phi_deg": (1 + v["phi_deg.scale"]) * _shift(ph, data.t, v["phi_deg.delay"]),
                 "psi_deg": ps}, (th, ph, ps)
@@ -825,22 +839,33 @@ def estimate(logs: list[Log]) -> CompatResult:
     wind_dirs = np.swapaxes(b2n, -1, -2)[..., :2]  # (L, n, 3, 2): north and east in body axes
     ins_phi = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True) if ins else None  # d(v_NED)/d(v0)
 
+    forcing = [s2.index(n) for n in ("ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias",
+                                     "phi_deg.bias")]
+    last_state: dict = {}  # the parameters the flight path depends on, bit for bit -> the path
+
     def state(x):
-        """Shared values, per-log values, air-relative and inertial body velocity, altitude."""
+        """Shared values, per-log values, air-relative body velocity, altitude and the inertial
+        velocity north-east-down (if the logs have it). A difference in an air-data error keeps the
+        flight path: it is computed again only when the parameters it depends on change."""
         v = dict(zip(s2, x[:len(s2)]))
-        per = x[len(s2):].reshape(L, n_per)
-        lin = np.concatenate([[1.0], [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
-                              [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R]])
-        inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3], optimize=True) + X @ lin
-        h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3], optimize=True) + HX @ lin
-        # air = inertial - gust
-        vel = inertial - np.einsum("lnk,lck->lnc", gust, per[:, g0:].reshape(L, 3, k_gust), optimize=True)
-        if n_wind:
-            vel = vel - np.einsum("lncw,lw->lnc", wind_dirs, per[:, 4:6], optimize=True)
-        return v, per, vel, h, inertial
+        key = x[forcing].tobytes() + x[len(s2):].tobytes()
+        if key not in last_state:
+            per = x[len(s2):].reshape(L, n_per).copy()
+            lin = np.concatenate([[1.0], [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
+                                  [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R]])
+            inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3], optimize=True) + X @ lin
+            h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3], optimize=True) + HX @ lin
+            # air = inertial - gust
+            vel = inertial - np.einsum("lnk,lck->lnc", gust, per[:, g0:].reshape(L, 3, k_gust), optimize=True)
+            if n_wind:
+                vel = vel - np.einsum("lncw,lw->lnc", wind_dirs, per[:, 4:6], optimize=True)
+            ned = np.moveaxis(np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True), -1, 0) if ins else None
+            last_state.clear()
+            last_state[key] = per, vel, h, ned
+        return (v, *last_state[key])
 
     def model2(x):
-        v, _, vel, h, inertial = state(x)
+        v, _, vel, h, ned = state(x)
         u, vv, w = vel[..., 0], vel[..., 1], vel[..., 2]
         xh = v["alpha_deg.position"] if x_doc is None else x_doc
         xb = xh if xb_doc is None else xb_doc
@@ -854,8 +879,7 @@ def estimate(logs: list[Log]) -> CompatResult:
                 "tas_kt": (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"])
                 + v["tas_kt.bias"] * FT_PER_KT,
                 "alt_ft": h,
-                **(dict(zip(INS[1:], np.moveaxis(np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True), -1, 0)))
-                   if ins else {})}
+                **(dict(zip(INS[1:], ned)) if ins else {})}
 
     def resid2(x):
         m = model2(x)
