@@ -1,4 +1,6 @@
-"""Identification plots (paper Figs. 6-9, 11, 12). Each takes ``ax=`` and returns the figure."""
+"""Identification plots (paper Figs. 6-9, 11, 12). Each takes ``ax=`` and returns the figure.
+
+Fixed margins rather than a layout engine: constrained layout took half of their time."""
 from __future__ import annotations
 
 import matplotlib
@@ -23,7 +25,8 @@ def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
     axes : array of 3x2 Axes, optional
     """
     if axes is None:
-        fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True, constrained_layout=True)
+        fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
+        fig.subplots_adjust(left=0.08, right=0.98, bottom=0.07, top=0.91, wspace=0.25, hspace=0.3)
     fig = axes[0][0].figure
     for i, c in enumerate(COEFFS):
         res = fit.fits[c]
@@ -45,7 +48,8 @@ def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
 def plot_alpha_transitions(incs: list[Increments], ax=None):
     """Angle of attack against normalized gear position during the extensions (Fig. 11)."""
     if ax is None:
-        fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
+        fig, ax = plt.subplots(figsize=(8, 5))
+        fig.subplots_adjust(left=0.1, right=0.97, bottom=0.12, top=0.92)
     cmap = plt.get_cmap("viridis")
     trims = np.array([i.alpha_trim_deg for i in incs])
     lo, hi = trims.min(), max(trims.max(), trims.min() + 1e-9)
@@ -65,7 +69,8 @@ def plot_alpha_transitions(incs: list[Increments], ax=None):
 def plot_increments(incs: list[Increments], axes=None):
     """Gear increments of CL, CD, Cm against delta_LG at each point (Fig. 12)."""
     if axes is None:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), constrained_layout=True)
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+        fig.subplots_adjust(left=0.06, right=0.94, bottom=0.13, top=0.88, wspace=0.3)
     cmap = plt.get_cmap("viridis")
     alphas = np.array([i.alpha_trim_deg for i in incs])
     lo, hi = (alphas.min(), alphas.max()) if len(alphas) else (0, 1)
@@ -78,6 +83,6 @@ def plot_increments(incs: list[Increments], axes=None):
         ax.set_ylabel(rf"$\Delta${LABEL[c]}")
         ax.grid(alpha=0.3)
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
-    axes[-1].figure.colorbar(sm, ax=list(axes), label=r"trim $\alpha$ [deg]")
+    axes[-1].figure.colorbar(sm, ax=list(axes), label=r"trim $\alpha$ [deg]", fraction=0.02, pad=0.02)
     axes[0].figure.suptitle("Gear increments (eq. 8), one curve per status point")
     return axes[0].figure
