@@ -16,6 +16,12 @@ FT_PER_KT = 1.6878098571011957
 
 
 def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
+    """CL, CD, Cm at the CG from a log (eq. 1): :func:`coefficient_arrays` as a frame indexed like
+    ``data``."""
+    return pd.DataFrame(coefficient_arrays(data, meta), index=data.index)
+
+
+def coefficient_arrays(data: pd.DataFrame, meta: dict) -> dict[str, np.ndarray]:
     """CL, CD, Cm at the CG from a log (eq. 1).
 
     Parameters
@@ -30,9 +36,9 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
 
     Returns
     -------
-    DataFrame
-        Columns ``CL``, ``CD``, ``Cm`` and the body-axis aero force coefficients
-        ``Cx`` (forward), ``Cz`` (down) [-].
+    dict
+        ``CL``, ``CD``, ``Cm`` and the body-axis aero force coefficients ``Cx`` (forward),
+        ``Cz`` (down) [-], one array each.
     """
     g = meta["geometry"]
     inertia = meta["inertia_slugft2"]
@@ -47,7 +53,7 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T
     moment_thrust = -g.get("thrust_z_arm_ft", 0.0) * data["thrust_lbf"].to_numpy()
     cm = (moment - moment_thrust) / (qs * cbar)
-    return pd.DataFrame({"CL": cl, "CD": cd, "Cm": cm, "Cx": fx / qs, "Cz": fz / qs}, index=data.index)
+    return {"CL": cl, "CD": cd, "Cm": cm, "Cx": fx / qs, "Cz": fz / qs}
 
 
 def _aero_forces(data: pd.DataFrame, meta: dict) -> tuple[np.ndarray, ...]:

@@ -20,11 +20,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from identify.coefficients import coefficients, lift_coefficient
+from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
 from identify.evaluate import evaluator_for, in_chunks
 from identify.logs import Log
 from identify.models import lowpass
-from identify.residuals import COEFFS, FILTERED, kept, measured_about, signatures, variables
+from identify.residuals import COEFFS, FILTERED, kept, measured_about, measured_arrays, signatures, variable_arrays
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
@@ -222,15 +222,14 @@ class NoiseFloor:
                     noisy[:, at[c]] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
             moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
             noisy = pd.DataFrame(noisy, columns=cols, copy=False)
-            meas = _measured(noisy, meta, self.ref)
+            meas = measured_arrays(coefficient_arrays(noisy, meta), meta, self.ref)
             ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
-            r = _columns(meas, COEFFS) - self._meas[i]
+            r = np.column_stack([meas[c] for c in COEFFS]) - self._meas[i]
             for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
                 r = r - np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) * moved[:, [m]]
             out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
-            var = variables(noisy, meta, meas["CL"].to_numpy(), sorted(columns))
-            var = {v: var[v].to_numpy() for v in var.columns}
+            var = variable_arrays(noisy, meta, meas["CL"], sorted(columns))
             sig = [c for c in columns if c.startswith("thrust_")]
             if sig:
                 shares = signatures(noisy, meta, self.ref)
@@ -239,8 +238,8 @@ class NoiseFloor:
             if smoothed:
                 out.update(zip(smoothed, lowpass(np.array([var[v] for v in smoothed], dtype=float).T, dt)[keep].T))
             out.update((v, x[keep]) for v, x in var.items() if v not in out)
-            frames.append(pd.DataFrame(out))
-        return pd.concat(frames, ignore_index=True)
+            frames.append(out)
+        return pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]}) if frames else pd.DataFrame()
 
     def sizes(self, groups: list[tuple[str, list]], instruments: bool = False) -> list[np.ndarray]:
         """For each (coefficient, terms) group: its size fitted to each realization of noise

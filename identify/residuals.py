@@ -45,7 +45,13 @@ FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "
 
 
 def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES) -> pd.DataFrame:
-    """The candidate variables of one log, unfiltered.
+    """The candidate variables of one log, unfiltered: :func:`variable_arrays` as a frame indexed
+    like ``data``."""
+    return pd.DataFrame(variable_arrays(data, meta, cl, columns), index=data.index)
+
+
+def variable_arrays(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES) -> dict[str, np.ndarray]:
+    """The candidate variables of one log, unfiltered, one array each.
 
     Parameters
     ----------
@@ -59,7 +65,7 @@ def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES)
         The variables wanted (default all of :data:`VARIABLES`).
     """
     half_chord_over_v = meta["geometry"]["cbar_ft"] / (2.0 * data["tas_kt"].to_numpy() * FT_PER_KT)
-    out = pd.DataFrame({v: data[v].to_numpy(dtype=float) for v in columns if v in data.columns}, index=data.index)
+    out = {v: data[v].to_numpy(dtype=float) for v in columns if v in data.columns}
     if "qhat_rad" in columns:
         out["qhat_rad"] = data["q_dps"].to_numpy() * D2R * half_chord_over_v
     if "adothat_rad" in columns:
@@ -70,20 +76,26 @@ def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES)
 
 
 def measured_about(coef: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
-    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP.
+    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP
+    (:func:`measured_arrays` as a frame indexed like ``coef``)."""
+    return pd.DataFrame(measured_arrays(coef, meta, evaluator), index=coef.index)
 
-    The log's own area and chord are converted to the model's; the moment moves
-    from the log's CG (the model's CG if the log does not give one) to the
-    model's AERORP, with the full x and z offset.
+
+def measured_arrays(coef, meta: dict, evaluator) -> dict[str, np.ndarray]:
+    """Measured CL, CD and Cm in the model's reference, Cm about the model's AERORP, one array each.
+
+    ``coef`` maps ``CL``, ``CD``, ``Cm``, ``Cx``, ``Cz`` to arrays or columns
+    (:func:`identify.coefficients.coefficient_arrays`). The log's own area and chord are
+    converted to the model's; the moment moves from the log's CG (the model's CG if the log
+    does not give one) to the model's AERORP, with the full x and z offset.
     """
     g = meta["geometry"]
     k = g["S_ft2"] / evaluator.S
     cg_x, cg_z = g.get("cg_x_in", evaluator.cg_in[0]), g.get("cg_z_in", evaluator.cg_in[2])
-    cm = coef["Cm"].to_numpy() * k * g["cbar_ft"] / evaluator.cbar
-    cm = moment_transfer(cm, coef["Cx"].to_numpy() * k, coef["Cz"].to_numpy() * k,
+    cm = np.asarray(coef["Cm"]) * k * g["cbar_ft"] / evaluator.cbar
+    cm = moment_transfer(cm, np.asarray(coef["Cx"]) * k, np.asarray(coef["Cz"]) * k,
                          evaluator.aerorp_in[0] - cg_x, evaluator.aerorp_in[2] - cg_z, evaluator.cbar)
-    return pd.DataFrame({"CL": coef["CL"].to_numpy() * k, "CD": coef["CD"].to_numpy() * k, "Cm": cm},
-                        index=coef.index)
+    return {"CL": np.asarray(coef["CL"]) * k, "CD": np.asarray(coef["CD"]) * k, "Cm": cm}
 
 
 def signatures(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
