@@ -21,7 +21,7 @@ def coefficients(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     return pd.DataFrame(coefficient_arrays(data, meta), index=data.index)
 
 
-def coefficient_arrays(data: pd.DataFrame, meta: dict) -> dict[str, np.ndarray]:
+def coefficient_arrays(data: pd.DataFrame, meta: dict, qdot_dps2: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """CL, CD, Cm at the CG from a log (eq. 1).
 
     Parameters
@@ -33,6 +33,9 @@ def coefficient_arrays(data: pd.DataFrame, meta: dict) -> dict[str, np.ndarray]:
     meta : dict
         Log metadata with ``inertia_slugft2`` [slug ft^2] and ``geometry`` (S [ft^2],
         cbar [ft], thrust_z_arm_ft [ft], thrust line height above the CG).
+    qdot_dps2 : ndarray, optional
+        The pitch acceleration [deg/s^2] if already known (default:
+        :func:`identify.kinematics.pitch_acceleration` of ``data``).
 
     Returns
     -------
@@ -47,7 +50,7 @@ def coefficient_arrays(data: pd.DataFrame, meta: dict) -> dict[str, np.ndarray]:
     cl = _lift(a, qs, fx, fz)
     cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
-    qdot = pitch_acceleration(data) * D2R
+    qdot = (pitch_acceleration(data) if qdot_dps2 is None else qdot_dps2) * D2R
     moment = (inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r
               + inertia["ixz"] * (p ** 2 - r ** 2))
     # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T

@@ -139,7 +139,7 @@ def odd_extension(x: np.ndarray, pad: int, anchor: int) -> np.ndarray:
 
 def smooth_derivative(t: np.ndarray, x: np.ndarray, lead_s: float = 0.0) -> np.ndarray:
     """Derivative of a sampled signal [x units/s]: the interpolating quintic spline's,
-    ``lead_s`` after each sample.
+    ``lead_s`` after each sample. A 2-D ``x`` gives each column's.
 
     Flat in gain and phase far above the 3 Hz where the identification's
     zero-phase low-pass cuts: that filter, applied to every coefficient before
@@ -152,7 +152,11 @@ def smooth_derivative(t: np.ndarray, x: np.ndarray, lead_s: float = 0.0) -> np.n
     t = np.asarray(t, dtype=float)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     pad = min(int(round(0.5 / dt)), len(t) - 1)
-    xe = odd_extension(x, pad, int(round(ANCHOR_S / dt)))
+    anchor = int(round(ANCHOR_S / dt))
+    x = np.asarray(x, dtype=float)
+    # columns (one spline solve for all) each extended on its own: the same numbers as one at a time
+    xe = odd_extension(x, pad, anchor) if x.ndim == 1 else np.column_stack([odd_extension(np.ascontiguousarray(c), pad, anchor)
+                                                                             for c in x.T])
     te = np.concatenate([t[0] - dt * np.arange(pad, 0, -1), t, t[-1] + dt * np.arange(1, pad + 1)])
     k = min(5, len(xe) - 1 - (len(xe) % 2 == 0))
     return make_interp_spline(te, xe, k=k).derivative()(t + lead_s)
@@ -163,5 +167,10 @@ def pitch_acceleration(data: pd.DataFrame) -> np.ndarray:
     half a JSBSim frame ahead (:func:`smooth_derivative`)."""
     if "qdot_dps2" in data:
         return data["qdot_dps2"].to_numpy(dtype=float)
-    return smooth_derivative(data["t_s"].to_numpy(dtype=float), data["q_dps"].to_numpy(dtype=float),
-                             0.5 * JSBSIM_FRAME_S)
+    return pitch_rate_derivative(data["t_s"].to_numpy(dtype=float), data["q_dps"].to_numpy(dtype=float))
+
+
+def pitch_rate_derivative(t_s: np.ndarray, q_dps: np.ndarray) -> np.ndarray:
+    """The pitch acceleration :func:`pitch_acceleration` takes from the pitch rate [deg/s^2]:
+    ``q_dps`` [deg/s] one record (n,) or several of the same times as columns (n, k)."""
+    return smooth_derivative(t_s, q_dps, 0.5 * JSBSIM_FRAME_S)

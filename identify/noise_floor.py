@@ -22,6 +22,7 @@ import pandas as pd
 
 from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
 from identify.evaluate import evaluator_for, in_chunks
+from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.models import lowpass
 from identify.residuals import COEFFS, FILTERED, kept, measured_about, measured_arrays, signatures, variable_arrays
@@ -44,6 +45,8 @@ SENSITIVITY_EVERY_S = 0.5
 RESOLUTION = 1e-5
 #: Instrument errors are taken as plausible up to this many standard errors of the data compatibility.
 REACH_SE = 2.0
+#: Realizations a worker computes together (they share per-log work; each holds its residual data).
+REALIZATION_BATCH = 5
 
 
 def channel_noise(logs: list[Log]) -> dict[str, float]:
@@ -187,7 +190,8 @@ class NoiseFloor:
         return in_chunks(getattr(self, method), items, self.jobs, *args)
 
     def _frames(self, specs: list[dict]) -> list[pd.DataFrame]:
-        return [self.realization(**spec) for spec in specs]
+        """Residuals alone (no variables) of each :meth:`realization_batch` spec."""
+        return self.realization_batch(set(), specs)
 
     def noisy(self, variables) -> bool:
         """Whether any of the variables is computed from a channel that holds noise."""
@@ -199,47 +203,74 @@ class NoiseFloor:
         correction may have left (``instruments``: drawn from their covariance) or by given
         ``errors`` (one per :attr:`uncertain`, or per ``names``): ``r_CL``... and the variables in
         ``columns``."""
-        frames = []
-        if errors is None:
-            errors = (np.random.default_rng([self.seed, k, 10**6]).multivariate_normal(
-                np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
-                if instruments and self.uncertain else np.zeros(len(self.uncertain)))
-        names = self.uncertain if names is None else names
+        return self.realization_batch(columns, [{"k": k, "noise": noise, "instruments": instruments, "errors": errors,
+                                            "names": names}])[0]
+
+    def realization_batch(self, columns: set[str], specs: list[dict]) -> list[pd.DataFrame]:
+        """:meth:`realization` of each spec (its keyword arguments but ``columns``), each the same
+        as alone; what they share is done once per log (the model's sensitivities at the samples,
+        one spline for all their pitch accelerations)."""
+        drawn = []
+        for spec in specs:
+            errors, names = spec.get("errors"), spec.get("names")
+            if errors is None:
+                errors = (np.random.default_rng([self.seed, spec["k"], 10**6]).multivariate_normal(
+                    np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
+                    if spec.get("instruments") and self.uncertain else np.zeros(len(self.uncertain)))
+            drawn.append((spec["k"], spec.get("noise", True), errors, self.uncertain if names is None else names))
+        frames: list[list[dict]] = [[] for _ in specs]
         for i, meta in enumerate(self._metas):
             cols, d = self._numbers[i]
             at = {c: j for j, c in enumerate(cols)}
             t = d[:, at["t_s"]]
             dt = float(np.median(np.diff(t)))
-            rng = np.random.default_rng([self.seed, k, i])
-            chans = [at[ch] for ch in sorted(self.noise) if ch in at]
-            noisy = d.copy()
-            if noise:
-                noisy[:, chans] = d[:, chans] + rng.standard_normal((len(d), len(chans))) * np.array(
-                    [self.noise[cols[j]] for j in chans])
-            for (c, e), z in zip(names, errors):  # the same instrument error in every log
-                if c in at and z:
-                    x = noisy[:, at[c]].copy()
-                    noisy[:, at[c]] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
-            moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
-            noisy = pd.DataFrame(noisy, columns=cols, copy=False)
-            meas = measured_arrays(coefficient_arrays(noisy, meta), meta, self.ref)
-            ts, sens = self._sens[i]
             keep = kept(len(d), dt, self.step)
-            r = np.column_stack([meas[c] for c in COEFFS]) - self._meas[i]
-            for m, sj in enumerate(sens.values()):  # the model's answer to the changed channels, linearised
-                r = r - np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) * moved[:, [m]]
-            out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
-            var = variable_arrays(noisy, meta, meas["CL"], sorted(columns))
-            sig = [c for c in columns if c.startswith("thrust_")]
-            if sig:
-                shares = signatures(noisy, meta, self.ref)
-                var.update((c, shares[c].to_numpy()) for c in sig)
-            smoothed = [v for v in var if v in FILTERED or v in sig]
-            if smoothed:
-                out.update(zip(smoothed, lowpass(np.array([var[v] for v in smoothed], dtype=float).T, dt)[keep].T))
-            out.update((v, x[keep]) for v, x in var.items() if v not in out)
-            frames.append(out)
-        return pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]}) if frames else pd.DataFrame()
+            ts, sens = self._sens[i]
+            model = [np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) for sj in sens.values()]
+            noisy = [self._perturbed(i, d, at, t, *spec) for spec in drawn]
+            qdot = (pitch_rate_derivative(t, np.column_stack([x[:, at["q_dps"]] for x in noisy]))
+                    if "qdot_dps2" not in at and noisy else None)
+            for s, x in enumerate(noisy):
+                frames[s].append(self._residuals(i, x, cols, at, t, dt, keep, model,
+                                                 None if qdot is None else qdot[:, s], columns))
+        return [pd.DataFrame({c: np.concatenate([f[c] for f in fr]) for c in fr[0]}) if fr else pd.DataFrame()
+                for fr in frames]
+
+    def _perturbed(self, i: int, d: np.ndarray, at: dict, t: np.ndarray, k: int, noise: bool, errors, names):
+        """Log ``i``'s channels with realization ``k``'s noise (if ``noise``) and the instrument errors."""
+        chans = [at[ch] for ch in sorted(self.noise) if ch in at]
+        noisy = d.copy()
+        if noise:
+            rng = np.random.default_rng([self.seed, k, i])
+            noisy[:, chans] = d[:, chans] + rng.standard_normal((len(d), len(chans))) * np.array(
+                [self.noise[self._numbers[i][0][j]] for j in chans])
+        for (c, e), z in zip(names, errors):  # the same instrument error in every log
+            if c in at and z:
+                x = noisy[:, at[c]].copy()
+                noisy[:, at[c]] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
+        return noisy
+
+    def _residuals(self, i: int, noisy: np.ndarray, cols, at: dict, t: np.ndarray, dt: float, keep: np.ndarray,
+                   model: list[np.ndarray], qdot: np.ndarray | None, columns: set[str]) -> dict[str, np.ndarray]:
+        """Log ``i``'s residuals and variables from its perturbed channels, filtered and thinned."""
+        meta, d = self._metas[i], self._numbers[i][1]
+        moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
+        frame = pd.DataFrame(noisy, columns=cols, copy=False)
+        meas = measured_arrays(coefficient_arrays(frame, meta, qdot), meta, self.ref)
+        r = np.column_stack([meas[c] for c in COEFFS]) - self._meas[i]
+        for m, at_samples in enumerate(model):  # the model's answer to the changed channels, linearised
+            r = r - at_samples * moved[:, [m]]
+        out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
+        var = variable_arrays(frame, meta, meas["CL"], sorted(columns))
+        sig = [c for c in columns if c.startswith("thrust_")]
+        if sig:
+            shares = signatures(frame, meta, self.ref)
+            var.update((c, shares[c].to_numpy()) for c in sig)
+        smoothed = [v for v in var if v in FILTERED or v in sig]
+        if smoothed:
+            out.update(zip(smoothed, lowpass(np.array([var[v] for v in smoothed], dtype=float).T, dt)[keep].T))
+        out.update((v, x[keep]) for v, x in var.items() if v not in out)
+        return out
 
     def sizes(self, groups: list[tuple[str, list]], instruments: bool = False) -> list[np.ndarray]:
         """For each (coefficient, terms) group: its size fitted to each realization of noise
@@ -258,14 +289,15 @@ class NoiseFloor:
     def _sizes(self, ks: list[int], groups: list[tuple[str, list]], columns: set[str],
                instruments: bool) -> list[list[float]]:
         out = []
-        for k in ks:
-            frame = self.realization(k, columns, noise=not instruments, instruments=instruments)
-            row = []
-            for c, terms in groups:
-                x = design_matrix(terms, frame)
-                beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
-                row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
-            out.append(row)
+        for batch in (ks[j:j + REALIZATION_BATCH] for j in range(0, len(ks), REALIZATION_BATCH)):
+            for frame in self.realization_batch(columns, [{"k": k, "noise": not instruments, "instruments": instruments}
+                                                     for k in batch]):
+                row = []
+                for c, terms in groups:
+                    x = design_matrix(terms, frame)
+                    beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
+                    row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
+                out.append(row)
         return out
 
     def instrument_responses(self) -> tuple[np.ndarray, list[pd.DataFrame]]:
@@ -276,7 +308,7 @@ class NoiseFloor:
         w, v = np.linalg.eigh(self.uncertain_cov)
         keep = w > 1e-12 * max(float(w.max()), 1e-300)
         axes = v[:, keep] * np.sqrt(w[keep])
-        return axes, self._spread("_frames", [{"k": 0, "columns": set(), "noise": False, "errors": a} for a in axes.T])
+        return axes, self._spread("_frames", [{"k": 0, "noise": False, "errors": a} for a in axes.T])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
               radius: float = REACH_SE) -> list[dict]:
@@ -304,8 +336,8 @@ class NoiseFloor:
         to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
-        frames = self._spread("_frames", [{"k": 0, "columns": set(), "noise": False,
-                                            "errors": np.array([unit[e]]), "names": [(ch, e)]} for ch, e in shown])
+        frames = self._spread("_frames", [{"k": 0, "noise": False, "errors": np.array([unit[e]]), "names": [(ch, e)]}
+                                           for ch, e in shown])
         blind = [(ch, e, r) for (ch, e), r in zip(shown, frames)]
         out = []
         for c, terms, f in causes:

@@ -215,3 +215,30 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
         assert (again.gear_norm.to_numpy() == f.log.gear_norm.to_numpy()).all()
         assert np.max(np.abs(again.theta_deg - f.log.theta_deg)) < 0.01, man
         assert np.max(np.abs(again.alt_ft - f.log.alt_ft)) < 0.5, man
+
+
+def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path, small_matrix):
+    """The noise floor computes several realizations at once (one spline for their pitch
+    accelerations: the flight-test logs have no qdot); each must be the one drawn alone, bit
+    for bit, and fresh noise each."""
+    from identify.evaluate import ModelEvaluator
+    from identify.logs import read_campaign
+    from identify.noise_floor import NoiseFloor, channel_noise
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
+                 "--no-identify", "--quiet"]) == 0
+    logs = read_campaign(tmp_path / "c")
+    assert logs and all("qdot_dps2" not in lg.data for lg in logs)
+    ev = ModelEvaluator(DEFAULT_AIRCRAFT)
+    try:
+        floor = NoiseFloor(logs, ev, channel_noise(logs), realizations=3)
+        columns = {"alpha_deg", "gear_norm", "qhat_rad", "CL"}
+        together = floor.realization_batch(columns, [{"k": k} for k in range(3)])
+        for k, frame in enumerate(together):
+            alone = floor.realization(k, columns)
+            assert list(frame.columns) == list(alone.columns)
+            assert all(np.array_equal(frame[c].to_numpy(), alone[c].to_numpy()) for c in frame.columns), k
+        assert not np.array_equal(together[0]["r_Cm"].to_numpy(), together[1]["r_Cm"].to_numpy())
+        assert 0 < float(np.std(together[2]["r_Cm"])) < 0.05
+    finally:
+        ev.close()
