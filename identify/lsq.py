@@ -144,18 +144,19 @@ class LeastSquares:
     def fit(self) -> LSResults:
         unexcited = {}
         keep = []
-        for col in self.X.columns:
+        columns = dict(zip(self.X.columns, self.X.to_numpy(dtype=float).T))  # one copy, not a Series per use
+        for col, values in columns.items():
             if col == "const":
                 keep.append(col)
                 continue
-            sd = float(np.std(self.X[col]))
+            sd = float(np.std(values))
             if sd < self.min_std.get(col, 0.0) or sd == 0.0:
                 unexcited[col] = f"std {sd:.2g} below {self.min_std.get(col, 0.0):.2g}"
                 continue
             for other in keep:
                 if other == "const":
                     continue
-                r = np.corrcoef(self.X[col], self.X[other])[0, 1]
+                r = np.corrcoef(values, columns[other])[0, 1]
                 if abs(r) > 0.98:
                     unexcited[col] = f"collinear with {other} (r = {r:.3f})"
                     break
