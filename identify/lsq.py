@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 
 @dataclass
@@ -108,10 +109,10 @@ def colored_residual_cov(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     r = np.array([e[k:] @ e[:n - k] / n for k in range(lags + 1)])
     crossing = np.flatnonzero(r <= 0.0)
     last = int(crossing[0]) - 1 if crossing.size else lags
-    m = r[0] * (x.T @ x)
-    for k in range(1, last + 1):
-        g = x[k:].T @ x[:-k]
-        m += r[k] * (g + g.T)
+    # sum_k r_k (G_k + G_k'), G_k = sum_i x_(i+k) x_i', is Z'X + X'Z with Z_i = sum_k r_k x_(i+k):
+    # the lags as one FIR filter over the reversed regressors instead of a product per lag
+    z = lfilter(np.concatenate([[0.0], r[1:last + 1]]), [1.0], x[::-1], axis=0)[::-1]
+    m = r[0] * (x.T @ x) + z.T @ x + x.T @ z
     xtx_inv = np.linalg.inv(x.T @ x)
     cov = xtx_inv @ m @ xtx_inv
     return cov
