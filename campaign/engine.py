@@ -1,8 +1,8 @@
 """The flying engine: build an FDM, trim at a status point, fly a manoeuvre, log.
 
 Each call builds its own ``FGFDMExec`` (it cannot be pickled, and a failed trim
-leaves stale state behind), so the functions here run unchanged in joblib
-workers or on a Dask cluster.
+leaves stale state behind), so the functions here run unchanged in local worker
+processes or on a Dask cluster.
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ from campaign.store import MANIFEST, clean_temporaries, log_name, read_manifest,
 
 def _versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
-    for pkg in ("jsbsim", "numpy", "pandas", "pyarrow", "joblib", "gear-aero-id"):
+    for pkg in ("jsbsim", "numpy", "pandas", "pyarrow", "gear-aero-id"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

@@ -1,6 +1,6 @@
 """Local worker processes, forked from a server that has already imported what they need.
 
-A worker started afresh (joblib's loky, ``spawn``) spends 1.2-1.5 s importing numpy,
+A worker started afresh (``spawn``, as joblib's loky does) spends 1.2-1.5 s importing numpy,
 scipy, pandas and JSBSim before its first task, and every command that fans out paid
 that once per pool. Here the standard library's ``forkserver`` imports the modules
 once, in one process, from the moment :func:`warm` is called (the caller goes on with
