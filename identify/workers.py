@@ -122,6 +122,9 @@ def alone(func: Callable, args: tuple):
         code = proc.exitcode
         name = f"{signal.Signals(-code).name}({code})" if code is not None and code < 0 else str(code)
         raise WorkerDied(f"exit code {name}") from None
+    except BaseException:  # the caller interrupted: the worker goes too
+        proc.terminate()
+        raise
     finally:
         recv.close()
     proc.join()
