@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from campaign.errors import UserError
-from campaign.instruments import shipped
 
 
 class _Parser(argparse.ArgumentParser):
@@ -16,6 +15,13 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
+
+
+def shipped() -> list[str]:
+    """Names of the shipped instrument profiles (:func:`campaign.instruments.shipped`, read here
+    without importing that module's numerics: the command line must come up at once, for the
+    worker server to start before the heavy imports)."""
+    return sorted(p.stem for p in (Path(__file__).parent / "instruments").glob("*.toml"))
 
 
 def _jobs(text: str) -> int:

@@ -106,3 +106,15 @@ def test_alone_answers_raises_and_names_the_signal_that_killed_it(tmp_path, monk
         alone(_abort, ())
     with pytest.raises(WorkerDied, match="exit code 3"):
         alone(_die, (1,))
+
+
+def test_the_command_line_comes_up_without_the_numerics():
+    """The worker server starts as a command begins, before the main process imports numpy,
+    pandas, scipy or JSBSim: the command line module must not import them itself."""
+    out = subprocess.run([sys.executable, "-c", "import sys, campaign.cli\n"
+                          "print([m for m in ('numpy', 'pandas', 'scipy', 'jsbsim') if m in sys.modules])"],
+                         capture_output=True, text=True, cwd=ROOT, check=True).stdout.strip()
+    assert out == "[]", out
+    from campaign.cli import shipped
+    from campaign.instruments import shipped as profiles
+    assert shipped() == profiles() and "flight-test" in shipped()
