@@ -25,7 +25,7 @@ from identify.diagnosis_export import write_extension
 from identify.evaluate import ModelEvaluator
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from identify.workers import pmap
+from identify.workers import pmap, results, submit
 from maneuvers.library import Recorded
 
 REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
@@ -238,17 +238,23 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
            flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all);
     returns the names of the logs plotted."""
-    import matplotlib.pyplot as plt
+    (out / "plots").mkdir(exist_ok=True)
+    which = range(len(held)) if which is None else which
+    calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
+              after[after.log == i] if after is not None else None,
+              *flown.get(held[i].path, (None, None)), out / "plots") for i in which]
+    pending = submit(_log_plots, calls, jobs) if jobs > 1 and len(calls) > 1 else None
+    import matplotlib.pyplot as plt  # the overview is drawn here meanwhile
 
     from identify.diagnosis_plots import plot_residuals
-    (out / "plots").mkdir(exist_ok=True)
     fig = plot_residuals(diag)
     fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
     plt.close(fig)
-    which = range(len(held)) if which is None else which
-    pmap(_log_plots, [(Path(held[i].path).stem, held[i].data, before[before.log == i],
-                       after[after.log == i] if after is not None else None,
-                       *flown.get(held[i].path, (None, None)), out / "plots") for i in which], jobs)
+    if pending is None:
+        for args in calls:
+            _log_plots(*args)
+    else:
+        list(results(pending))
     return [Path(held[i].path).name for i in which]
 
 
