@@ -204,8 +204,9 @@ def main(argv: list[str] | None = None) -> int:
 
 #: What each command's worker processes import: a server imports it once while the command
 #: starts its own work, and the workers are forks of it (:mod:`identify.workers`).
-PRELOAD = {"run": ("campaign.runner", "identify.pipeline", "campaign.replay", "campaign.replay_report"),
-           "identify": ("identify.pipeline",), "replay": ("campaign.replay", "campaign.replay_report"),
+PRELOAD = {"run": ("campaign.runner", "identify.pipeline", "identify.plots", "campaign.replay",
+                   "campaign.replay_report"),
+           "identify": ("identify.pipeline", "identify.plots"), "replay": ("campaign.replay", "campaign.replay_report"),
            "plots": ("campaign.replay_report",), "diagnose": ("campaign.diagnose",)}
 
 

@@ -88,8 +88,8 @@ def _cond_key(c: tuple) -> str:
 
 
 def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
-                  plots: str = "paper") -> dict[str, str]:
-    """Write tables (CSV, text), identification.json, XML and plots into ``out``."""
+                  plots: str = "paper", jobs: int = 1) -> dict[str, str]:
+    """Write tables (CSV, text), identification.json, XML and plots (on ``jobs`` processes) into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
     rows, stats = [], []
@@ -177,33 +177,31 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
     (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     files["json"] = str(out / "identification.json")
     if plots != "none":
-        files.update(_plots(ident, out / "plots", plots))
+        files.update(_plots(ident, out / "plots", plots, jobs))
     return files
 
 
-def _plots(ident: Identification, out: Path, which: str) -> dict[str, str]:
+def _plots(ident: Identification, out: Path, which: str, jobs: int = 1) -> dict[str, str]:
+    """The figures, drawn on ``jobs`` worker processes."""
+    out.mkdir(parents=True, exist_ok=True)
+    incs = list(ident.increments.values())
+    todo = [(f"plot_fit_{f.point}", "fit", (f, f.t_s), out / f"fit_{f.point}.png") for f in ident.fits
+            if which == "all" or f.point in PAPER_POINTS]
+    if incs:
+        todo += [(f"plot_{name}", name, (incs,), out / f"{name}.png")
+                 for name in ("alpha_during_gear_transitions", "gear_increments")]
+    pmap(_draw, [(kind, args, path) for _, kind, args, path in todo], jobs)
+    return {key: str(path) for key, _, _, path in todo}
+
+
+def _draw(kind: str, args: tuple, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     from identify.plots import plot_alpha_transitions, plot_fit, plot_increments
-    out.mkdir(parents=True, exist_ok=True)
-    written = {}
-    for f in ident.fits:
-        if which == "all" or f.point in PAPER_POINTS:
-            fig = plot_fit(f, f.t_s)
-            p = out / f"fit_{f.point}.png"
-            fig.savefig(p, dpi=110)
-            plt.close(fig)
-            written[f"plot_fit_{f.point}"] = str(p)
-    incs = list(ident.increments.values())
-    if incs:
-        for name, fn in (("alpha_during_gear_transitions", plot_alpha_transitions),
-                         ("gear_increments", plot_increments)):
-            fig = fn(incs)
-            p = out / f"{name}.png"
-            fig.savefig(p, dpi=110)
-            plt.close(fig)
-            written[f"plot_{name}"] = str(p)
-    return written
+    fig = {"fit": plot_fit, "alpha_during_gear_transitions": plot_alpha_transitions,
+           "gear_increments": plot_increments}[kind](*args)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
@@ -229,7 +227,7 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
     ident = identify_logs(logs, jobs=jobs)
     stage = _sibling(final, "partial")
-    files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots)
+    files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
     _swap(stage, final)
     return {k: str(final / Path(v).relative_to(stage)) for k, v in files.items()}
 
