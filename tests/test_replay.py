@@ -106,3 +106,27 @@ def test_plots_without_replays_is_a_clear_error(tmp_path, capsys):
     assert main(["plots", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "no replay logs" in err and err.count("\n") == 1
+
+
+def test_a_case_figure_drawn_on_the_reused_axes_equals_a_new_figure(tmp_path):
+    """The report draws every case on one emptied figure per process: nothing of the case
+    before (lines, bands, legends, limits) may show in the next one's pixels."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from campaign.replay_report import CHANNELS, _save_plot, plot_case
+
+    def log(t, scale, gear_at):
+        d = {c: scale * np.sin(t * (i + 1) / 7.0) + 100.0 * i for i, (c, _) in enumerate(CHANNELS)}
+        return pd.DataFrame({"t_s": t, "gear_norm": (t > gear_at).astype(float), **d})
+
+    t1, t2 = np.arange(0, 30, 0.1), np.arange(0, 12, 0.05)
+    big = {("a", m, "open"): log(t1, 40.0 * (1 + k / 10), 5.0) for k, m in enumerate(("reference", "linear",
+                                                                                         "nonlinear"))}
+    small = {("b", m, "open"): log(t2, 0.5 * (1 + k / 10), 20.0) for k, m in enumerate(("reference", "nonlinear"))}
+    for replays, case in ((big, "a"), (small, "b")):
+        _save_plot(replays, case, "open", tmp_path / f"{case}_reused.png")
+        fig = plot_case(replays, case, "open")
+        fig.savefig(tmp_path / f"{case}_new.png", dpi=100, format="png")
+        plt.close(fig)
+        assert np.array_equal(plt.imread(tmp_path / f"{case}_reused.png"), plt.imread(tmp_path / f"{case}_new.png"))
