@@ -61,9 +61,16 @@ def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
                                                         column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats}))
 
 
+def read_table(path: str | Path):
+    """One Parquet file as a ``pyarrow.Table`` (without ``pq.read_table``'s dataset discovery,
+    which takes longer than the read of a log)."""
+    with pq.ParquetFile(path) as f:
+        return f.read()
+
+
 def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
     """Read a log and its metadata."""
-    table = pq.read_table(path)
+    table = read_table(path)
     meta = json.loads(table.schema.metadata[META_KEY])
     return table.to_pandas(), meta
 
