@@ -602,16 +602,30 @@ class _Blocks:
 
     def __init__(self, Js: np.ndarray, Jp: np.ndarray, e: np.ndarray, rows: list[np.ndarray]) -> None:
         self.rows = rows
-        self.Hss = Js.T @ Js
-        self.gs = Js.T @ e
+        ns, per = Js.shape[1], Jp.shape[1]
         self.Hll, self.Hsl, self.gl, self.Bb, self.gb = [], [], [], [], []  # each log's products only
         for r in rows:
-            a, b, ee = Jp[r], Js[r], e[r]
-            self.Hll.append(a.T @ a)
-            self.Hsl.append(b.T @ a)
-            self.gl.append(a.T @ ee)
-            self.Bb.append(b.T @ b)
-            self.gb.append(b.T @ ee)
+            hll, hsl, gl, bb, gb = np.zeros((per, per)), np.zeros((ns, per)), np.zeros(per), np.zeros((ns, ns)), \
+                np.zeros(ns)
+            cuts = np.flatnonzero(np.diff(r) != 1) + 1
+            for lo, hi in zip(r[np.r_[0, cuts]], r[np.r_[cuts - 1, len(r) - 1]] + 1):  # its runs of rows: views
+                a, b, ee = Jp[lo:hi], Js[lo:hi], e[lo:hi]
+                cols = np.flatnonzero(np.any(a, axis=0))  # an output may not depend on all of them
+                if len(cols) < per:
+                    a = a[:, cols]
+                    hll[np.ix_(cols, cols)] += a.T @ a
+                    hsl[:, cols] += b.T @ a
+                    gl[cols] += a.T @ ee
+                else:
+                    hll += a.T @ a
+                    hsl += b.T @ a
+                    gl += a.T @ ee
+                bb += b.T @ b
+                gb += b.T @ ee
+            for acc, x in zip((self.Hll, self.Hsl, self.gl, self.Bb, self.gb), (hll, hsl, gl, bb, gb)):
+                acc.append(x)
+        self.Hss = sum(self.Bb, np.zeros((ns, ns)))  # every row is one log's
+        self.gs = sum(self.gb, np.zeros(ns))
 
     def step(self, lam: float) -> tuple[np.ndarray, list[np.ndarray]]:
         """Damped Gauss-Newton step: shared part and each log's part."""
