@@ -261,16 +261,16 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
 def _log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
                flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path) -> None:
     """A held-out log's residual history and, if it was replayed, its response."""
-    import matplotlib.pyplot as plt
-
-    from identify.diagnosis_plots import plot_residual_history, plot_response
-    fig = plot_residual_history(before, after, f"held out: {name}")
+    from identify.diagnosis_plots import (HISTORY_SIZE, RESPONSE_SIZE, history_axes, plot_residual_history,
+                                          plot_response, response_axes)
+    from identify.figures import emptied_axes
+    fig = plot_residual_history(before, after, f"held out: {name}",
+                                axes=emptied_axes("residual_history", HISTORY_SIZE, history_axes))
     fig.savefig(folder / f"residuals_{name}.png", dpi=90)
-    plt.close(fig)
     if flown_before is not None:
-        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs")
+        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs",
+                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes))
         fig.savefig(folder / f"response_{name}.png", dpi=90)
-        plt.close(fig)
 
 
 def _names(files: list[str], n: int = 3) -> str:

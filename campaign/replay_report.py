@@ -13,12 +13,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from campaign.errors import UserError  # noqa: E402
 from campaign.store import atomic_write, clean_temporaries, read_log  # noqa: E402
+from identify.figures import emptied_axes  # noqa: E402
 from identify.workers import pmap  # noqa: E402
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
@@ -26,6 +26,7 @@ CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [
 TOL_TAS_KT = 3.0
 TOL_ALT_FT = 100.0
 TOL_THETA_DEG = 1.5
+FIGSIZE = (13, 12)  # [in]
 COLORS = {"reference": "k", "linear": "tab:red", "nonlinear": "tab:blue"}
 
 
@@ -105,7 +106,7 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
     """
     ref = replays[(case, "reference", loop)]
     if axes is None:
-        axes = _case_axes(plt.figure(figsize=(13, 12)))
+        axes = _case_axes(plt.figure(figsize=FIGSIZE))
     fig = axes[0][0].figure
     g = ref.gear_norm.to_numpy()
     moving = np.flatnonzero(np.diff(g) != 0)
@@ -143,28 +144,8 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
     return fig
 
 
-_blank: list = []  # this process's figure for _save_plot, emptied between cases
-
-
-def _emptied_axes() -> np.ndarray:
-    """The axes of this process's case figure, without the last case's artists: the same
-    pixels as a new figure's, in half the time (matplotlib builds a figure's axes and their ticks
-    slowly)."""
-    if not _blank:
-        _blank.append(_case_axes(Figure(figsize=(13, 12))))
-    axes = _blank[0]
-    for ax in axes.ravel():
-        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts]:
-            artist.remove()
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
-        ax.relim()
-        ax.autoscale()
-    return axes
-
-
 def _save_plot(replays: dict, case: str, loop: str, path: Path) -> str:
-    fig = plot_case(replays, case, loop, axes=_emptied_axes())
+    fig = plot_case(replays, case, loop, axes=emptied_axes("replay_case", FIGSIZE, _case_axes))
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     return str(path)
 

@@ -13,6 +13,23 @@ import pandas as pd  # noqa: E402
 from identify.diagnosis import COEFFS, Diagnosis  # noqa: E402
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
+RESPONSE_CHANNELS = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
+                     ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
+RESPONSE_SIZE, HISTORY_SIZE = (10, 11), (10, 7)  # [in]
+
+
+def response_axes(fig):
+    """The axes of :func:`plot_response` on ``fig``."""
+    axes = fig.subplots(len(RESPONSE_CHANNELS), 1, sharex=True)
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.05, top=0.95, hspace=0.12)
+    return axes
+
+
+def history_axes(fig):
+    """The axes of :func:`plot_residual_history` on ``fig``."""
+    axes = fig.subplots(3, 1, sharex=True)
+    fig.subplots_adjust(left=0.12, right=0.98, bottom=0.08, top=0.93, hspace=0.12)
+    return axes
 
 
 def plot_residuals(diag: Diagnosis, axes=None):
@@ -41,12 +58,9 @@ def plot_residuals(diag: Diagnosis, axes=None):
 
 def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
     """Measured response against the model (and the extended model), same inputs and start."""
-    chans = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
-             ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
     if axes is None:
-        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 11), sharex=True)
-        fig.subplots_adjust(left=0.1, right=0.98, bottom=0.05, top=0.95, hspace=0.12)
-    for ax, (ch, label) in zip(axes, chans):
+        axes = response_axes(plt.figure(figsize=RESPONSE_SIZE))
+    for ax, (ch, label) in zip(axes, RESPONSE_CHANNELS):
         ax.plot(data.t_s, data[ch], color="0.3", lw=3, alpha=0.4, label="measured")
         ax.plot(before.t_s, before[ch], "r--", lw=1.2, label="model")
         if after is not None:
@@ -62,8 +76,7 @@ def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame 
 def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
     """Residual time histories of a held-out log, before and after the extension."""
     if axes is None:
-        fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
-        fig.subplots_adjust(left=0.12, right=0.98, bottom=0.08, top=0.93, hspace=0.12)
+        axes = history_axes(plt.figure(figsize=HISTORY_SIZE))
     for ax, c in zip(axes, COEFFS):
         ax.plot(log_frame.t_s, log_frame[f"r_{c}"], "r-", lw=1, label="model")
         if after is not None:

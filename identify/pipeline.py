@@ -197,9 +197,12 @@ def _plots(ident: Identification, out: Path, which: str, jobs: int = 1) -> dict[
 def _draw(kind: str, args: tuple, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from identify.plots import plot_alpha_transitions, plot_fit, plot_increments
-    fig = {"fit": plot_fit, "alpha_during_gear_transitions": plot_alpha_transitions,
-           "gear_increments": plot_increments}[kind](*args)
+    from identify.figures import emptied_axes
+    from identify.plots import FIT_SIZE, fit_axes, plot_alpha_transitions, plot_fit, plot_increments
+    if kind == "fit":  # drawn for every point: on one figure per process
+        plot_fit(*args, axes=emptied_axes("fit", FIT_SIZE, fit_axes)).savefig(path, dpi=110)
+        return
+    fig = {"alpha_during_gear_transitions": plot_alpha_transitions, "gear_increments": plot_increments}[kind](*args)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -12,6 +12,14 @@ import numpy as np  # noqa: E402
 from identify.models import COEFFS, Increments, PointFit  # noqa: E402
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$"}
+FIT_SIZE = (12, 8)  # [in]
+
+
+def fit_axes(fig):
+    """The axes of :func:`plot_fit` on ``fig``."""
+    axes = fig.subplots(3, 2, sharex=True)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.07, top=0.91, wspace=0.25, hspace=0.3)
+    return axes
 
 
 def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
@@ -25,8 +33,7 @@ def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
     axes : array of 3x2 Axes, optional
     """
     if axes is None:
-        fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
-        fig.subplots_adjust(left=0.08, right=0.98, bottom=0.07, top=0.91, wspace=0.25, hspace=0.3)
+        axes = fit_axes(plt.figure(figsize=FIT_SIZE))
     fig = axes[0][0].figure
     for i, c in enumerate(COEFFS):
         res = fit.fits[c]

@@ -224,3 +224,50 @@ def test_identify_never_imports_the_flying_code():
             "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
             "assert not bad, bad")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def _fit_args(scale, n):
+    from types import SimpleNamespace
+    t = np.linspace(0.0, n / 10.0, n)
+    fits = {c: SimpleNamespace(fitted=scale * np.sin(t + i), y=scale * np.sin(t + i) + 0.01 * np.cos(9 * t),
+                               resid=0.01 * scale * np.cos(9 * t), resid_max=0.01 * scale, resid_rms=0.007 * scale,
+                               rsquared=0.999) for i, c in enumerate(("CL", "CD", "Cm"))}
+    return (SimpleNamespace(fits=fits, point=f"p{n}", gear_down=n > 100), t)
+
+
+def _history_args(scale, n):
+    import pandas as pd
+    t = np.linspace(0.0, n / 10.0, n)
+    frame = pd.DataFrame({"t_s": t, **{f"r_{c}": scale * np.sin(t * (i + 1))
+                                       for i, c in enumerate(("CL", "CD", "Cm"))}})
+    return (frame, frame * 0.5 if n > 100 else None, f"held out {n}")
+
+
+def _response_args(scale, n):
+    import pandas as pd
+    t = np.linspace(0.0, n / 10.0, n)
+    frame = pd.DataFrame({"t_s": t, **{c: 100.0 * i + scale * np.sin(t) for i, c in
+                                        enumerate(("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft"))}})
+    return (frame, frame * 1.01, None if n > 100 else frame * 0.99, f"response {n}")
+
+
+@pytest.mark.parametrize("kind", ["fit", "residual_history", "response"])
+def test_a_figure_drawn_on_reused_axes_equals_a_new_one(tmp_path, kind):
+    """Fit, residual-history and response figures are drawn, one after another, on one emptied
+    figure per process: the second must show nothing of the first (lines, legend, limits)."""
+    import matplotlib.pyplot as plt
+
+    from identify import diagnosis_plots as dp
+    from identify import plots as ip
+    from identify.figures import emptied_axes
+    plot, size, layout, make = {"fit": (ip.plot_fit, ip.FIT_SIZE, ip.fit_axes, _fit_args),
+                                "residual_history": (dp.plot_residual_history, dp.HISTORY_SIZE, dp.history_axes,
+                                                     _history_args),
+                                "response": (dp.plot_response, dp.RESPONSE_SIZE, dp.response_axes,
+                                             _response_args)}[kind]
+    for i, args in enumerate((make(50.0, 300), make(0.2, 40))):
+        plot(*args, axes=emptied_axes(f"test_{kind}", size, layout)).savefig(tmp_path / f"reused{i}.png", dpi=90)
+        fig = plot(*args)
+        fig.savefig(tmp_path / f"new{i}.png", dpi=90)
+        plt.close(fig)
+        assert np.array_equal(plt.imread(tmp_path / f"reused{i}.png"), plt.imread(tmp_path / f"new{i}.png"))
