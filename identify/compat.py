@@ -296,7 +296,8 @@ def at_cg(d: pd.DataFrame, positions: dict, accelerometers_only: bool = False,
     out = d.copy()
     t = d["t_s"].to_numpy(dtype=float)
     rates = [d[c].to_numpy(dtype=float) * D2R if c in d else np.zeros(len(d)) for c in ("p_dps", "q_dps", "r_dps")]
-    if not air_data_only:
+    moved = [c for c in ("ax_fps2", "ay_fps2", "az_fps2") if c in positions and c in d]
+    if moved and not air_data_only:
         rdot = [smooth_derivative(t, w) for w in rates]
         om = np.stack(rates)
         for k, c in enumerate(("ax_fps2", "ay_fps2", "az_fps2")):
