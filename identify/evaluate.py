@@ -295,6 +295,10 @@ class ModelEvaluator:
         rows : ndarray of int, optional
             Evaluate these rows only (default all).
         """
+        return pd.DataFrame(self.evaluate_array(inputs, rows), columns=["CL", "CD", "Cm"])
+
+    def evaluate_array(self, inputs: dict[str, np.ndarray], rows: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`evaluate` as an array (rows, 3): CL, CD, Cm [-] (no frame to build for a few rows)."""
         fdm = self.fdm
         pm = fdm.get_property_manager()
         n = len(next(iter(inputs.values())))
@@ -319,7 +323,7 @@ class ModelEvaluator:
         dx = self.aerorp_in[0] - self.cg_in[0]
         dz = self.aerorp_in[2] - self.cg_in[2]
         cm = moment_transfer(cm_cg, raw[:, 3] / qs, raw[:, 4] / qs, dx, dz, self.cbar)
-        return pd.DataFrame({"CL": raw[:, 1] / qs, "CD": raw[:, 2] / qs, "Cm": cm})
+        return np.column_stack([raw[:, 1] / qs, raw[:, 2] / qs, cm])
 
     def predict(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> pd.DataFrame:
         """CL, CD and Cm about the model's AERORP at each row of ``data`` (see :meth:`inputs`).
@@ -329,7 +333,7 @@ class ModelEvaluator:
         DataFrame
             ``CL``, ``CD`` and ``Cm`` [-], ``Cm`` about the model's AERORP, indexed like ``data``.
         """
-        return self.evaluate(self.inputs(data, cl)).set_index(data.index)
+        return pd.DataFrame(self.evaluate_array(self.inputs(data, cl)), columns=["CL", "CD", "Cm"], index=data.index)
 
     def close(self) -> None:
         shutil.rmtree(self._tmp, ignore_errors=True)

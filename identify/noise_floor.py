@@ -93,7 +93,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     rows = np.unique(np.linspace(0, len(d) - 1, max(int((t[-1] - t[0]) / SENSITIVITY_EVERY_S), 2)).astype(int))
     ev = evaluator
     inputs = ev.inputs(d, _measured_cl(d, log.meta, ev))
-    base = ev.evaluate(inputs, rows).to_numpy()
+    base = ev.evaluate_array(inputs, rows)
     out = {}
     for ch, sigma in noise.items():
         if ch not in d:
@@ -104,7 +104,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
         changed = ev.inputs(moved, cl)
         if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
             continue
-        out[ch] = (ev.evaluate(changed, rows).to_numpy() - base) / sigma
+        out[ch] = (ev.evaluate_array(changed, rows) - base) / sigma
     return t[rows] if dt > 0 else rows.astype(float), out
 
 
