@@ -28,6 +28,7 @@ from scipy import stats
 
 from identify.compat import APPLY_Z, CompatResult, estimate
 from identify.logs import Log
+from identify.lsq import solve_normal
 from identify.noise_floor import (REACH_SE, RESOLUTION, NoiseFloor, channel_noise, design_matrix,
                                   model_sensitivities)
 from identify.residuals import COEFFS, SIGNATURES, VARIABLES, residual_data
@@ -221,14 +222,6 @@ def _fit(y: np.ndarray, cols: list[np.ndarray], terms: list[Term]) -> _Fit:
     return _Fit(list(terms), beta, r, float(r @ r))
 
 
-def _solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients from the normal equations of unit-norm columns, directions
-    below 1e-12 of the largest eigenvalue dropped (as a rank-revealing solver would)."""
-    w, v = np.linalg.eigh(gram)
-    keep = w > 1e-12 * w[-1]
-    return v[:, keep] @ ((v[:, keep].T @ xty) / w[keep])
-
-
 def _compact(x: np.ndarray):
     """A design matrix as it is cheapest to hold: sparse (CSR) if most of it is zero (the hat
     columns of a smooth term), else dense."""
@@ -274,7 +267,7 @@ class _Gram:
 
     def fit(self, terms: list[Term]) -> _Fit:
         idx = np.concatenate([[0]] + [self.index[t] for t in terms]).astype(int)
-        b = _solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, -1])
+        b = solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, -1])
         beta = b * self.scale[-1] / self.scale[idx]
         r = self.y - beta[0]
         at = 1
@@ -614,7 +607,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     after = np.zeros(len(y))
     for c in set(conds):
         out = conds == c
-        beta = _solve_normal(gram - xs[out].T @ xs[out], xty - xs[out].T @ y[out]) / scale  # fitted without c
+        beta = solve_normal(gram - xs[out].T @ xs[out], xty - xs[out].T @ y[out]) / scale  # fitted without c
         base = y[out] - x_rest[out] @ beta[:x_rest.shape[1]]
         before[out] = base
         after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]

@@ -172,3 +172,11 @@ class LeastSquares:
         r2 = 1.0 - float(np.sum(resid ** 2)) / ss_tot if ss_tot > 0 else float("nan")
         return LSResults(self.name, pd.Series(theta, index=keep), pd.Series(np.sqrt(np.diag(cov)), index=keep),
                          unexcited, r2, resid, fitted, self.y, cov)
+
+
+def solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients from the normal equations of unit-norm columns, directions
+    below 1e-12 of the largest eigenvalue dropped (as a rank-revealing solver would)."""
+    w, v = np.linalg.eigh(gram)
+    keep = w > 1e-12 * w[-1]
+    return v[:, keep] @ ((v[:, keep].T @ xty) / w[keep])

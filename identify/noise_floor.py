@@ -24,6 +24,7 @@ from identify.coefficients import coefficient_arrays, coefficients, lift_coeffic
 from identify.evaluate import evaluator_for, in_chunks
 from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
+from identify.lsq import solve_normal
 from identify.models import lowpass
 from identify.residuals import COEFFS, FILTERED, kept, measured_about, measured_arrays, signatures, variable_arrays
 
@@ -296,10 +297,17 @@ class NoiseFloor:
         for batch in (ks[j:j + REALIZATION_BATCH] for j in range(0, len(ks), REALIZATION_BATCH)):
             for frame in self.realization_batch(columns, [{"k": k, "noise": not instruments, "instruments": instruments}
                                                      for k in batch]):
-                row = []
+                row, designs = [], {}
                 for c, terms in groups:
-                    x = design_matrix(terms, frame)
-                    beta, *_ = np.linalg.lstsq(x, frame[f"r_{c}"].to_numpy(), rcond=None)
+                    key = tuple(map(id, terms))  # coefficients with the same terms share the design
+                    if key not in designs:
+                        x = design_matrix(terms, frame)
+                        scale = np.linalg.norm(x, axis=0)
+                        scale[scale == 0] = 1.0
+                        xs = x / scale
+                        designs[key] = x, xs, scale, xs.T @ xs
+                    x, xs, scale, gram = designs[key]
+                    beta = solve_normal(gram, xs.T @ frame[f"r_{c}"].to_numpy()) / scale
                     row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
                 out.append(row)
         return out
