@@ -297,18 +297,20 @@ class NoiseFloor:
         for batch in (ks[j:j + REALIZATION_BATCH] for j in range(0, len(ks), REALIZATION_BATCH)):
             for frame in self.realization_batch(columns, [{"k": k, "noise": not instruments, "instruments": instruments}
                                                      for k in batch]):
-                row, designs = [], {}
-                for c, terms in groups:
-                    key = tuple(map(id, terms))  # coefficients with the same terms share the design
-                    if key not in designs:
-                        x = design_matrix(terms, frame)
-                        scale = np.linalg.norm(x, axis=0)
-                        scale[scale == 0] = 1.0
-                        xs = x / scale
-                        designs[key] = x, xs, scale, xs.T @ xs
-                    x, xs, scale, gram = designs[key]
-                    beta = solve_normal(gram, xs.T @ frame[f"r_{c}"].to_numpy()) / scale
-                    row.append(float(np.ptp(x[:, 1:] @ beta[1:])))
+                row = [0.0] * len(groups)
+                shared: dict[tuple, list[int]] = {}  # coefficients with the same terms share the design
+                for g, (_, terms) in enumerate(groups):
+                    shared.setdefault(tuple(map(id, terms)), []).append(g)
+                for same in shared.values():  # one design held at a time, its columns scaled in place
+                    x = design_matrix(groups[same[0]][1], frame)
+                    scale = np.linalg.norm(x, axis=0)
+                    scale[scale == 0] = 1.0
+                    x /= scale
+                    gram = x.T @ x
+                    for g in same:
+                        beta = solve_normal(gram, x.T @ frame[f"r_{groups[g][0]}"].to_numpy())
+                        row[g] = float(np.ptp(x[:, 1:] @ beta[1:]))
+                    del x
                 out.append(row)
         return out
 
