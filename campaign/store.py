@@ -14,6 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from campaign.errors import UserError
+from identify.logs import read_table
 
 META_KEY = b"gearid"
 MANIFEST = "manifest.json"
@@ -59,13 +60,6 @@ def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
     floats = {c for c, t in zip(table.column_names, table.schema.types) if pa.types.is_floating(t)}
     atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd", use_dictionary=False,
                                                         column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats}))
-
-
-def read_table(path: str | Path):
-    """One Parquet file as a ``pyarrow.Table`` (without ``pq.read_table``'s dataset discovery,
-    which takes longer than the read of a log)."""
-    with pq.ParquetFile(path) as f:
-        return f.read()
 
 
 def read_log(path: Path) -> tuple[pd.DataFrame, dict]:

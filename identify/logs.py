@@ -103,11 +103,17 @@ def _derive(meta: dict, df: pd.DataFrame) -> dict:
     return meta
 
 
+def read_table(path: str | Path):
+    """One Parquet file as a ``pyarrow.Table`` (without ``pq.read_table``'s dataset discovery,
+    which takes longer than the read of a log)."""
+    with pq.ParquetFile(path) as f:
+        return f.read()
+
+
 def read_parquet(path: str | Path) -> Log:
     """Read one Parquet log written by a campaign."""
     try:
-        with pq.ParquetFile(path) as f:  # not pq.read_table: its dataset discovery costs more than the read
-            table = f.read()
+        table = read_table(path)
     except (OSError, ValueError) as exc:  # pyarrow.ArrowInvalid is a ValueError
         raise LogError(f"{path}: not a readable Parquet log ({str(exc).splitlines()[0][:120]})") from None
     meta = json.loads((table.schema.metadata or {}).get(b"gearid", b"{}"))
