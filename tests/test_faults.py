@@ -70,7 +70,15 @@ post_s = 5.0
 
 
 def _newer(folder: Path, pattern: str, t0: float, n: int = 1) -> bool:
-    return sum(1 for p in folder.glob(pattern) if p.stat().st_mtime >= t0) >= n
+    """At least ``n`` files matching ``pattern`` written since ``t0`` (a staging folder the run
+    renames between the glob and the stat no longer counts)."""
+    count = 0
+    for p in folder.glob(pattern):
+        try:
+            count += p.stat().st_mtime >= t0
+        except FileNotFoundError:
+            pass
+    return count >= n
 
 
 def _points(out: Path) -> int:
