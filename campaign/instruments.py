@@ -241,7 +241,8 @@ def _delay(x: np.ndarray, d: float, dt: float) -> np.ndarray:
 
 
 def _resample(x: np.ndarray, ratio: Fraction) -> np.ndarray:
-    return resample_poly(x, ratio.numerator, ratio.denominator, padtype="line")
+    """Anti-alias filtered and resampled by ``ratio``, each column of ``x`` (samples x columns)."""
+    return resample_poly(x, ratio.numerator, ratio.denominator, axis=0, padtype="line")
 
 
 def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt_s: float,
@@ -267,15 +268,15 @@ def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt
     DataFrame
         At the logging rate, the omitted channels dropped.
     """
-    out = df.copy()
+    out = {c: df[c].to_numpy() for c in df.columns}  # one frame is built at the end
     for c, s in profile.sensors:
         if c not in out:
             continue
-        x = _at_position(df, extra, c, s.position_ft) if any(s.position_ft) else out[c].to_numpy(dtype=float)
+        x = _at_position(df, extra, c, s.position_ft) if any(s.position_ft) else out[c].astype(float)
         if c == "tas_kt" and any(s.position_ft):  # the same pitot feeds the other airspeeds
             ratio = x / df["tas_kt"].to_numpy()
             for other in ("ias_kt", "mach"):
-                out[other] = out[other].to_numpy() * ratio
+                out[other] = out[other] * ratio
         if s.lag_s:
             x = _lag(x, s.lag_s, dt_s)
         if s.delay_s:
@@ -283,15 +284,14 @@ def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt
         out[c] = s.scale * x + s.bias
     if profile.rate_hz and abs(profile.rate_hz * dt_s - 1.0) > 1e-9:
         ratio = Fraction(profile.rate_hz * dt_s).limit_denominator(1000)
-        n = int(np.floor((len(out) - 1) * ratio)) + 1
+        n = int(np.floor((len(df) - 1) * ratio)) + 1
         t_new = np.arange(n) / profile.rate_hz
-        t_old = out["t_s"].to_numpy()
-        cols = {}
-        for c in out.columns:
-            x = out[c].to_numpy(dtype=float)
-            cols[c] = np.interp(t_new, t_old, x) if c in SAMPLED or c == "t_s" else _resample(x, ratio)[:n]
-        cols["t_s"] = t_new
-        out = pd.DataFrame(cols)
+        t_old = out["t_s"].astype(float)
+        filtered = [c for c in out if c not in SAMPLED and c != "t_s"]
+        together = _resample(np.column_stack([out[c] for c in filtered]).astype(float), ratio)[:n]  # one design
+        out = {c: t_new if c == "t_s" else np.interp(t_new, t_old, x.astype(float)) if c in SAMPLED else x
+               for c, x in {**out, **dict(zip(filtered, together.T))}.items()}
     for c in sorted(c for c, s in profile.sensors if s.noise and c in out):
-        out[c] = out[c].to_numpy() + rng.normal(0.0, profile.sensor(c).noise, len(out))
-    return out.drop(columns=[c for c in profile.omit if c in out])
+        out[c] = out[c] + rng.normal(0.0, profile.sensor(c).noise, len(out[c]))
+    return pd.DataFrame({c: x for c, x in out.items() if c not in profile.omit})
+
