@@ -197,9 +197,9 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
-    from threadpoolctl import threadpool_limits
-    with threadpool_limits(limits=1, user_api="blas"):  # the matrices are small: a second BLAS thread costs 10x
-        return _main(args)
+    from identify.workers import one_blas_thread
+    one_blas_thread(force=False)  # the matrices are small: a second BLAS thread costs 10x
+    return _main(args)
 
 
 #: What each command's worker processes import: a server imports it once while the command

@@ -11,7 +11,7 @@ milliseconds, sharing the imported code's pages. Where ``forkserver`` does not e
 The pool is kept for the life of the process, so a worker's caches (its JSBSim
 evaluator, :func:`identify.evaluate.evaluator_for`) serve the next call; it is made
 again if a worker died. Each worker does its linear algebra on one BLAS thread: the
-matrices are small and the cores are the workers'.
+matrices are small and the cores are the workers' (:func:`one_blas_thread`).
 """
 from __future__ import annotations
 
@@ -41,9 +41,31 @@ def warm(modules: Iterable[str]) -> None:
     forkserver.ensure_running()
 
 
-def _one_blas_thread() -> None:
+#: The variables OpenBLAS, OpenMP and MKL read for their thread count when they are loaded.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread(force: bool = True) -> None:
+    """Linear algebra on one BLAS thread in this process, for the libraries loaded now and later.
+
+    ``threadpool_limits`` reaches only the BLAS libraries already loaded, and numpy and scipy
+    each load their own OpenBLAS (scipy's on the first ``scipy.linalg`` import): a library loaded
+    afterwards starts one thread per core, and beside busy workers those threads wait on each
+    other (the noise floor's fits took 5x longer so). The environment variables reach the
+    libraries loaded later, and processes started from this one. ``force=False`` keeps what
+    the user has set.
+    """
+    for var in BLAS_THREAD_VARIABLES:
+        if force:
+            os.environ[var] = "1"
+        else:
+            os.environ.setdefault(var, "1")
     from threadpoolctl import threadpool_limits
     threadpool_limits(limits=1, user_api="blas")
+
+
+def _one_blas_thread() -> None:
+    one_blas_thread()
 
 
 def executor(jobs: int) -> ProcessPoolExecutor:

@@ -118,3 +118,47 @@ def test_the_command_line_comes_up_without_the_numerics():
     from campaign.cli import shipped
     from campaign.instruments import shipped as profiles
     assert shipped() == profiles() and "flight-test" in shipped()
+
+
+BLAS = """
+import sys
+from identify.workers import pmap
+
+def threads():
+    import numpy, scipy.linalg  # each loads its own OpenBLAS
+    from threadpoolctl import threadpool_info
+    return sorted(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+
+if __name__ == "__main__":
+    if sys.argv[1] == "alone":
+        print(threads())
+    elif sys.argv[1] == "workers":  # a pool without warm(): the workers import numpy and scipy themselves
+        print(pmap(threads, [()] * 2, 2)[0])
+    else:
+        from campaign.cli import main
+        main(["points"])
+        print(threads())
+"""
+
+
+@pytest.mark.parametrize("where", ["workers", "cli"])
+def test_linear_algebra_runs_on_one_blas_thread_in_workers_and_the_command(tmp_path, where):
+    """numpy's and scipy's OpenBLAS, both loaded after the limit was set (scipy's on the first
+    scipy.linalg import), each run one thread: beside busy workers a second one makes the fits
+    several times slower."""
+    script = tmp_path / "blas.py"
+    script.write_text(BLAS)
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                               "MKL_NUM_THREADS")}
+    env["PYTHONPATH"] = str(ROOT)
+
+    def threads(*args) -> list:
+        out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, env=env,
+                             timeout=120, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        return eval(out.stdout.strip().splitlines()[-1])
+    alone = threads("alone")
+    if max(alone) == 1:
+        pytest.skip("BLAS starts one thread here without any limit (one core)")
+    assert len(alone) == 2
+    assert threads(where) == [1, 1]
