@@ -605,9 +605,12 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     gram, xty = xs.T @ xs, xs.T @ y
     before = np.zeros(len(y))
     after = np.zeros(len(y))
-    for c in set(conds):
-        out = conds == c
-        beta = solve_normal(gram - xs[out].T @ xs[out], xty - xs[out].T @ y[out]) / scale  # fitted without c
+    names, code = np.unique(conds, return_inverse=True)  # rows by condition: one sort, no string compares
+    order = np.argsort(code, kind="stable")
+    rows = np.split(order, np.flatnonzero(np.diff(code[order])) + 1)
+    for out in rows:
+        xo = xs[out]
+        beta = solve_normal(gram - xo.T @ xo, xty - xo.T @ y[out]) / scale  # fitted without this condition
         base = y[out] - x_rest[out] @ beta[:x_rest.shape[1]]
         before[out] = base
         after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]
@@ -617,8 +620,8 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
         ss = float(after[m] @ after[m])
         return float(np.sqrt(before[m] @ before[m] / ss)) if ss > 0 else float("inf")
 
-    by = {str(c): ratio(sel & (conds == c)) for c in sorted(set(conds[sel]))}
-    return ratio(sel), acting, by
+    by = {str(names[code[out[0]]]): ratio(out[sel[out]]) for out in rows if sel[out].any()}
+    return ratio(sel), acting, dict(sorted(by.items()))
 
 
 def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
