@@ -234,48 +234,68 @@ def _dense(x) -> np.ndarray:
 
 
 class _Gram:
-    """Least-squares fits of ``y`` on any subset of candidate terms, from one cross-product matrix.
+    """Least-squares fits of any target on any subset of candidate terms, from one cross-product matrix.
 
     The columns are scaled to unit norm before their cross products are taken; a
     subset's normal equations are solved through an eigendecomposition (directions
     below 1e-12 of the largest dropped, as a rank-revealing solver would), and the
     residual is computed from the data, so its sum of squares does not suffer the
     normal equations' cancellation. Stepwise tries hundreds of subsets; each costs
-    one pass over the data instead of a full least-squares solve.
+    one pass over the data instead of a full least-squares solve. The three
+    coefficients' residuals share one matrix: their candidates are mostly the same.
+
+    Parameters
+    ----------
+    ys : dict
+        Target name (a coefficient) -> its values (n,).
+    designs : dict
+        Term -> its design (n, width), dense or sparse.
     """
 
     BLOCK = 8192
 
-    def __init__(self, y: np.ndarray, designs: dict) -> None:
-        self.y, self.designs = y, designs
+    def __init__(self, ys: dict[str, np.ndarray], designs: dict) -> None:
+        self.ys, self.designs = ys, designs
         self.index, at = {}, 1
         for t, x in designs.items():
             self.index[t] = np.arange(at, at + x.shape[1])
             at += x.shape[1]
-        gram = np.zeros((at + 1, at + 1))
-        for lo in range(0, len(y), self.BLOCK):  # in row blocks: the full design would be large
-            hi = min(lo + self.BLOCK, len(y))
-            a = np.empty((hi - lo, at + 1), order="F")
+        self.target = {name: at + k for k, name in enumerate(ys)}
+        size = at + len(ys)
+        n = len(next(iter(ys.values())))
+        gram = np.zeros((size, size))
+        for lo in range(0, n, self.BLOCK):  # in row blocks: the full design would be large
+            hi = min(lo + self.BLOCK, n)
+            a = np.empty((hi - lo, size), order="F")
             a[:, 0] = 1.0
             for t, x in designs.items():
                 a[:, self.index[t]] = _dense(x[lo:hi])
-            a[:, -1] = y[lo:hi]
+            for name, y in ys.items():
+                a[:, self.target[name]] = y[lo:hi]
             gram += a.T @ a
         self.scale = np.sqrt(np.diag(gram))
         self.scale[self.scale == 0] = 1.0
         self.gram = gram / np.outer(self.scale, self.scale)
 
-    def fit(self, terms: list[Term]) -> _Fit:
+    def fit(self, terms: list[Term], target: str) -> _Fit:
         idx = np.concatenate([[0]] + [self.index[t] for t in terms]).astype(int)
-        b = solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, -1])
-        beta = b * self.scale[-1] / self.scale[idx]
-        r = self.y - beta[0]
+        j = self.target[target]
+        b = solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, j])
+        beta = b * self.scale[j] / self.scale[idx]
+        r = self.ys[target] - beta[0]
         at = 1
         for t in terms:
             k = self.designs[t].shape[1]
             r = r - self.designs[t] @ beta[at:at + k]
             at += k
         return _Fit(list(terms), beta, r, float(r @ r))
+
+
+def candidate_gram(data: pd.DataFrame, terms: dict[str, list[Term]]) -> _Gram:
+    """One :class:`_Gram` of the residuals ``r_<coefficient>`` of ``data`` on the union of each
+    coefficient's candidate ``terms`` (coefficient -> terms), for :func:`stepwise`'s ``gram``."""
+    union = dict.fromkeys(t for ts in terms.values() for t in ts)
+    return _Gram({c: data[f"r_{c}"].to_numpy() for c in terms}, {t: _compact(t.design(data)) for t in union})
 
 
 def _f_test(small: _Fit, big: _Fit, k: int, n_eff: float, p_big: int) -> tuple[float, float]:
@@ -314,21 +334,23 @@ class StepwiseResult:
 
 
 def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float = 1e-6,
-             min_reduction: float = 0.01, max_terms: int = 6, lags: _Lags | None = None) -> StepwiseResult:
+             min_reduction: float = 0.01, max_terms: int = 6, lags: _Lags | None = None,
+             gram: _Gram | None = None) -> StepwiseResult:
     """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
 
     A term enters if its partial F-test (on the effective sample size of the
     residual after it enters) has p < ``alpha_in`` and it removes at least
     ``min_reduction`` of the initial residual sum of squares (about its mean);
-    a term leaves when its removal test no longer passes.
+    a term leaves when its removal test no longer passes. ``gram`` (:func:`candidate_gram`),
+    if given, holds ``terms`` and this coefficient's residual, and may be shared with the others.
     """
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or _Lags(data["log"].to_numpy())
-    designs = {t: _compact(t.design(data)) for t in terms}
-    gram = _Gram(y, designs)
+    gram = gram or candidate_gram(data, {coefficient: terms})
+    designs = gram.designs
     chosen: list[Term] = []
     close: dict[str, list] = {}
-    current = gram.fit([])
+    current = gram.fit([], coefficient)
     rss0 = current.rss
     rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
     alternatives = []
@@ -339,7 +361,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if t in chosen or (t.kind in ("linear", "quadratic") and any(
                     c.kind in ("smooth", "quadratic") and c.variables == t.variables for c in chosen)):
                 continue
-            big = gram.fit(chosen + [t])
+            big = gram.fit(chosen + [t], coefficient)
             n_eff = lags.n_eff(big.resid)
             f, p = _f_test(current, big, t.width, n_eff, p_now + t.width)
             big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
@@ -369,10 +391,10 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if r is not best and r["p_value"] < alpha_in and r["F"] >= 0.5 * best["F"]
             and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
         chosen.append(best["term"])
-        current = gram.fit(chosen)
+        current = gram.fit(chosen, coefficient)
         for t in list(chosen[:-1]):  # backward step
             rest = [c for c in chosen if c != t]
-            small = gram.fit(rest)
+            small = gram.fit(rest, coefficient)
             f, p = _f_test(small, current, t.width, lags.n_eff(current.resid),
                            1 + sum(c.width for c in chosen))
             if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
@@ -384,7 +406,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     p_all = 1 + sum(t.width for t in chosen)
     for t in chosen:
         rest = [c for c in chosen if c != t]
-        small = gram.fit(rest)
+        small = gram.fit(rest, coefficient)
         f, p = _f_test(small, current, t.width, n_eff, p_all)
         evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
                              "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
@@ -1220,7 +1242,10 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None  # beside the stepwise search
         stage("stepwise")
         lags = _Lags(data["log"].to_numpy())
-        results = {c: stepwise(data, c, candidate_terms(data, c), lags=lags, **kw) for c in COEFFS}
+        terms = {c: candidate_terms(data, c) for c in COEFFS}
+        shared = candidate_gram(data, terms)
+        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, **kw) for c in COEFFS}
+        del shared
         causes = name_causes(results, data, lags)
         stage("noise floor")
         sens = early() if early else None  # wanted or not: the workers are then free for what comes next
