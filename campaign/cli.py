@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:
         return int(exc.code or 0)
     from identify.workers import one_blas_thread
-    one_blas_thread(force=False)  # the matrices are small: a second BLAS thread costs 10x
+    one_blas_thread()  # the matrices are small: a second BLAS thread costs 10x
     return _main(args)
 
 

@@ -346,7 +346,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     """
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or _Lags(data["log"].to_numpy())
-    gram = gram or candidate_gram(data, {coefficient: terms})
+    if gram is None:
+        gram = candidate_gram(data, {coefficient: terms})
     designs = gram.designs
     chosen: list[Term] = []
     close: dict[str, list] = {}

@@ -45,27 +45,19 @@ def warm(modules: Iterable[str]) -> None:
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def one_blas_thread(force: bool = True) -> None:
+def one_blas_thread() -> None:
     """Linear algebra on one BLAS thread in this process, for the libraries loaded now and later.
 
     ``threadpool_limits`` reaches only the BLAS libraries already loaded, and numpy and scipy
     each load their own OpenBLAS (scipy's on the first ``scipy.linalg`` import): a library loaded
     afterwards starts one thread per core, and beside busy workers those threads wait on each
     other (the noise floor's fits took 5x longer so). The environment variables reach the
-    libraries loaded later, and processes started from this one. ``force=False`` keeps what
-    the user has set.
+    libraries loaded later, and processes started from this one.
     """
     for var in BLAS_THREAD_VARIABLES:
-        if force:
-            os.environ[var] = "1"
-        else:
-            os.environ.setdefault(var, "1")
+        os.environ[var] = "1"
     from threadpoolctl import threadpool_limits
     threadpool_limits(limits=1, user_api="blas")
-
-
-def _one_blas_thread() -> None:
-    one_blas_thread()
 
 
 def executor(jobs: int) -> ProcessPoolExecutor:
@@ -75,7 +67,7 @@ def executor(jobs: int) -> ProcessPoolExecutor:
         for old in _POOL.values():
             old.shutdown(wait=False, cancel_futures=True)
         _POOL.clear()
-        pool = _POOL[jobs] = ProcessPoolExecutor(jobs, mp_context=_context(), initializer=_one_blas_thread)
+        pool = _POOL[jobs] = ProcessPoolExecutor(jobs, mp_context=_context(), initializer=one_blas_thread)
     return pool
 
 
