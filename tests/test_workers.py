@@ -1,4 +1,5 @@
 """Local worker processes (identify.workers): forks of a warm server, in order, deaths survived."""
+import json
 import os
 import subprocess
 import sys
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from identify.workers import WorkerDied, alone, pmap, submit
+from identify.workers import BLAS_THREAD_VARIABLES, WorkerDied, alone, pmap, submit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -148,15 +149,14 @@ def test_linear_algebra_runs_on_one_blas_thread_in_workers_and_the_command(tmp_p
     several times slower."""
     script = tmp_path / "blas.py"
     script.write_text(BLAS)
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
-                                                               "MKL_NUM_THREADS")}
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
     env["PYTHONPATH"] = str(ROOT)
 
     def threads(*args) -> list:
         out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, env=env,
                              timeout=120, cwd=tmp_path)
         assert out.returncode == 0, out.stderr
-        return eval(out.stdout.strip().splitlines()[-1])
+        return json.loads(out.stdout.strip().splitlines()[-1])
     alone = threads("alone")
     if max(alone) == 1:
         pytest.skip("BLAS starts one thread here without any limit (one core)")
