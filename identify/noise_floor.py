@@ -314,15 +314,20 @@ class NoiseFloor:
                 out.append(row)
         return out
 
-    def instrument_responses(self) -> tuple[np.ndarray, list[pd.DataFrame]]:
+    def instrument_responses(self, extra: list[dict] = ()) -> tuple[np.ndarray, list[pd.DataFrame],
+                                                                    list[pd.DataFrame]]:
         """The residuals one standard error along each principal axis of the remaining
-        instrument errors' covariance makes, with the axes (columns, in channel units)."""
-        if not self.uncertain:
-            return np.zeros((0, 0)), []
-        w, v = np.linalg.eigh(self.uncertain_cov)
-        keep = w > 1e-12 * max(float(w.max()), 1e-300)
-        axes = v[:, keep] * np.sqrt(w[keep])
-        return axes, self._spread("_frames", [{"k": 0, "noise": False, "errors": a} for a in axes.T])
+        instrument errors' covariance makes, with the axes (columns, in channel units), and
+        the residuals of each ``extra`` :meth:`realization_batch` spec, all spread over the
+        workers together."""
+        axes = np.zeros((0, 0))
+        if self.uncertain:
+            w, v = np.linalg.eigh(self.uncertain_cov)
+            keep = w > 1e-12 * max(float(w.max()), 1e-300)
+            axes = v[:, keep] * np.sqrt(w[keep])
+        specs = [{"k": 0, "noise": False, "errors": a} for a in axes.T]
+        frames = self._spread("_frames", specs + list(extra)) if specs or extra else []
+        return axes, frames[:len(specs)], frames[len(specs):]
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
               radius: float = REACH_SE) -> list[dict]:
@@ -345,13 +350,12 @@ class NoiseFloor:
             size needed in the channel's units and in standard errors, the share of the
             cause's variance it explains [%]), best first.
         """
-        axes, resp = self.instrument_responses()
-        se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
-        to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
-        frames = self._spread("_frames", [{"k": 0, "noise": False, "errors": np.array([unit[e]]), "names": [(ch, e)]}
-                                           for ch, e in shown])
+        axes, resp, frames = self.instrument_responses([{"k": 0, "noise": False, "errors": np.array([unit[e]]),
+                                                         "names": [(ch, e)]} for ch, e in shown])
+        se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
+        to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
         blind = [(ch, e, r) for (ch, e), r in zip(shown, frames)]
         out = []
         for c, terms, f in causes:
