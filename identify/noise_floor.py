@@ -314,20 +314,14 @@ class NoiseFloor:
                 out.append(row)
         return out
 
-    def instrument_responses(self, extra: list[dict] = ()) -> tuple[np.ndarray, list[pd.DataFrame],
-                                                                    list[pd.DataFrame]]:
-        """The residuals one standard error along each principal axis of the remaining
-        instrument errors' covariance makes, with the axes (columns, in channel units), and
-        the residuals of each ``extra`` :meth:`realization_batch` spec, all spread over the
-        workers together."""
-        axes = np.zeros((0, 0))
-        if self.uncertain:
-            w, v = np.linalg.eigh(self.uncertain_cov)
-            keep = w > 1e-12 * max(float(w.max()), 1e-300)
-            axes = v[:, keep] * np.sqrt(w[keep])
-        specs = [{"k": 0, "noise": False, "errors": a} for a in axes.T]
-        frames = self._spread("_frames", specs + list(extra)) if specs or extra else []
-        return axes, frames[:len(specs)], frames[len(specs):]
+    def instrument_axes(self) -> np.ndarray:
+        """The principal axes of the remaining instrument errors' covariance, one standard error
+        long (columns, in channel units)."""
+        if not self.uncertain:
+            return np.zeros((0, 0))
+        w, v = np.linalg.eigh(self.uncertain_cov)
+        keep = w > 1e-12 * max(float(w.max()), 1e-300)
+        return v[:, keep] * np.sqrt(w[keep])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
               radius: float = REACH_SE) -> list[dict]:
@@ -352,11 +346,15 @@ class NoiseFloor:
         """
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
-        axes, resp, frames = self.instrument_responses([{"k": 0, "noise": False, "errors": np.array([unit[e]]),
-                                                         "names": [(ch, e)]} for ch, e in shown])
+        axes = self.instrument_axes()
+        # the residuals along each axis and of each unmeasured error, in one spread over the workers
+        specs = ([{"k": 0, "noise": False, "errors": a} for a in axes.T]
+                 + [{"k": 0, "noise": False, "errors": np.array([unit[e]]), "names": [(ch, e)]} for ch, e in shown])
+        frames = self._spread("_frames", specs) if specs else []
+        resp = frames[:axes.shape[1]]
         se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
         to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
-        blind = [(ch, e, r) for (ch, e), r in zip(shown, frames)]
+        blind = [(ch, e, r) for (ch, e), r in zip(shown, frames[axes.shape[1]:])]
         out = []
         for c, terms, f in causes:
             f = np.asarray(f, float) - np.mean(f)
