@@ -26,7 +26,8 @@ from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.lsq import solve_normal
 from identify.models import lowpass
-from identify.residuals import COEFFS, FILTERED, kept, measured_about, measured_arrays, signatures, variable_arrays
+from identify.residuals import (COEFFS, FILTERED, kept, measured_about, measured_arrays, signature_arrays,
+                                variable_arrays)
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
@@ -99,7 +100,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     for ch, sigma in noise.items():
         if ch not in d:
             continue
-        moved = d.copy()
+        moved = d.copy(deep=False)  # the changed column is replaced, not written into
         moved[ch] = moved[ch] + sigma
         cl = _measured_cl(moved, log.meta, ev)
         changed = ev.inputs(moved, cl)
@@ -269,8 +270,8 @@ class NoiseFloor:
         var = variable_arrays(frame, meta, meas["CL"], sorted(columns))
         sig = [c for c in columns if c.startswith("thrust_")]
         if sig:
-            shares = signatures(frame, meta, self.ref)
-            var.update((c, shares[c].to_numpy()) for c in sig)
+            shares = signature_arrays(frame, meta, self.ref)
+            var.update((c, shares[c]) for c in sig)
         smoothed = [v for v in var if v in FILTERED or v in sig]
         if smoothed:
             out.update(zip(smoothed, lowpass(np.array([var[v] for v in smoothed], dtype=float).T, dt)[keep].T))

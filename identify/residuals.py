@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from identify.coefficients import D2R, FT_PER_KT, coefficients, thrust_share
+from identify.coefficients import D2R, FT_PER_KT, coefficient_arrays, thrust_share
 from identify.evaluate import evaluator_for, in_chunks, moment_transfer
 from identify.kinematics import angle_rates
 from identify.logs import Log
@@ -42,12 +42,6 @@ SIGNATURES = {"thrust": ("thrust_lbf", "scale")}
 DELAY_STEP_S = 0.05
 #: Channels low-passed before they become variables (the gear and flap are not: they are set, not sensed).
 FILTERED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad", "adothat_rad", "CL")
-
-
-def variables(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES) -> pd.DataFrame:
-    """The candidate variables of one log, unfiltered: :func:`variable_arrays` as a frame indexed
-    like ``data``."""
-    return pd.DataFrame(variable_arrays(data, meta, cl, columns), index=data.index)
 
 
 def variable_arrays(data: pd.DataFrame, meta: dict, cl: np.ndarray, columns=VARIABLES) -> dict[str, np.ndarray]:
@@ -98,38 +92,53 @@ def measured_arrays(coef, meta: dict, evaluator) -> dict[str, np.ndarray]:
     return {"CL": np.asarray(coef["CL"]) * k, "CD": np.asarray(coef["CD"]) * k, "Cm": cm}
 
 
-def signatures(data: pd.DataFrame, meta: dict, evaluator) -> pd.DataFrame:
-    """What a relative thrust error adds to each measured coefficient, per unit error.
+def signature_arrays(data: pd.DataFrame, meta: dict, evaluator) -> dict[str, np.ndarray]:
+    """What a relative thrust error adds to each measured coefficient, per unit error:
+    ``thrust_CL``, ``thrust_CD``, ``thrust_Cm``, one array each.
 
     Eq. (1) is linear in the thrust: the thrust's own share is exactly that.
     """
-    moved = measured_about(thrust_share(data, meta), meta, evaluator)
-    return pd.DataFrame({f"thrust_{c}": moved[c].to_numpy() for c in COEFFS}, index=data.index)
+    moved = measured_arrays(thrust_share(data, meta), meta, evaluator)
+    return {f"thrust_{c}": moved[c] for c in COEFFS}
 
 
-def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: pd.DataFrame,
-                    channel: str = "alpha_deg") -> pd.DataFrame:
+def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: np.ndarray,
+                    channel: str = "alpha_deg") -> dict[str, np.ndarray]:
     """What a time shift of ``channel`` adds to each residual, per second of delay [1/s].
 
     A vane ``tau`` late reads ``x(t - tau)``; the model evaluated there misses
     ``C(x(t)) - C(x(t - tau))``, about ``tau`` times the model's change when the
     channel is read :data:`DELAY_STEP_S` earlier, over that step.
+
+    Parameters
+    ----------
+    data : DataFrame
+        A log in the schema.
+    evaluator : ModelEvaluator
+    cl : ndarray
+        Its measured lift coefficient [-].
+    model : ndarray
+        The model's CL, CD, Cm at its rows, (n, 3) [-].
+    channel : str
+
+    Returns
+    -------
+    dict
+        ``<head>delay_CL``, ``_CD``, ``_Cm`` [1/s] (head: the channel's name up to its first ``_``).
     """
     t = data["t_s"].to_numpy(dtype=float)
-    early = data.copy()
+    early = data.copy(deep=False)
     early[channel] = np.interp(t + DELAY_STEP_S, t, data[channel].to_numpy(dtype=float))
-    moved = evaluator.predict(early, cl)
+    moved = evaluator.evaluate_array(evaluator.inputs(early, cl))
     head = channel.split("_")[0] + "delay"
-    return pd.DataFrame({f"{head}_{c}": (moved[c].to_numpy() - model[c].to_numpy()) / DELAY_STEP_S for c in COEFFS},
-                        index=data.index)
+    return {f"{head}_{c}": (moved[:, j] - model[:, j]) / DELAY_STEP_S for j, c in enumerate(COEFFS)}
 
 
-def smooth(frame: pd.DataFrame, dt: float, columns) -> pd.DataFrame:
-    out = frame.copy()
-    cols = [c for c in columns if c in out]
-    if cols:
-        out[cols] = lowpass(out[cols].to_numpy(dtype=float), dt)
-    return out
+def _lowpassed(arrays: dict[str, np.ndarray], names, dt: float) -> dict[str, np.ndarray]:
+    """``arrays[name]`` of each of ``names`` through :func:`lowpass`, in one call. The columns are
+    stacked column-major, as a frame's ``to_numpy`` gives them: the filter's last bits depend on it."""
+    names = list(names)
+    return dict(zip(names, lowpass(np.array([arrays[v] for v in names], dtype=float).T, dt).T)) if names else {}
 
 
 #: Residual data keep about this many samples per second (the filter leaves nothing above 3 Hz).
@@ -179,31 +188,34 @@ def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: 
         and residuals ``r_CL``/``r_CD``/``r_Cm`` (Cm about the model's AERORP); for each
         channel in ``delays``, its time-shift signature (:func:`delay_signature`).
     """
-    frames = []
+    parts: dict[str, list[np.ndarray]] = {}
     for i, log in enumerate(logs):
         d = log.data
-        dt = float(np.median(np.diff(d["t_s"])))
-        meas = measured_about(coefficients(d, log.meta), log.meta, evaluator)
-        cl = meas["CL"].to_numpy()
-        pred = evaluator.predict(d, cl)
-        both = pd.concat([meas, pred.add_prefix("model_")], axis=1)
-        both = smooth(both, dt, both.columns)
-        var = smooth(variables(d, log.meta, cl), dt, FILTERED)
-        sig = signatures(d, log.meta, evaluator)
+        t = d["t_s"].to_numpy()
+        dt = float(np.median(np.diff(t)))
+        meas = measured_arrays(coefficient_arrays(d, log.meta), log.meta, evaluator)
+        cl = meas["CL"]
+        pred = evaluator.evaluate_array(evaluator.inputs(d, cl))
+        both = _lowpassed({**meas, **{f"model_{c}": pred[:, j] for j, c in enumerate(COEFFS)}},
+                          [*COEFFS, *(f"model_{c}" for c in COEFFS)], dt)
+        var = variable_arrays(d, log.meta, cl)
+        var.update(_lowpassed(var, [v for v in FILTERED if v in var], dt))
+        sig = signature_arrays(d, log.meta, evaluator)
         for ch in delays:
-            sig = pd.concat([sig, delay_signature(d, evaluator, cl, pred, ch)], axis=1)
-        sig = smooth(sig, dt, sig.columns)
+            sig.update(delay_signature(d, evaluator, cl, pred, ch))
+        sig = _lowpassed(sig, sig, dt)
         keep = kept(len(d), dt, step)
-        out = pd.DataFrame({"log": offset + i, "t_s": d["t_s"].to_numpy()[keep], "maneuver": log.maneuver, "point": log.point})
-        for v in VARIABLES:
-            out[v] = var[v].to_numpy()[keep]
-        for c in sig.columns:
-            out[c] = sig[c].to_numpy()[keep]
+        row = {"log": np.full(len(keep), offset + i), "t_s": t[keep],
+               "maneuver": np.full(len(keep), log.maneuver, dtype=object),
+               "point": np.full(len(keep), log.point, dtype=object)}
+        row.update((v, var[v][keep]) for v in VARIABLES)
+        row.update((c, x[keep]) for c, x in sig.items())
         for c in COEFFS:
-            out[f"model_{c}"] = both[f"model_{c}"].to_numpy()[keep]
-            out[f"meas_{c}"] = both[c].to_numpy()[keep]
-            out[f"r_{c}"] = out[f"meas_{c}"] - out[f"model_{c}"]
-        frames.append(out)
-    return pd.concat(frames, ignore_index=True)
-
-
+            row[f"model_{c}"] = both[f"model_{c}"][keep]
+            row[f"meas_{c}"] = both[c][keep]
+            row[f"r_{c}"] = row[f"meas_{c}"] - row[f"model_{c}"]
+        for c, x in row.items():
+            parts.setdefault(c, []).append(x)
+    if not parts:
+        raise ValueError("no logs to compute residuals of")
+    return pd.DataFrame({c: np.concatenate(xs) for c, xs in parts.items()})
