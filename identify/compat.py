@@ -252,17 +252,18 @@ class CompatResult:
         removed (before eq. 1)."""
         if not self.applied and not self.positions:
             return log
-        d = at_cg(log.data, self.positions, accelerometers_only=True)
-        t = d["t_s"].to_numpy(dtype=float)
+        raw = columns_of(log.data)
+        d = at_cg(raw, self.positions, accelerometers_only=True)
+        t = np.asarray(d["t_s"], dtype=float)
         for c in ("p_dps", "q_dps", "r_dps", "ax_fps2", "ay_fps2", "az_fps2"):
             if c in d:
                 d[c] = d[c] - self.value(f"{c}.bias")
         for c in ("theta_deg", "phi_deg", "tas_kt", "alpha_deg", "beta_deg"):
             if c in d:
-                x = np.interp(t + self.value(f"{c}.delay"), t, d[c].to_numpy(dtype=float))
+                x = np.interp(t + self.value(f"{c}.delay"), t, np.asarray(d[c], dtype=float))
                 d[c] = (x - self.value(f"{c}.bias")) / (1.0 + self.value(f"{c}.scale"))
         if "tas_kt" in d and self.applied and any(p.channel == "tas_kt" for p in self.applied):
-            ratio = d["tas_kt"].to_numpy() / log.data["tas_kt"].to_numpy()
+            ratio = d["tas_kt"] / raw["tas_kt"]
             for c in ("ias_kt", "mach"):
                 if c in d:
                     d[c] = d[c] * ratio
@@ -273,7 +274,7 @@ class CompatResult:
         d = at_cg(d, positions, air_data_only=True)
         meta = {**log.meta, "corrections": {p.name: p.estimate for p in self.applied},
                 "positions_corrected": positions}
-        return replace(log, data=d, meta=meta)
+        return replace(log, data=pd.DataFrame(d, index=log.data.index), meta=meta)
 
 
 def documented_positions(logs: list[Log]) -> dict:
@@ -282,20 +283,40 @@ def documented_positions(logs: list[Log]) -> dict:
     return docs[0] if docs and all(d == docs[0] for d in docs) else {}
 
 
-def at_cg(d: pd.DataFrame, positions: dict, accelerometers_only: bool = False,
-          air_data_only: bool = False) -> pd.DataFrame:
+def columns_of(frame: pd.DataFrame) -> dict[str, np.ndarray]:
+    """A frame's columns as arrays, in its order (what :func:`at_cg` takes): a frame's column
+    arithmetic and assignment cost more than the arrays' own."""
+    if len(frame.columns) and all(t == np.float64 for t in frame.dtypes):
+        return dict(zip(frame.columns, frame.to_numpy().T))
+    return {c: frame[c].to_numpy() for c in frame.columns}
+
+
+def at_cg(d: dict[str, np.ndarray], positions: dict, accelerometers_only: bool = False,
+          air_data_only: bool = False) -> dict[str, np.ndarray]:
     """Channels moved from where their sensors sit to the CG.
 
     Accelerometers lose the rotational terms (angular acceleration from the
     gyros' smoothing derivative); the vanes and the pitot lose the flow the
     rotation makes at the boom (vanes ``x`` ahead of the CG read
     ``atan((w - q x) / u)``).
+
+    Parameters
+    ----------
+    d : dict
+        A log's columns, name -> array (:func:`columns_of`).
+    positions : dict
+        Channel -> sensor position [x, y, z] [ft] from the CG.
+
+    Returns
+    -------
+    dict
+        The same columns, the moved ones replaced.
     """
     from identify.kinematics import smooth_derivative
 
-    out = d.copy()
-    t = d["t_s"].to_numpy(dtype=float)
-    rates = [d[c].to_numpy(dtype=float) * D2R if c in d else np.zeros(len(d)) for c in ("p_dps", "q_dps", "r_dps")]
+    out = dict(d)
+    t = np.asarray(d["t_s"], dtype=float)
+    rates = [np.asarray(d[c], dtype=float) * D2R if c in d else np.zeros(len(t)) for c in ("p_dps", "q_dps", "r_dps")]
     moved = [c for c in ("ax_fps2", "ay_fps2", "az_fps2") if c in positions and c in d]
     if moved and not air_data_only:
         rdot = [smooth_derivative(t, w) for w in rates]
@@ -305,7 +326,7 @@ def at_cg(d: pd.DataFrame, positions: dict, accelerometers_only: bool = False,
                 r = np.asarray(positions[c], float)[:, None]
                 wxr = np.cross(om.T, np.broadcast_to(r.T, om.T.shape)).T
                 extra = np.cross(np.stack(rdot).T, np.broadcast_to(r.T, om.T.shape)).T + np.cross(om.T, wxr.T).T
-                out[c] = d[c].to_numpy(dtype=float) - extra[k]
+                out[c] = np.asarray(d[c], dtype=float) - extra[k]
     if accelerometers_only:
         return out
     x = positions.get("alpha_deg", [0.0])[0]
@@ -315,19 +336,19 @@ def at_cg(d: pd.DataFrame, positions: dict, accelerometers_only: bool = False,
             out["beta_deg"] = beta
     if "tas_kt" in positions and "tas_kt" in d:
         xt = positions["tas_kt"][0]
-        a, b = out["alpha_deg"].to_numpy() * D2R, out["beta_deg"].to_numpy() * D2R if "beta_deg" in out else 0.0
+        a, b = out["alpha_deg"] * D2R, out["beta_deg"] * D2R if "beta_deg" in out else 0.0
         out["tas_kt"] = d["tas_kt"] - xt * (rates[2] * np.sin(b) - rates[1] * np.sin(a) * np.cos(b)) / FT_PER_KT
     return out
 
 
-def _at_cg(d: pd.DataFrame, x_ft: float, xb_ft: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _at_cg(d: dict[str, np.ndarray], x_ft: float, xb_ft: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Alpha and beta at the CG from vanes ``x_ft`` (beta: ``xb_ft``) ahead of it [deg]."""
     xb_ft = x_ft if xb_ft is None else xb_ft
-    v = d["tas_kt"].to_numpy(dtype=float) * FT_PER_KT
-    q = d["q_dps"].to_numpy(dtype=float) * D2R
-    r = d["r_dps"].to_numpy(dtype=float) * D2R if "r_dps" in d else 0.0
-    av = d["alpha_deg"].to_numpy(dtype=float) * D2R
-    bv = d["beta_deg"].to_numpy(dtype=float) * D2R if "beta_deg" in d else np.zeros(len(v))
+    v = np.asarray(d["tas_kt"], dtype=float) * FT_PER_KT
+    q = np.asarray(d["q_dps"], dtype=float) * D2R
+    r = np.asarray(d["r_dps"], dtype=float) * D2R if "r_dps" in d else 0.0
+    av = np.asarray(d["alpha_deg"], dtype=float) * D2R
+    bv = np.asarray(d["beta_deg"], dtype=float) * D2R if "beta_deg" in d else np.zeros(len(v))
     vs = v * np.sin(bv)
     vb = vs - r * xb_ft
     uw = np.sqrt(np.maximum(v ** 2 - vs ** 2, 1.0))
@@ -784,7 +805,8 @@ def estimate(logs: list[Log]) -> CompatResult:
             p.identifiable, p.reason = False, f"no reconstruction: {missing[0]} is not logged"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
     chosen = _select(logs)
-    data = _prepare([replace(lg, data=at_cg(lg.data, positions, accelerometers_only=True)) for lg in chosen])
+    data = _prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
+                                                    index=lg.data.index)) for lg in chosen])
     x_doc = positions.get("alpha_deg", [None])[0]
     xb_doc = positions.get("beta_deg", [x_doc])[0]
     if x_doc is not None:
