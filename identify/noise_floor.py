@@ -47,9 +47,10 @@ SENSITIVITY_EVERY_S = 0.5
 RESOLUTION = 1e-5
 #: Instrument errors are taken as plausible up to this many standard errors of the data compatibility.
 REACH_SE = 2.0
-#: Realizations a worker computes together (they share per-log work; each holds its residual data:
-#: 2 keeps a diagnosis worker under 300 MB on the paper matrix, 4 took it to 318 MB).
-REALIZATION_BATCH = 2
+#: Realizations a worker computes together (they share per-log work; each holds its residual data).
+#: On the paper matrix a diagnosis worker peaks at 278 MB with 5 (261 MB with 2, 289 MB with 10,
+#: which is no faster).
+REALIZATION_BATCH = 5
 
 
 def channel_noise(logs: list[Log]) -> dict[str, float]:
@@ -221,26 +222,29 @@ class NoiseFloor:
                     np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
                     if spec.get("instruments") and self.uncertain else np.zeros(len(self.uncertain)))
             drawn.append((spec["k"], spec.get("noise", True), errors, self.uncertain if names is None else names))
-        frames: list[list[dict]] = [[] for _ in specs]
-        for i, meta in enumerate(self._metas):
+        dts = [float(np.median(np.diff(d[:, cols.get_loc("t_s")]))) for cols, d in self._numbers]
+        steps = [kept(len(d), dt, self.step) for (_, d), dt in zip(self._numbers, dts)]
+        ends = np.cumsum([len(k) for k in steps])  # where each log's kept samples end in a realization
+        # each realization's columns, every log's samples written in place: no per-log pieces to join
+        frames: list[dict | None] = [None] * len(specs)
+        for i, dt in enumerate(dts):
             cols, d = self._numbers[i]
             at = {c: j for j, c in enumerate(cols)}
             t = d[:, at["t_s"]]
-            dt = float(np.median(np.diff(t)))
-            keep = kept(len(d), dt, self.step)
             ts, sens = self._sens[i]
             model = [np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) for sj in sens.values()]
             noisy = [self._perturbed(i, d, at, t, *spec) for spec in drawn]
             qdot = (pitch_rate_derivative(t, np.column_stack([x[:, at["q_dps"]] for x in noisy]))
                     if "qdot_dps2" not in at and noisy else None)
+            lo = ends[i] - len(steps[i])
             for s, x in enumerate(noisy):
-                frames[s].append(self._residuals(i, x, cols, at, t, dt, keep, model,
-                                                 None if qdot is None else qdot[:, s], columns))
-        out = []
-        for s in range(len(frames)):  # each realization's per-log arrays let go once it is one frame
-            fr, frames[s] = frames[s], []
-            out.append(pd.DataFrame({c: np.concatenate([f[c] for f in fr]) for c in fr[0]}) if fr else pd.DataFrame())
-        return out
+                part = self._residuals(i, x, cols, at, t, dt, steps[i], model, None if qdot is None else qdot[:, s],
+                                       columns)
+                if frames[s] is None:
+                    frames[s] = {c: np.empty(int(ends[-1]), dtype=v.dtype) for c, v in part.items()}
+                for c, v in part.items():
+                    frames[s][c][lo:ends[i]] = v
+        return [pd.DataFrame(f, copy=False) if f is not None else pd.DataFrame() for f in frames]
 
     def _perturbed(self, i: int, d: np.ndarray, at: dict, t: np.ndarray, k: int, noise: bool, errors, names):
         """Log ``i``'s channels with realization ``k``'s noise (if ``noise``) and the instrument errors."""
