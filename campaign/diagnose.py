@@ -9,6 +9,7 @@ flown from the same trimmed start with the recorded inputs).
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -243,19 +244,24 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
               after[after.log == i] if after is not None else None,
               *flown.get(held[i].path, (None, None)), out / "plots") for i in which]
-    pending = submit(_log_plots, calls, jobs) if jobs > 1 and len(calls) > 1 else None
-    import matplotlib.pyplot as plt  # the overview is drawn here meanwhile
+    if jobs > 1:  # the overview too: the workers have matplotlib loaded, and this process waits anyway
+        slim = replace(diag, held=None, logs=[], held_logs=[])  # what the overview draws, without the logs
+        list(results(submit(_overview, [(slim, out / "plots")], jobs) + submit(_log_plots, calls, jobs)))
+    else:
+        _overview(diag, out / "plots")
+        for args in calls:
+            _log_plots(*args)
+    return [Path(held[i].path).name for i in which]
+
+
+def _overview(diag: Diagnosis, folder: Path) -> None:
+    """The residuals of each coefficient against its first cause's variable."""
+    import matplotlib.pyplot as plt
 
     from identify.diagnosis_plots import plot_residuals
     fig = plot_residuals(diag)
-    fig.savefig(out / "plots" / "residuals_vs_cause.png", dpi=100)
+    fig.savefig(folder / "residuals_vs_cause.png", dpi=100)
     plt.close(fig)
-    if pending is None:
-        for args in calls:
-            _log_plots(*args)
-    else:
-        list(results(pending))
-    return [Path(held[i].path).name for i in which]
 
 
 def _log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
