@@ -17,7 +17,7 @@ import pandas as pd
 from scipy.interpolate import make_smoothing_spline
 from scipy.linalg import eigh, solve
 from scipy.optimize import minimize_scalar
-from scipy.signal import butter, filtfilt
+from scipy.signal import butter, lfilter, lfilter_zi
 
 from identify.coefficients import D2R, coefficients, qhat
 from identify.kinematics import ANCHOR_S, odd_extension
@@ -39,19 +39,29 @@ GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
 
 
 @lru_cache(maxsize=64)
-def _butter(wn: float) -> tuple[np.ndarray, np.ndarray]:
-    return butter(4, wn)
+def _butter(wn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The filter's coefficients and the steady state of its step response (``lfilter_zi``)."""
+    b, a = butter(4, wn)
+    return b, a, lfilter_zi(b, a)
 
 
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Zero-phase 4th-order Butterworth low-pass filter, the ends padded by
     :func:`identify.kinematics.odd_extension`. A 2-D ``x`` is filtered along axis 0,
-    each column on its own (one call for many signals of the same record)."""
-    b, a = _butter(cutoff_hz * 2.0 * dt)
+    each column on its own (one call for many signals of the same record).
+
+    This is ``scipy.signal.filtfilt(b, a, x, axis=0, padtype=None)`` step by step, with
+    ``lfilter_zi`` computed once per filter instead of once per call (a third of the
+    filter's time on a log's columns); the results are the same to the bit.
+    """
+    b, a, zi = _butter(cutoff_hz * 2.0 * dt)
     x = np.asarray(x, dtype=float)
     pad = min(len(x) - 1, 3 * max(len(a), len(b)) * 20)
-    y = filtfilt(b, a, odd_extension(x, pad, int(round(ANCHOR_S / dt))), axis=0, padtype=None)
-    return y[pad:pad + len(x)]
+    ext = odd_extension(x, pad, int(round(ANCHOR_S / dt)))
+    z = zi.reshape((-1,) + (1,) * (ext.ndim - 1))
+    y, _ = lfilter(b, a, ext, axis=0, zi=z * ext[:1])
+    y, _ = lfilter(b, a, y[::-1], axis=0, zi=z * y[-1:])
+    return y[::-1][pad:pad + len(x)]
 
 
 def _dt(log: Log) -> float:

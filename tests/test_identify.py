@@ -271,3 +271,19 @@ def test_a_figure_drawn_on_reused_axes_equals_a_new_one(tmp_path, kind):
         fig.savefig(tmp_path / f"new{i}.png", dpi=90)
         plt.close(fig)
         assert np.array_equal(plt.imread(tmp_path / f"reused{i}.png"), plt.imread(tmp_path / f"new{i}.png"))
+
+
+@pytest.mark.parametrize("shape", [(40,), (1400,), (1400, 3), (3360, 7)])
+def test_lowpass_is_scipys_filtfilt_to_the_bit(shape):
+    """lowpass computes filtfilt's steady-state start once per filter: the same numbers as scipy's own."""
+    from scipy.signal import butter, filtfilt
+
+    from identify.kinematics import ANCHOR_S, odd_extension
+    from identify.models import CUTOFF_HZ, lowpass
+    x = np.random.default_rng(len(shape)).standard_normal(shape).cumsum(axis=0)
+    for dt in (0.02, 1 / 120):
+        b, a = butter(4, CUTOFF_HZ * 2.0 * dt)
+        pad = min(len(x) - 1, 3 * max(len(a), len(b)) * 20)
+        for layout in (x, np.asfortranarray(x)):  # the last bits depend on the memory layout, in scipy's too
+            ext = odd_extension(layout, pad, int(round(ANCHOR_S / dt)))
+            assert np.array_equal(lowpass(layout, dt), filtfilt(b, a, ext, axis=0, padtype=None)[pad:pad + len(x)])
