@@ -139,6 +139,39 @@ def model_sensitivities(logs: list[Log], evaluator, noise: dict[str, float], job
     return lambda: [model_sensitivity(log, evaluator, noise) for log in logs]
 
 
+class _Channels:
+    """A perturbed log's channels by name, read as eq. (1) and the variables read a frame's
+    (``frame[name].to_numpy()``, ``name in frame``, ``frame.columns``, ``frame.index``,
+    ``len(frame)``), without a DataFrame's cost for each column read: the noise floor reads
+    every log's columns for every realization."""
+
+    def __init__(self, values: np.ndarray, at: dict[str, int], columns: pd.Index) -> None:
+        self.values, self.at, self.columns = values, at, columns
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.at
+
+    def __getitem__(self, name: str) -> "_Column":
+        return _Column(self.values[:, self.at[name]])
+
+    @property
+    def index(self) -> pd.RangeIndex:
+        return pd.RangeIndex(len(self.values))
+
+
+class _Column:
+    """One of :class:`_Channels`' columns (a view of its array)."""
+
+    def __init__(self, x: np.ndarray) -> None:
+        self.x = x
+
+    def to_numpy(self, dtype=None) -> np.ndarray:
+        return self.x if dtype is None else self.x.astype(dtype, copy=False)
+
+
 class NoiseFloor:
     """Sizes of the diagnosis's terms fitted to instrument noise alone.
 
@@ -265,7 +298,7 @@ class NoiseFloor:
         """Log ``i``'s residuals and variables from its perturbed channels, filtered and thinned."""
         meta, d = self._metas[i], self._numbers[i][1]
         moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
-        frame = pd.DataFrame(noisy, columns=cols, copy=False)
+        frame = _Channels(noisy, at, cols)
         meas = measured_arrays(coefficient_arrays(frame, meta, qdot), meta, self.ref)
         r = np.column_stack([meas[c] for c in COEFFS]) - self._meas[i]
         for m, at_samples in enumerate(model):  # the model's answer to the changed channels, linearised
