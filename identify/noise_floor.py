@@ -95,14 +95,19 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     dt = float(np.median(np.diff(t)))
     rows = np.unique(np.linspace(0, len(d) - 1, max(int((t[-1] - t[0]) / SENSITIVITY_EVERY_S), 2)).astype(int))
     ev = evaluator
-    inputs = ev.inputs(d, _measured_cl(d, log.meta, ev))
+    numbers = all(isinstance(k, np.dtype) and k.kind in "fiub" for k in d.dtypes)
+    chans = _Channels.of(d) if numbers else d
+    inputs = ev.inputs(chans, _measured_cl(chans, log.meta, ev))
     base = ev.evaluate_array(inputs, rows)
     out = {}
     for ch, sigma in noise.items():
         if ch not in d:
             continue
-        moved = d.copy(deep=False)  # the changed column is replaced, not written into
-        moved[ch] = moved[ch] + sigma
+        if numbers:
+            moved = _Channels(chans.values, chans.at, chans.columns, {ch: chans[ch].to_numpy() + sigma})
+        else:
+            moved = d.copy(deep=False)  # the changed column is replaced, not written into
+            moved[ch] = moved[ch] + sigma
         cl = _measured_cl(moved, log.meta, ev)
         changed = ev.inputs(moved, cl)
         if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
@@ -140,13 +145,32 @@ def model_sensitivities(logs: list[Log], evaluator, noise: dict[str, float], job
 
 
 class _Channels:
-    """A perturbed log's channels by name, read as eq. (1) and the variables read a frame's
-    (``frame[name].to_numpy()``, ``name in frame``, ``frame.columns``, ``frame.index``,
-    ``len(frame)``), without a DataFrame's cost for each column read: the noise floor reads
-    every log's columns for every realization."""
+    """A log's channels by name, read as eq. (1), the variables and the model's inputs read a
+    frame's (``frame[name].to_numpy()``, ``name in frame``, ``frame.columns``, ``frame.index``,
+    ``len(frame)``), without a DataFrame's cost for each column read: the noise floor reads every
+    log's columns for every realization and every perturbed channel.
 
-    def __init__(self, values: np.ndarray, at: dict[str, int], columns: pd.Index) -> None:
-        self.values, self.at, self.columns = values, at, columns
+    Parameters
+    ----------
+    values : ndarray
+        The channels, (samples, channels).
+    at : dict
+        Channel name -> its column in ``values``.
+    columns : Index
+        The channel names, in column order.
+    replaced : dict, optional
+        Channel name -> values read instead of its column.
+    """
+
+    def __init__(self, values: np.ndarray, at: dict[str, int], columns: pd.Index,
+                 replaced: dict[str, np.ndarray] | None = None) -> None:
+        self.values, self.at, self.columns, self.replaced = values, at, columns, replaced or {}
+
+    @classmethod
+    def of(cls, frame: pd.DataFrame) -> "_Channels":
+        """A frame of numbers' channels (each column a contiguous array, as the frame's own)."""
+        return cls(np.asfortranarray(frame.to_numpy(dtype=float)), {c: j for j, c in enumerate(frame.columns)},
+                   frame.columns)
 
     def __len__(self) -> int:
         return len(self.values)
@@ -155,7 +179,8 @@ class _Channels:
         return name in self.at
 
     def __getitem__(self, name: str) -> "_Column":
-        return _Column(self.values[:, self.at[name]])
+        x = self.replaced.get(name)
+        return _Column(self.values[:, self.at[name]] if x is None else x)
 
     @property
     def index(self) -> pd.RangeIndex:
@@ -170,6 +195,9 @@ class _Column:
 
     def to_numpy(self, dtype=None) -> np.ndarray:
         return self.x if dtype is None else self.x.astype(dtype, copy=False)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return self.to_numpy(dtype)
 
 
 class NoiseFloor:
