@@ -299,31 +299,48 @@ class ModelEvaluator:
 
     def evaluate_array(self, inputs: dict[str, np.ndarray], rows: np.ndarray | None = None) -> np.ndarray:
         """:meth:`evaluate` as an array (rows, 3): CL, CD, Cm [-] (no frame to build for a few rows)."""
-        fdm = self.fdm
-        pm = fdm.get_property_manager()
         n = len(next(iter(inputs.values())))
         rows = np.arange(n) if rows is None else np.asarray(rows)
-        # the rows' values as Python floats: indexing a list costs a third of indexing an array
-        sets = [(pm.get_node(p, False).set_double_value, np.asarray(v, dtype=float)[rows].tolist())
-                for p, v in inputs.items()]
-        read = [pm.get_node(p, False) for p in ("aero/qbar-psf", "forces/fwz-aero-lbs", "forces/fwx-aero-lbs",
-                                                 "forces/fbx-aero-lbs", "forces/fbz-aero-lbs",
-                                                 "moments/m-aero-lbsft")]
-        get = type(read[0]).get_double_value
-        out = array.array("d")
-        with captured_stdout():
-            for j in range(len(rows)):
-                for put, v in sets:
-                    put(v[j])
-                fdm.run_ic()
-                out.extend(map(get, read))
-        raw = np.frombuffer(out, dtype=float).reshape(len(rows), len(read))
+        values = {p: np.asarray(v, dtype=float)[rows] for p, v in inputs.items()}
+        # a control position the same in every row is set once; an initial-condition setter never
+        # is (each recomputes the state from the others)
+        fixed = [p for p, v in values.items() if not p.startswith("ic/") and len(v) and bool(np.all(v == v[0]))]
+        raw = self._aero_forces(values, fixed, len(rows))
+        if raw is None:  # run_ic() moved a position set once: every input in every row
+            raw = self._aero_forces(values, [], len(rows))
         qs = raw[:, 0] * self.S
         cm_cg = raw[:, 5] / (qs * self.cbar)
         dx = self.aerorp_in[0] - self.cg_in[0]
         dz = self.aerorp_in[2] - self.cg_in[2]
         cm = moment_transfer(cm_cg, raw[:, 3] / qs, raw[:, 4] / qs, dx, dz, self.cbar)
         return np.column_stack([raw[:, 1] / qs, raw[:, 2] / qs, cm])
+
+    def _aero_forces(self, values: dict[str, np.ndarray], fixed: list[str], n: int) -> np.ndarray | None:
+        """qbar [psf], the aero lift and drag, body x and z forces [lbf] and pitching moment about
+        the CG [lbf ft] at each of the ``n`` rows of ``values``, JSBSim's ``run_ic()`` at each; the
+        properties in ``fixed`` (the same in every row) are set once first. None if ``run_ic()``
+        moved one of them."""
+        fdm = self.fdm
+        pm = fdm.get_property_manager()
+        for p in fixed:
+            pm.get_node(p, False).set_double_value(float(values[p][0]))
+        held = [(pm.get_node(p, False), pm.get_node(p, False).get_double_value()) for p in fixed]
+        # the rows' values as Python floats: indexing a list costs a third of indexing an array
+        sets = [(pm.get_node(p, False).set_double_value, v.tolist()) for p, v in values.items() if p not in fixed]
+        read = [pm.get_node(p, False) for p in ("aero/qbar-psf", "forces/fwz-aero-lbs", "forces/fwx-aero-lbs",
+                                                 "forces/fbx-aero-lbs", "forces/fbz-aero-lbs",
+                                                 "moments/m-aero-lbsft")]
+        get = type(read[0]).get_double_value
+        out = array.array("d")
+        with captured_stdout():
+            for j in range(n):
+                for put, v in sets:
+                    put(v[j])
+                fdm.run_ic()
+                out.extend(map(get, read))
+        if any(node.get_double_value() != before for node, before in held):
+            return None
+        return np.frombuffer(out, dtype=float).reshape(-1, len(read))
 
     def predict(self, data: pd.DataFrame, cl: np.ndarray | None = None) -> pd.DataFrame:
         """CL, CD and Cm about the model's AERORP at each row of ``data`` (see :meth:`inputs`).
