@@ -839,23 +839,29 @@ CORROBORATED_GAIN = 1.1
 
 
 def corrected_residuals(compat: CompatResult, raw: list[Log], evaluator, step: int | None = None,
-                        delays: tuple = ()) -> pd.DataFrame:
+                        delays: tuple = (), wait: bool = True):
     """:func:`identify.residuals.residual_data` of the ``raw`` logs corrected by ``compat``.
 
     Within :func:`diagnose` each is computed once (``evaluator.residual_memo``): the
     arbitration, the delays, the residuals and the sensor causes ask for the same
     corrections again. A frame with delay signatures serves a request without them.
+    With ``wait=False`` a callable that returns the frame comes back, the workers
+    computing it meanwhile (:func:`identify.residuals.residual_data`).
     """
     memo = getattr(evaluator, "residual_memo", None)
     if memo is None:
-        return residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays)
+        return residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays, wait=wait)
     done = memo.setdefault((compat.correction_key(), tuple(map(id, raw)), step), {})
     for have, frame in done.items():
         if set(delays) <= set(have):
             extra = [f"{ch.split('_')[0]}delay_{c}" for ch in set(have) - set(delays) for c in COEFFS]
-            return frame.drop(columns=extra)
-    done[tuple(delays)] = residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays)
-    return done[tuple(delays)].copy()
+            return frame.drop(columns=extra) if wait else (lambda frame=frame: frame.drop(columns=extra))
+    pending = residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays, wait=False)
+
+    def finished() -> pd.DataFrame:
+        done[tuple(delays)] = pending()
+        return done[tuple(delays)].copy()
+    return finished() if wait else finished
 
 
 def arbitrate(compat: CompatResult, raw: list[Log], raw_held: list[Log], evaluator,
@@ -1234,12 +1240,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         stage("residuals")
         if compat is None:
             data = residual_data(logs, evaluator, step)
-            held_data = residual_data(held, evaluator, step) if held else None
+            held_data = residual_data(held, evaluator, step, wait=jobs <= 1) if held else None
         else:
             data = corrected_residuals(compat, raw, evaluator, step)
-            held_data = corrected_residuals(compat, raw_held, evaluator, step) if held else None
+            held_data = corrected_residuals(compat, raw_held, evaluator, step, wait=jobs <= 1) if held else None
         noise = channel_noise(logs + held)
-        early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None  # beside the stepwise search
+        # the workers compute the held-out residuals and then the sensitivities beside the stepwise search
+        early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None
         stage("stepwise")
         lags = _Lags(data["log"].to_numpy())
         terms = {c: candidate_terms(data, c) for c in COEFFS}
@@ -1248,6 +1255,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         del shared
         causes = name_causes(results, data, lags)
         stage("noise floor")
+        held_data = held_data() if callable(held_data) else held_data
         sens = early() if early else None  # wanted or not: the workers are then free for what comes next
         floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
                             uncertain=compat.uncertainty() if compat else None,

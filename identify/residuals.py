@@ -153,17 +153,21 @@ def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
     return np.arange(edge, n - edge, step)
 
 
-def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = ()) -> pd.DataFrame:
+def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), wait: bool = True):
     """Measured minus model coefficients at the measured states, for every log.
 
     The logs are spread over ``evaluator.jobs`` worker processes, each with its own
     JSBSim evaluation of the same model (:func:`identify.evaluate.evaluator_for`);
-    see :func:`_residual_data` for the rest.
+    see :func:`_residual_data` for the rest. With ``wait=False`` a callable that returns
+    the frame comes back instead: the workers start at once and the caller goes on meanwhile
+    (with one job the frame is computed when it is called).
     """
     if getattr(evaluator, "jobs", 1) <= 1:
-        return _residual_data(logs, evaluator, step, delays)
-    return pd.concat(in_chunks(_remote_residual_data, list(enumerate(logs)), evaluator.jobs, evaluator.model_dir,
-                               step, delays), ignore_index=True)
+        return _residual_data(logs, evaluator, step, delays) if wait else (
+            lambda: _residual_data(logs, evaluator, step, delays))
+    parts = in_chunks(_remote_residual_data, list(enumerate(logs)), evaluator.jobs, evaluator.model_dir, step, delays,
+                      wait=wait)
+    return pd.concat(parts, ignore_index=True) if wait else (lambda: pd.concat(parts(), ignore_index=True))
 
 
 def _remote_residual_data(numbered: list[tuple[int, Log]], model_dir: Path, step: int | None,
