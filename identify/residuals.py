@@ -153,31 +153,36 @@ def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
     return np.arange(edge, n - edge, step)
 
 
-def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), wait: bool = True):
+def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), wait: bool = True,
+                  correct=None):
     """Measured minus model coefficients at the measured states, for every log.
 
     The logs are spread over ``evaluator.jobs`` worker processes, each with its own
     JSBSim evaluation of the same model (:func:`identify.evaluate.evaluator_for`);
     see :func:`_residual_data` for the rest. With ``wait=False`` a callable that returns
     the frame comes back instead: the workers start at once and the caller goes on meanwhile
-    (with one job the frame is computed when it is called).
+    (with one job the frame is computed when it is called). ``correct`` (a log -> log
+    callable that pickles, such as :meth:`identify.compat.CompatResult.correct`), if given,
+    is applied to each log first, where its residuals are computed.
     """
     if getattr(evaluator, "jobs", 1) <= 1:
-        return _residual_data(logs, evaluator, step, delays) if wait else (
-            lambda: _residual_data(logs, evaluator, step, delays))
+        return _residual_data(logs, evaluator, step, delays, correct=correct) if wait else (
+            lambda: _residual_data(logs, evaluator, step, delays, correct=correct))
     parts = in_chunks(_remote_residual_data, list(enumerate(logs)), evaluator.jobs, evaluator.model_dir, step, delays,
-                      wait=wait)
+                      correct, wait=wait)
     return pd.concat(parts, ignore_index=True) if wait else (lambda: pd.concat(parts(), ignore_index=True))
 
 
 def _remote_residual_data(numbered: list[tuple[int, Log]], model_dir: Path, step: int | None,
-                          delays: tuple) -> list[pd.DataFrame]:
-    return [_residual_data([lg for _, lg in numbered], evaluator_for(model_dir), step, delays, numbered[0][0])]
+                          delays: tuple, correct) -> list[pd.DataFrame]:
+    return [_residual_data([lg for _, lg in numbered], evaluator_for(model_dir), step, delays, numbered[0][0],
+                           correct)]
 
 
 def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (),
-                   offset: int = 0) -> pd.DataFrame:
-    """Measured minus model coefficients at the measured states, for every log.
+                   offset: int = 0, correct=None) -> pd.DataFrame:
+    """Measured minus model coefficients at the measured states, for every log
+    (each through ``correct`` first, if given).
 
     The model is evaluated at the raw measured states (exact on noise-free
     data); the measured and model coefficients and the variables then pass
@@ -194,6 +199,7 @@ def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: 
     """
     parts: dict[str, list[np.ndarray]] = {}
     for i, log in enumerate(logs):
+        log = correct(log) if correct is not None else log
         d = log.data
         t = d["t_s"].to_numpy()
         dt = float(np.median(np.diff(t)))
