@@ -850,13 +850,13 @@ def corrected_residuals(compat: CompatResult, raw: list[Log], evaluator, step: i
     """
     memo = getattr(evaluator, "residual_memo", None)
     if memo is None:
-        return residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays, wait=wait)
+        return residual_data(raw, evaluator, step, delays, wait=wait, correct=compat.correct)
     done = memo.setdefault((compat.correction_key(), tuple(map(id, raw)), step), {})
     for have, frame in done.items():
         if set(delays) <= set(have):
             extra = [f"{ch.split('_')[0]}delay_{c}" for ch in set(have) - set(delays) for c in COEFFS]
             return frame.drop(columns=extra) if wait else (lambda frame=frame: frame.drop(columns=extra))
-    pending = residual_data([compat.correct(lg) for lg in raw], evaluator, step, delays, wait=False)
+    pending = residual_data(raw, evaluator, step, delays, wait=False, correct=compat.correct)  # corrected there
 
     def finished() -> pd.DataFrame:
         done[tuple(delays)] = pending()
@@ -971,7 +971,7 @@ def _time_shift(data: pd.DataFrame, head: str) -> tuple[float, float, float, str
     its delete-one-log jackknife error, the share of the residual explained and the coefficient
     whose residual it explains best (each residual less its mean per log)."""
     logs = data["log"].to_numpy()
-    ids = np.unique(logs)
+    ids, inv = np.unique(logs, return_inverse=True)
     if len(ids) < 3:
         return None
     per = {}
@@ -980,7 +980,9 @@ def _time_shift(data: pd.DataFrame, head: str) -> tuple[float, float, float, str
         if not float(x @ x) > 0:
             continue
         tau = float(x @ y / (x @ x))
-        jack = np.array([float(x[logs != i] @ y[logs != i] / (x[logs != i] @ x[logs != i])) for i in ids])
+        sxy, sxx = np.bincount(inv, x * y), np.bincount(inv, x * x)  # each log's share of the sums
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jack = (sxy.sum() - sxy) / (sxx.sum() - sxx)  # each log left out
         se = float(np.sqrt((len(ids) - 1) / len(ids) * np.sum((jack - jack.mean()) ** 2)))
         per[c] = (tau, se, 1.0 - float((y - tau * x) @ (y - tau * x)) / max(float(y @ y), 1e-300), c)
     return max(per.values(), key=lambda v: v[2]) if per else None
