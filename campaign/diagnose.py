@@ -26,7 +26,7 @@ from identify.diagnosis_export import write_extension
 from identify.evaluate import ModelEvaluator
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from identify.workers import pmap, results, submit
+from identify.workers import Ahead, pmap, results, submit
 from maneuvers.library import Recorded
 
 REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
@@ -137,17 +137,24 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise UserError(str(exc)) from None
     bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
                "[{elapsed}]")
+    src_model = AircraftSource(str(model), load_effects(None))
+    # the data compatibility runs on one core: the workers fly the model's replays meanwhile
+    ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs)
 
     def stage(name: str) -> None:
+        if name != STAGES[0]:
+            ahead.stop()
         bar.n = STAGES.index(name)
         bar.set_description(name)
 
     try:
         diag = diagnose(train, evaluator, held, jobs=jobs, progress=stage)
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
+        ahead.stop()
         evaluator.close()
         bar.close()
         raise UserError(str(exc)) from None
+    ahead.stop()
     out.mkdir(parents=True, exist_ok=True)
     doc: dict = {"discrepancy": diag.discrepancy,
                  "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
@@ -163,7 +170,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                           "held_out": [lg.path for lg in held]},
                  "model": str(model), "plotted_logs": []}
     before = diag.held
-    held = diag.held_logs  # as corrected for instrument errors
+    raw_held, held = held, diag.held_logs  # as corrected for instrument errors
     extended_eval = None
     if diag.aero_causes:
         stage("extension")
@@ -184,14 +191,15 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                           "after": float(np.sqrt(np.mean(a[f"r_{c}"] ** 2)))} for c in COEFFS}
         for v in rms_acting.values():
             v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
-        src_model = AircraftSource(str(model), load_effects(None))
         src_ext = AircraftSource(str(folder), load_effects(None))
         stage("replays")
-        logs_flown = pmap(replay, [(lg, src) for lg in held for src in (src_model, src_ext)], jobs)
+        early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
+        calls = [(i, src) for i in range(len(held)) for src in (src_model, src_ext) if src is src_ext or i not in early]
+        flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
         replays = {}
         flown = {}
         for i, lg in enumerate(held):
-            fb, fa = logs_flown[2 * i], logs_flown[2 * i + 1]
+            fb, fa = early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext]
             flown[lg.path] = (fb, fa)
             eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
             replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}

@@ -18,7 +18,8 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
-from concurrent.futures import Future, ProcessPoolExecutor
+import threading
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, Iterator
 
@@ -101,6 +102,45 @@ def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
     if jobs <= 1 or len(calls) <= 1:
         return [func(*args) for args in calls]
     return list(results(submit(func, calls, jobs)))
+
+
+class Ahead:
+    """Tasks handed to a worker that would otherwise idle, before anyone asks for their results.
+
+    ``func(*args)`` for each ``args`` in ``calls``, one after the other on one worker of
+    the pool of ``jobs`` (nothing with one job): the caller keeps a core of its own and
+    the other workers stay free. :meth:`stop` ends the chain, so that work needed now is
+    not queued behind it; :meth:`finished` gives what was done, by index into ``calls``.
+    Whatever it lacks the caller computes itself.
+    """
+
+    def __init__(self, func: Callable, calls: list[tuple], jobs: int) -> None:
+        self._futures: list[Future] = []
+        self._stopped = threading.Event()
+        self._thread = None
+        if jobs > 1 and calls:
+            self._futures.append(submit(func, calls[:1], jobs)[0])  # the pool is made here, not in the thread
+            self._thread = threading.Thread(target=self._chain, args=(func, calls[1:], jobs), daemon=True)
+            self._thread.start()
+
+    def _chain(self, func: Callable, calls: list[tuple], jobs: int) -> None:
+        for args in calls:
+            wait(self._futures[-1:])
+            if self._stopped.is_set():
+                return
+            self._futures.append(submit(func, [args], jobs)[0])
+
+    def stop(self) -> None:
+        """Start no more tasks."""
+        self._stopped.set()
+
+    def finished(self) -> dict[int, object]:
+        """Each task's result, by its index, but for those not started (the one running is
+        waited for; a task's exception is raised here)."""
+        self.stop()
+        if self._thread is not None:
+            self._thread.join()
+        return {i: f.result() for i, f in enumerate(self._futures)}
 
 
 class WorkerDied(RuntimeError):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from identify.workers import BLAS_THREAD_VARIABLES, WorkerDied, alone, pmap, submit
+from identify.workers import BLAS_THREAD_VARIABLES, Ahead, WorkerDied, alone, pmap, submit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,6 +50,33 @@ def test_a_dead_worker_breaks_that_call_only(tmp_path):
     with pytest.raises(BrokenProcessPool):
         pmap(_die, [(0,), (1,), (2,)], 2)
     assert [v for _, v in pmap(_square, [(2,), (3,)], 2)] == [4, 9]  # a new pool
+
+
+def _timed(x, s):
+    import time
+    t0 = time.monotonic()
+    time.sleep(s)
+    return x * x, t0, time.monotonic()
+
+
+def test_work_ahead_runs_one_task_at_a_time_and_gives_its_results_by_index():
+    import time
+    ahead = Ahead(_timed, [(i, 0.02) for i in range(8)], 2)
+    time.sleep(1.0)
+    done = ahead.finished()
+    assert sorted(done) == list(range(8)) and all(v[0] == i * i for i, v in done.items())
+    spans = sorted((t0, t1) for _, t0, t1 in done.values())
+    assert all(b[0] >= a[1] for a, b in zip(spans, spans[1:]))  # never two at once: a worker stays free
+
+
+def test_work_ahead_stops_when_told_and_is_nothing_with_one_job():
+    ahead = Ahead(_timed, [(i, 0.2) for i in range(20)], 2)
+    ahead.stop()
+    done = ahead.finished()  # the task running is waited for, no other starts
+    assert 1 <= len(done) < 3 and set(done) == set(range(len(done)))
+    assert Ahead(_timed, [(1, 0.0)], 1).finished() == {}
+    with pytest.raises(ValueError, match="bad 3"):
+        Ahead(_fail, [(3,)], 2).finished()
 
 
 def test_workers_run_in_the_callers_directory(tmp_path):
