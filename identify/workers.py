@@ -24,6 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, Iterator
 
 _POOL: dict[int, ProcessPoolExecutor] = {}  # at most one pool: {jobs: pool}
+_POOL_LOCK = threading.RLock()  # a thread of :class:`Ahead` submits beside the caller
 
 
 def _context():
@@ -63,6 +64,11 @@ def one_blas_thread() -> None:
 
 def executor(jobs: int) -> ProcessPoolExecutor:
     """This process's pool of ``jobs`` workers (made on first use, or again if the number changed)."""
+    with _POOL_LOCK:
+        return _executor(jobs)
+
+
+def _executor(jobs: int) -> ProcessPoolExecutor:
     pool = _POOL.get(jobs)
     if pool is None:
         for old in _POOL.values():
@@ -81,14 +87,15 @@ def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
     """``func(*args)`` for each ``args`` in ``calls`` on the pool of ``jobs`` workers, started now
     (in the caller's working directory); a pool a dead worker broke is made again first."""
     cwd = os.getcwd()
-
-    def start() -> list[Future]:
-        return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
+    pool = executor(jobs)
     try:
-        return start()
+        return [pool.submit(_in, cwd, func, args) for args in calls]
     except BrokenProcessPool:  # a worker died in an earlier call
-        _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
-        return start()
+        with _POOL_LOCK:
+            if _POOL.get(jobs) is pool:  # not yet made again by another thread
+                _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
+        pool = executor(jobs)
+        return [pool.submit(_in, cwd, func, args) for args in calls]
 
 
 def results(futures: list[Future]) -> Iterator:
@@ -118,9 +125,8 @@ class Ahead:
         self._futures: list[Future] = []
         self._stopped = threading.Event()
         self._thread = None
-        if jobs > 1 and calls:
-            self._futures.append(submit(func, calls[:1], jobs)[0])  # the pool is made here, not in the thread
-            self._thread = threading.Thread(target=self._chain, args=(func, calls[1:], jobs), daemon=True)
+        if jobs > 1 and calls:  # a thread submits: the first submission waits for the warm server
+            self._thread = threading.Thread(target=self._chain, args=(func, calls, jobs), daemon=True)
             self._thread.start()
 
     def _chain(self, func: Callable, calls: list[tuple], jobs: int) -> None:
