@@ -150,11 +150,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     try:
         diag = diagnose(train, evaluator, held, jobs=jobs, progress=stage)
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
-        ahead.stop()
         evaluator.close()
         bar.close()
         raise UserError(str(exc)) from None
-    ahead.stop()
+    finally:
+        ahead.stop()
     out.mkdir(parents=True, exist_ok=True)
     doc: dict = {"discrepancy": diag.discrepancy,
                  "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
