@@ -19,12 +19,11 @@ import multiprocessing as mp
 import os
 import signal
 import threading
-from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, Iterator
 
 _POOL: dict[int, ProcessPoolExecutor] = {}  # at most one pool: {jobs: pool}
-_POOL_LOCK = threading.RLock()  # a thread of :class:`Ahead` submits beside the caller
 
 
 def _context():
@@ -64,11 +63,6 @@ def one_blas_thread() -> None:
 
 def executor(jobs: int) -> ProcessPoolExecutor:
     """This process's pool of ``jobs`` workers (made on first use, or again if the number changed)."""
-    with _POOL_LOCK:
-        return _executor(jobs)
-
-
-def _executor(jobs: int) -> ProcessPoolExecutor:
     pool = _POOL.get(jobs)
     if pool is None:
         for old in _POOL.values():
@@ -87,15 +81,14 @@ def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
     """``func(*args)`` for each ``args`` in ``calls`` on the pool of ``jobs`` workers, started now
     (in the caller's working directory); a pool a dead worker broke is made again first."""
     cwd = os.getcwd()
-    pool = executor(jobs)
+
+    def start() -> list[Future]:
+        return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
     try:
-        return [pool.submit(_in, cwd, func, args) for args in calls]
+        return start()
     except BrokenProcessPool:  # a worker died in an earlier call
-        with _POOL_LOCK:
-            if _POOL.get(jobs) is pool:  # not yet made again by another thread
-                _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
-        pool = executor(jobs)
-        return [pool.submit(_in, cwd, func, args) for args in calls]
+        _POOL.pop(jobs).shutdown(wait=False, cancel_futures=True)
+        return start()
 
 
 def results(futures: list[Future]) -> Iterator:
@@ -111,30 +104,58 @@ def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
     return list(results(submit(func, calls, jobs)))
 
 
-class Ahead:
-    """Tasks handed to a worker that would otherwise idle, before anyone asks for their results.
+def _ahead(send, stop, cwd: str, func: Callable, calls: list[tuple]) -> None:
+    os.chdir(cwd)
+    one_blas_thread()
+    for i, args in enumerate(calls):
+        if stop.is_set():
+            break
+        try:
+            send.send((i, True, func(*args)))
+        except BaseException as exc:  # handed back to the caller, raised there
+            send.send((i, False, exc))
+            break
+    send.close()
 
-    ``func(*args)`` for each ``args`` in ``calls``, one after the other on one worker of
-    the pool of ``jobs`` (nothing with one job): the caller keeps a core of its own and
-    the other workers stay free. :meth:`stop` ends the chain, so that work needed now is
-    not queued behind it; :meth:`finished` gives what was done, by index into ``calls``.
+
+class Ahead:
+    """Tasks done while a core would otherwise idle, before anyone asks for their results.
+
+    ``func(*args)`` for each ``args`` in ``calls``, one after the other in a process of
+    their own (a fork of the warm server; nothing with one job): the caller keeps a core,
+    the pool's workers stay free and do not keep what these tasks leave in memory.
+    :meth:`stop` ends the chain after the task running, so that work needed now does not
+    share the cores with it; :meth:`finished` gives what was done, by index into ``calls``.
     Whatever it lacks the caller computes itself.
     """
 
     def __init__(self, func: Callable, calls: list[tuple], jobs: int) -> None:
-        self._futures: list[Future] = []
-        self._stopped = threading.Event()
+        self._done: dict[int, object] = {}
+        self._error: BaseException | None = None
         self._thread = None
-        if jobs > 1 and calls:  # a thread submits: the first submission waits for the warm server
-            self._thread = threading.Thread(target=self._chain, args=(func, calls, jobs), daemon=True)
+        ctx = _context()
+        self._stopped = ctx.Event() if jobs > 1 and calls else threading.Event()
+        if jobs > 1 and calls:  # a thread starts the process: that waits for the warm server's imports
+            self._thread = threading.Thread(target=self._collect, args=(ctx, func, calls), daemon=True)
             self._thread.start()
 
-    def _chain(self, func: Callable, calls: list[tuple], jobs: int) -> None:
-        for args in calls:
-            wait(self._futures[-1:])
-            if self._stopped.is_set():
-                return
-            self._futures.append(submit(func, [args], jobs)[0])
+    def _collect(self, ctx, func: Callable, calls: list[tuple]) -> None:
+        recv, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), func, calls), daemon=True)
+        proc.start()
+        send.close()
+        try:
+            while True:
+                i, ok, value = recv.recv()
+                if ok:
+                    self._done[i] = value
+                else:
+                    self._error = value
+        except EOFError:  # the chain ended (or its process died: the caller computes the rest)
+            pass
+        finally:
+            recv.close()
+            proc.join()
 
     def stop(self) -> None:
         """Start no more tasks."""
@@ -146,7 +167,9 @@ class Ahead:
         self.stop()
         if self._thread is not None:
             self._thread.join()
-        return {i: f.result() for i, f in enumerate(self._futures)}
+        if self._error is not None:
+            raise self._error
+        return dict(self._done)
 
 
 class WorkerDied(RuntimeError):

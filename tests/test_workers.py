@@ -52,31 +52,49 @@ def test_a_dead_worker_breaks_that_call_only(tmp_path):
     assert [v for _, v in pmap(_square, [(2,), (3,)], 2)] == [4, 9]  # a new pool
 
 
-def _timed(x, s):
+def _timed(x, s, mark=None):
     import time
+    if mark:
+        Path(mark, f"{x}").touch()
     t0 = time.monotonic()
     time.sleep(s)
-    return x * x, t0, time.monotonic()
+    return x * x, t0, time.monotonic(), os.getpid()
+
+
+def _fail_marked(x, mark):
+    Path(mark, "fail").touch()
+    _fail(x)
 
 
 def test_work_ahead_runs_one_task_at_a_time_and_gives_its_results_by_index():
     import time
     ahead = Ahead(_timed, [(i, 0.02) for i in range(8)], 2)
-    time.sleep(1.0)
+    time.sleep(2.0)
     done = ahead.finished()
     assert sorted(done) == list(range(8)) and all(v[0] == i * i for i, v in done.items())
-    spans = sorted((t0, t1) for _, t0, t1 in done.values())
-    assert all(b[0] >= a[1] for a, b in zip(spans, spans[1:]))  # never two at once: a worker stays free
+    spans = sorted((t0, t1) for _, t0, t1, _ in done.values())
+    assert all(b[0] >= a[1] for a, b in zip(spans, spans[1:]))  # never two at once: a core stays free
+    assert len({v[3] for v in done.values()} | {os.getpid()}) == 2  # one process, not this one
 
 
-def test_work_ahead_stops_when_told_and_is_nothing_with_one_job():
-    ahead = Ahead(_timed, [(i, 0.2) for i in range(20)], 2)
+def test_work_ahead_stops_when_told_and_is_nothing_with_one_job(tmp_path):
+    import time
+    ahead = Ahead(_timed, [(i, 0.2, str(tmp_path)) for i in range(20)], 2)
+    for _ in range(600):  # the second task has started
+        if (tmp_path / "1").exists():
+            break
+        time.sleep(0.05)
     ahead.stop()
-    done = ahead.finished()  # the task running is waited for, no other starts
-    assert 1 <= len(done) < 3 and set(done) == set(range(len(done)))
+    done = ahead.finished()  # the task running is finished, no other starts
+    assert 2 <= len(done) < 20 and set(done) == set(range(len(done)))
     assert Ahead(_timed, [(1, 0.0)], 1).finished() == {}
+    ahead = Ahead(_fail_marked, [(3, str(tmp_path))], 2)
+    for _ in range(600):
+        if (tmp_path / "fail").exists():
+            break
+        time.sleep(0.05)
     with pytest.raises(ValueError, match="bad 3"):
-        Ahead(_fail, [(3,)], 2).finished()
+        ahead.finished()
 
 
 def test_workers_run_in_the_callers_directory(tmp_path):
