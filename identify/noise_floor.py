@@ -48,9 +48,9 @@ RESOLUTION = 1e-5
 #: Instrument errors are taken as plausible up to this many standard errors of the data compatibility.
 REACH_SE = 2.0
 #: Realizations a worker computes together (they share per-log work; each holds its residual data).
-#: On the paper matrix the noise floor is where a diagnosis worker peaks: 290 MB RSS with 5, of which
-#: 200 MB are the shared pages every worker starts with (286 MB with 3, which took 0.2 s longer).
-REALIZATION_BATCH = 5
+#: On the paper matrix the noise floor is where a diagnosis worker peaks: 285 MB RSS with 4, of which
+#: 200 MB are the shared pages every worker starts with (290-310 MB with 5, 0.07 s faster per worker).
+REALIZATION_BATCH = 4
 
 
 def channel_noise(logs: list[Log]) -> dict[str, float]:
