@@ -10,8 +10,10 @@ import array
 import hashlib
 import math
 import os
+import shutil
 from dataclasses import dataclass, field
 from functools import lru_cache
+from multiprocessing.util import Finalize
 from pathlib import Path
 
 os.environ.setdefault("JSBSIM_DEBUG", "0")
@@ -84,7 +86,10 @@ def derived_seed(seed: int, *names: str) -> int:
 
 @lru_cache(maxsize=8)
 def _prepared_root(source: AircraftSource) -> str:
-    return str(prepare(source))
+    root = str(prepare(source))
+    # removed as this process ends; a worker too runs multiprocessing's finalizers before it exits
+    Finalize(None, shutil.rmtree, args=(root,), kwargs={"ignore_errors": True}, exitpriority=0)
+    return root
 
 
 def new_fdm(source: AircraftSource):

@@ -116,7 +116,10 @@ def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tm
     m.write_text(KILL_MATRIX)
     argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--jobs", "2", "--quiet", "--out"]
     ref, out = tmp_path / "ref", tmp_path / "killed"
-    subprocess.run(argv + [str(ref)], check=True, capture_output=True)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    subprocess.run(argv + [str(ref)], check=True, capture_output=True, env={**os.environ, "TMPDIR": str(tmp)})
+    assert sorted(p.name for p in tmp.iterdir()) == []  # the run and its workers leave no aircraft copies behind
     killed_at = []
     for what, reached in MOMENTS:
         t0 = time.time()
