@@ -138,7 +138,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
                "[{elapsed}]")
     src_model = AircraftSource(str(model), load_effects(None))
-    # the data compatibility runs on one core: the workers fly the model's replays meanwhile
+    # the data compatibility runs on one core: a process of its own flies the model's replays meanwhile
     ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs)
 
     def stage(name: str) -> None:
