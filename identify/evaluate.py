@@ -36,8 +36,8 @@ import numpy as np
 import pandas as pd
 
 from identify.kinematics import angle_rates
-from identify.model import (FCS_SECTIONS, captured_stdout, catalog, component_outputs, control_schedules,
-                            copy_model, fcs_sections, load_fdm, longitudinal_inputs)
+from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
+                            control_schedules, copy_model, fcs_sections, load_fdm, longitudinal_inputs)
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -84,7 +84,7 @@ def _redirect(aero: ET.Element) -> set[str]:
     """Point every read of :data:`REDIRECT` properties at the stand-ins; return those used."""
     used = set()
     for el in aero.iter():
-        if el.tag in ("property", "independentVar") and el.text:
+        if el.tag in PROPERTY_TAGS and el.text:
             raw = el.text.strip()
             sign, name = ("-", raw[1:]) if raw.startswith("-") else ("", raw)
             if name in REDIRECT:

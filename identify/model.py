@@ -334,10 +334,14 @@ def control_schedules(fdm, watched: set[str]) -> dict[str, Schedule]:
     return out
 
 
+#: The elements through which a JSBSim function or table reads a property (``<p>`` is ``<property>``).
+PROPERTY_TAGS = ("property", "p", "independentVar")
+
+
 def _refs(el: ET.Element) -> set[str]:
     names = set()
     for p in el.iter():
-        if p.tag in ("property", "independentVar") and p.text and p.text.strip():
+        if p.tag in PROPERTY_TAGS and p.text and p.text.strip():
             names.add(p.text.strip().lstrip("-").replace("[0]", ""))
     return names
 

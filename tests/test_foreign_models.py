@@ -63,6 +63,12 @@ def test_evaluator_names_what_the_logs_cannot_set():
     assert ModelEvaluator(DEFAULT_AIRCRAFT).unset == []
 
 
+def test_evaluator_reads_properties_given_the_short_way():
+    """``<p>`` is ``<property>`` to JSBSim: the P-51D's thrust-qbar function reads the propeller's
+    induced velocity so, and no log sets it."""
+    assert "propulsion/engine/prop-induced-velocity_fps" in {u.name for u in ModelEvaluator(STOCK / "p51d").unset}
+
+
 @pytest.fixture(scope="module")
 def stock_737_clean(tmp_path_factory):
     return run_matrix(tmp_path_factory.mktemp("s737"), CLEAN, str(STOCK / "737"))
