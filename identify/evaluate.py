@@ -14,7 +14,11 @@ nothing here assumes ours. The copy differs from the model in three ways:
   from the previous frame's lift). Here α̇ and β̇ come from the measured α
   and β, and CL² from the measured lift coefficient, both taken one frame
   (:attr:`ModelEvaluator.frame_s`) before the sample, as JSBSim has them;
-- network ``<input>``/``<output>`` elements are removed.
+- network ``<input>``/``<output>`` elements are removed;
+- if its aerodynamics read nothing an engine or a landing-gear contact computes
+  (:data:`WITHOUT_ENGINES`), its engines and contacts are removed: they cost a
+  sixth of each ``run_ic()`` and move none of the aero forces (the tanks stay, and
+  with them the CG).
 
 Each sample is set as an initial condition and ``run_ic()`` evaluates every
 aero function there, at the raw (unfiltered) measured state. The pitching
@@ -37,7 +41,7 @@ import pandas as pd
 
 from identify.kinematics import angle_rates
 from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
-                            control_schedules, copy_model, fcs_sections, load_fdm, longitudinal_inputs)
+                            control_schedules, copy_model, fcs_sections, load_fdm, longitudinal_inputs, reads)
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -55,6 +59,16 @@ IC_CHANNELS = (("ic/h-sl-ft", "alt_ft", 1.0), ("ic/vt-kts", "tas_kt", 1.0), ("ic
                ("ic/beta-deg", "beta_deg", 1.0), ("ic/theta-deg", "theta_deg", 1.0),
                ("ic/phi-deg", "phi_deg", 1.0), ("ic/p-rad_sec", "p_dps", D2R), ("ic/q-rad_sec", "q_dps", D2R),
                ("ic/r-rad_sec", "r_dps", D2R))
+
+
+#: What an evaluation copy's aerodynamics may read for its engines and landing-gear contacts to be
+#: left out: the state set as an initial condition, the atmosphere, the geometry, the control
+#: positions and what the evaluation sets or holds. Anything else (a propeller's induced velocity,
+#: the weight on a wheel, a force, a tank's contents) keeps them.
+WITHOUT_ENGINES = ("velocities/", "atmosphere/", "metrics/", "attitude/", "position/", "fcs/", "eval/",
+                   "aero/alpha-", "aero/beta-", "aero/mag-beta-", "aero/ci2vel", "aero/bi2vel", "aero/h_b-",
+                   "aero/qbar-psf", "aero/qbarUW-psf", "aero/qbarUV-psf", "aero/qbar-area", "aero/cl-squared",
+                   "aero/Re", "gear/gear-pos-norm")
 
 
 def moment_transfer(cm: np.ndarray, cx: np.ndarray, cz: np.ndarray, dx_in: float, dz_in: float,
@@ -94,7 +108,8 @@ def _redirect(aero: ET.Element) -> set[str]:
 
 
 def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[str], set[str]]:
-    """Write ``root/aircraft/<name>/``: the model without FCS and network I/O.
+    """Write ``root/aircraft/<name>/``: the model without FCS and network I/O (and without
+    engines and gear contacts if its aerodynamics need none, :data:`WITHOUT_ENGINES`).
 
     The properties the removed FCS wrote are declared settable, and the
     aerodynamics read :data:`REDIRECT`'s stand-ins.
@@ -120,13 +135,24 @@ def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[st
         for el in top.findall(tag):
             top.remove(el)
     aero = top.find("aerodynamics")
+    redirected = _redirect(aero)
+    read = reads(aero)
     kept = list(aero)
     for el in kept:  # a probe without aerodynamics lists JSBSim's own properties
         aero.remove(el)
+    whole = {sec: list(sec) for name_ in ("propulsion", "ground_reactions") for sec in top.findall(name_)}
+    strip = all(p in outputs | redirected or p.startswith(WITHOUT_ENGINES) for p in read)
+    for sec in whole if strip else ():
+        for el in [el for el in sec if el.tag in ("engine", "contact")]:
+            sec.remove(el)
     tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
     builtin = set(catalog(load_fdm(root, name)))
+    if strip and not read <= builtin | outputs | redirected:  # an engine's own FCS property (a throttle)
+        for sec, children in whole.items():
+            sec[:] = children
+        tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
+        builtin = set(catalog(load_fdm(root, name)))
     aero.extend(kept)
-    redirected = _redirect(aero)
     fcs = ET.SubElement(top, "flight_control", name="evaluation: positions set directly")
     for prop in sorted((outputs | redirected) - builtin):
         ET.SubElement(fcs, "property", value="0").text = prop

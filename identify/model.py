@@ -346,6 +346,11 @@ def _refs(el: ET.Element) -> set[str]:
     return names
 
 
+def reads(section: ET.Element) -> set[str]:
+    """Every property a section's functions and tables read, but those its own functions define."""
+    return _refs(section) - {fn.get("name") for fn in section.iter("function") if fn.get("name")}
+
+
 def longitudinal_inputs(top: ET.Element) -> set[str]:
     """Properties the lift, drag and pitching-moment functions read, through the
     functions they call (functions defined in ``<aerodynamics>`` resolved)."""

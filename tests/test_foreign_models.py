@@ -69,6 +69,31 @@ def test_evaluator_reads_properties_given_the_short_way():
     assert "propulsion/engine/prop-induced-velocity_fps" in {u.name for u in ModelEvaluator(STOCK / "p51d").unset}
 
 
+@pytest.mark.parametrize("folder, without", [(DEFAULT_AIRCRAFT, True), (STOCK / "B747", True),
+                                             (STOCK / "J3Cub", False),  # reads the propeller's induced velocity
+                                             (STOCK / "p51d", False),  # the same, through <p>
+                                             (STOCK / "OV10", False)])  # reads a throttle, which only an engine has
+def test_evaluation_copy_leaves_out_engines_and_contacts_only_if_the_aerodynamics_need_none(folder, without,
+                                                                                             monkeypatch):
+    import xml.etree.ElementTree as ET
+
+    import identify.evaluate as evaluate
+    ev = ModelEvaluator(folder)
+    top = ET.parse(ev._tmp / "eval" / "aircraft" / folder.name / f"{folder.name}.xml").getroot()
+    assert (not top.findall("propulsion/engine") and not top.findall("ground_reactions/contact")) == without
+    if without:  # the same coefficients, to the bit, as with them, on a flown log's states
+        cfg = FlightConfig(AircraftSource(str(folder), load_effects(None)), 0, "none",
+                           (("doublet", (("tail_s", 2.0),)),), ())
+        f = fly(StatusPoint(4000.0, 0.3, 0, True), "doublet", cfg)
+        cl = coefficients(f.log, f.meta)["CL"].to_numpy()
+        monkeypatch.setattr(evaluate, "WITHOUT_ENGINES", ())
+        full = ModelEvaluator(folder)
+        assert full.fdm.get_propulsion().get_num_engines() > 0
+        assert np.array_equal(ev.predict(f.log, cl).to_numpy(), full.predict(f.log, cl).to_numpy())
+        full.close()
+    ev.close()
+
+
 @pytest.fixture(scope="module")
 def stock_737_clean(tmp_path_factory):
     return run_matrix(tmp_path_factory.mktemp("s737"), CLEAN, str(STOCK / "737"))
