@@ -41,7 +41,8 @@ import pandas as pd
 
 from identify.kinematics import angle_rates
 from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
-                            control_schedules, copy_model, fcs_sections, load_fdm, longitudinal_inputs, reads)
+                            control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs, mentioned,
+                            reads)
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -107,6 +108,22 @@ def _redirect(aero: ET.Element) -> set[str]:
     return used
 
 
+def _own_properties(root: Path, name: str, removed: set[str]) -> set[str]:
+    """JSBSim's own properties of the model at ``root``, loaded as a probe.
+
+    The properties in ``removed`` (what the sections left out of the probe defined) are
+    made before the probe goes: where another part of the model reads one (a gas cell the
+    aerodynamics' surface area, an engine a removed system's starter voltage), JSBSim's
+    destructor reads it and, not finding it, aborts the process.
+    """
+    fdm = load_fdm(root, name)
+    own = set(catalog(fdm))
+    pm = fdm.get_property_manager()
+    for p in removed - own:
+        pm.get_node(p, True)
+    return own
+
+
 def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[str], set[str]]:
     """Write ``root/aircraft/<name>/``: the model without FCS and network I/O (and without
     engines and gear contacts if its aerodynamics need none, :data:`WITHOUT_ENGINES`).
@@ -129,14 +146,19 @@ def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[st
     dest, tree = copy_model(model_dir, root)
     top = tree.getroot()
     outputs: set[str] = set()
+    removed: set[str] = set()  # what the sections the probe lacks read, declare or define
+    values: dict[str, float] = {}  # what the removed sections declare, at its declared value
     for sec in fcs_sections(top, model_dir):
         outputs |= component_outputs(sec)
+        removed |= mentioned(sec)
+        values.update(declared(sec))
     for tag in FCS_SECTIONS:
         for el in top.findall(tag):
             top.remove(el)
     aero = top.find("aerodynamics")
     redirected = _redirect(aero)
     read = reads(aero)
+    removed |= outputs | mentioned(aero)
     kept = list(aero)
     for el in kept:  # a probe without aerodynamics lists JSBSim's own properties
         aero.remove(el)
@@ -146,16 +168,16 @@ def evaluation_copy(model_dir: Path, root: Path) -> tuple[Path, set[str], set[st
         for el in [el for el in sec if el.tag in ("engine", "contact")]:
             sec.remove(el)
     tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
-    builtin = set(catalog(load_fdm(root, name)))
+    builtin = _own_properties(root, name, removed)
     if strip and not read <= builtin | outputs | redirected:  # an engine's own FCS property (a throttle)
         for sec, children in whole.items():
             sec[:] = children
         tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
-        builtin = set(catalog(load_fdm(root, name)))
+        builtin = _own_properties(root, name, removed)
     aero.extend(kept)
     fcs = ET.SubElement(top, "flight_control", name="evaluation: positions set directly")
-    for prop in sorted((outputs | redirected) - builtin):
-        ET.SubElement(fcs, "property", value="0").text = prop
+    for prop in sorted((outputs | redirected | set(values)) - builtin):
+        ET.SubElement(fcs, "property", value=repr(values.get(prop, 0.0))).text = prop
     tree.write(dest / f"{name}.xml", xml_declaration=True, encoding="unicode")
     return dest, outputs, builtin, redirected
 

@@ -135,8 +135,8 @@ def captured_stdout(lines: list[str] | None = None):
 def load_fdm(root: Path, name: str):
     """A fresh ``FGFDMExec`` with ``root/aircraft/<name>`` loaded, quietly.
 
-    Engines come from the aircraft's own ``Engines/`` folder if it has one,
-    else from the jsbsim package; system files likewise.
+    Engine and system files come from the aircraft's folder (JSBSim looks in it and in its
+    ``Engines/`` and ``Systems/`` first), else from the jsbsim package's.
 
     Raises
     ------
@@ -148,17 +148,24 @@ def load_fdm(root: Path, name: str):
     folder = Path(root) / "aircraft" / name
     fdm = jsbsim.FGFDMExec(str(root))
     fdm.set_debug_level(0)
-    engines = folder / "Engines"
-    fdm.set_engine_path(str(engines) if engines.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "engine"))
-    systems = folder / "Systems"
-    fdm.set_systems_path(str(systems) if systems.is_dir() else os.path.join(jsbsim.get_default_root_dir(), "systems"))
+    fdm.set_engine_path(os.path.join(jsbsim.get_default_root_dir(), "engine"))
+    fdm.set_systems_path(os.path.join(jsbsim.get_default_root_dir(), "systems"))
     said: list[str] = []
     with captured_stdout(said):
         ok = fdm.load_model(name)
     if not ok:
+        _NEVER_FREED.append(fdm)
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(fdm))
         why = next((s for s in said if "rror" in s), "")
         raise ValueError(f"{folder}: JSBSim could not load the aircraft{': ' + why if why else ''}")
     return fdm
+
+
+#: Models JSBSim failed to load, kept for the life of the process (an extra reference that nothing
+#: releases, not even the interpreter's exit): a half-loaded model reads, as it is destroyed, a
+#: property the rest of its files would have defined, and the exception JSBSim then throws from its
+#: destructor aborts the process (the Short S23, whose engine files the jsbsim package lacks).
+_NEVER_FREED: list = []
 
 
 def copy_model(model_dir: Path, root: Path) -> tuple[Path, ET.ElementTree]:
@@ -346,9 +353,29 @@ def _refs(el: ET.Element) -> set[str]:
     return names
 
 
+def _defined(section: ET.Element) -> set[str]:
+    return {fn.get("name") for fn in section.iter("function") if fn.get("name")}
+
+
 def reads(section: ET.Element) -> set[str]:
     """Every property a section's functions and tables read, but those its own functions define."""
-    return _refs(section) - {fn.get("name") for fn in section.iter("function") if fn.get("name")}
+    return _refs(section) - _defined(section)
+
+
+def declared(section: ET.Element) -> dict[str, float]:
+    """The properties a section declares (``<property value="...">name</property>`` among its
+    children) and their values."""
+    out = {}
+    for el in section.findall("property"):
+        if el.text and el.text.strip():
+            with contextlib.suppress(ValueError):
+                out[el.text.strip().replace("[0]", "")] = float(el.get("value", 0.0))
+    return out
+
+
+def mentioned(section: ET.Element) -> set[str]:
+    """Every property a section reads, declares or defines as a function."""
+    return _refs(section) | _defined(section)
 
 
 def longitudinal_inputs(top: ET.Element) -> set[str]:

@@ -217,3 +217,38 @@ def test_logs_the_model_cannot_be_set_to_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "flap_deg" in err and "fcs/flap-pos-deg" in err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("name", ["weather-balloon", "Submarine_Scout", "Short_S23"])
+def test_models_whose_other_parts_read_what_the_evaluation_removes_load(name, tmp_path):
+    """The weather balloon's gas cell reads its aerodynamics' surface area, the Submarine Scout's
+    buoyancy a constant one of its systems declares, and the Short S23 takes a system file from
+    the jsbsim package: each evaluation copy loads and evaluates (JSBSim aborted the process on
+    the first two as the probe was destroyed, and could not load the third). A subprocess, so that
+    an abort fails the test and not the suite."""
+    import subprocess
+    import sys
+    code = (f"from identify.evaluate import ModelEvaluator; ev = ModelEvaluator({str(STOCK / name)!r}); "
+            "print(ev.fdm['aero/constants/volume-ft3_2_3'] if 'aero/constants/volume-ft3_2_3' in ev.names else '')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr[-800:]
+    if name == "Submarine_Scout":  # the declared value, not 0
+        assert float(done.stdout.split()[-1]) == 1698.5
+
+
+def test_a_model_jsbsim_cannot_load_is_one_line_not_an_abort(stock_737_clean, tmp_path):
+    """The Short S23 with one of its system files missing: JSBSim gives up half way, and destroying
+    that half-loaded model threw out of its destructor (the process aborted, exit -6)."""
+    import shutil
+    import subprocess
+    import sys
+    model = tmp_path / "Short_S23"
+    shutil.copytree(STOCK / "Short_S23", model)
+    xml = model / "Short_S23.xml"
+    xml.write_text(xml.read_text().replace('<system file="hydrodynamics"/>', '<system file="no-such-system"/>'))
+    done = subprocess.run([sys.executable, "-m", "campaign.cli", "diagnose", "--data", str(stock_737_clean),
+                           "--model", str(model), "--out", str(tmp_path / "d"), "--quiet"],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 2, done.stderr[-800:]
+    assert done.stderr.count("\n") == 1 and "could not load" in done.stderr, done.stderr
+    assert not (tmp_path / "d").exists()
