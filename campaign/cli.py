@@ -277,6 +277,14 @@ def _main(args) -> int:
     except UserError as exc:
         sys.stderr.write(f"campaign: error: {exc}\n")
         return 2
+    except RuntimeError as exc:
+        if type(exc).__module__ != "_jsbsim":
+            raise
+        # a model JSBSim loads but cannot run (it reads a property nothing defines, such as
+        # FlightGear's /sim/... tree)
+        folder = getattr(args, "model", None) or getattr(args, "aircraft", None) or "the aircraft"
+        sys.stderr.write(f"campaign: error: {folder}: JSBSim cannot run the model: {str(exc).strip()}\n")
+        return 2
     except BrokenPipeError:  # e.g. `campaign points | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

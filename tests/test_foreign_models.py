@@ -236,6 +236,20 @@ def test_models_whose_other_parts_read_what_the_evaluation_removes_load(name, tm
         assert float(done.stdout.split()[-1]) == 1698.5
 
 
+def test_a_model_jsbsim_cannot_run_is_one_line(stock_737_clean, tmp_path, capsys):
+    """The DR.I reads FlightGear's /sim tree, which JSBSim alone lacks: exit 2, one line naming the
+    folder, nothing written (it was a traceback)."""
+    from tests.support import one_line_error
+    one_line_error(capsys, ["diagnose", "--data", str(stock_737_clean), "--model", str(STOCK / "dr1"), "--out",
+                            str(tmp_path / "d"), "--quiet"], str(STOCK / "dr1"), "/sim/model/pushback")
+    assert not (tmp_path / "d").exists()
+    (tmp_path / "m.toml").write_text(matrix_toml([("up", 0, 0.3, 5000)], "m", SHORT))
+    one_line_error(capsys, ["run", "--aircraft", str(STOCK / "dr1"), "--effects", "none", "--matrix",
+                            str(tmp_path / "m.toml"), "--out", str(tmp_path / "r"), "--jobs", "1", "--quiet"],
+                   str(STOCK / "dr1"), "/sim/model/pushback")
+    assert not (tmp_path / "r").exists()
+
+
 def test_a_model_jsbsim_cannot_load_is_one_line_not_an_abort(stock_737_clean, tmp_path):
     """The Short S23 with one of its system files missing: JSBSim gives up half way, and destroying
     that half-loaded model threw out of its destructor (the process aborted, exit -6)."""
