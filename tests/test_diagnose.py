@@ -217,6 +217,31 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
         assert np.max(np.abs(again.alt_ft - f.log.alt_ft)) < 0.5, man
 
 
+def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
+    """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
+    a spike: each level within 5 %, and only the channels some log has."""
+    import pandas as pd
+
+    from identify.logs import Log
+    from identify.noise_floor import channel_noise
+    rng = np.random.default_rng(3)
+    sigma = {"alpha_deg": 0.05, "q_dps": 0.2, "tas_kt": 0.5, "thrust_lbf": 40.0}
+    logs = []
+    for k in range(9):
+        t = np.arange(0.0, 28.0, 0.02)
+        cols = {"t_s": t}
+        for j, (ch, s) in enumerate(sigma.items()):
+            if ch == "thrust_lbf" and k % 3 == 0:
+                continue
+            cols[ch] = 20 * s * np.sin(0.7 * t + j + k) + rng.normal(0.0, s, len(t))
+        cols["alpha_deg"][500] += 30.0
+        logs.append(Log(f"log{k}", pd.DataFrame(cols), {}))
+    found = channel_noise(logs)
+    assert set(found) == set(sigma)
+    for ch, s in sigma.items():
+        assert abs(found[ch] / s - 1.0) < 0.05, (ch, found[ch], s)
+
+
 def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path, small_matrix):
     """The noise floor computes several realizations at once (one spline for their pitch
     accelerations: the flight-test logs have no qdot); each must be the one drawn alone, bit
