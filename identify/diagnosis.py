@@ -46,11 +46,20 @@ GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
 def _hats(x: np.ndarray, knots: tuple[float, ...], out: np.ndarray | None = None) -> np.ndarray:
     """Piecewise-linear basis without the first knot's column (the reference): column j is 1 at
     knots[j + 1], 0 at the other knots (flat outside); written into ``out`` (n, len(knots) - 1) if given."""
-    out = np.empty((len(x), len(knots) - 1)) if out is None else out
-    for j in range(1, len(knots)):
-        y = np.zeros(len(knots))
-        y[j] = 1.0
-        out[:, j - 1] = np.interp(x, knots, y)
+    k = np.asarray(knots, dtype=float)
+    out = np.empty((len(x), len(k) - 1)) if out is None else out
+    out[:] = 0.0
+    # each sample in one interval [k[j], k[j + 1]]: np.interp's arithmetic for its two hats, slope
+    # times the distance from the left knot plus the left value, one pass instead of one per knot
+    j = np.clip(np.searchsorted(k, x, side="right") - 1, 0, len(k) - 2)
+    lo, width = k[j], k[j + 1] - k[j]
+    inside = (x >= k[0]) & (x < k[-1])
+    rows = np.flatnonzero(inside)
+    out[rows, j[rows]] = (1.0 / width[rows]) * (x[rows] - lo[rows])
+    rows = rows[j[rows] >= 1]
+    out[rows, j[rows] - 1] = (-1.0 / width[rows]) * (x[rows] - lo[rows]) + 1.0
+    out[x >= k[-1], -1] = 1.0
+    out[np.isnan(x)] = np.nan
     return out
 
 

@@ -217,6 +217,18 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
         assert np.max(np.abs(again.alt_ft - f.log.alt_ft)) < 0.5, man
 
 
+def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
+    """The smooth terms' piecewise-linear basis, built in one pass, against its definition (np.interp
+    of each knot's indicator) on uneven knots, at the knots, outside them and at NaN."""
+    from identify.diagnosis import _hats
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        knots = tuple(np.sort(rng.choice(np.linspace(-5.0, 5.0, 1001), rng.integers(3, 12), replace=False)))
+        x = np.r_[rng.uniform(knots[0] - 1.0, knots[-1] + 1.0, 3000), knots, np.nan]
+        want = np.column_stack([np.interp(x, knots, np.eye(len(knots))[j]) for j in range(1, len(knots))])
+        assert np.array_equal(_hats(x, knots), want, equal_nan=True)
+
+
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
     a spike: each level within 5 %, and only the channels some log has."""
