@@ -32,6 +32,7 @@ import array
 import hashlib
 import shutil
 import tempfile
+import weakref
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -243,6 +244,8 @@ class ModelEvaluator:
         self.residual_memo = None  # while a diagnosis runs, its residual data by correction (identify.diagnosis)
         name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
+        # removed by close(), or when the evaluator is collected or the process ends, whichever is first
+        self._remove = weakref.finalize(self, shutil.rmtree, self._tmp, ignore_errors=True)
         try:
             copy_model(self.model_dir, self._tmp / "full")
             model_fdm = load_fdm(self._tmp / "full", name)
@@ -401,7 +404,7 @@ class ModelEvaluator:
         return pd.DataFrame(self.evaluate_array(self.inputs(data, cl)), columns=["CL", "CD", "Cm"], index=data.index)
 
     def close(self) -> None:
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._remove()
 
 
 

@@ -266,3 +266,19 @@ def test_a_model_jsbsim_cannot_load_is_one_line_not_an_abort(stock_737_clean, tm
     assert done.returncode == 2, done.stderr[-800:]
     assert done.stderr.count("\n") == 1 and "could not load" in done.stderr, done.stderr
     assert not (tmp_path / "d").exists()
+
+
+def test_an_evaluator_leaves_no_temporary_copy_closed_or_not(tmp_path, monkeypatch):
+    """Its copies of the model go with close(), with the evaluator, or when a model it cannot run
+    fails half way (the DR.I: 170 folders had gathered in the temporary directory)."""
+    import gc
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    ev = ModelEvaluator(DEFAULT_AIRCRAFT)
+    assert len(list(tmp_path.glob("gearid-eval-*"))) == 1
+    del ev
+    gc.collect()
+    with pytest.raises(RuntimeError, match="/sim/model/pushback"):
+        ModelEvaluator(STOCK / "dr1")
+    gc.collect()
+    assert not list(tmp_path.glob("gearid-eval-*"))
