@@ -42,8 +42,8 @@ import pandas as pd
 
 from identify.kinematics import angle_rates
 from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
-                            control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs, mentioned,
-                            reads)
+                            control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs,
+                            mentioned, reads)
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.

@@ -154,18 +154,15 @@ def load_fdm(root: Path, name: str):
     with captured_stdout(said):
         ok = fdm.load_model(name)
     if not ok:
-        _NEVER_FREED.append(fdm)
+        # never destroyed (a reference nothing releases, not even the interpreter's exit): a half-loaded
+        # model reads, as it is destroyed, a property the rest of its files would have defined, and the
+        # exception JSBSim then throws from its destructor aborts the process (a Short S23 missing one of
+        # its system files)
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(fdm))
         why = next((s for s in said if "rror" in s), "")
         raise ValueError(f"{folder}: JSBSim could not load the aircraft{': ' + why if why else ''}")
     return fdm
 
-
-#: Models JSBSim failed to load, kept for the life of the process (an extra reference that nothing
-#: releases, not even the interpreter's exit): a half-loaded model reads, as it is destroyed, a
-#: property the rest of its files would have defined, and the exception JSBSim then throws from its
-#: destructor aborts the process (the Short S23, whose engine files the jsbsim package lacks).
-_NEVER_FREED: list = []
 
 
 def copy_model(model_dir: Path, root: Path) -> tuple[Path, ET.ElementTree]:
