@@ -12,6 +12,7 @@ import shutil
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 from campaign.errors import UserError
@@ -193,6 +194,7 @@ def prepare(source: AircraftSource, root: Path | None = None) -> Path:
 _TO_IN = {"IN": 1.0, "FT": 12.0, "M": 39.37007874015748, "CM": 0.3937007874015748, "MM": 0.03937007874015748}
 
 
+@lru_cache(maxsize=8)
 def thruster_z_in(source: AircraftSource) -> float | None:
     """Mean structural z of the thrusters in the aircraft XML [in], or None."""
     root = ET.parse(Path(source.folder) / f"{source.name}.xml").getroot()

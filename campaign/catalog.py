@@ -138,8 +138,9 @@ def catalog_names(fdm) -> PropertyNames:
     return PropertyNames(canonical(entry.split(" ")[0]) for entry in fdm.get_property_catalog())
 
 
-def check_catalog(fdm, n_engines: int, aircraft: str) -> dict[str, bool]:
-    """Check every property we need exists; report which optional ones do.
+def check_catalog(names: set[str], n_engines: int, aircraft: str) -> dict[str, bool]:
+    """Check every property we need exists in a model's catalog ``names``
+    (:func:`catalog_names`); report which optional ones do.
 
     Returns
     -------
@@ -151,7 +152,6 @@ def check_catalog(fdm, n_engines: int, aircraft: str) -> dict[str, bool]:
     UserError
         Naming the aircraft and the first missing property.
     """
-    names = catalog_names(fdm)
     required = [p for p, _ in STATE_CHANNELS.values()]
     required += list(FORCE_CHANNELS.values()) + list(HOLD_INPUTS.values()) + [FLAP_DEG]
     required += [THROTTLE_POS.format(i=i) for i in range(n_engines)]

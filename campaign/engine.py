@@ -100,12 +100,27 @@ def new_fdm(source: AircraftSource):
         raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}") from None
 
 
-def engine_count(fdm) -> int:
-    names = cat.catalog_names(fdm)
+def engine_count(names: set[str]) -> int:
+    """The number of engines in a model's property catalog ``names``."""
     n = 0
     while f"propulsion/engine[{n}]/thrust-lbs" in names or (n == 0 and "propulsion/engine/thrust-lbs" in names):
         n += 1
     return max(n, 1)
+
+
+@lru_cache(maxsize=8)
+def model_catalog(source: AircraftSource) -> tuple[cat.PropertyNames, int, dict[str, bool]]:
+    """The aircraft's property names, engine count and optional properties present
+    (:func:`campaign.catalog.check_catalog`): the same for every FDM loaded from ``source``.
+
+    Raises
+    ------
+    UserError
+        If a property the engine needs is missing.
+    """
+    names = cat.catalog_names(new_fdm(source))
+    n_eng = engine_count(names)
+    return names, n_eng, cat.check_catalog(names, n_eng, source.folder)
 
 
 @lru_cache(maxsize=8)
@@ -179,11 +194,9 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
         raise TrimError(why)
     flap_cmd = flap_schedule(source).command_for(point.flap_deg)
     reason = ""
+    names, n_eng, optional = model_catalog(source)
     for alpha_max in TRIM_ALPHA_MAX_DEG:
         fdm = new_fdm(source)
-        names = cat.catalog_names(fdm)
-        n_eng = engine_count(fdm)
-        optional = cat.check_catalog(fdm, n_eng, source.folder)
         try:
             return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max)
         except TrimError as exc:

@@ -114,7 +114,7 @@ def test_catalog_catches_a_misspelled_property(reference_config, monkeypatch):
     fdm = new_fdm(reference_config.aircraft)
     monkeypatch.setitem(cat.STATE_CHANNELS, "mach", ("velocities/mahc", 1.0))
     with pytest.raises(UserError, match="velocities/mahc"):
-        cat.check_catalog(fdm, 2, "737")
+        cat.check_catalog(cat.catalog_names(fdm), 2, "737")
 
 
 @pytest.mark.parametrize("post_s", [2.0, 15.0])
