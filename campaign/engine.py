@@ -395,7 +395,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     evaluate_inputs(prog.n_steps)
     elev_in, stab_in, gear_in, thr_in = inputs
-    gust_in = gusts.tolist() if gust_nodes else None
+    gust_n, gust_e, gust_d = gusts.T.tolist() if gust_nodes else (None, None, None)
+    set_gust_n, set_gust_e, set_gust_d = (n.set_double_value for n in gust_nodes) if gust_nodes else (None,) * 3
     sc = state_scale.tolist()
     i_mass = idx["mass_slug"]
     s_alt, s_theta, s_q, s_mass, s_gear = sc[i_alt], sc[i_theta], sc[i_q], sc[i_mass], sc[i_gear]
@@ -424,9 +425,10 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         if dh_gain:
             trim_cmd.set_double_value(tr.pitch_trim_norm + stab_in[k] / dh_gain)
         gear_cmd.set_double_value(gear_in[k])
-        if gust_in is not None:
-            for n, v in zip(gust_nodes, gust_in[k]):
-                n.set_double_value(v)
+        if gust_n is not None:
+            set_gust_n(gust_n[k])
+            set_gust_e(gust_e[k])
+            set_gust_d(gust_d[k])
         fdm.run()
         append_row(map(get, read_nodes))  # scaled, divided and averaged after the loop
         row = k * n_read
@@ -453,12 +455,13 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     cols = list(cat.STATE_CHANNELS) + list(cat.FORCE_CHANNELS) + ["stabilizer_deg", "flap_deg", "throttle_norm"]
     cols += list(cat.TRUTH_CHANNELS) if config.record_truth else []
     cols += list(cat.ANGULAR_ACCELERATIONS) if rot_nodes else []
-    df = pd.DataFrame(rows, columns=cols)
-    df["t_s"] = np.arange(end) * DT_S
-    df["psi_deg"] = np.degrees(np.unwrap(np.radians(df["psi_deg"])))  # no jump through north
-    truth = [c for c in df.columns if c.startswith("truth_")]
-    extra = df[list(cat.ANGULAR_ACCELERATIONS)] if rot_nodes else None
-    df = record(df[list(cat.LOG_COLUMNS) + truth], extra, profile, DT_S, np.random.default_rng(seed))
+    columns = dict(zip(cols, np.ascontiguousarray(rows.T)))
+    columns["t_s"] = np.arange(end) * DT_S
+    columns["psi_deg"] = np.degrees(np.unwrap(np.radians(columns["psi_deg"])))  # no jump through north
+    truth = [c for c in cols if c.startswith("truth_")]
+    extra = {c: columns[c] for c in cat.ANGULAR_ACCELERATIONS} if rot_nodes else None
+    df = record({c: columns[c] for c in [*cat.LOG_COLUMNS, *truth]}, extra, profile, DT_S,
+                np.random.default_rng(seed))
 
     meta = {
         "point": point.id,

@@ -202,20 +202,21 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
     return InstrumentProfile(name, rate, tuple(omit), sigma, tuple(sensors), str(doc.get("description", "")))
 
 
-def _at_position(df: pd.DataFrame, extra: pd.DataFrame, channel: str, r: tuple[float, float, float]) -> np.ndarray:
-    """What a sensor at ``r`` (body axes, from the CG) [ft] sees of a channel."""
+def _at_position(df, extra, channel: str, r: tuple[float, float, float]) -> np.ndarray:
+    """What a sensor at ``r`` (body axes, from the CG) [ft] sees of a channel (``df`` and ``extra``
+    as :func:`record` takes them)."""
     x, y, z = r
-    p, q, rr = (df[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
+    p, q, rr = (np.asarray(df[c]) * D2R for c in ("p_dps", "q_dps", "r_dps"))
     if channel in ("ax_fps2", "ay_fps2", "az_fps2"):
-        pd_, qd, rd = (extra[c].to_numpy() for c in ("pdot_rps2", "qdot_rps2", "rdot_rps2"))
+        pd_, qd, rd = (np.asarray(extra[c]) for c in ("pdot_rps2", "qdot_rps2", "rdot_rps2"))
         wxr = np.stack([q * z - rr * y, rr * x - p * z, p * y - q * x])  # omega x r
         om = np.stack([p, q, rr])
         centripetal = np.cross(om.T, wxr.T).T
         angular = np.stack([qd * z - rd * y, rd * x - pd_ * z, pd_ * y - qd * x])
         k = "xyz".index(channel[1])
-        return df[channel].to_numpy() + angular[k] + centripetal[k]
-    a, b = df["alpha_deg"].to_numpy() * D2R, df["beta_deg"].to_numpy() * D2R
-    v = df["tas_kt"].to_numpy() * FT_PER_KT
+        return np.asarray(df[channel]) + angular[k] + centripetal[k]
+    a, b = np.asarray(df["alpha_deg"]) * D2R, np.asarray(df["beta_deg"]) * D2R
+    v = np.asarray(df["tas_kt"]) * FT_PER_KT
     u_s = v * np.cos(a) * np.cos(b) + q * z - rr * y
     v_s = v * np.sin(b) + rr * x - p * z
     w_s = v * np.sin(a) * np.cos(b) + p * y - q * x
@@ -245,16 +246,15 @@ def _resample(x: np.ndarray, ratio: Fraction) -> np.ndarray:
     return resample_poly(x, ratio.numerator, ratio.denominator, axis=0, padtype="line")
 
 
-def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt_s: float,
-           rng: np.random.Generator) -> pd.DataFrame:
+def record(df, extra, profile: InstrumentProfile, dt_s: float, rng: np.random.Generator) -> pd.DataFrame:
     """What the instrumentation records of a flight.
 
     Parameters
     ----------
-    df : DataFrame
+    df : DataFrame or dict of str to ndarray
         The flight at JSBSim's rate: the log columns (true values), plus any test-only
         ``truth_`` columns (resampled, never corrupted).
-    extra : DataFrame
+    extra : DataFrame or dict of str to ndarray, or None
         True body angular accelerations ``pdot_rps2``, ``qdot_rps2``, ``rdot_rps2`` [rad/s^2]
         (for accelerometers off the CG).
     profile : InstrumentProfile
@@ -268,13 +268,13 @@ def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt
     DataFrame
         At the logging rate, the omitted channels dropped.
     """
-    out = {c: df[c].to_numpy() for c in df.columns}  # one frame is built at the end
+    out = {c: np.asarray(df[c]) for c in df}  # one frame is built at the end
     for c, s in profile.sensors:
         if c not in out:
             continue
         x = _at_position(df, extra, c, s.position_ft) if any(s.position_ft) else out[c].astype(float)
         if c == "tas_kt" and any(s.position_ft):  # the same pitot feeds the other airspeeds
-            ratio = x / df["tas_kt"].to_numpy()
+            ratio = x / np.asarray(df["tas_kt"])
             for other in ("ias_kt", "mach"):
                 out[other] = out[other] * ratio
         if s.lag_s:
@@ -284,7 +284,7 @@ def record(df: pd.DataFrame, extra: pd.DataFrame, profile: InstrumentProfile, dt
         out[c] = s.scale * x + s.bias
     if profile.rate_hz and abs(profile.rate_hz * dt_s - 1.0) > 1e-9:
         ratio = Fraction(profile.rate_hz * dt_s).limit_denominator(1000)
-        n = int(np.floor((len(df) - 1) * ratio)) + 1
+        n = int(np.floor((len(out["t_s"]) - 1) * ratio)) + 1
         t_new = np.arange(n) / profile.rate_hz
         t_old = out["t_s"].astype(float)
         filtered = [c for c in out if c not in SAMPLED and c != "t_s"]

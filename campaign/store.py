@@ -55,8 +55,8 @@ def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
     hardly repeat): a third smaller and three times faster to write than the defaults. The
     index is not written (logs are read back with a range index).
     """
-    table = pa.table({str(c): log[c].to_numpy() if log[c].dtype.kind == "f" else pa.array(log[c])
-                      for c in log.columns}, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
+    table = pa.table({str(c): s.to_numpy() if s.dtype.kind == "f" else pa.array(s) for c, s in log.items()},
+                     metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
     floats = {c for c, t in zip(table.column_names, table.schema.types) if pa.types.is_floating(t)}
     atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd", use_dictionary=False,
                                                         column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats}))
