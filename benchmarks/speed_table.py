@@ -71,6 +71,27 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
+def _wait_gone(pids: set[int], limit_s: float = 10.0) -> None:
+    """Wait until the processes ``pids`` have ended (a zombie counts as ended).
+
+    A command's worker server outlives its command by up to a second as it exits (its
+    interpreter's teardown): the next command timed must not share the cores with it.
+    """
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        alive = []
+        for p in pids:
+            try:
+                state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            except OSError:
+                continue
+            if state != "Z":
+                alive.append(p)
+        if not alive:
+            return
+        time.sleep(0.05)
+
+
 def timed(args: list[str]) -> tuple[float, float, float, str, float]:
     """Wall time [s], main process and largest worker peak RSS [MB], stdout of one command, and the
     largest worker's peak unique memory (USS) [MB]."""
@@ -96,6 +117,7 @@ def timed(args: list[str]) -> tuple[float, float, float, str, float]:
     out, err = proc.communicate()
     wall = time.perf_counter() - t0
     th.join()
+    _wait_gone(set(peaks) - {proc.pid})
     if proc.returncode != 0:
         raise SystemExit(f"campaign {' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
     main = peaks.pop(proc.pid, 0) / 1024
