@@ -22,19 +22,18 @@ import time
 T0 = time.perf_counter()
 
 import campaign.diagnose as diagnose  # noqa: E402
+from speed_table import _descendants  # noqa: E402  (this folder is the script's first path)
 
 
 def cpu_seconds(pid: int) -> float:
     """CPU-seconds (user + system) of ``pid`` and its live descendants."""
-    total, todo = 0.0, [pid]
-    while todo:
-        p = todo.pop()
+    total = 0.0
+    for p in [pid] + _descendants(pid):
         try:
             fields = open(f"/proc/{p}/stat").read().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-            todo += [int(k) for k in open(f"/proc/{p}/task/{p}/children").read().split()]
         except OSError:
-            pass
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     return total
 
 
