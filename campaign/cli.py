@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
 PRELOAD = {"run": ("campaign.runner", "identify.pipeline", "identify.plots", "campaign.replay",
                    "campaign.replay_report"),
            "identify": ("identify.pipeline", "identify.plots"), "replay": ("campaign.replay", "campaign.replay_report"),
-           "plots": ("campaign.replay_report",), "diagnose": ("campaign.diagnose", "identify.diagnosis_plots")}
+           "plots": ("campaign.replay_report",), "diagnose": ("campaign.diagnose", "diagnose.plots")}
 
 
 def _main(args) -> int:

@@ -20,7 +20,7 @@ from campaign.aircraft import AircraftSource, Effects, folder_files
 from campaign.engine import FlightConfig
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
-from campaign.runner import failed_record
+from campaign.store import failed_record
 
 
 @dataclass(frozen=True)

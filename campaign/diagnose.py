@@ -1,10 +1,9 @@
 """``campaign diagnose``: show the discrepancy, name the cause, extend the model, measure the gain.
 
-Identification (:mod:`identify.diagnosis`) works on the training logs; this
-module splits the data, writes the extension into a copy of the model, and
-measures the gain on held-out manoeuvres: coefficient residuals (JSBSim
-evaluating both aircraft at the measured states) and replays (both aircraft
-flown from the same trimmed start with the recorded inputs).
+The diagnosis (:mod:`diagnose`) works on the training logs; this module reads the data,
+splits it, runs the diagnosis, writes the extension into a copy of the model, flies the
+held-out manoeuvres on both aircraft (same trimmed start, recorded inputs) and hands them to
+:mod:`diagnose.gain`, and draws the plots on the workers.
 """
 from __future__ import annotations
 
@@ -20,16 +19,18 @@ from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effect
 from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
-from identify.diagnosis import COEFFS, MIN_STD, Diagnosis, diagnose
-from identify.residuals import residual_data
-from identify.diagnosis_export import write_extension
-from identify.evaluate import ModelEvaluator
+from diagnose.diagnosis import STAGES, diagnose
+from diagnose.evaluate import ModelEvaluator
+from diagnose.extension import write_extension
+from diagnose.gain import exercised, largest, measure_gain
+from diagnose.report import document, summary
+from diagnose.residuals import residual_data
+from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from identify.workers import Ahead, pmap, results, submit
 from maneuvers.library import Recorded
 
-REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
 G0 = 32.174049
 
 
@@ -88,19 +89,6 @@ def replay(log: Log, source: AircraftSource) -> pd.DataFrame | None:
         return None
 
 
-def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[str, float]:
-    if flown is None:
-        return {ch: float("nan") for ch in REPLAY_CHANNELS}
-    n = min(len(measured), len(flown))
-    return {ch: float(np.max(np.abs(flown[ch].to_numpy()[:n] - measured[ch].to_numpy()[:n])))
-            for ch in REPLAY_CHANNELS}
-
-
-#: The stages the progress bar counts, in order.
-STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
-          "verdict", "extension", "replays", "plots")
-
-
 #: Which held-out logs get plots of their own: ``key`` those where the first aerodynamic cause acts
 #: (without one, those with the largest residual of each coefficient), ``all`` every one.
 PLOTS = ("key", "all", "none")
@@ -156,19 +144,8 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     finally:
         ahead.stop()
     out.mkdir(parents=True, exist_ok=True)
-    doc: dict = {"discrepancy": diag.discrepancy,
-                 "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
-                 "causes": [c.to_dict() for c in diag.causes],
-                 "rejected": [c.to_dict() for c in diag.rejected],
-                 "largest_rejected": None if diag.discrepancy else diag.largest_rejected(),
-                 "extension": None, "extension_xml": None, "gain": {},
-                 "alternatives": {c: r.alternatives for c, r in diag.results.items()},
-                 "noise_estimated": diag.noise,
-                 "data_compatibility": diag.compat.to_dict() if diag.compat else None,
-                 "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
-                 "data": {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
-                          "held_out": [lg.path for lg in held]},
-                 "model": str(model), "plotted_logs": []}
+    doc = document(diag, {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
+                          "held_out": [lg.path for lg in held]}, str(model))
     before = diag.held
     raw_held, held = held, diag.held_logs  # as corrected for instrument errors
     extended_eval = None
@@ -179,39 +156,15 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         doc["extension"], doc["extension_xml"] = str(folder), str(xml)
         extended_eval = ModelEvaluator(folder, jobs=jobs)
         after = residual_data(held, extended_eval)
-        rms = {c: {"before": float(np.sqrt(np.mean(before[f"r_{c}"] ** 2))),
-                   "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2)))} for c in COEFFS}
-        for v in rms.values():
-            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
-        first = diag.aero_causes[0]
-        top = first.coefficient
-        acting = _exercised(before, first.variables)
-        b, a = before[before.log.isin(acting)], after[after.log.isin(acting)]
-        rms_acting = {c: {"before": float(np.sqrt(np.mean(b[f"r_{c}"] ** 2))),
-                          "after": float(np.sqrt(np.mean(a[f"r_{c}"] ** 2)))} for c in COEFFS}
-        for v in rms_acting.values():
-            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
         src_ext = AircraftSource(str(folder), load_effects(None))
         stage("replays")
         early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
         calls = [(i, src) for i in range(len(held)) for src in (src_model, src_ext) if src is src_ext or i not in early]
         flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
-        replays = {}
-        flown = {}
-        for i, lg in enumerate(held):
-            fb, fa = early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext]
-            flown[lg.path] = (fb, fa)
-            eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
-            replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}
-        worst = {ch: {"before": max(r[ch]["before"] for r in replays.values()),
-                      "after": max(r[ch]["after"] for r in replays.values())} for ch in REPLAY_CHANNELS}
-        for v in worst.values():
-            v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
-        doc["gain"] = {"cause": first.label, "held_out_logs": [Path(lg.path).name for lg in held],
-                       "cause_exercised_in": [Path(held[i].path).name for i in acting],
-                       "residual_gain": rms_acting[top]["gain"], "coefficient": top,
-                       "residual_rms": rms_acting, "residual_rms_all_held_out": rms,
-                       "replay_max_error": worst, "replay_per_log": replays}
+        flown = {lg.path: (early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext])
+                 for i, lg in enumerate(held)}
+        doc["gain"] = measure_gain(diag, held, before, after, flown)
+        acting = exercised(before, diag.aero_causes[0].variables)
         if plots != "none":
             stage("plots")
             doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs,
@@ -219,10 +172,10 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     elif plots != "none":
         stage("plots")
         doc["plotted_logs"] = _plots(diag, held, before, None, {}, out, jobs,
-                                     None if plots == "all" else _largest(before))
+                                     None if plots == "all" else largest(before))
     bar.update(len(STAGES) - bar.n)
     bar.close()
-    doc["summary"] = _report(diag, doc)
+    doc["summary"] = summary(diag, doc)
     (out / "diagnosis.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     (out / "diagnosis.txt").write_text(doc["summary"])
     evaluator.close()
@@ -231,22 +184,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     return doc
 
 
-def _exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
-    """Held-out logs in which any of the cause's variables varies."""
-    out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= MIN_STD[v] for v in variables)]
-    return out or sorted(int(i) for i in frame.log.unique())
-
-
-def _largest(frame: pd.DataFrame) -> list[int]:
-    """The held-out logs with the largest residual RMS of each coefficient."""
-    rms = frame.groupby("log")[[f"r_{c}" for c in COEFFS]].agg(lambda r: float(np.sqrt(np.mean(r ** 2))))
-    return sorted({int(rms[col].idxmax()) for col in rms.columns})
-
-
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
            flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None) -> list[str]:
-    """The overview, and the residual history and response of the held-out logs ``which`` (None: all);
-    returns the names of the logs plotted."""
+    """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
+    drawn on the workers; returns the names of the logs plotted."""
+    from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
@@ -254,64 +196,9 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
               *flown.get(held[i].path, (None, None)), out / "plots") for i in which]
     if jobs > 1:  # the overview too: the workers have matplotlib loaded, and this process waits anyway
         slim = replace(diag, held=None, logs=[], held_logs=[])  # what the overview draws, without the logs
-        list(results(submit(_overview, [(slim, out / "plots")], jobs) + submit(_log_plots, calls, jobs)))
+        list(results(submit(save_overview, [(slim, out / "plots")], jobs) + submit(save_log_plots, calls, jobs)))
     else:
-        _overview(diag, out / "plots")
+        save_overview(diag, out / "plots")
         for args in calls:
-            _log_plots(*args)
+            save_log_plots(*args)
     return [Path(held[i].path).name for i in which]
-
-
-def _overview(diag: Diagnosis, folder: Path) -> None:
-    """The residuals of each coefficient against its first cause's variable."""
-    import matplotlib.pyplot as plt
-
-    from identify.diagnosis_plots import plot_residuals
-    fig = plot_residuals(diag)
-    fig.savefig(folder / "residuals_vs_cause.png", dpi=100)
-    plt.close(fig)
-
-
-def _log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
-               flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path) -> None:
-    """A held-out log's residual history and, if it was replayed, its response."""
-    from identify.diagnosis_plots import (HISTORY_SIZE, RESPONSE_SIZE, history_axes, plot_residual_history,
-                                          plot_response, response_axes)
-    from identify.figures import emptied_axes
-    fig = plot_residual_history(before, after, f"held out: {name}",
-                                axes=emptied_axes("residual_history", HISTORY_SIZE, history_axes))
-    fig.savefig(folder / f"residuals_{name}.png", dpi=90)
-    if flown_before is not None:
-        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs",
-                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes))
-        fig.savefig(folder / f"response_{name}.png", dpi=90)
-
-
-def _names(files: list[str], n: int = 3) -> str:
-    return ", ".join(files[:n]) + (f" and {len(files) - n} more" if len(files) > n else "")
-
-
-def _report(diag: Diagnosis, doc: dict) -> str:
-    lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
-             f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
-    lines.append(diag.summary())
-    if diag.compat is not None:
-        lines += ["", diag.compat.summary()]
-    g = doc.get("gain")
-    if g:
-        lines += ["", f"Gain on {len(g['held_out_logs'])} held-out manoeuvres ({_names(g['held_out_logs'])}).",
-                  f"Residual RMS where the first aerodynamic cause ({g['cause']}) acts, {len(g['cause_exercised_in'])} of them "
-                  f"({_names(g['cause_exercised_in'])}):"]
-        for c, v in g["residual_rms"].items():
-            w = g["residual_rms_all_held_out"][c]
-            lines.append(f"  {c}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f}); over every held-out "
-                         f"manoeuvre {w['before']:.3g} -> {w['after']:.3g} (x{w['gain']:.1f})")
-        lines.append("Replays of the held-out manoeuvres (same start, same inputs), worst error:")
-        for ch, v in g["replay_max_error"].items():
-            lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
-        lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
-    n = len(doc["plotted_logs"])
-    if n and n < len(doc["data"]["held_out"]):
-        lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "
-                     f"({'where the first cause acts' if g else 'with the largest residuals'}; --plots all: every one)")
-    return "\n".join(lines) + "\n"

@@ -18,7 +18,8 @@ from tqdm import tqdm
 from campaign.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.matrix import Matrix, StatusPoint
-from campaign.store import MANIFEST, clean_temporaries, log_name, read_manifest, readable_log, write_json, write_log
+from campaign.store import (MANIFEST, clean_temporaries, failed_record, log_name, read_manifest, readable_log,
+                            write_json, write_log)
 
 
 def _versions() -> dict[str, str]:
@@ -116,15 +117,6 @@ def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer: byte
     suspect if the worker dies). ``flyer`` comes cloudpickled (a caller's local function may fly)."""
     (marks / point.id).touch()
     return fly_point(point, config, out, True, cloudpickle.loads(flyer) if flyer else None)
-
-
-def failed_record(point: StatusPoint, reason: str, transient: bool = False) -> dict:
-    """The manifest record of a point that did not fly; a ``transient`` failure (not the aircraft's
-    doing, e.g. a worker's death) is flown again on resume."""
-    rec = {"id": point.id, "status": "failed", "reason": reason, "files": [], "seeds": {}, "excursions": {}}
-    if transient:
-        rec["transient"] = True
-    return rec
 
 
 def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int,

@@ -135,3 +135,12 @@ def holding(folder: Path, command: str):
         raise
     finally:
         os.close(fd)
+
+
+def failed_record(point, reason: str, transient: bool = False) -> dict:
+    """The manifest record of a status point that did not fly; a ``transient`` failure (not the aircraft's
+    doing, e.g. a worker's death) is flown again on resume."""
+    rec = {"id": point.id, "status": "failed", "reason": reason, "files": [], "seeds": {}, "excursions": {}}
+    if transient:
+        rec["transient"] = True
+    return rec

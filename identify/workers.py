@@ -9,7 +9,7 @@ milliseconds, sharing the imported code's pages. Where ``forkserver`` does not e
 (Windows) the workers are spawned.
 
 The pool is kept for the life of the process, so a worker's caches (its JSBSim
-evaluator, :func:`identify.evaluate.evaluator_for`) serve the next call; it is made
+evaluator, :func:`diagnose.evaluate.evaluator_for`) serve the next call; it is made
 again if a worker died. Each worker does its linear algebra on one BLAS thread: the
 matrices are small and the cores are the workers' (:func:`one_blas_thread`).
 """

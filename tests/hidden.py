@@ -156,8 +156,8 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
 
     from campaign.aircraft import DEFAULT_AIRCRAFT
     from campaign.diagnose import load_data, run_diagnosis, split
-    from identify.diagnosis import residual_data
-    from identify.evaluate import ModelEvaluator
+    from diagnose.residuals import residual_data
+    from diagnose.evaluate import ModelEvaluator
     from identify.export import merge_into_aircraft
     workdir = Path(workdir)
     data, fx = fly_data(workdir, hidden, seed, jobs, instruments)

@@ -191,9 +191,11 @@ def test_stock_aircraft_fly_at_their_own_flap_angles(tmp_path, capsys):
     assert np.allclose(log.flap_deg, 5.0, atol=1e-9)
 
 
-def test_identify_is_this_projects_package():
+def test_identify_and_diagnose_are_this_projects_packages():
+    import diagnose
     import identify
-    assert Path(identify.__file__).resolve().parent == Path(__file__).resolve().parents[1] / "identify"
+    for pkg in (identify, diagnose):
+        assert Path(pkg.__file__).resolve().parent == Path(__file__).resolve().parents[1] / pkg.__name__
 
 
 def test_corrupt_log_is_an_error_for_identify_and_is_reflown_on_resume(tmp_path, capsys, small_matrix):

@@ -78,9 +78,10 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     """Seed 42 is a null whose clustered standard error of the alpha scale came out 4x small (z 4.5):
     the kinematics alone apply nothing below 5 standard errors, and the residuals refuse it."""
     from campaign.diagnose import split
-    from identify.diagnosis import corrected_residuals, diagnose
-    from identify.evaluate import ModelEvaluator
-    from identify.residuals import residual_data
+    from diagnose.corrected import Corrected
+    from diagnose.diagnosis import diagnose
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.residuals import residual_data
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=42)
     res = estimate(load_data(data))
     assert not res.applied, res.summary()
@@ -88,17 +89,20 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     evaluator = ModelEvaluator(DEFAULT_AIRCRAFT)
     diag = diagnose(train, evaluator, held)
     assert not diag.compat.applied and not diag.discrepancy, (diag.compat.summary(), diag.summary())
-    assert evaluator.residual_memo is None  # the diagnosis's residual data are not kept beyond it
     # within a diagnosis the residuals of a correction are computed once; a frame with a delay's
     # signature serves the request without it, as a fresh computation gives it
-    evaluator.residual_memo = {}
-    timed = corrected_residuals(res, train, evaluator, delays=("alpha_deg",))
-    served = corrected_residuals(res, train, evaluator)
-    assert len(evaluator.residual_memo) == 1 and "alphadelay_CL" in timed and "alphadelay_CL" not in served
+    corrected = Corrected(train, held, evaluator)
+    timed = corrected.residuals(res, delays=("alpha_deg",))
+    served = corrected.residuals(res)
+    assert len(corrected._memo) == 1 and "alphadelay_CL" in timed and "alphadelay_CL" not in served
+    assert [lg.meta["corrections"] for lg in corrected.logs(res)] == [res.correct(lg).meta["corrections"]
+                                                                     for lg in train]
     fresh = residual_data([res.correct(lg) for lg in train], ModelEvaluator(DEFAULT_AIRCRAFT))
     pd.testing.assert_frame_equal(served, fresh, check_exact=False, rtol=1e-10, atol=1e-12)
     timed.loc[:, "r_CL"] = 0.0  # a caller's change does not reach the memo
-    assert np.allclose(corrected_residuals(res, train, evaluator)["r_CL"], fresh["r_CL"], rtol=1e-10, atol=1e-12)
+    assert np.allclose(corrected.residuals(res)["r_CL"], fresh["r_CL"], rtol=1e-10, atol=1e-12)
+    corrected.forget()
+    assert not corrected._memo
     log = load_data(data)[0]
     corrected = res.correct(log)
     # the boom's documented position is still taken out: alpha at the CG

@@ -220,13 +220,13 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
 def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
     """The smooth terms' piecewise-linear basis, built in one pass, against its definition (np.interp
     of each knot's indicator) on uneven knots, at the knots, outside them and at NaN."""
-    from identify.diagnosis import _hats
+    from diagnose.terms import hats
     rng = np.random.default_rng(1)
     for _ in range(50):
         knots = tuple(np.sort(rng.choice(np.linspace(-5.0, 5.0, 1001), rng.integers(3, 12), replace=False)))
         x = np.r_[rng.uniform(knots[0] - 1.0, knots[-1] + 1.0, 3000), knots, np.nan]
         want = np.column_stack([np.interp(x, knots, np.eye(len(knots))[j]) for j in range(1, len(knots))])
-        assert np.array_equal(_hats(x, knots), want, equal_nan=True)
+        assert np.array_equal(hats(x, knots), want, equal_nan=True)
 
 
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
@@ -235,7 +235,7 @@ def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     import pandas as pd
 
     from identify.logs import Log
-    from identify.noise_floor import channel_noise
+    from diagnose.noise_floor import channel_noise
     rng = np.random.default_rng(3)
     sigma = {"alpha_deg": 0.05, "q_dps": 0.2, "tas_kt": 0.5, "thrust_lbf": 40.0}
     logs = []
@@ -258,9 +258,9 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
     """The noise floor computes several realizations at once (one spline for their pitch
     accelerations: the flight-test logs have no qdot); each must be the one drawn alone, bit
     for bit, and fresh noise each."""
-    from identify.evaluate import ModelEvaluator
+    from diagnose.evaluate import ModelEvaluator
     from identify.logs import read_campaign
-    from identify.noise_floor import NoiseFloor, channel_noise
+    from diagnose.noise_floor import NoiseFloor, channel_noise
     from campaign.aircraft import DEFAULT_AIRCRAFT
     assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
                  "--no-identify", "--quiet"]) == 0

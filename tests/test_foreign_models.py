@@ -19,9 +19,9 @@ from campaign.diagnose import load_data, split
 from campaign.engine import FlightConfig, fly
 from campaign.matrix import StatusPoint
 from identify.coefficients import coefficients
-from identify.diagnosis import diagnose
-from identify.residuals import residual_data
-from identify.evaluate import ModelEvaluator, moment_transfer
+from diagnose.diagnosis import diagnose
+from diagnose.residuals import residual_data
+from diagnose.evaluate import ModelEvaluator, moment_transfer
 from tests.hidden import CLEAN, OWN_TERMS
 from tests.support import matrix_toml, pairs, run_matrix, scaled_copy
 
@@ -77,7 +77,7 @@ def test_evaluation_copy_leaves_out_engines_and_contacts_only_if_the_aerodynamic
                                                                                              monkeypatch):
     import xml.etree.ElementTree as ET
 
-    import identify.evaluate as evaluate
+    import diagnose.evaluate as evaluate
     ev = ModelEvaluator(folder)
     top = ET.parse(ev._tmp / "eval" / "aircraft" / folder.name / f"{folder.name}.xml").getroot()
     assert (not top.findall("propulsion/engine") and not top.findall("ground_reactions/contact")) == without
@@ -228,7 +228,7 @@ def test_models_whose_other_parts_read_what_the_evaluation_removes_load(name, tm
     an abort fails the test and not the suite."""
     import subprocess
     import sys
-    code = (f"from identify.evaluate import ModelEvaluator; ev = ModelEvaluator({str(STOCK / name)!r}); "
+    code = (f"from diagnose.evaluate import ModelEvaluator; ev = ModelEvaluator({str(STOCK / name)!r}); "
             "print(ev.fdm['aero/constants/volume-ft3_2_3'] if 'aero/constants/volume-ft3_2_3' in ev.names else '')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 0, done.stderr[-800:]

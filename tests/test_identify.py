@@ -218,9 +218,9 @@ def test_csv_logs_with_sidecar_and_their_errors(reference_gear_down, tmp_path):
 
 
 def test_identify_never_imports_the_flying_code():
-    code = ("import sys, identify.pipeline, identify.plots, identify.diagnosis, identify.diagnosis_export, "
-            "identify.model, identify.kinematics, identify.residuals, identify.noise_floor, "
-            "identify.diagnosis_plots, identify.evaluate; "
+    code = ("import sys, identify.pipeline, identify.plots, diagnose.diagnosis, diagnose.extension, "
+            "identify.model, identify.kinematics, diagnose.residuals, diagnose.noise_floor, "
+            "diagnose.plots, diagnose.evaluate; "
             "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
             "assert not bad, bad")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -131,7 +131,7 @@ def test_derived_air_data_and_qdot_match_the_logged_ones(tmp_path):
     derivative of the sampled q is the better 25 Hz pitch acceleration.)"""
     from identify.kinematics import pitch_acceleration
     from identify.models import lowpass
-    from identify.residuals import kept
+    from diagnose.residuals import kept
     data = run_matrix(tmp_path / "c", matrix_toml([("up", 0, 0.5, 10000)], "one",
                                                   "[maneuvers.doublet]\ntail_s = 4.0\n"), str(DEFAULT_AIRCRAFT))
     lg = read_campaign(data)[0]

@@ -19,7 +19,7 @@ from campaign.matrix import StatusPoint
 from campaign.turbulence import dryden_gusts, scales
 from identify.coefficients import coefficients
 from identify.models import lowpass
-from identify.residuals import kept
+from diagnose.residuals import kept
 from tests.support import one_line_error
 
 SHORT = (("doublet", (("tail_s", 2.0),)), ("gear_extension", (("post_s", 5.0),)))

@@ -1,7 +1,7 @@
 """Residuals: the measured coefficients minus the model's, at the measured states.
 
 The model is evaluated by JSBSim at the raw measured states
-(:mod:`identify.evaluate`), so a model checked against its own noise-free logs
+(:mod:`diagnose.evaluate`), so a model checked against its own noise-free logs
 leaves nothing. The measured pitching moment is moved to the model's
 aerodynamic reference point (AERORP, where JSBSim applies the aero forces) with
 the full x and z offset, so a lift or drag discrepancy does not leak into Cm.
@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from identify.coefficients import D2R, FT_PER_KT, coefficient_arrays, thrust_share
-from identify.evaluate import evaluator_for, in_chunks, moment_transfer
+from diagnose.evaluate import evaluator_for, in_chunks, moment_transfer
 from identify.kinematics import angle_rates
 from identify.logs import Log
 from identify.models import EDGE_S, lowpass
@@ -158,7 +158,7 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
     """Measured minus model coefficients at the measured states, for every log.
 
     The logs are spread over ``evaluator.jobs`` worker processes, each with its own
-    JSBSim evaluation of the same model (:func:`identify.evaluate.evaluator_for`);
+    JSBSim evaluation of the same model (:func:`diagnose.evaluate.evaluator_for`);
     see :func:`_residual_data` for the rest. With ``wait=False`` a callable that returns
     the frame comes back instead: the workers start at once and the caller goes on meanwhile
     (with one job the frame is computed when it is called). ``correct`` (a log -> log

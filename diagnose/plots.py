@@ -4,13 +4,17 @@ Fixed margins rather than a layout engine: the diagnosis draws a hundred of thes
 constrained layout took half of their time."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from identify.diagnosis import COEFFS, Diagnosis  # noqa: E402
+from diagnose.residuals import COEFFS  # noqa: E402
+from diagnose.result import Diagnosis  # noqa: E402
+from identify.figures import emptied_axes  # noqa: E402
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
 RESPONSE_CHANNELS = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
@@ -88,3 +92,24 @@ def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, t
     axes[-1].set_xlabel("time [s]")
     axes[0].figure.suptitle(title)
     return axes[0].figure
+
+
+def save_overview(diag: Diagnosis, folder: Path) -> None:
+    """``residuals_vs_cause.png`` in ``folder``: the residuals of each coefficient against its first
+    cause's variable."""
+    fig = plot_residuals(diag)
+    fig.savefig(folder / "residuals_vs_cause.png", dpi=100)
+    plt.close(fig)
+
+
+def save_log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
+                   flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path) -> None:
+    """A held-out log's residual history (``residuals_<name>.png``) and, if it was replayed, its
+    response (``response_<name>.png``), in ``folder``; one figure of each kind is reused per process."""
+    fig = plot_residual_history(before, after, f"held out: {name}",
+                                axes=emptied_axes("residual_history", HISTORY_SIZE, history_axes))
+    fig.savefig(folder / f"residuals_{name}.png", dpi=90)
+    if flown_before is not None:
+        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs",
+                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes))
+        fig.savefig(folder / f"response_{name}.png", dpi=90)

@@ -21,12 +21,12 @@ import numpy as np
 import pandas as pd
 
 from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
-from identify.evaluate import evaluator_for, in_chunks
+from diagnose.evaluate import evaluator_for, in_chunks
 from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.lsq import solve_normal
 from identify.models import lowpass
-from identify.residuals import (COEFFS, FILTERED, kept, measured_about, measured_arrays, signature_arrays,
+from diagnose.residuals import (COEFFS, FILTERED, kept, measured_about, measured_arrays, signature_arrays,
                                 variable_arrays)
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
@@ -118,7 +118,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
 def design_matrix(terms, frame: pd.DataFrame) -> np.ndarray:
     """``[1, each term's design]`` (n, 1 + widths), built in place column block by column block
     (no per-term copies to stack: the noise floor builds it for every realization). ``terms`` are
-    :class:`identify.diagnosis.Term` objects (anything with ``width`` and ``design(frame, out)``)."""
+    :class:`diagnose.terms.Term` objects (anything with ``width`` and ``design(frame, out)``)."""
     x = np.empty((len(frame), 1 + sum(t.width for t in terms)))
     x[:, 0] = 1.0
     j = 1
@@ -136,7 +136,7 @@ def _remote_sensitivity(logs: list[Log], model_dir, noise: dict[str, float]) -> 
 def model_sensitivities(logs: list[Log], evaluator, noise: dict[str, float], jobs: int = 1):
     """:func:`model_sensitivity` of every log (channels without noise left out), as a callable
     that returns them: with ``jobs`` > 1 the workers start at once and the caller goes on
-    meanwhile (:func:`identify.evaluate.in_chunks`)."""
+    meanwhile (:func:`diagnose.evaluate.in_chunks`)."""
     noise = {ch: s for ch, s in noise.items() if s > 0}
     if jobs > 1:
         return in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, noise, wait=False)
@@ -210,7 +210,7 @@ class NoiseFloor:
     noise : dict
         Channel -> noise level (:func:`channel_noise`).
     step : int or None
-        Thinning of the residual data (None: :func:`identify.residuals.kept`'s default).
+        Thinning of the residual data (None: :func:`diagnose.residuals.kept`'s default).
     realizations : int
     seed : int
     uncertain : (list of (channel, error), covariance), optional
@@ -347,7 +347,7 @@ class NoiseFloor:
         alone, or (``instruments``) of the correction's remaining instrument errors alone
         (drawn at random; :meth:`reach` asks instead what they can make of a given shape).
 
-        ``terms`` are :class:`identify.diagnosis.Term` objects (anything with ``variables`` and ``design``).
+        ``terms`` are :class:`diagnose.terms.Term` objects (anything with ``variables`` and ``design``).
         The size is the range (max - min) of the fitted contribution over the data.
         """
         columns = {v for _, terms in groups for t in terms for v in t.variables}

@@ -232,7 +232,7 @@ class ModelEvaluator:
     frame_s : float
         JSBSim's frame [s]: α̇, β̇ and CL² are taken this long before each sample.
     jobs : int
-        Worker processes :func:`identify.residuals.residual_data` spreads the logs over
+        Worker processes :func:`diagnose.residuals.residual_data` spreads the logs over
         (each evaluates the same model with JSBSim of its own).
     aerorp_in, cg_in : tuple
         The model's AERORP and CG, structural x, y, z [in].
@@ -241,7 +241,6 @@ class ModelEvaluator:
     def __init__(self, model_dir: Path, jobs: int = 1) -> None:
         self.model_dir = Path(model_dir)
         self.jobs = jobs
-        self.residual_memo = None  # while a diagnosis runs, its residual data by correction (identify.diagnosis)
         name = self.model_dir.name
         self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
         # removed by close(), or when the evaluator is collected or the process ends, whichever is first

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.diagnosis import RATES, VARIABLES, Diagnosis, Term, sensor_of
+from diagnose.residuals import VARIABLES
+from diagnose.result import Diagnosis
+from diagnose.terms import RATES, Term, sensor_of
 from identify.export import AXIS
 
 #: Points per table on a variable exported through another property (CL through CL^2).
@@ -41,7 +43,7 @@ def _table_2d(parent: ET.Element, row: str, col: str, rows, cols, values) -> Non
 
 
 def _rate(parent: ET.Element, variable: str, center: float) -> None:
-    """``cbar/2V * rate - center`` of a normalised rate (:data:`identify.diagnosis.RATES`)."""
+    """``cbar/2V * rate - center`` of a normalised rate (:data:`diagnose.terms.RATES`)."""
     d = ET.SubElement(parent, "difference")
     p = ET.SubElement(d, "product")
     ET.SubElement(p, "property").text = "aero/ci2vel"

@@ -1,0 +1,319 @@
+"""Instrument errors against aerodynamic causes: the corrections the kinematics leave undecided
+chosen by the aerodynamic residuals, the vanes' delays timed by them, a loosely measured air-data
+error refined by them, and the corrections made named as sensor causes with their verdict."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from diagnose.causes import Cause
+from diagnose.corrected import Corrected
+from diagnose.noise_floor import design_matrix
+from diagnose.residuals import COEFFS
+from diagnose.stepwise import fit_terms, stepwise
+from diagnose.terms import Term, candidate_terms
+from diagnose.verdict import MIN_HOLDOUT_GAIN
+from identify.compat import APPLY_Z, CompatResult
+#: A corrected instrument error is named when it moves a coefficient at least this much.
+SENSOR_EFFECT = 1e-4
+#: ... and its estimate is this many standard errors from 0 (the kinematics alone say so), or the
+#: aerodynamic residuals chose it (:func:`arbitrate`: two independent lines of evidence).
+SENSOR_Z = APPLY_Z
+#: A correction the kinematics leave undecided is applied if the residuals get this much smaller
+#: (RMS ratio) with it, on the fitted and on the held-out logs.
+CORROBORATED_GAIN = 1.1
+
+def arbitrate(compat: CompatResult, data: Corrected) -> CompatResult:
+    """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
+
+    Two errors the kinematics cannot tell apart (an accelerometer bias and an attitude
+    bias through gravity; a vane's bias and its scale when the trim alphas hardly differ)
+    are each estimated with the other held at 0, and only one may be applied. An estimate
+    3 to 5 standard errors from 0 may be real or a clustered standard error come out small.
+    Each candidate is tried: the one that brings the model closest to the data is applied
+    if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
+    on the fitted logs and on the held-out ones, as they are or beside the aerodynamic
+    terms the stepwise search fits (:func:`_trial`); the others keep what the residuals said.
+    """
+    groups: list[list] = []
+    for p in compat.undecided:
+        g = next((g for g in groups if p.confounded_with in {q.name for q in g}
+                  or p.name in {q.confounded_with for q in g}), None)
+        g.append(p) if g is not None else groups.append([p])
+    for g in groups:
+        tried = [(p, *_trial(compat, compat.choose(p.name, "trial"), data)) for p in g]
+        best = max(tried, key=lambda t: _score(t[2]))
+        for p, c, gains in tried:
+            why = (f"the kinematics cannot tell it from {p.confounded_with}" if p.confounded_with else
+                   f"{p.z:.1f} standard errors from the kinematics")
+            way = _agrees(gains) if p is best[0] else ""
+            if way:
+                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {_said(gains)}",
+                                       beside_aero=way != "as is")
+            else:
+                compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({_said(gains)})")
+    return compat
+
+
+def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[str, dict[str, tuple[float, float]]]:
+    """How much closer a trial correction brings the model to the data.
+
+    The coefficient whose residual the correction moves most is judged: its RMS before
+    over after, on the fitted logs and on the held-out ones (nan without), taken two ways:
+    ``as is``, and ``beside aero terms``, what is left after the terms the stepwise search
+    fits to each version (aerodynamic, and the thrust-scale signature; the held-out logs
+    predicted by the terms fitted on the others). An aerodynamic error in the same residual (a drag rise with Mach
+    beside an accelerometer bias) hides a real correction's gain in the first but not in
+    the second; an aerodynamic term that mimics the correction (a pitch-rate term for a
+    late vane) hides it in the second but not in the first.
+    """
+    before = data.residuals(compat)
+    after = data.residuals(trial)
+    c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
+    held = (data.residuals(compat, held=True), data.residuals(trial, held=True)) if data.held else None
+
+    def ratio(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(a ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+
+    def left(frame: pd.DataFrame, other: pd.DataFrame | None) -> tuple[np.ndarray, np.ndarray | None]:
+        res = stepwise(frame, c, candidate_terms(frame, c))
+        return (frame[f"r_{c}"].to_numpy() - res.predict(frame),
+                None if other is None else other[f"r_{c}"].to_numpy() - res.predict(other))
+
+    (lb, lbh), (la, lah) = left(before, held[0] if held else None), left(after, held[1] if held else None)
+    nan = float("nan")
+    return c, {"as is": (ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
+                         ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan),
+               "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan)}
+
+
+def _agrees(gains: dict[str, tuple[float, float]]) -> str:
+    """The way the residuals agree with a correction ("" if neither). As is: at least
+    :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out ones. Beside aero
+    terms the fitted logs say little (the terms were fitted to them, and can mimic the correction
+    there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the fitted ones not lose."""
+    g, h = gains["as is"]
+    gb, hb = gains["beside aero terms"]
+    return ("as is" if g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN else
+            "beside aero terms" if gb >= 1.0 and hb >= CORROBORATED_GAIN else "")
+
+
+def _score(gains: dict[str, tuple[float, float]]) -> float:
+    g, h = gains["as is"]
+    gb, hb = gains["beside aero terms"]
+    return max(min(g, h) if np.isfinite(h) else g, min(gb, hb) if np.isfinite(hb) and gb >= 1.0 else 0.0)
+
+
+def _said(gains: dict[str, tuple[float, float]]) -> str:
+    return "; ".join(f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h)
+                                                                else "") for k, (g, h) in gains.items())
+
+
+#: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).
+RESIDUAL_DELAY_ITERATIONS = 3
+
+
+def _with_estimate(compat: CompatResult, name: str, estimate: float, se: float, chosen: str,
+                   beside_aero: bool = False) -> CompatResult:
+    """The same result with one parameter estimated by the residuals and applied."""
+    return replace(compat, parameters=[
+        replace(q, identifiable=True, estimate=estimate, se=se, sources={"residuals": (estimate, se)}, chosen=chosen,
+                beside_aero=beside_aero)
+        if q.name == name else q for q in compat.parameters])
+
+
+def _time_shift(data: pd.DataFrame, head: str) -> tuple[float, float, float, str] | None:
+    """Time shift [s] the signature columns ``<head>_<C>`` fit in the residuals: the estimate,
+    its delete-one-log jackknife error, the share of the residual explained and the coefficient
+    whose residual it explains best (each residual less its mean per log)."""
+    logs = data["log"].to_numpy()
+    ids, inv = np.unique(logs, return_inverse=True)
+    if len(ids) < 3:
+        return None
+    per = {}
+    for c in COEFFS:
+        y, x = _demean_by(data[f"r_{c}"].to_numpy(), logs), _demean_by(data[f"{head}_{c}"].to_numpy(), logs)
+        if not float(x @ x) > 0:
+            continue
+        tau = float(x @ y / (x @ x))
+        sxy, sxx = np.bincount(inv, x * y), np.bincount(inv, x * x)  # each log's share of the sums
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jack = (sxy.sum() - sxy) / (sxx.sum() - sxx)  # each log left out
+        se = float(np.sqrt((len(ids) - 1) / len(ids) * np.sum((jack - jack.mean()) ** 2)))
+        per[c] = (tau, se, 1.0 - float((y - tau * x) @ (y - tau * x)) / max(float(y @ y), 1e-300), c)
+    return max(per.values(), key=lambda v: v[2]) if per else None
+
+
+def _demean_by(x: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    _, inv = np.unique(groups, return_inverse=True)
+    return x - (np.bincount(inv, x) / np.bincount(inv))[inv]
+
+
+def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
+    """Time the vanes the kinematics could not (turbulence) from the aerodynamic residuals.
+
+    A vane ``tau`` late leaves ``tau`` times the model's rate of change along the
+    vane's own reading in every residual (:func:`diagnose.residuals.delay_signature`).
+    The residual of each coefficient, less its mean per log, is fitted by that
+    signature; the coefficient whose residual it explains best gives the delay, with
+    a delete-one-log jackknife standard error. The delay is applied only if the residuals get at least
+    :data:`CORROBORATED_GAIN` times smaller with it, on the fitted logs and on the
+    held-out ones. A model whose own rate derivatives are wrong leaves a similar
+    signature: then the delay and the derivative cannot be told apart, and the
+    report says so beside the aerodynamic cause.
+    """
+    for ch, err in compat.unmeasured:
+        if err != "delay" or not data.held:
+            continue
+        name, head = f"{ch}.{err}", ch.split("_")[0] + "delay"
+        tau, first, found = 0.0, None, None
+        for _ in range(RESIDUAL_DELAY_ITERATIONS):  # Gauss-Newton: the signature again at the corrected reading
+            cur = _with_estimate(compat, name, tau, float("nan"), "trial") if tau else compat
+            found = _time_shift(data.residuals(cur, delays=(ch,)), head)
+            if found is None:
+                break
+            first = first or found
+            tau += found[0]
+            if abs(found[0]) < 1e-3:
+                break
+        if found is None:
+            continue
+        se, (_, _, r2, best) = found[1], first
+        trial = _with_estimate(compat, name, tau, se, "trial")
+        if not trial.get(name).correctable:
+            compat = compat.note(name, f"the residuals put it at {tau * 1000:+.0f} +- {se * 1000:.0f} ms, not a "
+                                       f"correction to make")
+            continue
+        c, gains = _trial(compat, trial, data)
+        said = (f"{tau * 1000:+.0f} +- {se * 1000:.1f} ms from the {best} residual (explains {100 * r2:.0f} % of "
+                f"it); the {c} residual {_said(gains)}")
+        way = _agrees(gains)
+        if way:
+            compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}",
+                                    beside_aero=way != "as is")
+        else:
+            compat = compat.note(name, f"the residuals put it at {said}: not applied")
+    return compat
+
+
+#: An instrument error the significant aero causes of at least two coefficients each owe this
+#: share of their variance to [%] ...
+AGREE_PCT = 80.0
+#: ... at sizes this close (largest over smallest, same sign) ...
+AGREE_RATIO = 1.5
+#: ... and within this many of the data compatibility's standard errors of its own estimate, is
+#: an instrument error: the residuals refine the correction instead of naming aero causes.
+AGREE_SE = 2.5
+
+
+def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict],
+                        alpha_in: float = 1e-6) -> CompatResult | None:
+    """An air-data error the kinematics measured loosely and the aerodynamic residuals pin down.
+
+    A vane's scale or bias error moves the model's CL, CD and Cm together, each along its
+    own derivative; an aerodynamic error moves one coefficient. When one instrument
+    error explains the causes of two coefficients or more (each at least :data:`AGREE_PCT`
+    % of its variance; significant and above the noise floor, whether or not the held-out
+    checks accepted them), at consistent sizes, and the correction it
+    adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate,
+    the two independent measurements agree: the correction is refined to what the
+    residuals need (the median over the coefficients), and the diagnosis runs again
+    on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
+
+    Returns
+    -------
+    CompatResult or None
+        The refined data compatibility, or None if no instrument error qualifies.
+    """
+    needs: dict[tuple[str, str], dict[str, float]] = {}
+    for cause, rc in zip(causes, reach):
+        if (cause.kind != "aero" or not cause.evidence["p_value"] < alpha_in
+                or not cause.size > cause.verdict["noise_floor"]):
+            continue
+        for a in rc["alternatives"]:
+            if not a.get("unmeasured") and a["explains_pct"] >= AGREE_PCT:
+                needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
+    best = None
+    for (ch, err), by in needs.items():
+        v = np.array(list(by.values()))
+        if len(v) < 2 or not (np.all(v > 0) or np.all(v < 0)) or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v)):
+            continue
+        p = compat.get(f"{ch}.{err}")
+        total = (p.estimate if p.applied else 0.0) + float(np.median(v))
+        gap = abs(total - p.estimate) / p.se if p.se > 0 else np.inf
+        if gap <= AGREE_SE and (best is None or gap < best[0]):
+            best = (gap, p, total, by)
+    if best is None:
+        return None
+    gap, p, total, by = best
+    said = ", ".join(f"{c} {x:+.4g}" for c, x in by.items())
+    why = (f"the residuals of {', '.join(by)} each need it (a further {said}); {total:+.4g} in all, "
+           f"{gap:.1f} standard errors from the kinematics' {p.estimate:+.4g} +- {p.se:.2g}")
+    return replace(compat, parameters=[
+        replace(q, estimate=total, sources={**(q.sources or {"kinematics": (q.estimate, q.se)}),
+                                            "residuals": (total, q.se)}, chosen=why)
+        if q is p else q for q in compat.parameters])
+
+
+def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame, held_data: pd.DataFrame | None,
+                  aero: dict[str, list[Term]] | None = None) -> list[Cause]:
+    """The instrument errors the data compatibility corrected, as causes with their verdict.
+
+    Each correction is undone in turn and JSBSim evaluates the model again: its
+    effect on the fitted logs' residuals is its size, and the held-out residual
+    RMS without it over the RMS with it is its held-out gain. A correction the residuals
+    chose only beside the aerodynamic terms (:func:`_trial`) is judged the same way: where
+    the stepwise search found aerodynamic terms in its coefficient (``aero``: coefficient
+    -> terms), the gain is also taken beside them (the terms fitted to each version, the
+    held-out logs predicted), and the larger counts. A correction the kinematics made on
+    their own word is not: with few conditions, fitted terms leave offsets between them
+    that any correction shaped like 1/qbar can seem to explain.
+    """
+    causes = []
+    aero = aero or {}
+
+    def rms(x: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x ** 2)))
+
+    def beside(frame: pd.DataFrame, held: pd.DataFrame, c: str) -> np.ndarray:
+        y = frame[f"r_{c}"].to_numpy()
+        fit = fit_terms(y, [t.design(frame) for t in aero[c]], aero[c])
+        x = design_matrix(aero[c], held)
+        return held[f"r_{c}"].to_numpy() - x @ fit.beta
+
+    for p in compat.applied:
+        undone = compat.without(p.name)
+        r = corrected.residuals(undone)
+        effect = {c: float(np.max(np.abs(r[f"r_{c}"].to_numpy() - data[f"r_{c}"].to_numpy()))) for c in COEFFS}
+        c = max(effect, key=effect.get)
+        gain = float("nan")
+        if corrected.held and held_data is not None:
+            h = corrected.residuals(undone, held=True)
+            after = rms(held_data[f"r_{c}"].to_numpy())
+            gain = rms(h[f"r_{c}"].to_numpy()) / after if after > 0 else float("inf")
+            if aero.get(c) and p.beside_aero:
+                gain = max(gain, rms(beside(r, h, c)) / max(rms(beside(data, held_data, c)), 1e-300))
+        reasons = []
+        if p.z < SENSOR_Z and not p.chosen:
+            reasons.append(f"only {p.z:.1f} standard errors (needs {SENSOR_Z:g}, or the residuals to agree)")
+        if effect[c] < SENSOR_EFFECT:
+            reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {SENSOR_EFFECT:g})")
+        if not gain >= MIN_HOLDOUT_GAIN:
+            reasons.append("no held-out data" if not np.isfinite(gain) else
+                           f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+        cause = Cause(c, [p.channel], [], p.error, {"z": p.z, "F": p.z ** 2, "p_value": 0.0, "dof": [1, 0],
+                                                  "rss_reduction_pct": float("nan"), "method": "data compatibility",
+                                                  "methods": {k: {"estimate": e, "se": se}
+                                                              for k, (e, se) in p.sources.items()},
+                                                  "effect_by_coefficient": effect,
+                                                  **({"confounded_with": p.confounded_with or None,
+                                                      "chosen_because": p.chosen} if p.chosen else {})},
+                      effect[c], size=effect[c], kind="sensor", channel=p.channel, error=p.error,
+                      estimate=p.estimate, se=p.se)
+        cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "holdout_gain": gain,
+                         "noise_floor": SENSOR_EFFECT, "size_over_floor": effect[c] / SENSOR_EFFECT,
+                         "unit": p.unit}
+        causes.append(cause)
+    return causes

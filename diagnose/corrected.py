@@ -1,0 +1,71 @@
+"""The measured logs as the data compatibility corrects them: the one place a correction is applied.
+
+Every later stage of the diagnosis asks :class:`Corrected` for the logs or their residual
+data under a correction (a :class:`identify.compat.CompatResult`, or None for the raw logs)
+and receives corrected data. The arbitration between instrument errors and aerodynamic causes
+asks for the same corrections many times (a trial, the correction undone, the delays timed);
+each residual frame is computed once per correction and reused.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pandas as pd
+
+from diagnose.residuals import COEFFS, residual_data
+from identify.compat import CompatResult
+from identify.logs import Log
+
+
+class Corrected:
+    """The fitted and held-out logs, raw, and what a correction makes of them.
+
+    Parameters
+    ----------
+    train, held : list of Log
+        The logs fitted on and the logs held out, as measured.
+    evaluator : ModelEvaluator
+        The model under test (its ``jobs`` spread the residuals over worker processes).
+    step : int or None
+        Thinning of the residual data (:func:`diagnose.residuals.kept`).
+    """
+
+    def __init__(self, train: list[Log], held: list[Log], evaluator, step: int | None = None) -> None:
+        self.train, self.held = list(train), list(held)
+        self.evaluator, self.step = evaluator, step
+        self._memo: dict[tuple, dict[tuple, pd.DataFrame]] = {}
+
+    def raw(self, held: bool = False) -> list[Log]:
+        """The logs as measured."""
+        return self.held if held else self.train
+
+    def logs(self, compat: CompatResult | None, held: bool = False) -> list[Log]:
+        """The logs corrected by ``compat`` (as measured if None)."""
+        raw = self.raw(held)
+        return raw if compat is None else [compat.correct(lg) for lg in raw]
+
+    def residuals(self, compat: CompatResult | None, held: bool = False, delays: tuple = (),
+                  wait: bool = True) -> pd.DataFrame | Callable[[], pd.DataFrame]:
+        """:func:`diagnose.residuals.residual_data` of the logs corrected by ``compat``, each
+        correction computed once (the workers correct the logs they evaluate). A frame with
+        the delay signatures of ``delays`` (channels) serves a request without them. With
+        ``wait=False`` a callable that returns the frame comes back, the workers computing
+        it meanwhile."""
+        raw = self.raw(held)
+        correct = None if compat is None else compat.correct
+        key = (None if compat is None else compat.correction_key(), held)
+        done = self._memo.setdefault(key, {})
+        for have, frame in done.items():
+            if set(delays) <= set(have):
+                extra = [f"{ch.split('_')[0]}delay_{c}" for ch in set(have) - set(delays) for c in COEFFS]
+                return frame.drop(columns=extra) if wait else (lambda frame=frame: frame.drop(columns=extra))
+        pending = residual_data(raw, self.evaluator, self.step, delays, wait=False, correct=correct)
+
+        def finished() -> pd.DataFrame:
+            done[tuple(delays)] = pending()
+            return done[tuple(delays)].copy()
+        return finished() if wait else finished
+
+    def forget(self) -> None:
+        """Drop the residual frames kept (the diagnosis is over)."""
+        self._memo.clear()

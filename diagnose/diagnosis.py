@@ -1,0 +1,141 @@
+"""Diagnosis: what the model gets wrong, which variables explain it, and how; the stages in order.
+
+0. Data compatibility (:mod:`identify.compat`), arbitrated by the aerodynamic residuals
+   (:mod:`diagnose.arbitration`); the logs corrected in one place (:mod:`diagnose.corrected`).
+
+1. Residuals. Measured eq. (1) coefficients minus the model's own prediction
+   at the measured states (JSBSim computes it: :mod:`diagnose.evaluate`, :mod:`diagnose.residuals`). Cm
+   is taken about the aerodynamic reference point, where JSBSim applies the aero
+   forces, so a lift or drag discrepancy does not leak into Cm.
+2. Model structure. Forward-backward stepwise regression of each residual on
+   a pool of candidate terms: every logged variable, linear and smooth (a
+   piecewise-linear basis), and pairwise interactions. A term enters by a
+   partial F-test whose degrees of freedom count the effective number of
+   independent samples (residuals are autocorrelated), and only if it
+   removes a meaningful share of the residual; a term leaves when it no
+   longer passes (SIDPAC's stepwise regression, with those two corrections;
+   :mod:`diagnose.terms`, :mod:`diagnose.stepwise`).
+3. Causes. Selected terms that share a variable form one cause (a gear effect
+   and its gear x alpha interaction: one gear effect that depends on alpha).
+   Causes are ranked by the F statistic of removing them (:mod:`diagnose.causes`).
+4. Verdict. Each cause against the noise floor, the instrument errors' reach and held-out
+   data (:mod:`diagnose.noise_floor`, :mod:`diagnose.verdict`).
+5. Extension. The fitted terms, written as JSBSim functions (tables on the
+   variables' properties), to merge into a copy of the model (:mod:`diagnose.extension`);
+   the gain measured on held-out logs (:mod:`diagnose.gain`).
+"""
+from __future__ import annotations
+
+import pandas as pd
+
+from diagnose.arbitration import arbitrate, compat_causes, residual_delays, residual_refinement
+from diagnose.causes import merge_sensors, name_causes
+from diagnose.corrected import Corrected
+from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
+from diagnose.residuals import COEFFS
+from diagnose.result import Diagnosis
+from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
+from diagnose.terms import candidate_terms, sensor_of
+from diagnose.verdict import contribution, judge
+from identify.compat import estimate
+from identify.logs import Log
+
+
+#: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
+STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
+          "verdict", "extension", "replays", "plots")
+
+
+def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
+    frame = frame.copy()
+    frame["log"] = frame["log"] + offset
+    keys = {i + offset: "/".join(f"{x:g}" for x in lg.condition) for i, lg in enumerate(logs)}
+    frame["condition"] = frame["log"].map(keys)
+    return frame
+
+
+def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
+             compatibility: bool = True, jobs: int = 1, progress=None, **kw) -> Diagnosis:
+    """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
+
+    Parameters
+    ----------
+    logs : list of Log
+        Logs to fit on.
+    evaluator : ModelEvaluator
+    held : list of Log
+        Logs not fitted on; the verdict's leave-one-condition-out check uses them too.
+    step : int or None
+        Thinning of the residual data (default: about 60 samples per second).
+    realizations : int
+        Noise realizations of the instrument-noise floor.
+    compatibility : bool
+        Estimate the instrument errors first and correct the logs (:mod:`identify.compat`,
+        :class:`diagnose.corrected.Corrected`).
+    jobs : int
+        Worker processes for the residuals and the noise floor's realizations (sets ``evaluator.jobs``).
+    progress : callable, optional
+        Called with the name of each stage as it starts (:data:`STAGES`).
+    """
+    stage = progress or (lambda name: None)
+    evaluator.jobs = jobs
+    corrected = Corrected(logs, held, evaluator, step)
+    stage("data compatibility")
+    compat = estimate(corrected.train) if compatibility else None
+    if compat is not None:
+        compat = arbitrate(compat, corrected)
+        stage("instrument delays")
+        compat = residual_delays(compat, corrected)
+    for refined in (False, True):
+        logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
+        stage("residuals")
+        data = corrected.residuals(compat)
+        held_data = corrected.residuals(compat, held=True, wait=jobs <= 1) if held else None
+        noise = channel_noise(logs + held)
+        # the workers compute the held-out residuals and then the sensitivities beside the stepwise search
+        early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None
+        stage("stepwise")
+        lags = Lags(data["log"].to_numpy())
+        terms = {c: candidate_terms(data, c) for c in COEFFS}
+        shared = candidate_gram(data, terms)
+        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, **kw) for c in COEFFS}
+        del shared
+        causes = name_causes(results, data, lags)
+        stage("noise floor")
+        held_data = held_data() if callable(held_data) else held_data
+        sens = early() if early else None  # wanted or not: the workers are then free for what comes next
+        floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
+                            uncertain=compat.uncertainty() if compat else None,
+                            unmeasured=compat.unmeasured if compat else (), jobs=jobs,
+                            sensitivities=(lambda: sens) if early else None) if causes else None)
+        groups = [(c.coefficient, c.terms) for c in causes]
+        floors = floor.sizes(groups) if causes else []
+        stage("instrument reach")
+        aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
+        by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
+                                                                                                 data)) for c in aero],
+                                                      data))) if aero else {}
+        reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
+        noisy = [floor.noisy(c.variables) for c in causes]
+        data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
+                             ignore_index=True)
+        stage("verdict")
+        judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
+        better = (None if refined or compat is None else
+                  residual_refinement(compat, causes, reach, kw.get("alpha_in", 1e-6)))
+        if better is None:
+            break
+        compat = better
+    aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
+    sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
+    sensors.sort(key=lambda c: -c.evidence["z"])
+    accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
+    rejected = [c for c in sensors + causes if not c.verdict["accepted"]]
+    for c in COEFFS:
+        keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
+        if len(keep) != len(results[c].terms):
+            results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
+    first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
+    corrected.forget()
+    return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
+                     logs, held)

@@ -1,0 +1,59 @@
+"""What ``campaign diagnose`` writes: ``diagnosis.json``'s document and ``diagnosis.txt``."""
+from __future__ import annotations
+
+from diagnose.result import Diagnosis
+
+
+def document(diag: Diagnosis, data: dict, model: str) -> dict:
+    """``diagnosis.json`` before the extension, the gain and the plots are added.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+    data : dict
+        ``path``, ``logs`` (how many), ``train`` and ``held_out`` (their paths).
+    model : str
+        The model aircraft folder.
+    """
+    return {"discrepancy": diag.discrepancy,
+            "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
+            "causes": [c.to_dict() for c in diag.causes],
+            "rejected": [c.to_dict() for c in diag.rejected],
+            "largest_rejected": None if diag.discrepancy else diag.largest_rejected(),
+            "extension": None, "extension_xml": None, "gain": {},
+            "alternatives": {c: r.alternatives for c, r in diag.results.items()},
+            "noise_estimated": diag.noise,
+            "data_compatibility": diag.compat.to_dict() if diag.compat else None,
+            "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
+            "data": data, "model": model, "plotted_logs": []}
+
+
+def _names(files: list[str], n: int = 3) -> str:
+    return ", ".join(files[:n]) + (f" and {len(files) - n} more" if len(files) > n else "")
+
+
+def summary(diag: Diagnosis, doc: dict) -> str:
+    """``diagnosis.txt``: the diagnosis's summary, the data compatibility and the gain."""
+    lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
+             f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
+    lines.append(diag.summary())
+    if diag.compat is not None:
+        lines += ["", diag.compat.summary()]
+    g = doc.get("gain")
+    if g:
+        lines += ["", f"Gain on {len(g['held_out_logs'])} held-out manoeuvres ({_names(g['held_out_logs'])}).",
+                  f"Residual RMS where the first aerodynamic cause ({g['cause']}) acts, {len(g['cause_exercised_in'])} of them "
+                  f"({_names(g['cause_exercised_in'])}):"]
+        for c, v in g["residual_rms"].items():
+            w = g["residual_rms_all_held_out"][c]
+            lines.append(f"  {c}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f}); over every held-out "
+                         f"manoeuvre {w['before']:.3g} -> {w['after']:.3g} (x{w['gain']:.1f})")
+        lines.append("Replays of the held-out manoeuvres (same start, same inputs), worst error:")
+        for ch, v in g["replay_max_error"].items():
+            lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
+        lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
+    n = len(doc["plotted_logs"])
+    if n and n < len(doc["data"]["held_out"]):
+        lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "
+                     f"({'where the first cause acts' if g else 'with the largest residuals'}; --plots all: every one)")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,136 @@
+"""The diagnosis's result and its text summary."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from diagnose.causes import Cause
+from diagnose.stepwise import StepwiseResult
+from identify.compat import CompatResult
+@dataclass
+class Diagnosis:
+    """The result: residuals, stepwise fits, the causes named and those rejected.
+
+    Attributes
+    ----------
+    data : DataFrame
+        Residual data of the logs fitted on.
+    held : DataFrame or None
+        Residual data of the held-out logs (``log`` counts on after the fitted ones).
+    results : dict
+        Coefficient -> :class:`StepwiseResult`, refitted on the accepted causes' terms.
+    causes : list of Cause
+        Accepted causes, best first.
+    rejected : list of Cause
+        Candidates that failed the verdict, with the reason.
+    noise : dict
+        Channel noise levels estimated from the logs.
+    unset : list
+        Inputs of the model's aerodynamics that no log channel sets.
+    compat : CompatResult or None
+        The data compatibility (instrument errors estimated and corrected first).
+    logs, held_logs : list of Log
+        The logs fitted on and held out, as corrected.
+    """
+
+    data: pd.DataFrame
+    results: dict[str, StepwiseResult]
+    causes: list[Cause]
+    rejected: list[Cause] = field(default_factory=list)
+    held: pd.DataFrame | None = None
+    noise: dict = field(default_factory=dict)
+    unset: list = field(default_factory=list)
+    first_step: dict = field(default_factory=dict)
+    compat: CompatResult | None = None
+    logs: list = field(default_factory=list)
+    held_logs: list = field(default_factory=list)
+
+    @property
+    def discrepancy(self) -> bool:
+        return bool(self.causes)
+
+    @property
+    def aero_causes(self) -> list[Cause]:
+        """The accepted causes in the aerodynamics (the extension holds these)."""
+        return [c for c in self.causes if c.kind == "aero"]
+
+    def predict(self, coefficient: str, frame: pd.DataFrame) -> np.ndarray:
+        """The fitted discrepancy of one coefficient at the states of ``frame``."""
+        res = self.results[coefficient]
+        return res.predict(frame) if res.terms else np.zeros(len(frame))
+
+    def largest_rejected(self) -> dict:
+        """The strongest candidate that was not named, and why."""
+        if self.rejected:
+            c = max(self.rejected, key=lambda c: c.verdict["size_over_floor"])
+            return {"candidate": c.label, "size": c.size, "peak": c.peak, "reason": c.verdict["reason"],
+                    "evidence": {k: c.evidence[k] for k in ("F", "p_value", "rss_reduction_pct")},
+                    "noise_floor": c.verdict["noise_floor"], "holdout_gain": c.verdict["holdout_gain"]}
+        best = min(self.first_step.items(), key=lambda kv: (kv[1]["p_value"], -kv[1]["F"]), default=None)
+        if best is None:
+            return {}
+        c, a = best
+        why = (f"not significant (p = {a['p_value']:.2g}, needs < 1e-06)" if a["p_value"] >= 1e-6 else
+               f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs 1 %)")
+        return {"candidate": f"{c} vs {a['term']}", "reason": why,
+                "evidence": {k: a[k] for k in ("F", "p_value", "rss_reduction_pct")}}
+
+    def summary(self) -> str:
+        lines = []
+        if self.compat is not None and self.compat.applied:
+            lines.append("Data corrected for instrument errors (data compatibility): " + ", ".join(
+                f"{p.name} {p.estimate:+.4g} +- {p.se:.2g} {p.unit}" for p in self.compat.applied))
+        if self.unset:
+            lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
+        if not self.causes:
+            lines.append("No significant discrepancy.")
+            big = self.largest_rejected()
+            if big:
+                lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
+        for i, c in enumerate(self.causes, 1):
+            e, v = c.evidence, c.verdict
+            if c.kind == "sensor" and not c.terms:
+                lines.append(f"{i}. {c.label}: {c.estimate:+.4g} +- {c.se:.2g} {v.get('unit', '')} "
+                             f"({e['z']:.1f} standard errors, data compatibility); moves {c.coefficient} by up to "
+                             f"{c.size:.3g}; held-out gain x{v['holdout_gain']:.2f} once corrected")
+                if e.get("chosen_because"):
+                    lines.append(f"   {e['chosen_because']}")
+                continue
+            if c.kind == "sensor":
+                lines.append(f"{i}. {c.label}: {c.estimate:+.4g} +- {c.se:.2g} (its signature in the {c.coefficient} "
+                             f"residual: F = {e['F']:.4g}, removes {e['rss_reduction_pct']:.1f} %); size {c.size:.3g} "
+                             f"against a noise floor of {v['noise_floor']:.3g}; held-out gain x{v['holdout_gain']:.2f}")
+                for a in e.get("hardly_separated_from", []):
+                    lines.append(f"   caution: the data hardly separate it from {a['term']} "
+                                 f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+                continue
+            p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
+            made = (f", instrument errors could make {v['instrument_errors_make']:.3g} of it"
+                    if v.get("instrument_errors_make") else "")
+            lines.append(f"{i}. {c.label}: {c.shape}; peak {c.peak:.4g}; "
+                         f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
+                         f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
+                         f"noise floor of {v['noise_floor']:.3g}{made}; held-out gain x{v['holdout_gain']:.2f}")
+            for a in e.get("hardly_separated_from", []):
+                lines.append(f"   caution: the data hardly separate it from {a['term']} "
+                             f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
+            for a in e.get("sensor_alternatives", []):
+                if a.get("unmeasured"):
+                    lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                                 f"{a['explains_pct']:.0f} % of it; the data compatibility could not measure that "
+                                 f"error in these data, so they cannot tell the two apart")
+                    continue
+                lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                             f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
+                             f"0 +- {a['se']:.2g} after correction ({abs(a['needs_se']):.1f} standard errors away)")
+        if self.causes and self.rejected:
+            lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
+        lines.append("")
+        for c, res in self.results.items():
+            lines.append(f"{c}: residual RMS {res.rms_before:.3g} -> {res.rms_after:.3g} with "
+                         f"{', '.join(t.label for t in res.terms) or 'no term'} (N_eff {res.n_eff:.0f})")
+            lines.append("   alternatives at the first step: " + "; ".join(
+                f"{a['term']} F={a['F']:.3g}" for a in res.alternatives[:5]))
+        return "\n".join(lines)

@@ -1,0 +1,260 @@
+"""Forward-backward stepwise regression of a coefficient's residual on candidate terms, with partial
+F-tests on the effective number of independent samples (SIDPAC's stepwise regression)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from diagnose.terms import Term
+from identify.lsq import solve_normal
+class Lags:
+    """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
+
+    Each log's samples sit in one padded vector, ``max_lag`` zeros apart, so a
+    single FFT gives every within-log lag product at once.
+    """
+
+    def __init__(self, log_id: np.ndarray, max_lag: int = 300) -> None:
+        from scipy.fft import next_fast_len
+        n = len(log_id)
+        starts = np.flatnonzero(np.r_[True, log_id[1:] != log_id[:-1]]) if n else np.zeros(0, int)
+        self.max_lag = max_lag
+        self.pos = np.arange(n) + max_lag * np.searchsorted(starts, np.arange(n), side="right")
+        self.nfft = next_fast_len(int(self.pos[-1]) + 1 + max_lag if n else 1, real=True)
+
+    def n_eff(self, resid: np.ndarray) -> float:
+        """Effective number of independent samples: N / (1 + 2 sum rho_k), rho up to its first zero."""
+        from scipy import fft
+        n = len(resid)
+        e = resid - resid.mean()
+        r0 = float(e @ e) / n
+        if r0 <= 0:
+            return float(n)
+        z = np.zeros(self.nfft)
+        z[self.pos] = e
+        f = fft.rfft(z)
+        rho = fft.irfft(f.real ** 2 + f.imag ** 2, self.nfft)[1:self.max_lag + 1] / n / r0
+        stop = np.flatnonzero(rho <= 0)
+        tau = 1.0 + 2.0 * float(np.sum(rho[:stop[0] if stop.size else len(rho)]))
+        return max(n / tau, 2.0)
+
+
+@dataclass
+class Fit:
+    terms: list[Term]
+    beta: np.ndarray
+    resid: np.ndarray | None
+    rss: float
+
+
+def fit_terms(y: np.ndarray, cols: list[np.ndarray], terms: list[Term]) -> Fit:
+    x = np.column_stack([np.ones(len(y))] + cols) if cols else np.ones((len(y), 1))
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    r = y - x @ beta
+    return Fit(list(terms), beta, r, float(r @ r))
+
+
+def _compact(x: np.ndarray):
+    """A design matrix as it is cheapest to hold: sparse (CSR) if most of it is zero (the hat
+    columns of a smooth term), else dense."""
+    from scipy import sparse
+    return sparse.csr_array(x) if np.count_nonzero(x) < 0.5 * x.size else x
+
+
+def _dense(x) -> np.ndarray:
+    return x.toarray() if hasattr(x, "toarray") else x
+
+
+class Gram:
+    """Least-squares fits of any target on any subset of candidate terms, from one cross-product matrix.
+
+    The columns are scaled to unit norm before their cross products are taken; a
+    subset's normal equations are solved through an eigendecomposition (directions
+    below 1e-12 of the largest dropped, as a rank-revealing solver would), and the
+    residual is computed from the data, so its sum of squares does not suffer the
+    normal equations' cancellation. Stepwise tries hundreds of subsets; each costs
+    one pass over the data instead of a full least-squares solve. The three
+    coefficients' residuals share one matrix: their candidates are mostly the same.
+
+    Parameters
+    ----------
+    ys : dict
+        Target name (a coefficient) -> its values (n,).
+    designs : dict
+        Term -> its design (n, width), dense or sparse.
+    """
+
+    BLOCK = 8192
+
+    def __init__(self, ys: dict[str, np.ndarray], designs: dict) -> None:
+        self.ys, self.designs = ys, designs
+        self.index, at = {}, 1
+        for t, x in designs.items():
+            self.index[t] = np.arange(at, at + x.shape[1])
+            at += x.shape[1]
+        self.target = {name: at + k for k, name in enumerate(ys)}
+        size = at + len(ys)
+        n = len(next(iter(ys.values())))
+        gram = np.zeros((size, size))
+        for lo in range(0, n, self.BLOCK):  # in row blocks: the full design would be large
+            hi = min(lo + self.BLOCK, n)
+            a = np.empty((hi - lo, size), order="F")
+            a[:, 0] = 1.0
+            for t, x in designs.items():
+                a[:, self.index[t]] = _dense(x[lo:hi])
+            for name, y in ys.items():
+                a[:, self.target[name]] = y[lo:hi]
+            gram += a.T @ a
+        self.scale = np.sqrt(np.diag(gram))
+        self.scale[self.scale == 0] = 1.0
+        self.gram = gram / np.outer(self.scale, self.scale)
+
+    def fit(self, terms: list[Term], target: str) -> Fit:
+        idx = np.concatenate([[0]] + [self.index[t] for t in terms]).astype(int)
+        j = self.target[target]
+        b = solve_normal(self.gram[np.ix_(idx, idx)], self.gram[idx, j])
+        beta = b * self.scale[j] / self.scale[idx]
+        r = self.ys[target] - beta[0]
+        at = 1
+        for t in terms:
+            k = self.designs[t].shape[1]
+            r = r - self.designs[t] @ beta[at:at + k]
+            at += k
+        return Fit(list(terms), beta, r, float(r @ r))
+
+
+def candidate_gram(data: pd.DataFrame, terms: dict[str, list[Term]]) -> Gram:
+    """One :class:`Gram` of the residuals ``r_<coefficient>`` of ``data`` on the union of each
+    coefficient's candidate ``terms`` (coefficient -> terms), for :func:`stepwise`'s ``gram``."""
+    union = dict.fromkeys(t for ts in terms.values() for t in ts)
+    return Gram({c: data[f"r_{c}"].to_numpy() for c in terms}, {t: _compact(t.design(data)) for t in union})
+
+
+def f_test(small: Fit, big: Fit, k: int, n_eff: float, p_big: int) -> tuple[float, float]:
+    dof = max(n_eff - p_big, 1.0)
+    f = ((small.rss - big.rss) / k) / (big.rss / dof) if big.rss > 0 else np.inf
+    return float(f), float(stats.f.sf(f, k, dof)) if np.isfinite(f) else 0.0
+
+
+@dataclass
+class StepwiseResult:
+    """Stepwise regression of one coefficient's residual."""
+
+    coefficient: str
+    terms: list[Term]
+    beta: np.ndarray  # intercept first, then each term's columns
+    evidence: dict[str, dict]
+    alternatives: list[dict]
+    rms_before: float
+    rms_after: float
+    n_eff: float
+    close: dict = field(default_factory=dict)  # term label -> rivals nearly as strong when it entered
+
+    def term_beta(self, term: Term) -> np.ndarray:
+        i = 1
+        for t in self.terms:
+            if t == term:
+                return self.beta[i:i + t.width]
+            i += t.width
+        raise KeyError(term.label)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        out = np.full(len(frame), self.beta[0])
+        for t in self.terms:
+            out += t.design(frame) @ self.term_beta(t)
+        return out
+
+
+def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float = 1e-6,
+             min_reduction: float = 0.01, max_terms: int = 6, lags: Lags | None = None,
+             gram: Gram | None = None) -> StepwiseResult:
+    """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
+
+    A term enters if its partial F-test (on the effective sample size of the
+    residual after it enters) has p < ``alpha_in`` and it removes at least
+    ``min_reduction`` of the initial residual sum of squares (about its mean);
+    a term leaves when its removal test no longer passes. ``gram`` (:func:`candidate_gram`),
+    if given, holds ``terms`` and this coefficient's residual, and may be shared with the others.
+    """
+    y = data[f"r_{coefficient}"].to_numpy()
+    lags = lags or Lags(data["log"].to_numpy())
+    if gram is None:
+        gram = candidate_gram(data, {coefficient: terms})
+    designs = gram.designs
+    chosen: list[Term] = []
+    close: dict[str, list] = {}
+    current = gram.fit([], coefficient)
+    rss0 = current.rss
+    rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
+    alternatives = []
+    for _ in range(max_terms):
+        p_now = 1 + sum(t.width for t in chosen)
+        rows = []
+        for t in terms:
+            if t in chosen or (t.kind in ("linear", "quadratic") and any(
+                    c.kind in ("smooth", "quadratic") and c.variables == t.variables for c in chosen)):
+                continue
+            big = gram.fit(chosen + [t], coefficient)
+            n_eff = lags.n_eff(big.resid)
+            f, p = f_test(current, big, t.width, n_eff, p_now + t.width)
+            big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
+            rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
+                         "n_eff": n_eff, "fit": big})
+        if not rows:
+            break
+        rows.sort(key=lambda r: (r["p_value"], -r["F"]))
+        if not alternatives:
+            alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
+                             "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
+        best = rows[0]
+        # prefer a leaner term on a subset of the same variables if it does as well
+        leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
+                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in),
+                        key=lambda r: r["term"].width)
+        for lean in leaner:
+            if f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
+                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
+                best = lean
+                break
+        if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
+            break
+        mine = set(best["term"].variables)
+        close[best["term"].label] = [
+            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / best["F"]} for r in rows
+            if r is not best and r["p_value"] < alpha_in and r["F"] >= 0.5 * best["F"]
+            and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
+        chosen.append(best["term"])
+        current = gram.fit(chosen, coefficient)
+        for t in list(chosen[:-1]):  # backward step
+            rest = [c for c in chosen if c != t]
+            small = gram.fit(rest, coefficient)
+            f, p = f_test(small, current, t.width, lags.n_eff(current.resid),
+                           1 + sum(c.width for c in chosen))
+            if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
+                chosen.remove(t)
+                current = small
+    evidence = {}
+    current = fit_terms(y, [_dense(designs[c]) for c in chosen], chosen)  # the answer itself by a rank-revealing solver
+    n_eff = lags.n_eff(current.resid)
+    p_all = 1 + sum(t.width for t in chosen)
+    for t in chosen:
+        rest = [c for c in chosen if c != t]
+        small = gram.fit(rest, coefficient)
+        f, p = f_test(small, current, t.width, n_eff, p_all)
+        evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
+                             "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
+    rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
+    return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
+                          {t.label: close.get(t.label, []) for t in chosen})
+
+def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> StepwiseResult:
+    """The same stepwise result with only ``keep`` terms, refitted."""
+    y = data[f"r_{res.coefficient}"].to_numpy()
+    fit = fit_terms(y, [t.design(data) for t in keep], keep)
+    return StepwiseResult(res.coefficient, list(keep), fit.beta, {k: v for k, v in res.evidence.items()
+                                                                    if k in {t.label for t in keep}},
+                          res.alternatives, res.rms_before, float(np.sqrt(np.mean(fit.resid ** 2))), res.n_eff,
+                          {k: v for k, v in res.close.items() if k in {t.label for t in keep}})

@@ -1,0 +1,277 @@
+"""The data compatibility's estimate: initial states first, then the instrument errors the logs
+excite, stage by stage, with delete-one-log jackknife standard errors."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from identify.compat.reconstruction import (ESSENTIAL, INS, _attitude, _body_to_ned, _excited, _gauss_newton,
+                                            _gust_basis, _noise, _prepare, _responses, _rotations, _select, _shift,
+                                            _shift_columns)
+from identify.compat.result import (D2R, FT_PER_KT, MAX_VIF, PRUNE_FIRST, TURBULENT_FPS, CompatResult, _parameters,
+                                    at_cg, columns_of, documented_positions)
+from identify.logs import Log
+def estimate(logs: list[Log]) -> CompatResult:
+    """Estimate the instrument errors from the logs (see the module notes).
+
+    Returns
+    -------
+    CompatResult
+    """
+    params = _parameters()
+    by = {p.name: p for p in params}
+    positions = documented_positions(logs)
+    missing = [c for c in ESSENTIAL if not logs or not all(c in lg.data for lg in logs)]
+    if missing:
+        for p in params:
+            p.identifiable, p.reason = False, f"no reconstruction: {missing[0]} is not logged"
+        return CompatResult(params, [lg.path for lg in logs], {}, positions)
+    chosen = _select(logs)
+    data = _prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
+                                                    index=lg.data.index)) for lg in chosen])
+    x_doc = positions.get("alpha_deg", [None])[0]
+    xb_doc = positions.get("beta_deg", [x_doc])[0]
+    if x_doc is not None:
+        by["alpha_deg.position"].identifiable = False
+        by["alpha_deg.position"].reason = f"documented in the logs: {x_doc:g} ft ahead of the CG"
+    L = len(chosen)
+    mask = data.mask
+    valid = mask.ravel()
+    sig = {c: _noise(data.ch[c], mask, fl) for c, fl in (("theta_deg", 0.002 * D2R), ("phi_deg", 0.002 * D2R),
+                                                           ("psi_deg", 0.002 * D2R), ("alpha_deg", 0.005 * D2R),
+                                                           ("beta_deg", 0.005 * D2R), ("tas_kt", 0.02 * FT_PER_KT),
+                                                           ("alt_ft", 0.5), ("vn_fps", 0.02), ("ve_fps", 0.02),
+                                                           ("vd_fps", 0.02))}
+    rms: dict = {}
+    covs: list = []
+
+    # ---- stage 1: attitude from the gyros
+    s1 = ["p_dps.bias", "q_dps.bias", "r_dps.bias", "theta_deg.scale", "theta_deg.delay", "phi_deg.scale",
+          "phi_deg.delay"]
+    outs1 = [c for c in ("theta_deg", "phi_deg", "psi_deg") if c in data.present]
+
+    last_rotations: dict = {}  # the gyro biases of the last evaluation -> its rotations
+
+    def model1(x):
+        v = dict(zip(s1, x[:len(s1)]))
+        per = x[len(s1):].reshape(L, 3)
+        biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
+        key = np.array(biases).tobytes()  # bit for bit
+        if key not in last_rotations:  # a difference in an initial angle, a scale or a delay keeps them
+            last_rotations.clear()
+            last_rotations[key] = _rotations(data, *biases)
+        th, ph, ps = _attitude(data, *biases, per[:, 0], per[:, 1], per[:, 2], steps=last_rotations[key])
+        return {"theta_deg": (1 + v["theta_deg.scale"]) * _shift(th, data.t, v["theta_deg.delay"]),
+                "phi_deg": (1 + v["phi_deg.scale"]) * _shift(ph, data.t, v["phi_deg.delay"]),
+                "psi_deg": ps}, (th, ph, ps)
+
+    def resid1(x):
+        m, _ = model1(x)
+        return np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs1])
+
+    x1 = np.concatenate([np.zeros(len(s1)), np.stack([data.ch[c][:, 0] for c in ("theta_deg", "phi_deg",
+                                                                                  "psi_deg")], 1).ravel()])
+    rows1 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs1))
+    if outs1:
+        x1 = _solve_stage(resid1, x1, s1, by, 3, L, rows1, outs1, sig, valid, rms, mask,
+                          lambda x: {c: model1(x)[0][c] for c in outs1}, data, covs=covs)
+    v1 = dict(zip(s1, x1[:len(s1)]))
+    _, (th_r, ph_r, ps_r) = model1(x1)
+
+    # ---- stage 2: velocity, air data and altitude from the accelerometers
+    rates = tuple(data.ch[c] - v1[f"{c}.bias"] * D2R for c in ("p_dps", "q_dps", "r_dps"))
+    Phi, X, HPhi, HX = _responses(data, rates, th_r, ph_r)
+    s2 = ["ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias",
+          "alpha_deg.bias", "alpha_deg.scale", "alpha_deg.delay", "alpha_deg.position",
+          "beta_deg.bias", "beta_deg.scale", "beta_deg.delay", "tas_kt.bias", "tas_kt.scale", "tas_kt.delay"]
+    ins = all(c in data.present for c in INS)
+    outs2 = [c for c in ("alpha_deg", "beta_deg", "tas_kt", "alt_ft") + (INS[1:] if ins else ())
+             if c in data.present]
+    q_c, r_c = rates[1], rates[2]
+
+    gust = _gust_basis(data)
+    k_gust = gust.shape[2]
+    n_wind = 2 if ins else 0  # a steady horizontal wind per log, where the INS tells air from ground
+    g0 = 4 + n_wind
+    n_per = g0 + 3 * k_gust
+    b2n = _body_to_ned(th_r, ph_r, ps_r)
+    wind_dirs = np.swapaxes(b2n, -1, -2)[..., :2]  # (L, n, 3, 2): north and east in body axes
+    ins_phi = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True) if ins else None  # d(v_NED)/d(v0)
+
+    forcing = [s2.index(n) for n in ("ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias",
+                                     "phi_deg.bias")]
+    last_state: dict = {}  # the parameters the flight path depends on, bit for bit -> the path
+
+    def state(x):
+        """Shared values, per-log values, air-relative body velocity, altitude and the inertial
+        velocity north-east-down (if the logs have it). A difference in an air-data error keeps the
+        flight path: it is computed again only when the parameters it depends on change."""
+        v = dict(zip(s2, x[:len(s2)]))
+        key = x[forcing].tobytes() + x[len(s2):].tobytes()
+        if key not in last_state:
+            per = x[len(s2):].reshape(L, n_per).copy()
+            lin = np.concatenate([[1.0], [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
+                                  [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R]])
+            inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3], optimize=True) + X @ lin
+            h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3], optimize=True) + HX @ lin
+            # air = inertial - gust
+            vel = inertial - np.einsum("lnk,lck->lnc", gust, per[:, g0:].reshape(L, 3, k_gust), optimize=True)
+            if n_wind:
+                vel = vel - np.einsum("lncw,lw->lnc", wind_dirs, per[:, 4:6], optimize=True)
+            ned = np.moveaxis(np.einsum("lnij,lnj->lni", b2n, inertial, optimize=True), -1, 0) if ins else None
+            last_state.clear()
+            last_state[key] = per, vel, h, ned
+        return (v, *last_state[key])
+
+    def model2(x):
+        v, _, vel, h, ned = state(x)
+        u, vv, w = vel[..., 0], vel[..., 1], vel[..., 2]
+        xh = v["alpha_deg.position"] if x_doc is None else x_doc
+        xb = xh if xb_doc is None else xb_doc
+        vt = np.sqrt(u ** 2 + vv ** 2 + w ** 2)
+        alpha_v = np.arctan2(w - q_c * xh, u)
+        beta_v = np.arcsin(np.clip((vv + r_c * xb) / vt, -1, 1))
+        return {"alpha_deg": (1 + v["alpha_deg.scale"]) * _shift(alpha_v, data.t, v["alpha_deg.delay"])
+                + v["alpha_deg.bias"] * D2R,
+                "beta_deg": (1 + v["beta_deg.scale"]) * _shift(beta_v, data.t, v["beta_deg.delay"])
+                + v["beta_deg.bias"] * D2R,
+                "tas_kt": (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"])
+                + v["tas_kt.bias"] * FT_PER_KT,
+                "alt_ft": h,
+                **(dict(zip(INS[1:], ned)) if ins else {})}
+
+    def resid2(x):
+        m = model2(x)
+        return np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs2])
+
+    def perlog2(x):
+        """d(residual)/d(each log's initial velocity, altitude and gust coefficients), by the chain rule."""
+        v, _, vel, _, _ = state(x)
+        u, vv, w = vel[..., 0], vel[..., 1], vel[..., 2]
+        xh = v["alpha_deg.position"] if x_doc is None else x_doc
+        xb = xh if xb_doc is None else xb_doc
+        vt2 = u ** 2 + vv ** 2 + w ** 2
+        vt = np.sqrt(vt2)
+        wv, vb = w - q_c * xh, vv + r_c * xb
+        den_a = u ** 2 + wv ** 2
+        sb = np.clip(vb / vt, -0.999999, 0.999999)
+        cb = np.sqrt(1 - sb ** 2)
+        d_out = {  # derivative of each air-data output by (u, v, w), before scale and delay
+            "alpha_deg": np.stack([-wv / den_a, np.zeros_like(u), u / den_a], -1),
+            "beta_deg": np.stack([-vb * u / (vt2 * vt), (1 / vt - vb * vv / (vt2 * vt)), -vb * w / (vt2 * vt)], -1)
+            / cb[..., None],
+            "tas_kt": vel / vt[..., None],
+        }
+        # d vel / d per-log parameters: Phi for the initial velocity, -basis for the gust coefficients,
+        # minus the north and east directions for the wind
+        n_valid = int(valid.sum())
+        out = np.zeros((len(outs2) * n_valid, n_per))
+        for b, c in enumerate(outs2):
+            block = out[b * n_valid:(b + 1) * n_valid]
+            if c == "alt_ft":
+                block[:, :3] = HPhi.reshape(-1, 3)[valid]
+                block[:, 3] = 1.0
+            elif c in INS:
+                block[:, :3] = ins_phi[..., INS.index(c) - 1, :].reshape(-1, 3)[valid]
+            else:
+                dc = d_out[c]
+                d = np.zeros((L, vel.shape[1], n_per))
+                d[..., :3] = np.einsum("lnc,lncj->lnj", dc, Phi, optimize=True)
+                if n_wind:
+                    d[..., 4:6] = -np.einsum("lnc,lncw->lnw", dc, wind_dirs, optimize=True)
+                for j in range(3):
+                    d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust] = dc[..., j, None] * -gust
+                block[:] = _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per)[valid]
+                block *= 1 + v[f"{c}.scale"]
+            block /= -sig[c]
+        return out
+
+    a0, b0 = data.ch["alpha_deg"][:, 0], data.ch["beta_deg"][:, 0]
+    v0 = data.ch["tas_kt"][:, 0]
+    init = np.stack([v0 * np.cos(a0) * np.cos(b0), v0 * np.sin(b0), v0 * np.sin(a0) * np.cos(b0),
+                     data.ch["alt_ft"][:, 0]], 1)
+    x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
+    rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
+    x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
+                      covs)
+    per = x2[len(s2):].reshape(L, n_per)
+    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
+    turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
+    if turbulence > TURBULENT_FPS:
+        for c in ("alpha_deg", "beta_deg", "tas_kt"):
+            p = by[f"{c}.delay"]
+            if p.identifiable:
+                p.identifiable = False
+                p.reason = (f"turbulence: the reconstruction's vertical gust is {turbulence:.2g} ft/s RMS, and the "
+                            f"aircraft's answer to it biases the kinematic time shift by tens of ms (fly the "
+                            f"compatibility manoeuvres in calm air); kinematic estimate {p.estimate * 1000:+.0f} ms")
+    for ch, k in (("theta_deg", D2R), ("phi_deg", D2R), ("alpha_deg", D2R), ("beta_deg", D2R),
+                  ("tas_kt", FT_PER_KT)):
+        if ch in rms:
+            rms[ch] = {key: v / k for key, v in rms[ch].items()}
+    return CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
+
+
+def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,
+                 perlog=None, covs: list | None = None) -> np.ndarray:
+    """Initial states alone (perfect instruments assumed), then the identifiable instrument
+    errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0."""
+    ns = len(names)
+    free = np.zeros(ns, bool)
+    rows = [np.flatnonzero(rows == i) for i in range(L)]  # residual rows of each log
+    x, _, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog)
+    n = int(valid.sum())
+    for i, c in enumerate(outs):
+        rms[c] = {"before": float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))}
+    recon = {c: v for c, v in model(x).items()}
+    for name, why in _excited(data, recon).items():
+        if name in by and name in names:
+            by[name].identifiable, by[name].reason = False, why
+    free[:] = [by[s].identifiable for s in names]
+    pairs = []  # (pruned, kept) indices into names
+    while True:
+        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog)
+        cov = blk.cluster_cov()
+        idx = np.flatnonzero(free)
+        sd = np.sqrt(np.abs(np.diag(cov)))
+        if len(idx) < 2:
+            break
+        corr = cov / np.maximum(np.outer(sd, sd), 1e-300)
+        vif = np.diag(np.linalg.pinv(corr))
+        if vif.max() <= MAX_VIF:
+            break
+        # the most inflated parameter goes (of near ties, the latest listed); the one it leans on is confounded
+        worst = max(j for j in range(len(idx)) if vif[j] >= 0.9 * vif.max())
+        partner = int(np.argmax(np.where(np.arange(len(idx)) == worst, -1.0, np.abs(corr[worst]))))
+        if names[idx[partner]] in PRUNE_FIRST and names[idx[worst]] not in PRUNE_FIRST:
+            worst, partner = partner, worst  # keep the error eq. (1) feels; the residuals may choose it
+        by[names[idx[worst]]].identifiable = False
+        by[names[idx[worst]]].reason = (f"not separable from {names[idx[partner]]} in these manoeuvres "
+                                        f"(variance inflation {vif[worst]:.0f})")
+        by[names[idx[partner]]].reason = (f"confounded with {names[idx[worst]]}: the estimate holds both "
+                                          f"(not applied)")
+        by[names[idx[partner]]].confounded_with = names[idx[worst]]
+        pairs.append((idx[worst], idx[partner]))
+        free[idx[worst]] = False
+        x[idx[worst]] = 0.0
+    for j, i in enumerate(idx):
+        by[names[i]].estimate, by[names[i]].se = float(x[i]), float(sd[j])
+    if covs is not None:
+        covs.append(([names[i] for i in idx], cov))
+    for pruned, kept in pairs:  # the other reading of the same data: the pruned error, its partner at 0
+        if not free[kept]:
+            continue
+        alt_free = free.copy()
+        alt_free[pruned], alt_free[kept] = True, False
+        x_alt = x.copy()
+        x_alt[kept] = 0.0
+        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog)
+        j = int(np.flatnonzero(np.flatnonzero(alt_free) == pruned)[0])
+        p = by[names[pruned]]
+        p.estimate, p.se = float(x_alt[pruned]), float(np.sqrt(abs(blk_alt.cluster_cov()[j, j])))
+        p.identifiable, p.confounded_with = True, names[kept]
+    for i, c in enumerate(outs):
+        rms[c]["after"] = float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))
+    return x

@@ -1,0 +1,332 @@
+"""What the data compatibility found, and the correction of a log for it: the instrument
+errors with their standard errors (:class:`CompatResult`) and the sensor positions moved to the CG."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from identify.logs import Log
+D2R = np.pi / 180.0
+FT_PER_KT = 1.6878098571011957
+G0_FPS2 = 32.174049
+EARTH_RADIUS_FT = 20_925_646.0
+#: The Earth's rotation rate [rad/s] (WGS84, as JSBSim's planet).
+EARTH_RATE = 7.292115e-5
+#: At most this many logs are reconstructed (the instruments are shared); spread over the conditions.
+MAX_LOGS = 12
+#: Reconstruction rate [Hz]: faster logs are thinned (the kinematics need no more).
+RATE_HZ = 50.0
+#: Smallest correction worth applying, per unit: below these, what the data hold is the
+#: kinematic model's own mismatch (on perfect JSBSim data: the Earth's rotation, 0.004 deg/s in
+#: the roll gyro; JSBSim's half-frame timing, 4 ms; 0.2 % in airspeed), not an instrument error.
+MATTERS = {"deg": 0.005, "kt": 0.5, "ft/s^2": 0.01, "deg/s": 0.005, "-": 0.005, "s": 0.01, "ft": 2.0}
+#: Corrections this many standard errors from 0 are applied on the kinematics' word alone ...
+APPLY_Z = 5.0
+#: ... from this many on, only if other evidence agrees (:meth:`CompatResult.choose`). Few logs make a
+#: clustered standard error itself uncertain: in turbulence it came out 4x too small in 1 null of 6.
+CANDIDATE_Z = 3.0
+#: Above this variance inflation a parameter is confounded with others (its error is 10x a lone one's).
+MAX_VIF = 100.0
+#: Of a confounded pair these go first: an attitude bias does not enter eq. (1), the accelerometer
+#: bias it trades with does, and the aerodynamic residuals can then choose between them.
+PRUNE_FIRST = ("theta_deg.bias", "phi_deg.bias")
+#: Larger estimates are not instrument errors but a reconstruction gone wrong (not applied).
+PLAUSIBLE = {"deg": 5.0, "kt": 20.0, "ft/s^2": 1.0, "deg/s": 1.0, "-": 0.3, "s": 0.5, "ft": 200.0}
+#: Span a lateral channel's reconstruction needs before its scale factor and time shift can be
+#: told from turbulence [deg] (light turbulence alone moves them about 2 deg): a lateral manoeuvre.
+LATERAL_SPAN = {"beta_deg": 4.0, "phi_deg": 10.0}
+#: Span of pitch attitude a pitch-angle bias needs to be told from an accelerometer bias [deg].
+THETA_BIAS_SPAN = 15.0
+#: Above this RMS vertical gust in the reconstruction [ft/s] the air-data time shifts are not identifiable:
+#: the aircraft's answer to the gusts biases them (null flights at 1.5 ft/s: +15 to +45 ms on alpha).
+TURBULENT_FPS = 0.5
+#: Knot spacing of each log's gust [s]: Dryden turbulence has most of its power below V / (2 pi L),
+#: about 0.04 Hz at 1750 ft scale length; a 2-3-1-1 excites 0.15-1 Hz.
+GUST_KNOT_S = 3.0
+
+
+@dataclass
+class Parameter:
+    """One instrument error: estimate and standard error, in the channel's units (scale: -; delay: s)."""
+
+    channel: str
+    error: str  # bias | scale | delay | position
+    unit: str
+    estimate: float = 0.0
+    se: float = float("nan")
+    identifiable: bool = True
+    reason: str = ""
+    sources: dict = field(default_factory=dict)  # method -> (estimate, se) when several methods combine
+    confounded_with: str = ""  # the parameter the kinematics cannot tell it from (held at 0)
+    chosen: str = ""  # why it is applied although confounded (the aerodynamic residuals chose it)
+    beside_aero: bool = False  # the residuals agreed only beside the aerodynamic terms fitted to them
+
+    @property
+    def name(self) -> str:
+        return f"{self.channel}.{self.error}"
+
+    @property
+    def z(self) -> float:
+        return abs(self.estimate) / self.se if self.se > 0 else float("inf") if self.estimate else 0.0
+
+    @property
+    def correctable(self) -> bool:
+        """At least :data:`CANDIDATE_Z` standard errors (or measured by the kinematics and refined by the
+        aerodynamic residuals), larger than the channel's resolution, plausible."""
+        return bool(self.identifiable and (self.z >= CANDIDATE_Z or {"kinematics", "residuals"} <= set(self.sources))
+                    and MATTERS[self.unit] <= abs(self.estimate) <= PLAUSIBLE[self.unit])
+
+    @property
+    def applied(self) -> bool:
+        """The data are corrected for it: correctable, at least :data:`APPLY_Z` standard errors and
+        not confounded, or chosen by other evidence (the aerodynamic residuals)."""
+        return self.correctable and (bool(self.chosen) or (not self.reason and self.z >= APPLY_Z))
+
+    def to_dict(self) -> dict:
+        ok = bool(self.identifiable)
+        return {"channel": self.channel, "error": self.error, "unit": self.unit,
+                "estimate": float(self.estimate) if ok else None,
+                "se": float(self.se) if ok else None, "z": float(self.z) if ok else None,
+                "identifiable": ok, "reason": self.reason, "applied": bool(self.applied),
+                "confounded_with": self.confounded_with or None, "chosen_because": self.chosen or None,
+                "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()}}
+
+
+def _parameters() -> list[Parameter]:
+    p = [Parameter(c, "bias", "deg/s") for c in ("p_dps", "q_dps", "r_dps")]
+    p += [Parameter(c, e, u) for c in ("theta_deg", "phi_deg") for e, u in (("scale", "-"), ("delay", "s"))]
+    p += [Parameter(c, "bias", "ft/s^2") for c in ("ax_fps2", "ay_fps2", "az_fps2")]
+    p += [Parameter(c, "bias", "deg") for c in ("theta_deg", "phi_deg")]
+    for c, unit in (("alpha_deg", "deg"), ("beta_deg", "deg"), ("tas_kt", "kt")):
+        p += [Parameter(c, "bias", unit), Parameter(c, "scale", "-"), Parameter(c, "delay", "s")]
+    p.append(Parameter("alpha_deg", "position", "ft"))  # the air-data head's distance ahead of the CG
+    return p
+
+
+@dataclass
+class CompatResult:
+    """What the data compatibility found.
+
+    Attributes
+    ----------
+    parameters : list of Parameter
+    logs : list of str
+        The logs reconstructed.
+    residual_rms : dict
+        Output channel -> RMS of (measured - reconstructed) without and with the
+        estimated errors, ``{"before": ..., "after": ...}``.
+    positions : dict
+        Sensor positions the logs document (channel -> [x, y, z] from the CG, body
+        axes [ft]); the data are corrected for them, they are not estimated.
+    """
+
+    parameters: list[Parameter]
+    logs: list[str] = field(default_factory=list)
+    residual_rms: dict = field(default_factory=dict)
+    positions: dict = field(default_factory=dict)
+    covariance: list = field(default_factory=list)  # [(parameter names, covariance matrix)] per stage
+    turbulence_fps: float = float("nan")  # RMS vertical gust the reconstruction needed [ft/s]
+
+    def uncertainty(self) -> tuple[list[tuple[str, str]], np.ndarray]:
+        """The identifiable biases, scale factors and time shifts, (channel, error), and the
+        covariance of their estimates: how wrong the corrected data may still be."""
+        names, blocks = [], []
+        ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
+        for ns, cov in self.covariance:
+            keep = [j for j, n in enumerate(ns) if n.split(".")[1] in ("bias", "scale", "delay") and n in ok]
+            names += [tuple(ns[j].split(".")) for j in keep]
+            blocks.append(cov[np.ix_(keep, keep)])
+        total = np.zeros((len(names), len(names)))
+        i = 0
+        for b in blocks:
+            total[i:i + len(b), i:i + len(b)] = b
+            i += len(b)
+        return names, total
+
+    def choose(self, name: str, why: str, beside_aero: bool = False) -> "CompatResult":
+        """The same result with a confounded parameter applied (its partner held at 0), and why."""
+        return replace(self, parameters=[replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p
+                                         for p in self.parameters])
+
+    def note(self, name: str, text: str) -> "CompatResult":
+        """The same result with a note added to one parameter's reason."""
+        return replace(self, parameters=[replace(p, reason=f"{p.reason}; {text}") if p.name == name else p
+                                         for p in self.parameters])
+
+    @property
+    def undecided(self) -> list[Parameter]:
+        """Correctable parameters held back: confounded with a partner the kinematics cannot tell
+        them from, or short of :data:`APPLY_Z` standard errors. Other evidence may choose them."""
+        return [p for p in self.parameters if p.correctable and not p.applied
+                and (p.confounded_with or not p.reason)]
+
+    def without(self, name: str) -> "CompatResult":
+        """The same result with one parameter's correction not applied."""
+        params = [replace(p, identifiable=False, reason="undone") if p.name == name else p
+                  for p in self.parameters]
+        return replace(self, parameters=params)
+
+    @property
+    def unmeasured(self) -> list[tuple[str, str]]:
+        """Air-data errors the manoeuvres could have shown but the conditions hid (turbulence)."""
+        return [(p.channel, p.error) for p in self.parameters
+                if not p.identifiable and p.reason.startswith("turbulence") and p.channel == "alpha_deg"]
+
+    def get(self, name: str) -> Parameter:
+        return next(p for p in self.parameters if p.name == name)
+
+    def value(self, name: str) -> float:
+        """The estimate if it is applied, else 0."""
+        p = self.get(name)
+        return p.estimate if p.applied else 0.0
+
+    @property
+    def applied(self) -> list[Parameter]:
+        return [p for p in self.parameters if p.applied]
+
+    def correction_key(self) -> tuple:
+        """What :meth:`correct` does, as a hashable value: results with equal keys correct every log alike."""
+        return tuple((p.name, float(p.estimate)) for p in self.applied), repr(sorted(self.positions.items()))
+
+    def to_dict(self) -> dict:
+        return {"parameters": [p.to_dict() for p in self.parameters], "logs": [Path(p).name for p in self.logs],
+                "residual_rms": self.residual_rms, "documented_positions_ft": self.positions,
+                "vertical_gust_rms_fps": self.turbulence_fps}
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame([p.to_dict() for p in self.parameters])
+
+    def summary(self) -> str:
+        lines = [f"Data compatibility (flight-path reconstruction of {len(self.logs)} logs):"]
+        for c, r in self.positions.items():
+            lines.append(f"  {c} sensor documented at {r} ft from the CG: corrected for")
+        for p in self.parameters:
+            if not p.identifiable:
+                lines.append(f"  {p.name:<22} not identifiable ({p.reason})")
+                continue
+            mark = ("  applied" + (f" ({p.chosen})" if p.chosen else "") if p.applied else
+                    f"  {p.reason}" if p.reason else
+                    "  implausible, not applied" if abs(p.estimate) > PLAUSIBLE[p.unit] else "")
+            how = "; ".join(f"{k} {e:+.4g} +- {se:.2g}" for k, (e, se) in p.sources.items())
+            lines.append(f"  {p.name:<22} {p.estimate:+11.5g} +- {p.se:.3g} {p.unit:<7} (z {p.z:5.1f}){mark}"
+                         + (f"  [{how}]" if how else ""))
+        for ch, v in self.residual_rms.items():
+            lines.append(f"  residual RMS {ch}: {v['before']:.4g} -> {v['after']:.4g}")
+        if np.isfinite(self.turbulence_fps):
+            lines.append(f"  vertical gust in the reconstruction: {self.turbulence_fps:.2g} ft/s RMS")
+        return "\n".join(lines)
+
+    def correct(self, log: Log) -> Log:
+        """The log with its documented sensor positions and the applied instrument errors
+        removed (before eq. 1)."""
+        if not self.applied and not self.positions:
+            return log
+        raw = columns_of(log.data)
+        d = at_cg(raw, self.positions, accelerometers_only=True)
+        t = np.asarray(d["t_s"], dtype=float)
+        for c in ("p_dps", "q_dps", "r_dps", "ax_fps2", "ay_fps2", "az_fps2"):
+            if c in d:
+                d[c] = d[c] - self.value(f"{c}.bias")
+        for c in ("theta_deg", "phi_deg", "tas_kt", "alpha_deg", "beta_deg"):
+            if c in d:
+                x = np.interp(t + self.value(f"{c}.delay"), t, np.asarray(d[c], dtype=float))
+                d[c] = (x - self.value(f"{c}.bias")) / (1.0 + self.value(f"{c}.scale"))
+        if "tas_kt" in d and self.applied and any(p.channel == "tas_kt" for p in self.applied):
+            ratio = d["tas_kt"] / raw["tas_kt"]
+            for c in ("ias_kt", "mach"):
+                if c in d:
+                    d[c] = d[c] * ratio
+        x = self.value("alpha_deg.position")
+        positions = dict(self.positions)
+        if x:
+            positions.update({c: [x, 0.0, 0.0] for c in ("alpha_deg", "beta_deg")})
+        d = at_cg(d, positions, air_data_only=True)
+        meta = {**log.meta, "corrections": {p.name: p.estimate for p in self.applied},
+                "positions_corrected": positions}
+        return replace(log, data=pd.DataFrame(d, index=log.data.index), meta=meta)
+
+
+def documented_positions(logs: list[Log]) -> dict:
+    """Sensor positions the logs document (all must agree), channel -> [x, y, z] [ft]."""
+    docs = [lg.meta.get("sensor_positions_ft", {}) for lg in logs]
+    return docs[0] if docs and all(d == docs[0] for d in docs) else {}
+
+
+def columns_of(frame: pd.DataFrame) -> dict[str, np.ndarray]:
+    """A frame's columns as arrays, in its order (what :func:`at_cg` takes): a frame's column
+    arithmetic and assignment cost more than the arrays' own."""
+    if len(frame.columns) and all(t == np.float64 for t in frame.dtypes):
+        return dict(zip(frame.columns, frame.to_numpy().T))
+    return {c: frame[c].to_numpy() for c in frame.columns}
+
+
+def at_cg(d: dict[str, np.ndarray], positions: dict, accelerometers_only: bool = False,
+          air_data_only: bool = False) -> dict[str, np.ndarray]:
+    """Channels moved from where their sensors sit to the CG.
+
+    Accelerometers lose the rotational terms (angular acceleration from the
+    gyros' smoothing derivative); the vanes and the pitot lose the flow the
+    rotation makes at the boom (vanes ``x`` ahead of the CG read
+    ``atan((w - q x) / u)``).
+
+    Parameters
+    ----------
+    d : dict
+        A log's columns, name -> array (:func:`columns_of`).
+    positions : dict
+        Channel -> sensor position [x, y, z] [ft] from the CG.
+
+    Returns
+    -------
+    dict
+        The same columns, the moved ones replaced.
+    """
+    from identify.kinematics import smooth_derivative
+
+    out = dict(d)
+    t = np.asarray(d["t_s"], dtype=float)
+    rates = [np.asarray(d[c], dtype=float) * D2R if c in d else np.zeros(len(t)) for c in ("p_dps", "q_dps", "r_dps")]
+    moved = [c for c in ("ax_fps2", "ay_fps2", "az_fps2") if c in positions and c in d]
+    if moved and not air_data_only:
+        rdot = [smooth_derivative(t, w) for w in rates]
+        om = np.stack(rates)
+        for k, c in enumerate(("ax_fps2", "ay_fps2", "az_fps2")):
+            if c in positions and c in d:
+                r = np.asarray(positions[c], float)[:, None]
+                wxr = np.cross(om.T, np.broadcast_to(r.T, om.T.shape)).T
+                extra = np.cross(np.stack(rdot).T, np.broadcast_to(r.T, om.T.shape)).T + np.cross(om.T, wxr.T).T
+                out[c] = np.asarray(d[c], dtype=float) - extra[k]
+    if accelerometers_only:
+        return out
+    x = positions.get("alpha_deg", [0.0])[0]
+    if x and "alpha_deg" in d:
+        out["alpha_deg"], beta = _at_cg(d, x, positions.get("beta_deg", [x])[0])
+        if "beta_deg" in d:
+            out["beta_deg"] = beta
+    if "tas_kt" in positions and "tas_kt" in d:
+        xt = positions["tas_kt"][0]
+        a, b = out["alpha_deg"] * D2R, out["beta_deg"] * D2R if "beta_deg" in out else 0.0
+        out["tas_kt"] = d["tas_kt"] - xt * (rates[2] * np.sin(b) - rates[1] * np.sin(a) * np.cos(b)) / FT_PER_KT
+    return out
+
+
+def _at_cg(d: dict[str, np.ndarray], x_ft: float, xb_ft: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Alpha and beta at the CG from vanes ``x_ft`` (beta: ``xb_ft``) ahead of it [deg]."""
+    xb_ft = x_ft if xb_ft is None else xb_ft
+    v = np.asarray(d["tas_kt"], dtype=float) * FT_PER_KT
+    q = np.asarray(d["q_dps"], dtype=float) * D2R
+    r = np.asarray(d["r_dps"], dtype=float) * D2R if "r_dps" in d else 0.0
+    av = np.asarray(d["alpha_deg"], dtype=float) * D2R
+    bv = np.asarray(d["beta_deg"], dtype=float) * D2R if "beta_deg" in d else np.zeros(len(v))
+    vs = v * np.sin(bv)
+    vb = vs - r * xb_ft
+    uw = np.sqrt(np.maximum(v ** 2 - vs ** 2, 1.0))
+    a = av.copy()
+    for _ in range(4):  # the vane reads atan((w - q x) / u) with u, w of the CG
+        u = uw * np.cos(a)
+        a = np.arctan2(u * np.tan(av) + q * x_ft, u)
+    beta = np.arcsin(np.clip(vb / v, -1.0, 1.0)) if "beta_deg" in d else np.zeros(len(v))
+    return a / D2R, beta / D2R
