@@ -257,7 +257,7 @@ def test_a_figure_drawn_on_reused_axes_equals_a_new_one(tmp_path, kind):
     figure per process: the second must show nothing of the first (lines, legend, limits)."""
     import matplotlib.pyplot as plt
 
-    from identify import diagnosis_plots as dp
+    from diagnose import plots as dp
     from identify import plots as ip
     from identify.figures import emptied_axes
     plot, size, layout, make = {"fit": (ip.plot_fit, ip.FIT_SIZE, ip.fit_axes, _fit_args),
