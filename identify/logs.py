@@ -32,21 +32,9 @@ class LogError(ValueError):
     """A bad measured log; the message names the file, and the column and row."""
 
 
-@dataclass
-class Log:
-    """One measured manoeuvre.
+class _Described:
+    """What a log's metadata says of it (``self.meta``)."""
 
-    Attributes
-    ----------
-    path : str
-    data : pandas.DataFrame
-        Columns of the log schema, units in the names.
-    meta : dict
-        Status point, manoeuvre, inertia, geometry...
-    """
-
-    path: str
-    data: pd.DataFrame
     meta: dict
 
     @property
@@ -71,6 +59,46 @@ class Log:
     def transition(self) -> bool:
         """A gear extension or retraction (anything else is an excitation: a 2-3-1-1, say)."""
         return self.maneuver in TRANSITIONS
+
+
+@dataclass
+class Log(_Described):
+    """One measured manoeuvre.
+
+    Attributes
+    ----------
+    path : str
+    data : pandas.DataFrame
+        Columns of the log schema, units in the names.
+    meta : dict
+        Status point, manoeuvre, inertia, geometry...
+    """
+
+    path: str
+    data: pd.DataFrame
+    meta: dict
+
+    @property
+    def columns(self) -> pd.Index:
+        return self.data.columns
+
+    def read(self) -> "Log":
+        """Itself (a :class:`LogHead` reads its file)."""
+        return self
+
+
+@dataclass(frozen=True)
+class LogHead(_Described):
+    """A log before its samples are read: its path, metadata and column names. Work on thousands
+    of logs holds these and reads each log (:meth:`read`) where it is used, one at a time."""
+
+    path: str
+    meta: dict
+    columns: tuple[str, ...]
+
+    def read(self) -> Log:
+        """The whole log, checked (:func:`read_parquet`, :func:`read_csv`)."""
+        return read_csv(self.path) if self.path.endswith(".csv") else read_parquet(self.path)
 
 
 def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:
@@ -142,8 +170,37 @@ def read_csv(path: str | Path) -> Log:
     return Log(str(path), df.astype({c: float for c in REQUIRED_COLUMNS}), _derive(meta, df))
 
 
+def read_head(path: str | Path) -> LogHead:
+    """A log's metadata and column names, its metadata checked; a Parquet log's samples are not
+    read (a CSV's are, and dropped)."""
+    if str(path).endswith(".csv"):
+        log = read_csv(path)
+        return LogHead(log.path, log.meta, tuple(log.data.columns))
+    try:
+        schema = pq.read_schema(path)
+    except (OSError, ValueError) as exc:
+        raise LogError(f"{path}: not a readable Parquet log ({str(exc).splitlines()[0][:120]})") from None
+    meta = json.loads((schema.metadata or {}).get(b"gearid", b"{}"))
+    for key in REQUIRED_META:
+        if key not in meta:
+            raise LogError(f"{path}: metadata field {key!r} missing")
+    columns = tuple(schema.names)
+    return LogHead(str(path), _derive(meta, pd.DataFrame(columns=list(columns))), columns)
+
+
 def read_campaign(folder: str | Path) -> list[Log]:
     """Every log of a campaign folder (manifest order), or of a folder of CSVs."""
+    return [read_parquet(f) if f.suffix == ".parquet" else read_csv(f) for f in campaign_files(folder)]
+
+
+def read_heads(folder: str | Path) -> list[LogHead]:
+    """:func:`read_head` of every log of a campaign folder, in :func:`read_campaign`'s order."""
+    return [read_head(f) for f in campaign_files(folder)]
+
+
+def campaign_files(folder: str | Path) -> list[Path]:
+    """The logs of a campaign folder (its manifest's points that flew, in order), or of a folder of
+    Parquet and CSV files (Parquet first, each sorted by name)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise LogError(f"{folder}: not a folder")
@@ -153,10 +210,9 @@ def read_campaign(folder: str | Path) -> list[Log]:
             man = json.loads(manifest.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise LogError(f"{manifest}: not valid JSON ({getattr(exc, 'msg', exc)})") from None
-        files = [folder / f for p in man.get("points", []) if p["status"] == "ok" for f in p["files"]]
-        return [read_parquet(f) for f in files]
+        return [folder / f for p in man.get("points", []) if p["status"] == "ok" for f in p["files"]]
     csvs = sorted(folder.glob("*.csv"))
     parquets = sorted(folder.glob("*.parquet"))
     if not csvs and not parquets:
         raise LogError(f"{folder}: no manifest.json, Parquet or CSV logs")
-    return [read_parquet(f) for f in parquets] + [read_csv(f) for f in csvs]
+    return parquets + csvs

@@ -11,7 +11,7 @@ weighted by the regressors' cross-products.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -32,6 +32,7 @@ class LSResults:
     resid : ndarray
     fitted : ndarray
     y : ndarray
+        Per sample; None once :meth:`slim` has dropped them.
     """
 
     name: str
@@ -43,24 +44,31 @@ class LSResults:
     fitted: np.ndarray
     y: np.ndarray
     cov: np.ndarray = field(repr=False, default=None)
+    kept: tuple | None = field(repr=False, default=None)  # (nobs, resid_max, resid_rms, rel_error_pct) once slim
 
     @property
     def nobs(self) -> int:
-        return len(self.y)
+        return self.kept[0] if self.y is None else len(self.y)
 
     @property
     def resid_max(self) -> float:
         """Largest absolute residual."""
-        return float(np.max(np.abs(self.resid)))
+        return self.kept[1] if self.resid is None else float(np.max(np.abs(self.resid)))
 
     @property
     def resid_rms(self) -> float:
-        return float(np.sqrt(np.mean(self.resid ** 2)))
+        return self.kept[2] if self.resid is None else float(np.sqrt(np.mean(self.resid ** 2)))
 
     @property
     def rel_error_pct(self) -> float:
         """Largest absolute residual relative to the range of the measurement [%]."""
-        return 100.0 * self.resid_max / max(float(np.ptp(self.y)), 1e-12)
+        return self.kept[3] if self.y is None else 100.0 * self.resid_max / max(float(np.ptp(self.y)), 1e-12)
+
+    def slim(self) -> "LSResults":
+        """The same results without the per-sample arrays (measured, fitted, residual), their
+        statistics kept: what a campaign of thousands of points holds of each fit."""
+        return replace(self, resid=None, fitted=None, y=None,
+                       kept=(self.nobs, self.resid_max, self.resid_rms, self.rel_error_pct))
 
     def conf_int(self, n_sigma: float = 2.0) -> pd.DataFrame:
         return pd.DataFrame({"lower": self.params - n_sigma * self.bse,

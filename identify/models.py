@@ -9,7 +9,7 @@ sensor noise in the regressors (which biases least squares) shrinks.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import numpy as np
@@ -99,18 +99,30 @@ def _reference(frame: pd.DataFrame, source: str) -> Reference:
 def references(logs: list[Log]) -> dict[tuple, Reference]:
     """The gear-up trim of each condition, from the first second of a gear-up
     start (a gear extension, else a gear-up 2-3-1-1)."""
-    refs: dict[tuple, Reference] = {}
-    ranked = sorted(logs, key=lambda lg: (lg.maneuver != "gear_extension", lg.gear_down))
-    for log in ranked:
-        if log.condition in refs or log.data["gear_norm"].iloc[0] != 0.0:
-            continue
-        head = _steady_head(log)
-        refs[log.condition] = _reference(head, log.path)
-    for log in logs:  # conditions flown gear-down only: their own trim
-        if log.condition not in refs:
-            head = _steady_head(log)
-            refs[log.condition] = _reference(head, log.path)
-    return refs
+    return {c: reference_of(*order) for c, order in reference_order(logs).items()}
+
+
+def reference_order(logs: list) -> dict[tuple, tuple[list, object]]:
+    """Per condition, the logs its reference may come from, from what is known before reading them
+    (:class:`identify.logs.Log` or :class:`identify.logs.LogHead`): the candidates in order of
+    preference (gear extensions first, gear-up points next) and the condition's first log, whose own
+    trim serves a condition flown gear-down only (:func:`reference_of`)."""
+    order: dict[tuple, tuple[list, object]] = {}
+    for log in logs:
+        order.setdefault(log.condition, ([], log))
+    for log in sorted(logs, key=lambda lg: (lg.maneuver != "gear_extension", lg.gear_down)):
+        order[log.condition][0].append(log)
+    return order
+
+
+def reference_of(candidates, fallback: Log) -> Reference:
+    """The reference of one condition: the first second of the first candidate log that starts gear
+    up, else of ``fallback`` (:func:`reference_order`); ``candidates`` may be an iterator that reads
+    each log as it is asked for."""
+    for log in candidates:
+        if log.data["gear_norm"].iloc[0] == 0.0:
+            return _reference(_steady_head(log), log.path)
+    return _reference(_steady_head(fallback), fallback.path)
 
 
 def regressors(log: Log, ref: Reference) -> pd.DataFrame:
@@ -152,6 +164,10 @@ class PointFit:
     def param(self, coeff: str, regressor: str) -> float | None:
         res = self.fits[coeff]
         return float(res.params[regressor]) if regressor in res.params.index else None
+
+    def slim(self) -> "PointFit":
+        """The same fit without its per-sample series (kept for the points whose fit is plotted)."""
+        return replace(self, fits={c: r.slim() for c, r in self.fits.items()}, t_s=None)
 
     def table(self) -> pd.DataFrame:
         """Parameters like the paper's Table 2: one row per coefficient, '' where not identifiable."""
@@ -250,6 +266,12 @@ class Increments:
     def to_dict(self) -> dict:
         return {"gear_norm": self.grid.tolist(), **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
                 "alpha_trim_deg": self.alpha_trim_deg}
+
+    def slim(self) -> "Increments":
+        """The same increments with the per-sample series cut to the gear's travel (what Fig. 11
+        draws) and the raw increments dropped: what a campaign of thousands of points holds."""
+        moving = (self.gear_norm > 0.0) & (self.gear_norm < 1.0)
+        return replace(self, gear_norm=self.gear_norm[moving], alpha_deg=self.alpha_deg[moving], raw={})
 
 
 def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,10 +13,10 @@ import pandas as pd
 
 from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
-from identify.logs import Log, LogError, read_campaign
-from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments,
-                             LinearGearModel, PointFit, fit_baseline, fit_surface, increments,
-                             linear_models, references)
+from identify.logs import Log, LogError, LogHead, read_heads
+from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
+                             Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
+                             reference_order)
 from identify.workers import pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
@@ -35,23 +36,50 @@ class Identification:
     notes: tuple[str, ...] = ()  # why a model is missing
 
 
-def identify_logs(logs: list[Log], compatibility: bool = True, jobs: int = 1) -> Identification:
+def _read(log: Log | LogHead, correct) -> Log:
+    log = log.read()
+    return correct(log) if correct is not None else log
+
+
+def _reference(candidates: list, fallback, correct) -> Reference:
+    return reference_of((_read(lg, correct) for lg in candidates), _read(fallback, correct))
+
+
+def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> PointFit:
+    fit = fit_baseline(_read(log, correct), ref)
+    return fit if series else fit.slim()
+
+
+def _increments(log: Log | LogHead, derivatives: dict, correct) -> Increments:
+    return increments(_read(log, correct), derivatives).slim()
+
+
+def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: int = 1,
+                  series: Collection[str] | None = None) -> Identification:
     """Baseline fits, linear gear models, increments and the eq. (9) surfaces.
 
-    With ``compatibility`` the instrument errors are estimated first and the logs
-    corrected for them and for their documented sensor positions
-    (:mod:`identify.compat`). The per-point fits and the increments run on ``jobs``
-    processes.
+    With ``compatibility`` the instrument errors are estimated first (from a sample of the
+    logs) and every log is corrected for them and for its documented sensor positions as it
+    is read (:mod:`identify.compat`). The per-point fits, then the increments, run on ``jobs``
+    processes as the logs are read, one log a task: given :class:`identify.logs.LogHead` s,
+    the memory does not grow with the samples of all logs, only with each point's results.
+
+    Parameters
+    ----------
+    logs : list of Log or LogHead
+    series : collection of str, optional
+        The points whose fits keep their per-sample series (for their plots); None: every one.
     """
     compat = estimate(logs) if compatibility else None
-    if compat is not None:
-        logs = [compat.correct(lg) for lg in logs]
-    refs = references(logs)
-    fits = pmap(fit_baseline, [(log, refs[log.condition]) for log in logs if not log.transition], jobs)
+    correct = compat.correct if compat is not None else None
+    order = reference_order(logs)
+    refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))
+    fits = pmap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series)
+                       for log in logs if not log.transition], jobs)
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
     incs = dict(zip((log.point for log in moves),
-                    pmap(increments, [(log, linear[log.condition].derivatives) for log in moves], jobs)))
+                    pmap(_increments, [(log, linear[log.condition].derivatives, correct) for log in moves], jobs)))
     lin_surface = None
     if linear:
         lin_surface = fit_surface([(c, m.alpha_trim_deg, np.array([0.0, 1.0]),
@@ -221,14 +249,14 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
     if final.exists() and (not final.is_dir() or (any(final.iterdir())
                                                   and not (final / "identification.json").exists())):
         raise LogError(f"{final}: exists and holds no identification; will not overwrite (choose another --out)")
-    logs = read_campaign(results)
+    logs = read_heads(results)
     if not logs:
         raise LogError(f"{results}: no logs of flown points to identify from")
     if model_dir is None:
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
-    ident = identify_logs(logs, jobs=jobs)
+    ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS))
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
     _swap(stage, final)

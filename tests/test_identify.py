@@ -139,6 +139,30 @@ def test_nonlinear_increments_reproduce_the_overlay_within_5pct_of_peak(referenc
     assert max(worst.values()) < 0.05, worst
 
 
+def test_identification_streams_from_log_heads_to_the_same_answer(reference_gear_down, tmp_path):
+    """From the logs' heads (metadata and column names, no samples) each log is read where it is
+    fitted, on the workers: the same identification, to the bit, as from every log held at once;
+    the fits keep their series only for the points asked, and the increments only the gear's travel."""
+    from identify.logs import LogHead, read_heads
+    from identify.pipeline import write_outputs
+    folder, logs, ident = reference_gear_down
+    heads = read_heads(folder)
+    assert all(isinstance(h, LogHead) for h in heads) and [h.path for h in heads] == [lg.path for lg in logs]
+    assert [h.condition for h in heads] == [lg.condition for lg in logs]
+    assert tuple(heads[0].columns) == tuple(logs[0].data.columns)
+    keep = ident.fits[0].point
+    streamed = identify_logs(heads, jobs=2, series={keep})
+    assert [f.t_s is None for f in streamed.fits] == [f.point != keep for f in ident.fits]
+    assert all(f.fits["CL"].y is None for f in streamed.fits if f.point != keep)
+    for inc in streamed.increments.values():
+        assert not inc.raw and np.all((inc.gear_norm > 0) & (inc.gear_norm < 1))
+    for name, result in (("held", ident), ("streamed", streamed)):
+        write_outputs(result, tmp_path / name, None, plots="none")
+    for f in ("identification.json", "baseline_parameters.csv", "baseline_fit_statistics.csv",
+              "linear_gear_model.csv", "gear_increments.csv", "summary.txt", "gear_nonlinear.xml"):
+        assert (tmp_path / "held" / f).read_bytes() == (tmp_path / "streamed" / f).read_bytes(), f
+
+
 def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tmp_path):
     """Round trip: the model with its gear terms replaced by the export, loaded in
     JSBSim, gives the identified increments at states inside the tables."""

@@ -16,6 +16,12 @@ from identify.logs import Log
 def estimate(logs: list[Log]) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
+    Parameters
+    ----------
+    logs : list of Log or LogHead
+        Every log; at most :data:`identify.compat.result.MAX_LOGS` of them are reconstructed, and
+        only those are read (:meth:`identify.logs.LogHead.read`).
+
     Returns
     -------
     CompatResult
@@ -23,12 +29,12 @@ def estimate(logs: list[Log]) -> CompatResult:
     params = _parameters()
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
-    missing = [c for c in ESSENTIAL if not logs or not all(c in lg.data for lg in logs)]
+    missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
     if missing:
         for p in params:
             p.identifiable, p.reason = False, f"no reconstruction: {missing[0]} is not logged"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
-    chosen = _select(logs)
+    chosen = [lg.read() for lg in _select(logs)]
     data = _prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
                                                     index=lg.data.index)) for lg in chosen])
     x_doc = positions.get("alpha_deg", [None])[0]
