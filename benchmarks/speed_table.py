@@ -134,7 +134,8 @@ def stepping() -> tuple[float, str]:
 
 
 def scaled_matrix(factor: int, path: Path) -> int:
-    """The paper matrix with every point repeated at ``factor`` altitudes 150 ft apart; returns its point count."""
+    """The paper matrix with every point repeated at ``factor`` altitudes 150 ft apart (1500 / ``factor`` ft
+    beyond 10, so that no two points meet); returns its point count."""
     src = ROOT / "campaign" / "matrices" / "cai2024.toml"
     text = src.read_text()
     head = text[:text.index("[[points]]")]
@@ -142,7 +143,7 @@ def scaled_matrix(factor: int, path: Path) -> int:
     lines = [head.replace(f'name = "{doc["name"]}"', f'name = "{doc["name"]}-x{factor}"')]
     for p in doc["points"]:
         alts = p["alt_ft"] if isinstance(p["alt_ft"], list) else [p["alt_ft"]]
-        dense = [a + 150 * k for a in alts for k in range(factor)]
+        dense = [a + min(150, 1500 // factor) * k for a in alts for k in range(factor)]
         lines.append("[[points]]")
         for k, v in p.items():
             v = dense if k == "alt_ft" else v
