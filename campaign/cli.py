@@ -125,6 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     which.add_argument("--no-plots", action="store_true", help="no plots (same as --plots none)")
     dia.add_argument("--jobs", type=_jobs, default=1,
                      help="parallel workers for the noise floor, the replays and the plots (default 1)")
+    dia.add_argument("--cluster", metavar="tcp://HOST:PORT",
+                     help="compute the residuals, sensitivities, noise realizations and replays on the Dask "
+                          "cluster whose scheduler is there (the plots stay on --jobs local workers)")
     dia.add_argument("--quiet", action="store_true", help="no progress bar")
 
     imp = sub.add_parser("import", help="measured data in other names, units, rates and formats into logs",
@@ -234,7 +237,7 @@ def _main(args) -> int:
             from campaign.diagnose import run_diagnosis
             doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out),
                                 plots="none" if args.no_plots else args.plots, jobs=args.jobs,
-                                progress=not args.quiet and sys.stderr.isatty())
+                                progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
             print(doc["summary"])
             print(f"report in {args.out}")
             return 0

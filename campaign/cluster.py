@@ -1,56 +1,32 @@
 """Fly status points on a Dask cluster (dask.distributed).
 
 The workers may be other machines: the aircraft folder and the effect overlay
-travel as data (:class:`Shipment`), each worker writes them once into its own
+travel as data (:class:`identify.workers.Shipment`), each worker writes them once into its own
 temporary folder and builds its own FGFDMExec there. The logs come back as
 data and the client writes them, atomically, as a local run does; they are
 bit-identical to a local run's (the folder path is in no log).
 """
 from __future__ import annotations
 
-import hashlib
 import os
-import tempfile
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 from urllib.parse import urlsplit
 
-from campaign.aircraft import AircraftSource, Effects, folder_files
+from campaign.aircraft import AircraftSource, Effects
 from campaign.engine import FlightConfig
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
 from campaign.store import failed_record
-
-
-@dataclass(frozen=True)
-class Shipment:
-    """An aircraft folder and its overlay as bytes.
-
-    Attributes
-    ----------
-    name : str
-        The aircraft's folder name.
-    sha256 : str
-        The hash of the folder and the overlay (the worker's copy is stored under it).
-    files : tuple of (str, bytes)
-        Every file of the folder, by POSIX path relative to it.
-    effects : bytes or None
-        The overlay file, if any.
-    """
-
-    name: str
-    sha256: str
-    files: tuple[tuple[str, bytes], ...]
-    effects: bytes | None
+from identify.workers import Shipment, landed, ship
 
 
 def pack(source: AircraftSource) -> Shipment:
-    """The aircraft folder and overlay of ``source`` as data."""
-    files = tuple((rel, f.read_bytes()) for rel, f in folder_files(Path(source.folder)))
+    """The aircraft folder and overlay of ``source`` as data (the overlay as ``effects.xml`` beside
+    the folder)."""
     fx = Path(source.effects.path).read_bytes() if source.effects.path else None
-    key = hashlib.sha256(source.sha256.encode() + b"\0" + (fx if fx is not None else b"none")).hexdigest()
-    return Shipment(source.name, key, files, fx)
+    return ship(Path(source.folder), (("effects.xml", fx),) if fx is not None else ())
 
 
 def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
@@ -60,25 +36,10 @@ def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
 
 def unpack_source(shipment: Shipment, effects: Effects) -> AircraftSource:
     """The aircraft of ``shipment`` (and its overlay, parsed as ``effects``) from this machine's
-    copy, written once per worker machine, atomically."""
-    home = Path(tempfile.gettempdir()) / "gearid-cluster" / shipment.sha256
-    folder = home / shipment.name
-    if not (home / "complete").exists():
-        home.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".unpack-", dir=home.parent))
-        for rel, data in shipment.files:
-            dest = tmp / shipment.name / rel
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            dest.write_bytes(data)
-        if shipment.effects is not None:
-            (tmp / "effects.xml").write_bytes(shipment.effects)
-        (tmp / "complete").write_text("")
-        try:
-            os.rename(tmp, home)
-        except OSError:  # another worker on this machine got there first
-            pass
-    return AircraftSource(str(folder), Effects(str(home / "effects.xml") if shipment.effects is not None else None,
-                                               effects.functions))
+    copy, written once per worker machine (:func:`identify.workers.landed`)."""
+    home = landed(shipment)
+    fx = home / "effects.xml"
+    return AircraftSource(str(home / shipment.name), Effects(str(fx) if fx.exists() else None, effects.functions))
 
 
 def fly_shipped(point: StatusPoint, config: FlightConfig, shipment: Shipment, fly: Callable):

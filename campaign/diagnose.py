@@ -28,7 +28,8 @@ from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from identify.workers import Ahead, pmap, results, submit
+from campaign.cluster import connect, pack, unpack_source
+from identify.workers import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
 
 G0 = 32.174049
@@ -94,8 +95,13 @@ def replay(log: Log, source: AircraftSource) -> pd.DataFrame | None:
 PLOTS = ("key", "all", "none")
 
 
+def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | None:
+    """On a cluster worker: :func:`replay` on this machine's copy of the shipped aircraft."""
+    return replay(log, unpack_source(shipment, effects))
+
+
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
-                  progress: bool = False) -> dict:
+                  progress: bool = False, cluster: str | None = None) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
@@ -109,6 +115,10 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         Worker processes for the noise floor, the replays and the plots.
     progress : bool
         A progress bar of the stages on stderr.
+    cluster : str, optional
+        ``tcp://HOST:PORT`` of a Dask scheduler: the residuals, sensitivities, noise realizations
+        and replays run on its workers (the model and aircraft folders shipped with the tasks), the
+        plots on ``jobs`` local workers. ``diagnosis.json`` is the same as a local run's, to the bit.
     """
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
@@ -119,6 +129,19 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     model = check_aircraft_folder(model_dir)
     logs = load_data(data_path)
     train, held = split(logs)
+    client = connect(cluster) if cluster else None  # before anything is written
+    try:
+        with on_cluster(client):
+            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
+               train: list[Log], held: list[Log], client) -> dict:
+    """:func:`run_diagnosis` once its inputs are read (within :func:`identify.workers.on_cluster`)."""
+    fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
         evaluator = ModelEvaluator(model)
     except ValueError as exc:
@@ -127,7 +150,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                "[{elapsed}]")
     src_model = AircraftSource(str(model), load_effects(None))
     # the data compatibility runs on one core: a process of its own flies the model's replays meanwhile
-    ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs)
+    ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs if client is None else 1)
 
     def stage(name: str) -> None:
         if name != STAGES[0]:
@@ -136,7 +159,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         bar.set_description(name)
 
     try:
-        diag = diagnose(train, evaluator, held, jobs=jobs, progress=stage)
+        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage)
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
         evaluator.close()
         bar.close()
@@ -154,13 +177,18 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         xml = write_extension(diag, out / "extension.xml")
         folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
         doc["extension"], doc["extension_xml"] = str(folder), str(xml)
-        extended_eval = ModelEvaluator(folder, jobs=jobs)
+        extended_eval = ModelEvaluator(folder, jobs=fan)
         after = residual_data(held, extended_eval)
         src_ext = AircraftSource(str(folder), load_effects(None))
         stage("replays")
         early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
         calls = [(i, src) for i in range(len(held)) for src in (src_model, src_ext) if src is src_ext or i not in early]
-        flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
+        if client is None:
+            flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
+        else:  # the aircraft travel with the tasks
+            shipped = {id(s): pack(s) for s in (src_model, src_ext)}
+            flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
+                                                               for i, src in calls], fan)))
         flown = {lg.path: (early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext])
                  for i, lg in enumerate(held)}
         doc["gain"] = measure_gain(diag, held, before, after, flown)
@@ -187,8 +215,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
            flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
-    drawn on the workers; returns the names of the logs plotted."""
+    drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
     from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
+    with local_workers():
+        return _draw(diag, held, before, after, flown, out, jobs, which, save_overview, save_log_plots)
+
+
+def _draw(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None, flown: dict,
+          out: Path, jobs: int, which: list[int] | None, save_overview, save_log_plots) -> list[str]:
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],

@@ -32,9 +32,11 @@ import array
 import hashlib
 import shutil
 import tempfile
+import threading
 import weakref
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from multiprocessing.util import Finalize
 from pathlib import Path
 
 import numpy as np
@@ -261,9 +263,7 @@ class ModelEvaluator:
         self.frame_s = float(model_fdm.get_delta_t())
         self.S = fdm["metrics/Sw-sqft"]
         self.cbar = fdm["metrics/cbarw-ft"]
-        fdm["ic/vt-kts"] = 200.0
-        with captured_stdout():
-            fdm.run_ic()
+        self._start()
         self.aerorp_in = tuple(fdm[f"metrics/aero-rp-{a}-in"] for a in "xyz")
         self.cg_in = tuple(fdm[f"inertia/cg-{a}-in"] for a in "xyz")
         inputs = longitudinal_inputs(ET.parse(folder / f"{name}.xml").getroot())
@@ -273,6 +273,21 @@ class ModelEvaluator:
         self.unset = [UnsetInput(p, float(fdm[p]) if p in self.names else 0.0) for p in sorted(inputs)
                       if p not in settable and not p.startswith(STATE_DERIVED) and not p.startswith("eval/")
                       and not (p.startswith("fcs/mag-") and "fcs/" + p[8:] in settable)]
+
+    def _start(self) -> None:
+        self.fdm["ic/vt-kts"] = 200.0
+        with captured_stdout():
+            self.fdm.run_ic()
+
+    def restart(self) -> "ModelEvaluator":
+        """This evaluator with its JSBSim model loaded again (3 ms on our 737): a row's answer
+        depends in its last digits (1e-13) on the rows evaluated before it (JSBSim's
+        initial-condition setters start from the previous state), so work that restarts the
+        model at fixed places gives the same numbers whichever process runs it."""
+        with captured_stdout():
+            self.fdm = load_fdm(self._tmp / "eval", self.model_dir.name)
+        self._start()
+        return self
 
     @property
     def reference(self) -> Reference:
@@ -407,25 +422,63 @@ class ModelEvaluator:
 
 
 
-_EVALUATORS: dict[tuple[str, str], ModelEvaluator] = {}
+_EVALUATORS = threading.local()  # per thread: a Dask worker may run several tasks at once
 
 
 def evaluator_for(model_dir: Path) -> ModelEvaluator:
-    """This process's evaluator of a model folder, made once per folder content (in worker processes).
-
-    Its temporary copies are removed at once: JSBSim has read every file by then.
+    """This process's (thread's) evaluator of a model folder, made once per folder content (in
+    worker processes). Its temporary copy goes when the process ends (a worker too runs
+    multiprocessing's finalizers before it exits), or when another model's evaluator replaces it.
     """
     model_dir = Path(model_dir)
     digest = hashlib.sha1()
     for f in sorted(p for p in model_dir.rglob("*") if p.is_file()):
         digest.update(str(f.relative_to(model_dir)).encode() + b"\0" + f.read_bytes())
     key = (str(model_dir.resolve()), digest.hexdigest())
-    if key not in _EVALUATORS:
+    held = getattr(_EVALUATORS, "held", None)
+    if held is None or held[0] != key:
+        if held is not None:
+            held[1].close()  # one model at a time: a worker serves one diagnosis
         ev = ModelEvaluator(model_dir)
-        ev.close()
-        _EVALUATORS.clear()  # one model at a time: a worker serves one diagnosis
-        _EVALUATORS[key] = ev
-    return _EVALUATORS[key]
+        Finalize(ev, shutil.rmtree, args=(ev._tmp,), kwargs={"ignore_errors": True}, exitpriority=0)
+        _EVALUATORS.held = (key, ev)
+    return _EVALUATORS.held[1]
+
+
+#: The logs a task of :func:`by_log_chunks` evaluates, at most.
+CHUNK_LOGS = 8
+
+
+def by_log_chunks(func, logs: list, evaluator: "ModelEvaluator", jobs: int, *args, wait: bool = True):
+    """``func(chunk, evaluator, *args)`` (a list back) over ``logs`` cut into chunks of at most
+    :data:`CHUNK_LOGS`, the results joined in order. With ``jobs`` > 1 each chunk is a task
+    for the workers, which pass their own evaluator of the same model (:func:`evaluator_for`), on the
+    Dask cluster within :func:`identify.workers.on_cluster` (the model folder shipped with the tasks);
+    else they run here, one after another. Each chunk starts from a freshly loaded model
+    (:meth:`ModelEvaluator.restart`): the chunks do not depend on the number of workers, so
+    neither do the numbers, to the bit, whichever worker runs which chunk.
+
+    With ``wait=False`` a callable that returns the results comes back: the workers start at once
+    and this process goes on meanwhile (with one job the work is done on the call).
+    """
+    chunks = [list(logs[i:i + CHUNK_LOGS]) for i in range(0, len(logs), CHUNK_LOGS)]
+    if jobs <= 1 or len(chunks) <= 1:
+        def here() -> list:
+            return [x for c in chunks for x in func(c, evaluator.restart(), *args)]
+        return here() if wait else here
+    from identify.workers import cluster, results, ship, submit
+    model = ship(evaluator.model_dir) if cluster() is not None else evaluator.model_dir  # other machines' files
+    futures = submit(_in_worker, [(func, c, model, args) for c in chunks], jobs)
+
+    def joined() -> list:
+        return [x for part in results(futures) for x in part]
+    return joined() if wait else joined
+
+
+def _in_worker(func, chunk: list, model, args: tuple) -> list:
+    from identify.workers import Shipment, landed
+    model_dir = landed(model) / model.name if isinstance(model, Shipment) else model
+    return func(chunk, evaluator_for(model_dir).restart(), *args)
 
 
 def in_chunks(func, items: list, jobs: int, *args, wait: bool = True):

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
-from diagnose.evaluate import evaluator_for, in_chunks
+from diagnose.evaluate import by_log_chunks, in_chunks
 from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.lsq import solve_normal
@@ -128,19 +128,16 @@ def design_matrix(terms, frame: pd.DataFrame) -> np.ndarray:
     return x
 
 
-def _remote_sensitivity(logs: list[Log], model_dir, noise: dict[str, float]) -> list:
-    ev = evaluator_for(model_dir)
-    return [model_sensitivity(log, ev, noise) for log in logs]
+def _chunk_sensitivity(logs: list[Log], evaluator, noise: dict[str, float]) -> list:
+    return [model_sensitivity(log, evaluator, noise) for log in logs]
 
 
 def model_sensitivities(logs: list[Log], evaluator, noise: dict[str, float], jobs: int = 1):
     """:func:`model_sensitivity` of every log (channels without noise left out), as a callable
     that returns them: with ``jobs`` > 1 the workers start at once and the caller goes on
-    meanwhile (:func:`diagnose.evaluate.in_chunks`)."""
+    meanwhile (:func:`diagnose.evaluate.by_log_chunks`)."""
     noise = {ch: s for ch, s in noise.items() if s > 0}
-    if jobs > 1:
-        return in_chunks(_remote_sensitivity, logs, jobs, evaluator.model_dir, noise, wait=False)
-    return lambda: [model_sensitivity(log, evaluator, noise) for log in logs]
+    return by_log_chunks(_chunk_sensitivity, logs, evaluator, jobs, noise, wait=False)
 
 
 class _Channels:

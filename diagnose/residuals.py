@@ -10,13 +10,12 @@ zero-phase low-pass filter.
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from identify.coefficients import D2R, FT_PER_KT, coefficient_arrays, thrust_share
-from diagnose.evaluate import evaluator_for, in_chunks, moment_transfer
+from diagnose.evaluate import by_log_chunks, moment_transfer
 from identify.kinematics import angle_rates
 from identify.logs import Log
 from identify.models import EDGE_S, lowpass
@@ -157,26 +156,24 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
                   correct=None):
     """Measured minus model coefficients at the measured states, for every log.
 
-    The logs are spread over ``evaluator.jobs`` worker processes, each with its own
-    JSBSim evaluation of the same model (:func:`diagnose.evaluate.evaluator_for`);
-    see :func:`_residual_data` for the rest. With ``wait=False`` a callable that returns
+    The logs are evaluated in chunks spread over ``evaluator.jobs`` worker processes, each
+    with its own JSBSim evaluation of the same model (:func:`diagnose.evaluate.by_log_chunks`:
+    the numbers do not depend on how many); see :func:`_residual_data` for the rest. With ``wait=False`` a callable that returns
     the frame comes back instead: the workers start at once and the caller goes on meanwhile
     (with one job the frame is computed when it is called). ``correct`` (a log -> log
     callable that pickles, such as :meth:`identify.compat.CompatResult.correct`), if given,
     is applied to each log first, where its residuals are computed.
     """
-    if getattr(evaluator, "jobs", 1) <= 1:
-        return _residual_data(logs, evaluator, step, delays, correct=correct) if wait else (
-            lambda: _residual_data(logs, evaluator, step, delays, correct=correct))
-    parts = in_chunks(_remote_residual_data, list(enumerate(logs)), evaluator.jobs, evaluator.model_dir, step, delays,
-                      correct, wait=wait)
+    if not logs:
+        raise ValueError("no logs to compute residuals of")
+    parts = by_log_chunks(_chunk_residual_data, list(enumerate(logs)), evaluator, getattr(evaluator, "jobs", 1),
+                          step, delays, correct, wait=wait)
     return pd.concat(parts, ignore_index=True) if wait else (lambda: pd.concat(parts(), ignore_index=True))
 
 
-def _remote_residual_data(numbered: list[tuple[int, Log]], model_dir: Path, step: int | None,
-                          delays: tuple, correct) -> list[pd.DataFrame]:
-    return [_residual_data([lg for _, lg in numbered], evaluator_for(model_dir), step, delays, numbered[0][0],
-                           correct)]
+def _chunk_residual_data(numbered: list[tuple[int, Log]], evaluator, step: int | None, delays: tuple,
+                         correct) -> list[pd.DataFrame]:
+    return [_residual_data([lg for _, lg in numbered], evaluator, step, delays, numbered[0][0], correct)]
 
 
 def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (),

@@ -12,18 +12,27 @@ The pool is kept for the life of the process, so a worker's caches (its JSBSim
 evaluator, :func:`diagnose.evaluate.evaluator_for`) serve the next call; it is made
 again if a worker died. Each worker does its linear algebra on one BLAS thread: the
 matrices are small and the cores are the workers' (:func:`one_blas_thread`).
+
+Inside :func:`on_cluster` the same calls go to a Dask cluster instead (dask.distributed's own
+futures); a folder the tasks read travels with them as data (:func:`ship`, :func:`landed`).
 """
 from __future__ import annotations
 
+import hashlib
 import multiprocessing as mp
 import os
 import signal
+import tempfile
 import threading
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
 
 _POOL: dict[int, ProcessPoolExecutor] = {}  # at most one pool: {jobs: pool}
+_CLUSTER: list = []  # the Dask client of the innermost on_cluster, if any
 
 
 def _context():
@@ -77,9 +86,49 @@ def _in(cwd: str, func: Callable, args: tuple):
     return func(*args)
 
 
+@contextmanager
+def on_cluster(client):
+    """Within: :func:`submit` (and :func:`pmap`) send their calls to the Dask cluster of ``client``
+    (a ``distributed.Client``), whatever ``jobs`` says; None changes nothing."""
+    if client is None:
+        yield
+        return
+    _CLUSTER.append(client)
+    try:
+        yield
+    finally:
+        _CLUSTER.pop()
+
+
+@contextmanager
+def local_workers():
+    """Within: the local workers again, inside :func:`on_cluster` (for work that writes this
+    machine's files)."""
+    saved = list(_CLUSTER)
+    _CLUSTER.clear()
+    try:
+        yield
+    finally:
+        _CLUSTER[:] = saved
+
+
+def cluster():
+    """The Dask client :func:`on_cluster` holds, or None (local workers)."""
+    return _CLUSTER[-1] if _CLUSTER else None
+
+
+def _on_cluster_worker(func: Callable, args: tuple):
+    one_blas_thread()
+    return func(*args)
+
+
 def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
     """``func(*args)`` for each ``args`` in ``calls`` on the pool of ``jobs`` workers, started now
-    (in the caller's working directory); a pool a dead worker broke is made again first."""
+    (in the caller's working directory); a pool a dead worker broke is made again first. Within
+    :func:`on_cluster`, on the Dask cluster instead (its futures have the same ``result()``)."""
+    client = cluster()
+    if client is not None:
+        return [client.submit(_on_cluster_worker, func, args, pure=False) for args in calls]
     cwd = os.getcwd()
 
     def start() -> list[Future]:
@@ -98,8 +147,9 @@ def results(futures: list[Future]) -> Iterator:
 
 
 def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
-    """``[func(*args) for args in calls]`` on ``jobs`` workers (in this process if 1), in order."""
-    if jobs <= 1 or len(calls) <= 1:
+    """``[func(*args) for args in calls]`` on ``jobs`` workers (in this process if 1; on the cluster
+    within :func:`on_cluster`), in order."""
+    if cluster() is None and (jobs <= 1 or len(calls) <= 1):
         return [func(*args) for args in calls]
     return list(results(submit(func, calls, jobs)))
 
@@ -214,3 +264,52 @@ def alone(func: Callable, args: tuple):
     if not ok:
         raise value
     return value
+
+
+@dataclass(frozen=True)
+class Shipment:
+    """A folder as data, for tasks on machines that do not share this one's files.
+
+    Attributes
+    ----------
+    name : str
+        The folder's name (kept: a JSBSim aircraft is found by its folder's name).
+    sha256 : str
+        The hash of its files (the worker's copy is stored under it).
+    files : tuple of (str, bytes)
+        Every file, by POSIX path relative to the folder.
+    """
+
+    name: str
+    sha256: str
+    files: tuple[tuple[str, bytes], ...]
+
+
+def ship(folder: Path, extra: tuple[tuple[str, bytes], ...] = ()) -> Shipment:
+    """``folder``'s files (caches left out; and ``extra`` files beside it, by name) as data."""
+    folder = Path(folder)
+    files = tuple((rel, f.read_bytes()) for f in sorted(folder.rglob("*"))
+                  if f.is_file() and "__pycache__" not in (rel := f.relative_to(folder).as_posix()))
+    digest = hashlib.sha256()
+    for rel, data in files + tuple(("../" + n, b) for n, b in extra):
+        digest.update(rel.encode() + b"\0" + hashlib.sha256(data).digest())
+    return Shipment(folder.name, digest.hexdigest(), tuple((f"{folder.name}/{r}", d) for r, d in files) + extra)
+
+
+def landed(shipment: Shipment) -> Path:
+    """This machine's copy of a shipment (its home folder, holding the folder under its name and
+    the extra files), written once per machine, atomically."""
+    home = Path(tempfile.gettempdir()) / "gearid-cluster" / shipment.sha256
+    if not (home / "complete").exists():
+        home.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".unpack-", dir=home.parent))
+        for rel, data in shipment.files:
+            dest = tmp / rel
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(data)
+        (tmp / "complete").write_text("")
+        try:
+            os.rename(tmp, home)
+        except OSError:  # another worker on this machine got there first
+            pass
+    return home

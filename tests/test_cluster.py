@@ -91,3 +91,29 @@ def test_replays_on_the_cluster_equal_local_replays_bit_for_bit(tmp_path, cluste
     a, b = ({p.name: p.read_bytes() for p in (tmp_path / f / "replays").rglob("*") if p.is_file()}
             for f in ("local", "dask"))
     assert len([k for k in a if k.endswith(".parquet")]) == 6 and a == b
+
+
+def test_diagnosis_on_the_cluster_equals_a_local_one_bit_for_bit(tmp_path, cluster):
+    """The residuals, sensitivities, noise realizations and replays on the cluster's two workers (the
+    model and the extended aircraft shipped with the tasks): diagnosis.json is a local run's, to the
+    bit, with one local job as with two."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS
+    from tests.hidden import DIAG_MATRIX
+    from tests.support import run_matrix
+    data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(DEFAULT_EFFECTS), noise="flight-test", seed=5)
+    common = ["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--no-plots", "--quiet"]
+    runs = {"one": ["--jobs", "1"], "two": ["--jobs", "2"], "dask": ["--cluster", cluster.scheduler_address]}
+    docs = {}
+    for name, extra in runs.items():
+        before = _tasks(cluster)
+        assert main(common + ["--out", str(tmp_path / name)] + extra) == 0
+        docs[name] = (tmp_path / name / "diagnosis.json").read_text().replace(str(tmp_path / name), "OUT")
+        assert (_tasks(cluster) >= before + 10) == (name == "dask"), name  # the work went where it was sent
+    assert json.loads(docs["one"])["causes"] and json.loads(docs["one"])["gain"]["replay_per_log"]
+    assert docs["dask"] == docs["one"] == docs["two"]
+
+
+def _tasks(cluster) -> int:
+    """Tasks of identify.workers.submit the cluster's scheduler has seen finish."""
+    prefix = cluster.scheduler.task_prefixes.get("on_cluster_worker")  # the key's prefix, its "_" dropped
+    return prefix.state_counts["memory"] if prefix is not None else 0
