@@ -91,8 +91,9 @@ def fly_on_cluster(client, points: list[StatusPoint], config: FlightConfig,
         futures = {submit(p): p for p in points}
         killed = []
         for fut in as_completed(list(futures), loop=client.loop):
-            p = futures[fut]
+            p = futures.pop(fut)  # released once read: the cluster keeps a result while a future holds it
             outcome = _outcome(fut, p)
+            fut.release()
             if outcome is None:  # it may only have shared a worker with the point that killed it
                 killed.append(p)
                 continue
