@@ -53,7 +53,7 @@ class Cause:
         return {**common, "coefficient": self.coefficient, "variables": self.variables}
 
 
-def _shape(x: np.ndarray, y: np.ndarray) -> str:
+def shape_of(x: np.ndarray, y: np.ndarray) -> str:
     """Describe a curve y(x) sampled on increasing x."""
     span = float(np.ptp(y))
     if span == 0:
@@ -87,7 +87,7 @@ def _share(y: np.ndarray, x: np.ndarray) -> float:
     return 1.0 - float(e @ e) / ss if ss > 0 else 0.0
 
 
-def _along(group: list[Term], res: StepwiseResult, data: pd.DataFrame, variable: str,
+def along(group: list[Term], res: StepwiseResult, data: pd.DataFrame, variable: str,
            n: int = 41) -> tuple[np.ndarray, np.ndarray]:
     """A group's contribution along one of its variables, the others at their median."""
     names = {v for t in group for v in t.variables}
@@ -123,8 +123,8 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
                     ordered = tuple(sorted(t.variables, key=lambda v: -_share(contrib, data[v].to_numpy())))
                 variables += [v for v in ordered if v not in variables]
             primary = variables[0]
-            cx, cy = _along(g, res, data, primary)
-            shape = _shape(cx, cy)
+            cx, cy = along(g, res, data, primary)
+            shape = shape_of(cx, cy)
             if len(variables) > 1:
                 shape += f", depends on {', '.join(variables[1:])}"
             sensor = sensor_of(variables[0]) if len(g) == 1 else None

@@ -120,7 +120,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
                              ignore_index=True)
         stage("verdict")
-        judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6))
+        judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6), data)
         better = (None if refined or compat is None else
                   residual_refinement(compat, causes, reach, kw.get("alpha_in", 1e-6)))
         if better is None:

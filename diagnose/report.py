@@ -16,8 +16,10 @@ def document(diag: Diagnosis, data: dict, model: str) -> dict:
         The model aircraft folder.
     """
     return {"discrepancy": diag.discrepancy,
-            "verdict": "discrepancy" if diag.discrepancy else "no significant discrepancy",
+            "verdict": ("discrepancy" if diag.causes else "discrepancy, cause not confirmed" if diag.discrepancy
+                        else "no significant discrepancy"),
             "causes": [c.to_dict() for c in diag.causes],
+            "unconfirmed": [c.to_dict() for c in diag.unconfirmed],
             "rejected": [c.to_dict() for c in diag.rejected],
             "largest_rejected": None if diag.discrepancy else diag.largest_rejected(),
             "extension": None, "extension_xml": None, "gain": {},

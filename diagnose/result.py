@@ -49,7 +49,14 @@ class Diagnosis:
 
     @property
     def discrepancy(self) -> bool:
-        return bool(self.causes)
+        """Causes named, or a discrepancy whose cause these data cannot confirm (:attr:`unconfirmed`)."""
+        return bool(self.causes or self.unconfirmed)
+
+    @property
+    def unconfirmed(self) -> list[Cause]:
+        """Aero candidates significant and beyond what instrument noise and errors make, that act at a
+        single condition: no held-out condition can confirm them."""
+        return [c for c in self.rejected if c.verdict.get("unconfirmed")]
 
     @property
     def aero_causes(self) -> list[Cause]:
@@ -84,11 +91,15 @@ class Diagnosis:
                 f"{p.name} {p.estimate:+.4g} +- {p.se:.2g} {p.unit}" for p in self.compat.applied))
         if self.unset:
             lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
-        if not self.causes:
+        if not self.causes and not self.unconfirmed:
             lines.append("No significant discrepancy.")
             big = self.largest_rejected()
             if big:
                 lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
+        for c in self.unconfirmed:
+            e, v = c.evidence, c.verdict
+            lines.append(f"Discrepancy, cause not confirmed: {c.label}: {c.shape}; peak {c.peak:.4g}; F = {e['F']:.4g}; "
+                         f"size {c.size:.3g} against a noise floor of {v['noise_floor']:.3g}; {v['reason']}")
         for i, c in enumerate(self.causes, 1):
             e, v = c.evidence, c.verdict
             if c.kind == "sensor" and not c.terms:

@@ -127,9 +127,11 @@ OWN_TERMS = [("aero/coefficient/CDgear", 0.0, "CD", "gear_norm"),
 DIAG_MATRIX = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000)), "diagnosis")
 
 
-def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test"):
-    """Fly the diagnosis matrix on the model plus a hidden effect through an instrument profile
-    (the shipped flight-test one: turbulence, 50 Hz, no qdot, nose-boom vanes, noise)."""
+def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
+             matrix: str = DIAG_MATRIX):
+    """Fly the diagnosis matrix (or ``matrix``, TOML text) on the model plus a hidden effect (a
+    :class:`Hidden` or a :class:`tests.shapes.Effect`) through an instrument profile (the shipped
+    flight-test one: turbulence, 50 Hz, no qdot, nose-boom vanes, noise)."""
     from pathlib import Path
 
     from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
@@ -138,7 +140,7 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instrumen
     from campaign.runner import run_campaign
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
-    (workdir / "m.toml").write_text(DIAG_MATRIX)
+    (workdir / "m.toml").write_text(matrix)
     fx = None
     if hidden is not None:
         fx = workdir / "hidden.xml"
@@ -150,7 +152,8 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instrumen
     return workdir / "data", fx
 
 
-def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test") -> dict:
+def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
+          matrix: str = DIAG_MATRIX) -> dict:
     """Fly, diagnose against the bare model, and score the answer against the hidden truth."""
     from pathlib import Path
 
@@ -160,15 +163,18 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
     from diagnose.evaluate import ModelEvaluator
     from identify.export import merge_into_aircraft
     workdir = Path(workdir)
-    data, fx = fly_data(workdir, hidden, seed, jobs, instruments)
+    data, fx = fly_data(workdir, hidden, seed, jobs, instruments, matrix)
     doc = run_diagnosis(data, DEFAULT_AIRCRAFT, workdir / "report", plots=False)
     out = {"doc": doc, "discrepancy": doc["discrepancy"]}
-    aero = [c for c in doc["causes"] if c["kind"] == "aero"]
+    aero = [c for c in doc["causes"] if c["kind"] == "aero"] or doc.get("unconfirmed", [])
     if hidden is None or not aero:
         return out
     first = aero[0]
     out["coefficient_ok"] = first["coefficient"] == hidden.coefficient
     out["variable_ok"] = first["variables"][0] == hidden.variables[0] and set(hidden.variables) <= set(first["variables"])
+    out["confirmed"] = not first["verdict"].get("unconfirmed")
+    if not doc["extension"]:
+        return out
     train, _ = split(load_data(data))
     truth_ac = merge_into_aircraft(DEFAULT_AIRCRAFT, fx, workdir / "truth", replace_gear=False)
     r_model = residual_data(train, ModelEvaluator(DEFAULT_AIRCRAFT))

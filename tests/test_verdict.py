@@ -1,0 +1,53 @@
+"""The verdict on effects the diagnosis was not built against (tests/shapes.py): what it named first,
+and never "no significant discrepancy" to an effect that dominates the residual.
+
+Only these tests read the overlays, to score the answer."""
+import numpy as np
+import pytest
+
+from tests.hidden import DIAG_MATRIX, score
+from tests.shapes import FLOOR, draw
+from tests.support import matrix_toml
+
+
+def _named_first(r: dict, effect) -> bool:
+    """The first aero cause, or without one the first unconfirmed discrepancy, is the effect's
+    coefficient and (first) variable."""
+    return bool(r.get("coefficient_ok") and r["doc"]["discrepancy"]) and (
+        ([c for c in r["doc"]["causes"] if c["kind"] == "aero"] or r["doc"]["unconfirmed"])[0]["variables"][0]
+        == effect.variables[0])
+
+
+def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path):
+    """A drag rise over the last part of the gear travel, and a condition flown gear up only: the effect
+    is zero there, and so is its fitted contribution (the gear term's reference is gear up). It acts
+    where it departs from the model, never where a log departs from the median row (most rows are
+    gear down): the gear-up condition, left out, must not veto it."""
+    matrix = DIAG_MATRIX + matrix_toml([("up", 0, 0.4, 5000)]).split("\n", 1)[1]
+    effect = draw(np.random.default_rng(11), 50, 50, "CD", ("gear_norm",), "late_onset")
+    r = score(tmp_path, effect, seed=11, matrix=matrix)
+    assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
+    first = r["doc"]["causes"][0]
+    gear_up_logs = [i for i, p in enumerate(r["doc"]["data"]["train"] + r["doc"]["data"]["held_out"])
+                    if "_gup__" in p]
+    acting = set(first["verdict"]["holdout_logs"])
+    assert acting and not acting & set(gear_up_logs), first["verdict"]["holdout_logs"]
+
+
+#: Development seeds of the random shapes: the benchmark reports on others (benchmarks/detection_curve.py).
+#: Two are known misses, kept strict: the day they pass, the mark must go.
+KNOWN_MISSES = {
+    900: "a gear x flap effect present only at the matrix's single flap-30 condition: 1.3 times the floor of "
+         "its interaction term, and no other condition can confirm it",
+    904: "a 4-knot alpha table in Cm: the smooth term's quantile knots miss its corners, and leaving out "
+         "10000/0.5/0 (x0.71) refutes the rest; 9 times the floor and x1.35 pooled, short of the strong case"}
+SHAPE_SEEDS = [pytest.param(s, marks=pytest.mark.xfail(reason=KNOWN_MISSES[s], strict=True))
+               if s in KNOWN_MISSES else s for s in range(900, 906)]
+
+
+@pytest.mark.parametrize("seed", SHAPE_SEEDS)
+def test_a_random_shape_ten_times_its_floor_is_named_first(tmp_path, seed):
+    effect = draw(np.random.default_rng(seed), 10, 30)
+    r = score(tmp_path, effect, seed=seed)
+    assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
+    assert effect.size_over_floor >= 10 and FLOOR[effect.coefficient] > 0
