@@ -135,6 +135,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                           "not_identifiable": ";".join(res.unexcited)})
     pd.DataFrame(rows).to_csv(out / "baseline_parameters.csv", index=False)
     pd.DataFrame(stats).to_csv(out / "baseline_fit_statistics.csv", index=False)
+    del rows, stats  # thousands of points: each table goes before the next is built
     lin_rows = []
     for cond, m in ident.linear.items():
         row = {"condition": _cond_key(cond), "alpha_trim_deg": m.alpha_trim_deg}
@@ -202,7 +203,9 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         "notes": list(ident.notes),
         "files": {k: str(Path(v).relative_to(out)) for k, v in files.items()},
     }
-    (out / "identification.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    with open(out / "identification.json", "w") as f:  # written as encoded, not held whole
+        json.dump(doc, f, indent=1, default=float)
+        f.write("\n")
     files["json"] = str(out / "identification.json")
     if plots != "none":
         files.update(_plots(ident, out / "plots", plots, jobs))
