@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import shutil
-from collections.abc import Collection
+from collections.abc import Collection, Iterable, Iterator, Sequence
+from itertools import islice
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,16 +19,32 @@ from identify.logs import Log, LogError, LogHead, read_heads
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
-from identify.workers import pmap
+from identify.workers import imap, pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
+
+
+class Packed(Sequence):
+    """Results kept pickled and read back one at a time: 9,700 points' fits take 7 kB each so,
+    against 21 kB as objects (their parameters are pandas Series)."""
+
+    def __init__(self, items: Iterable = ()) -> None:
+        self._blobs = [pickle.dumps(x, protocol=pickle.HIGHEST_PROTOCOL) for x in items]
+
+    def __len__(self) -> int:
+        return len(self._blobs)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [pickle.loads(b) for b in self._blobs[i]]
+        return pickle.loads(self._blobs[i])
 
 
 @dataclass
 class Identification:
     """Everything identified from one campaign."""
 
-    fits: list[PointFit]
+    fits: Sequence[PointFit]
     linear: dict[tuple, LinearGearModel]
     increments: dict[str, Increments]
     linear_surface: GearSurface | None
@@ -74,8 +92,8 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     correct = compat.correct if compat is not None else None
     order = reference_order(logs)
     refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))
-    fits = pmap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series)
-                       for log in logs if not log.transition], jobs)
+    fits = Packed(imap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series)
+                             for log in logs if not log.transition], jobs))
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
     incs = dict(zip((log.point for log in moves),
@@ -120,22 +138,24 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
     """Write tables (CSV, text), identification.json, XML and plots (on ``jobs`` processes) into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
-    rows, stats = [], []
-    for f in ident.fits:
+
+    def parameter_rows(f: PointFit) -> Iterator[dict]:
         for c, res in f.fits.items():
             for r in ("const", *REGRESSORS):
                 ok = r in res.params.index
-                rows.append({"point": f.point, "gear": "down" if f.gear_down else "up", "coefficient": c,
-                             "parameter": f"{c}{PARAM_SUFFIX[r]}",
-                             "estimate": float(res.params[r]) if ok else np.nan,
-                             "std_error": float(res.bse[r]) if ok else np.nan,
-                             "identifiable": ok, "note": "" if ok else res.unexcited.get(r, "")})
-            stats.append({"point": f.point, "coefficient": c, "r2": res.rsquared, "resid_max": res.resid_max,
-                          "resid_rms": res.resid_rms, "rel_error_pct": res.rel_error_pct, "nobs": res.nobs,
-                          "not_identifiable": ";".join(res.unexcited)})
-    pd.DataFrame(rows).to_csv(out / "baseline_parameters.csv", index=False)
-    pd.DataFrame(stats).to_csv(out / "baseline_fit_statistics.csv", index=False)
-    del rows, stats  # thousands of points: each table goes before the next is built
+                yield {"point": f.point, "gear": "down" if f.gear_down else "up", "coefficient": c,
+                       "parameter": f"{c}{PARAM_SUFFIX[r]}", "estimate": float(res.params[r]) if ok else np.nan,
+                       "std_error": float(res.bse[r]) if ok else np.nan,
+                       "identifiable": ok, "note": "" if ok else res.unexcited.get(r, "")}
+
+    def statistics_rows(f: PointFit) -> Iterator[dict]:
+        for c, res in f.fits.items():
+            yield {"point": f.point, "coefficient": c, "r2": res.rsquared, "resid_max": res.resid_max,
+                   "resid_rms": res.resid_rms, "rel_error_pct": res.rel_error_pct, "nobs": res.nobs,
+                   "not_identifiable": ";".join(res.unexcited)}
+
+    _csv_in_chunks(out / "baseline_parameters.csv", (r for f in ident.fits for r in parameter_rows(f)))
+    _csv_in_chunks(out / "baseline_fit_statistics.csv", (r for f in ident.fits for r in statistics_rows(f)))
     lin_rows = []
     for cond, m in ident.linear.items():
         row = {"condition": _cond_key(cond), "alpha_trim_deg": m.alpha_trim_deg}
@@ -180,8 +200,11 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         text += [ident.compat.summary(), ""]
         (out / "compatibility.json").write_text(json.dumps(ident.compat.to_dict(), indent=1, default=float) + "\n")
         files["compatibility"] = str(out / "compatibility.json")
-    text += ["Per-point fits", ""] + [f.summary() + "\n" for f in ident.fits]
-    (out / "summary.txt").write_text("\n".join(text))
+    text += ["Per-point fits", ""]
+    with open(out / "summary.txt", "w") as txt:  # the per-point fits as they are read back
+        txt.write("\n".join(text))
+        for f in ident.fits:
+            txt.write("\n" + f.summary() + "\n")
     files["summary"] = str(out / "summary.txt")
 
     for kind, surface in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface)):
@@ -192,10 +215,11 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         if model_dir is not None and Path(model_dir).is_dir():
             files[f"aircraft_{kind}"] = str(merge_into_aircraft(model_dir, xml, out / f"aircraft_{kind}"))
 
+    points = ((f.point, {"gear": "down" if f.gear_down else "up",
+                         "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
+                         **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
-        "points": {f.point: {"gear": "down" if f.gear_down else "up",
-                             "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
-                             **{c: f.fits[c].to_dict() for c in COEFFS}} for f in ident.fits},
+        "points": _LATER,
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
         "increments": {p: i.to_dict() for p, i in ident.increments.items()},
         "surfaces": {k: s.to_dict() for k, s in (("linear", ident.linear_surface),
@@ -203,13 +227,45 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         "notes": list(ident.notes),
         "files": {k: str(Path(v).relative_to(out)) for k, v in files.items()},
     }
-    with open(out / "identification.json", "w") as f:  # written as encoded, not held whole
-        json.dump(doc, f, indent=1, default=float)
-        f.write("\n")
+    with open(out / "identification.json", "w") as f:
+        _dump_streaming(doc, points, f)
     files["json"] = str(out / "identification.json")
     if plots != "none":
         files.update(_plots(ident, out / "plots", plots, jobs))
     return files
+
+
+#: Where :func:`_dump_streaming` writes the points, one at a time.
+_LATER = "@@points written one at a time@@"
+
+
+def _dump_streaming(doc: dict, items: Iterator[tuple[str, dict]], f) -> None:
+    """``json.dump(doc, f, indent=1)`` and a newline, byte for byte, with the value :data:`_LATER`
+    written as the object of ``items`` (key, value) encoded one at a time: thousands of points'
+    fits are never held together as JSON or as dicts."""
+    head, tail = json.dumps(doc, indent=1, default=float).split(json.dumps(_LATER))
+    f.write(head)
+    level = head.rsplit("\n", 1)[-1].index('"') + 1  # the key's indentation, plus one for its object
+    pad = " " * level
+    first = True
+    for key, value in items:
+        f.write(("{\n" if first else ",\n") + pad + json.dumps(key) + ": "
+                + json.dumps(value, indent=1, default=float).replace("\n", "\n" + pad))
+        first = False
+    f.write("{}" if first else "\n" + pad[:-1] + "}")
+    f.write(tail + "\n")
+
+
+def _csv_in_chunks(path: Path, rows: Iterable[dict], chunk: int = 4096) -> None:
+    """``pd.DataFrame(list(rows)).to_csv(path, index=False)``, byte for byte, a chunk of rows at a time."""
+    rows = iter(rows)
+    with open(path, "w", newline="") as f:
+        part = list(islice(rows, chunk))
+        pd.DataFrame(part).to_csv(f, index=False)
+        while part:
+            part = list(islice(rows, chunk))
+            if part:
+                pd.DataFrame(part).to_csv(f, index=False, header=False)
 
 
 def _plots(ident: Identification, out: Path, which: str, jobs: int = 1) -> dict[str, str]:

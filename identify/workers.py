@@ -24,6 +24,7 @@ import os
 import signal
 import tempfile
 import threading
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -144,6 +145,18 @@ def results(futures: list[Future]) -> Iterator:
     """Each future's result in order, as it comes (a task's exception is raised here)."""
     for f in futures:
         yield f.result()
+
+
+def imap(func: Callable, calls: list[tuple], jobs: int) -> Iterator:
+    """:func:`pmap`'s results one at a time, in order; the caller holds one result at a time, not all
+    (each future is dropped once read)."""
+    if cluster() is None and (jobs <= 1 or len(calls) <= 1):
+        for args in calls:
+            yield func(*args)
+        return
+    futures = deque(submit(func, calls, jobs))
+    while futures:
+        yield futures.popleft().result()
 
 
 def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:

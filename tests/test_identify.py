@@ -311,3 +311,27 @@ def test_lowpass_is_scipys_filtfilt_to_the_bit(shape):
         for layout in (x, np.asfortranarray(x)):  # the last bits depend on the memory layout, in scipy's too
             ext = odd_extension(layout, pad, int(round(ANCHOR_S / dt)))
             assert np.array_equal(lowpass(layout, dt), filtfilt(b, a, ext, axis=0, padtype=None)[pad:pad + len(x)])
+
+
+@pytest.mark.parametrize("n", [0, 1, 5])
+def test_outputs_written_piece_by_piece_equal_the_whole_to_the_byte(tmp_path, n):
+    """identification.json's points and the CSV tables are written one point (one chunk) at a time, so
+    that thousands of points are never held together: the bytes must be those of the whole written at once."""
+    import io
+    import json
+
+    import pandas as pd
+
+    from identify.pipeline import _LATER, _csv_in_chunks, _dump_streaming
+    points = [(f"p{i}", {"gear": "up", "CL": {"params": {"const": 0.1 * i, "q": float("nan")}, "nobs": i,
+                                                "unexcited": {}}, "list": [1.5, i]}) for i in range(n)]
+    doc = {"points": dict(points), "linear": {"a": [1, 2]}, "notes": ["x\ny"], "files": {}}
+    f = io.StringIO()
+    _dump_streaming({**doc, "points": _LATER}, iter(points), f)
+    assert f.getvalue() == json.dumps(doc, indent=1, default=float) + "\n"
+    rows = [{"point": f"p{i}", "estimate": 0.1 * i if i % 2 else float("nan"), "ok": i % 2 == 1, "note": ""}
+            for i in range(n * 3)]
+    pd.DataFrame(rows).to_csv(tmp_path / "b.csv", index=False)
+    for chunk in (1, 2, 4096):  # a chunk of one row has columns all NaN, all False: the same text
+        _csv_in_chunks(tmp_path / "a.csv", iter(rows), chunk=chunk)
+        assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes(), chunk
