@@ -225,28 +225,28 @@ class LinearGearModel:
                 "increment": {c: self.increment(c) for c in COEFFS}}
 
 
-def linear_models(fits: list[PointFit]) -> dict[tuple, LinearGearModel]:
-    """One linear gear model per condition flown gear up and gear down."""
-    by_cond: dict[tuple, dict[bool, PointFit]] = {}
+def linear_models(fits) -> dict[tuple, LinearGearModel]:
+    """One linear gear model per condition flown gear up and gear down, from per-point results
+    (``fits``, any iterable of :class:`PointFit`, read once: only what the models need of each is kept)."""
+    by_cond: dict[tuple, dict[bool, tuple]] = {}
     for f in fits:
-        by_cond.setdefault(f.condition, {})[f.gear_down] = f
+        by_cond.setdefault(f.condition, {})[f.gear_down] = (
+            f.alpha_trim_deg, {c: {r: f.param(c, r) for r in ("const", *REGRESSORS)} for c in COEFFS},
+            {c: float(f.fits[c].bse["const"]) for c in COEFFS})
     out = {}
     for cond, pair in by_cond.items():
         if True not in pair or False not in pair:
             continue
-        up, dn = pair[False], pair[True]
+        (alpha_up, up, up_bse), (_, dn, dn_bse) = pair[False], pair[True]
         deriv = {}
         for c in COEFFS:
             deriv[c] = {}
             for r in REGRESSORS:
-                vals = [v for v in (up.param(c, r), dn.param(c, r)) if v is not None]
+                vals = [v for v in (up[c][r], dn[c][r]) if v is not None]
                 if vals:
                     deriv[c][r] = float(np.mean(vals))
-        out[cond] = LinearGearModel(
-            cond, up.alpha_trim_deg, deriv,
-            {c: up.param(c, "const") for c in COEFFS}, {c: dn.param(c, "const") for c in COEFFS},
-            {c: float(up.fits[c].bse["const"]) for c in COEFFS},
-            {c: float(dn.fits[c].bse["const"]) for c in COEFFS})
+        out[cond] = LinearGearModel(cond, alpha_up, deriv, {c: up[c]["const"] for c in COEFFS},
+                                    {c: dn[c]["const"] for c in COEFFS}, up_bse, dn_bse)
     return out
 
 

@@ -26,10 +26,16 @@ PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
 
 class Packed(Sequence):
     """Results kept pickled and read back one at a time: 9,700 points' fits take 7 kB each so,
-    against 21 kB as objects (their parameters are pandas Series)."""
+    against 21 kB as objects (their parameters are pandas Series).
 
-    def __init__(self, items: Iterable = ()) -> None:
-        self._blobs = [pickle.dumps(x, protocol=pickle.HIGHEST_PROTOCOL) for x in items]
+    Parameters
+    ----------
+    blobs : iterable of bytes
+        The items as :func:`pack` pickled them (on the workers: this process never builds them all).
+    """
+
+    def __init__(self, blobs: Iterable[bytes] = ()) -> None:
+        self._blobs = list(blobs)
 
     def __len__(self) -> int:
         return len(self._blobs)
@@ -63,9 +69,14 @@ def _reference(candidates: list, fallback, correct) -> Reference:
     return reference_of((_read(lg, correct) for lg in candidates), _read(fallback, correct))
 
 
-def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> PointFit:
+def pack(item) -> bytes:
+    """An item of :class:`Packed`."""
+    return pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> bytes:
     fit = fit_baseline(_read(log, correct), ref)
-    return fit if series else fit.slim()
+    return pack(fit if series else fit.slim())
 
 
 def _increments(log: Log | LogHead, derivatives: dict, correct) -> Increments:
