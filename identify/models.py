@@ -267,10 +267,12 @@ class Increments:
         return {"gear_norm": self.grid.tolist(), **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
                 "alpha_trim_deg": self.alpha_trim_deg}
 
-    def slim(self) -> "Increments":
-        """The same increments with the per-sample series cut to the gear's travel (what Fig. 11
-        draws) and the raw increments dropped: what a campaign of thousands of points holds."""
-        moving = (self.gear_norm > 0.0) & (self.gear_norm < 1.0)
+    def slim(self, samples: int = 200) -> "Increments":
+        """The same increments with the per-sample series cut to the gear's travel, at most
+        ``samples`` of them (what Fig. 11 draws), and the raw increments dropped: what a campaign of
+        thousands of points holds."""
+        moving = np.flatnonzero((self.gear_norm > 0.0) & (self.gear_norm < 1.0))
+        moving = moving[::max(1, -(-len(moving) // samples))]
         return replace(self, gear_norm=self.gear_norm[moving], alpha_deg=self.alpha_deg[moving], raw={})
 
 

@@ -5,6 +5,7 @@ import json
 import os
 import pickle
 import shutil
+import zlib
 from collections.abc import Collection, Iterable, Iterator, Sequence
 from itertools import islice
 from dataclasses import dataclass
@@ -25,8 +26,8 @@ PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
 
 
 class Packed(Sequence):
-    """Results kept pickled and read back one at a time: 9,700 points' fits take 7 kB each so,
-    against 21 kB as objects (their parameters are pandas Series).
+    """Results kept pickled and compressed, read back one at a time: 9,700 points' fits take 3 kB
+    each so, against 21 kB as objects (their parameters are pandas Series).
 
     Parameters
     ----------
@@ -42,8 +43,8 @@ class Packed(Sequence):
 
     def __getitem__(self, i):
         if isinstance(i, slice):
-            return [pickle.loads(b) for b in self._blobs[i]]
-        return pickle.loads(self._blobs[i])
+            return [pickle.loads(zlib.decompress(b)) for b in self._blobs[i]]
+        return pickle.loads(zlib.decompress(self._blobs[i]))
 
 
 @dataclass
@@ -70,8 +71,8 @@ def _reference(candidates: list, fallback, correct) -> Reference:
 
 
 def pack(item) -> bytes:
-    """An item of :class:`Packed`."""
-    return pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+    """An item of :class:`Packed`: pickled, compressed (zlib's fastest level halves a fit)."""
+    return zlib.compress(pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL), 1)
 
 
 def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> bytes:
@@ -175,9 +176,9 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
             row.update({f"{c}{PARAM_SUFFIX[r]}": v for r, v in m.derivatives[c].items()})
         lin_rows.append(row)
     pd.DataFrame(lin_rows).to_csv(out / "linear_gear_model.csv", index=False)
-    inc_rows = [{"point": p, "gear_norm": g, **{f"d{c}": float(i.smooth[c][k]) for c in COEFFS}}
-                for p, i in ident.increments.items() for k, g in enumerate(i.grid)]
-    pd.DataFrame(inc_rows).to_csv(out / "gear_increments.csv", index=False)
+    _csv_in_chunks(out / "gear_increments.csv",
+                   ({"point": p, "gear_norm": g, **{f"d{c}": float(i.smooth[c][k]) for c in COEFFS}}
+                    for p, i in ident.increments.items() for k, g in enumerate(i.grid)))
     files.update({k: str(out / f"{k}.csv") for k in ("baseline_parameters", "baseline_fit_statistics",
                                                       "linear_gear_model", "gear_increments")})
 
@@ -230,41 +231,42 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
                          **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
-        "points": _LATER,
+        "points": _LATER[0],
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
-        "increments": {p: i.to_dict() for p, i in ident.increments.items()},
+        "increments": _LATER[1],
         "surfaces": {k: s.to_dict() for k, s in (("linear", ident.linear_surface),
                                                  ("nonlinear", ident.nonlinear_surface)) if s},
         "notes": list(ident.notes),
         "files": {k: str(Path(v).relative_to(out)) for k, v in files.items()},
     }
     with open(out / "identification.json", "w") as f:
-        _dump_streaming(doc, points, f)
+        _dump_streaming(doc, [points, ((p, i.to_dict()) for p, i in ident.increments.items())], f)
     files["json"] = str(out / "identification.json")
     if plots != "none":
         files.update(_plots(ident, out / "plots", plots, jobs))
     return files
 
 
-#: Where :func:`_dump_streaming` writes the points, one at a time.
-_LATER = "@@points written one at a time@@"
+#: Where :func:`_dump_streaming` writes objects one entry at a time, in this order.
+_LATER = ("@@first object written one entry at a time@@", "@@second object written one entry at a time@@")
 
 
-def _dump_streaming(doc: dict, items: Iterator[tuple[str, dict]], f) -> None:
-    """``json.dump(doc, f, indent=1)`` and a newline, byte for byte, with the value :data:`_LATER`
-    written as the object of ``items`` (key, value) encoded one at a time: thousands of points'
-    fits are never held together as JSON or as dicts."""
-    head, tail = json.dumps(doc, indent=1, default=float).split(json.dumps(_LATER))
-    f.write(head)
-    level = head.rsplit("\n", 1)[-1].index('"') + 1  # the key's indentation, plus one for its object
-    pad = " " * level
-    first = True
-    for key, value in items:
-        f.write(("{\n" if first else ",\n") + pad + json.dumps(key) + ": "
-                + json.dumps(value, indent=1, default=float).replace("\n", "\n" + pad))
-        first = False
-    f.write("{}" if first else "\n" + pad[:-1] + "}")
-    f.write(tail + "\n")
+def _dump_streaming(doc: dict, objects: list[Iterator[tuple[str, object]]], f) -> None:
+    """``json.dump(doc, f, indent=1)`` and a newline, byte for byte, with each value ``_LATER[k]``
+    written as the object of ``objects[k]`` (key, value pairs) encoded one entry at a time:
+    thousands of points' fits are never held together as JSON or as dicts."""
+    text = json.dumps(doc, indent=1, default=float)
+    for marker, items in zip(_LATER, objects):
+        head, text = text.split(json.dumps(marker))
+        f.write(head)
+        pad = " " * (head.rsplit("\n", 1)[-1].index('"') + 1)  # the key's indentation, one more for its object
+        first = True
+        for key, value in items:
+            f.write(("{\n" if first else ",\n") + pad + json.dumps(key) + ": "
+                    + json.dumps(value, indent=1, default=float).replace("\n", "\n" + pad))
+            first = False
+        f.write("{}" if first else "\n" + pad[:-1] + "}")
+    f.write(text + "\n")
 
 
 def _csv_in_chunks(path: Path, rows: Iterable[dict], chunk: int = 4096) -> None:

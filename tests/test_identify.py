@@ -325,9 +325,10 @@ def test_outputs_written_piece_by_piece_equal_the_whole_to_the_byte(tmp_path, n)
     from identify.pipeline import _LATER, _csv_in_chunks, _dump_streaming
     points = [(f"p{i}", {"gear": "up", "CL": {"params": {"const": 0.1 * i, "q": float("nan")}, "nobs": i,
                                                 "unexcited": {}}, "list": [1.5, i]}) for i in range(n)]
-    doc = {"points": dict(points), "linear": {"a": [1, 2]}, "notes": ["x\ny"], "files": {}}
+    doc = {"points": dict(points), "linear": {"a": [1, 2]}, "increments": dict(points[:2]), "notes": ["x\ny"],
+           "files": {}}
     f = io.StringIO()
-    _dump_streaming({**doc, "points": _LATER}, iter(points), f)
+    _dump_streaming({**doc, "points": _LATER[0], "increments": _LATER[1]}, [iter(points), iter(points[:2])], f)
     assert f.getvalue() == json.dumps(doc, indent=1, default=float) + "\n"
     rows = [{"point": f"p{i}", "estimate": 0.1 * i if i % 2 else float("nan"), "ok": i % 2 == 1, "note": ""}
             for i in range(n * 3)]
