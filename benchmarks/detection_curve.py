@@ -11,8 +11,11 @@ our 737 and of the stock 737 and A320 of the jsbsim package, flown through the f
 is diagnosed against the bare model. Nulls: the same without an effect.
 
 A hit: the first aerodynamic cause named (or, without one, the first discrepancy whose cause the
-data cannot confirm) is the effect's coefficient and first variable. Invented: an aero cause named
-beside it on another coefficient or none of its variables. The seeds start at ``--seed-base``
+data cannot confirm) is the effect's coefficient, holds the effect's variables, and leads with one
+of them. Invented: an aero cause named beside it on another coefficient or none of its variables.
+The size is the effect's range over the data flown (the model and the model with the effect
+evaluated at the measured states), against the coefficient's floor (tests/shapes.py). A false
+positive: a null with an aero cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
 (2,000,000 by default: a range no one develops against; the tests use 900-905).
 
 Writes ``detection_curve.csv``, ``detection_curve.md`` (the table) and ``detection_curve.png``
@@ -29,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.hidden import CLEAN, DIAG_MATRIX, SENSOR_FAMILIES, make_sensor  # noqa: E402
-from tests.shapes import PAIRS, VARIABLES, draw  # noqa: E402
+from tests.shapes import FLOOR, PAIRS, VARIABLES, draw  # noqa: E402
 from tests.support import matrix_toml, pairs, run_matrix  # noqa: E402
 
 BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
@@ -44,6 +47,19 @@ def aircraft(rng: np.random.Generator) -> tuple[str, str, str]:
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
     return [("our 737", str(DEFAULT_AIRCRAFT), DIAG_MATRIX), ("stock 737", str(stock / "737"), CLEAN),
             ("A320", str(stock / "A320"), A320)][int(rng.integers(3))]
+
+
+def realized_size(data: Path, folder: str, fx: Path, coefficient: str, work: Path) -> float:
+    """The effect's range over the logs flown: the residuals of the model less those of the model
+    with the effect, JSBSim evaluating both at the measured states."""
+    from campaign.diagnose import load_data
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.residuals import residual_data
+    from identify.export import merge_into_aircraft
+    logs = load_data(data)
+    truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
+    r = [residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in (Path(folder), truth)]
+    return float(np.ptp(r[0] - r[1]))
 
 
 def profile(rng: np.random.Generator, work: Path, sensor: bool) -> tuple[str, str]:
@@ -72,7 +88,8 @@ def case(seed: int, null: bool = False) -> dict:
         if not set(pick) <= set(allowed):
             pick = (pick[0],)
         effect = draw(rng, variables=pick)
-    prof, what = profile(rng, work, sensor=rng.uniform() < 0.2)
+    sensor = rng.uniform() < 0.2
+    prof, what = profile(rng, work, sensor)
     fx = None
     if effect is not None:
         fx = work / "hidden.xml"
@@ -87,12 +104,17 @@ def case(seed: int, null: bool = False) -> dict:
     row["rejected_strong"] = "; ".join(f"{c['coefficient']} vs {', '.join(c['variables'])}: {c['verdict']['reason']}"
                                        for c in missed_big)
     if effect is None:
-        return {**row, "effect": "", "size_over_floor": np.nan, "hit": False, "invented": ""}
-    hit = bool(aero) and aero[0]["coefficient"] == effect.coefficient and aero[0]["variables"][0] == effect.variables[0]
+        false = bool(aero) or (not sensor and any(c["kind"] == "sensor" for c in doc["causes"]))
+        return {**row, "effect": "", "size_over_floor": np.nan, "hit": False, "invented": "", "false_positive": false}
+    first = aero[0] if aero else {}
+    hit = (first.get("coefficient") == effect.coefficient and set(effect.variables) <= set(first["variables"])
+           and first["variables"][0] in effect.variables)
     invented = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in aero[1:]
                 if c["coefficient"] != effect.coefficient or not set(effect.variables) & set(c["variables"])]
-    return {**row, "effect": effect.description, "size_over_floor": effect.size_over_floor, "hit": hit,
-            "invented": "; ".join(invented)}
+    size = realized_size(data, folder, fx, effect.coefficient, work)
+    return {**row, "effect": effect.description, "size_over_floor": size / FLOOR[effect.coefficient], "hit": hit,
+            "invented": "; ".join(invented), "false_positive": False,
+            "nominal_over_floor": effect.size_over_floor}
 
 
 def table(rows: list[dict]) -> str:
@@ -101,13 +123,15 @@ def table(rows: list[dict]) -> str:
     lines = ["| size / floor | effects | hits | hit rate | invented causes | strong candidates rejected |",
              "|---|---|---|---|---|---|"]
     for lo, hi in zip(BINS[:-1], BINS[1:]):
-        b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] == hi)]
+        b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         hits = sum(r["hit"] for r in b)
         rate = f"{100 * hits / len(b):.0f} %" if b else "-"
         lines.append(f"| {lo:g}-{hi:g} | {len(b)} | {hits} | {rate} | {sum(bool(r['invented']) for r in b)} | "
                      f"{sum(bool(r['rejected_strong']) for r in b)} |")
-    fp = sum(r["discrepancy"] for r in nulls)
-    lines.append(f"\nNulls: {len(nulls)}, false positives: {fp}.")
+    fp = sum(r["false_positive"] for r in nulls)
+    below = [r for r in effects if r["size_over_floor"] < BINS[0]]
+    lines.append(f"\nBelow {BINS[0]:g} times the floor over the data flown: {len(below)} effects, "
+                 f"{sum(r['hit'] for r in below)} named. Nulls: {len(nulls)}, false positives: {fp}.")
     return "\n".join(lines)
 
 
@@ -118,7 +142,7 @@ def plot(rows: list[dict], path: Path) -> None:
     effects = [r for r in rows if r["effect"]]
     centres, rates, counts = [], [], []
     for lo, hi in zip(BINS[:-1], BINS[1:]):
-        b = [r for r in effects if lo <= r["size_over_floor"] <= hi]
+        b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         if b:
             centres.append(np.sqrt(lo * hi))
             rates.append(100 * np.mean([r["hit"] for r in b]))
