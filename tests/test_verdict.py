@@ -51,3 +51,45 @@ def test_a_random_shape_ten_times_its_floor_is_named_first(tmp_path, seed):
     r = score(tmp_path, effect, seed=seed)
     assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
     assert effect.size_over_floor >= 10 and FLOOR[effect.coefficient] > 0
+
+
+MACH_STEP = """<effects>
+  <axis name="LIFT">
+    <function name="aero/coefficient/hidden-mach-step">
+      <product>
+        <property>aero/qbar-psf</property>
+        <property>metrics/Sw-sqft</property>
+        <table>
+          <independentVar>velocities/mach</independentVar>
+          <tableData>
+            0.0 0.0
+            0.38 0.0
+            0.42 0.03
+            1.0 0.03
+          </tableData>
+        </table>
+      </product>
+    </function>
+  </axis>
+</effects>
+"""
+
+
+def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
+    """CL a few hundredths higher above Mach 0.4, the paper's matrix through the flight-test profile:
+    one condition left out (2000/0.3/15, x0.88) vetoed this effect, tens of times its floor with a
+    pooled held-out gain of x8.8; a strong cause is no longer vetoed by one condition."""
+    import json
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.cli import main
+    fx = tmp_path / "step.xml"
+    fx.write_text(MACH_STEP)
+    assert main(["run", "--effects", str(fx), "--noise", "flight-test", "--seed", "13", "--out", str(tmp_path / "d"),
+                 "--jobs", "2", "--no-identify", "--quiet"]) == 0
+    assert main(["diagnose", "--data", str(tmp_path / "d"), "--model", str(DEFAULT_AIRCRAFT), "--out",
+                 str(tmp_path / "r"), "--jobs", "2", "--no-plots", "--quiet"]) == 0
+    doc = json.loads((tmp_path / "r" / "diagnosis.json").read_text())
+    first = [c for c in doc["causes"] if c["kind"] == "aero"][0]
+    assert (first["coefficient"], first["variables"][0]) == ("CL", "mach"), doc["summary"]
+    assert first["verdict"]["holdout_gain"] >= 1.5 and first["verdict"]["size_over_floor"] >= 10
