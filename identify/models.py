@@ -96,12 +96,6 @@ def _reference(frame: pd.DataFrame, source: str) -> Reference:
                      tuple((k, v if np.isfinite(v) else 0.0) for k, v in se))
 
 
-def references(logs: list[Log]) -> dict[tuple, Reference]:
-    """The gear-up trim of each condition, from the first second of a gear-up
-    start (a gear extension, else a gear-up 2-3-1-1)."""
-    return {c: reference_of(*order) for c, order in reference_order(logs).items()}
-
-
 def reference_order(logs: list) -> dict[tuple, tuple[list, object]]:
     """Per condition, the logs its reference may come from, from what is known before reading them
     (:class:`identify.logs.Log` or :class:`identify.logs.LogHead`): the candidates in order of
