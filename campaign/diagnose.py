@@ -127,9 +127,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     model = check_aircraft_folder(model_dir)
-    logs = load_data(data_path)
-    train, held = split(logs)
-    client = connect(cluster) if cluster else None  # before anything is written
+    client = connect(cluster) if cluster else None  # before anything is read or written
+    try:
+        logs = load_data(data_path)
+        train, held = split(logs)
+    except UserError:
+        if client is not None:
+            client.close()
+        raise
     try:
         with on_cluster(client):
             return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client)
