@@ -222,12 +222,6 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
     drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
     from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
-    with local_workers():
-        return _draw(diag, held, before, after, flown, out, jobs, which, save_overview, save_log_plots)
-
-
-def _draw(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None, flown: dict,
-          out: Path, jobs: int, which: list[int] | None, save_overview, save_log_plots) -> list[str]:
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
@@ -235,7 +229,8 @@ def _draw(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Data
               *flown.get(held[i].path, (None, None)), out / "plots") for i in which]
     if jobs > 1:  # the overview too: the workers have matplotlib loaded, and this process waits anyway
         slim = replace(diag, held=None, logs=[], held_logs=[])  # what the overview draws, without the logs
-        list(results(submit(save_overview, [(slim, out / "plots")], jobs) + submit(save_log_plots, calls, jobs)))
+        with local_workers():
+            list(results(submit(save_overview, [(slim, out / "plots")], jobs) + submit(save_log_plots, calls, jobs)))
     else:
         save_overview(diag, out / "plots")
         for args in calls:

@@ -19,7 +19,9 @@ FLOOR_FACTOR = 2.0
 MIN_HOLDOUT_GAIN = 1.02
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
 #: at its reference, the first knot of a smooth term and the centre of a linear one, the intercept
-#: holding the level there) by this share of the cause's size.
+#: holding the level there) by this share of the cause's size: a tolerance for "nonzero", small
+#: because a smooth term's reference is its variable's lowest value (at 20 % a quadratic drag rise
+#: with Mach acted at the highest of three Mach values only, and no condition could test it).
 ACTING_SHARE = 0.05
 #: Evidence strong enough that no single condition left out may veto a cause: this many times its
 #: noise floor beyond what instrument errors make ...

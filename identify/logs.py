@@ -90,6 +90,8 @@ class Log(_Described):
 #: The metadata a :class:`LogHead` keeps (what is needed of a log before it is read); the rest
 #: comes with the log.
 HEAD_META = ("point", "maneuver", "status_point", "sensor_positions_ft", "geometry")
+#: Of those, the parts a campaign's logs share: one object for all heads.
+SHARED_META = ("sensor_positions_ft", "geometry")
 
 
 @dataclass(frozen=True)
@@ -181,8 +183,7 @@ def read_head(path: str | Path) -> LogHead:
     read (a CSV's are, and dropped)."""
     if str(path).endswith(".csv"):
         log = read_csv(path)
-        return LogHead(log.path, _shared({k: log.meta[k] for k in HEAD_META if k in log.meta}),
-                       _shared(tuple(log.data.columns)))
+        return LogHead(log.path, _head_meta(log.meta), _shared(tuple(log.data.columns)))
     try:
         schema = pq.read_schema(path)
     except (OSError, ValueError) as exc:
@@ -191,19 +192,21 @@ def read_head(path: str | Path) -> LogHead:
     for key in REQUIRED_META:
         if key not in meta:
             raise LogError(f"{path}: metadata field {key!r} missing")
-    return LogHead(str(path), _shared({k: meta[k] for k in HEAD_META if k in meta}), _shared(tuple(schema.names)))
+    return LogHead(str(path), _head_meta(meta), _shared(tuple(schema.names)))
 
 
 _SHARED: dict[str, object] = {}
 
 
+def _head_meta(meta: dict) -> dict:
+    """The :data:`HEAD_META` of a log's metadata, the :data:`SHARED_META` parts shared."""
+    return {k: _shared(meta[k]) if k in SHARED_META else meta[k] for k in HEAD_META if k in meta}
+
+
 def _shared(value):
-    """One object for equal metadata parts and column lists across the heads of a campaign (9,700
-    points' heads held 160 MB, mostly copies of the same geometry and positions)."""
-    if isinstance(value, dict):
-        return {k: _shared(v) if isinstance(v, (dict, tuple, list)) else v for k, v in value.items()}
-    key = type(value).__name__ + json.dumps(value)
-    return _SHARED.setdefault(key, value)
+    """One object for equal values (metadata parts, column lists) across the heads of a campaign:
+    9,700 points' heads held 160 MB, mostly copies of the same metadata."""
+    return _SHARED.setdefault(type(value).__name__ + json.dumps(value, sort_keys=True), value)
 
 
 def read_campaign(folder: str | Path) -> list[Log]:
