@@ -96,6 +96,30 @@ class LSResults:
         return "\n".join(lines)
 
 
+def lagged_gram(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
+    """``sum_ij x_i R(i-j) x_j'`` with ``R`` the autocorrelation of ``e``, summed up to its
+    first zero crossing (at most ``lags``): the middle of a covariance for coloured residuals.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, p)
+        Regressors, or the output sensitivities of one output.
+    e : ndarray, shape (N,)
+        Residuals.
+    lags : int
+        Largest lag [samples].
+    """
+    n = len(e)
+    lags = min(lags, n - 1)
+    r = np.array([e[k:] @ e[:n - k] / n for k in range(lags + 1)])
+    crossing = np.flatnonzero(r <= 0.0)
+    last = int(crossing[0]) - 1 if crossing.size else lags
+    # sum_k r_k (G_k + G_k'), G_k = sum_i x_(i+k) x_i', is Z'X + X'Z with Z_i = sum_k r_k x_(i+k):
+    # the lags as one FIR filter over the reversed regressors instead of a product per lag
+    z = lfilter(np.concatenate([[0.0], r[1:last + 1]]), [1.0], x[::-1], axis=0)[::-1]
+    return r[0] * (x.T @ x) + z.T @ x + x.T @ z
+
+
 def colored_residual_cov(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     """Covariance of least-squares estimates for coloured residuals.
 
@@ -112,15 +136,7 @@ def colored_residual_cov(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     lags : int
         Largest lag of the autocorrelation [samples].
     """
-    n = len(e)
-    lags = min(lags, n - 1)
-    r = np.array([e[k:] @ e[:n - k] / n for k in range(lags + 1)])
-    crossing = np.flatnonzero(r <= 0.0)
-    last = int(crossing[0]) - 1 if crossing.size else lags
-    # sum_k r_k (G_k + G_k'), G_k = sum_i x_(i+k) x_i', is Z'X + X'Z with Z_i = sum_k r_k x_(i+k):
-    # the lags as one FIR filter over the reversed regressors instead of a product per lag
-    z = lfilter(np.concatenate([[0.0], r[1:last + 1]]), [1.0], x[::-1], axis=0)[::-1]
-    m = r[0] * (x.T @ x) + z.T @ x + x.T @ z
+    m = lagged_gram(x, e, lags)
     xtx_inv = np.linalg.inv(x.T @ x)
     cov = xtx_inv @ m @ xtx_inv
     return cov

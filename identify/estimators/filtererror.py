@@ -1,0 +1,137 @@
+"""Filter-error estimation: maximum likelihood with process noise (turbulence) and measurement noise.
+
+The output-error predictor is replaced by a steady-state extended Kalman filter: the model
+is integrated from sample to sample, and the states are corrected at each sample by
+``K (z - y)``. The gain comes from the model linearized at the first sample and the
+continuous Riccati equation ``A P + P A' - P C' R^-1 C P / dt + F F' = 0``, ``F`` a diagonal
+of process-noise standard deviations estimated with the model's parameters and ``R`` the
+innovation covariance (Jategaonkar 2015, ch. 5, the algorithm of ``ml_fem``):
+
+1. ``R`` from the output error (no gain) to start;
+2. Gauss-Newton steps on the parameters and ``F``, ``R`` held, the sensitivities including
+   the gain's; the step halved while ``det(R)`` rises, or while a diagonal element of
+   ``K C`` would exceed 1 (the measurement noise would be negative);
+3. after each step, ``R`` re-estimated and ``F`` scaled to compensate (eq. 5.41), that
+   scaling halved back if it raised the cost. ``ml_fem`` waits for the third iteration; on
+   the HFB-320 record that lands in a local minimum with ``det(R)`` twenty times higher
+   (Cmq 10 % off the published value), compensating from the first lands within 1 %.
+"""
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping, Sequence
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+
+from identify.estimators.dynamics import Record, StateSpaceModel, linearize, simulate
+from identify.estimators.outputerror import OutputError
+
+F_UPDATE_FROM = 1
+
+
+class FilterError(OutputError):
+    """Filter-error estimator.
+
+    Parameters
+    ----------
+    model, records, p0, free : as :class:`OutputError`
+    f0 : mapping or array_like
+        Starting process-noise standard deviations, one per state [state unit / sqrt(s)].
+    """
+
+    method = "fe"
+
+    def __init__(self, model: StateSpaceModel, records: Sequence[Record], p0, f0,
+                 free: Collection[str] | None = None, tol: float = 1e-4, max_iter: int = 30,
+                 step: float = 1e-4) -> None:
+        super().__init__(model, records, p0, free=free, tol=tol, max_iter=max_iter, step=step)
+        f0 = np.array([f0[k] for k in model.states] if isinstance(f0, Mapping) else f0, dtype=float)
+        self.f0 = f0
+        self.names += [f"F.{s}" for s in model.states]
+        self.r_gain = None  # the innovation covariance the gain is computed with
+
+    def _start(self) -> np.ndarray:
+        return np.concatenate([super()._start(), self.f0])
+
+    def gains(self, thetas: np.ndarray, rec: Record) -> tuple[np.ndarray, np.ndarray]:
+        """Steady-state gains (B, nx, ny) and linearized output matrices (B, ny, nx)."""
+        nx = len(self.model.states)
+        p, _, _ = self._unpack(thetas[:, :-nx])
+        a, c = linearize(self.model, p, rec.x0, rec.u[0])
+        rdt = np.diag(self.r_gain * rec.dt_s)
+        ri = np.diag(1.0 / self.r_gain)
+        k = np.empty((len(thetas), nx, len(self.model.outputs)))
+        for b in range(len(thetas)):
+            ff = np.diag(thetas[b, -nx:] ** 2)
+            pcov = solve_continuous_are(a[b].T, c[b].T, ff, rdt)
+            k[b] = pcov @ c[b].T @ ri
+        return k, c
+
+    def predict(self, thetas: np.ndarray) -> list[np.ndarray]:
+        nx = len(self.model.states)
+        p, x0s, _ = self._unpack(thetas[:, :-nx])
+        return [simulate(self.model, p, x0, r, gain=self.gains(thetas, r)[0]) for r, x0 in zip(self.records, x0s)]
+
+    def _residuals(self, theta: np.ndarray) -> list[np.ndarray]:
+        if self.r_gain is None:  # start: the output error's residuals, no gain
+            nx = len(self.model.states)
+            p, x0s, _ = self._unpack(theta[None, :-nx])
+            res = [r.z - simulate(self.model, p, x0, r)[0] for r, x0 in zip(self.records, x0s)]
+            self.r_gain = self._covariance(res)
+        return super()._residuals(theta)
+
+    def _weights(self, res: list[np.ndarray]) -> np.ndarray:
+        return 1.0 / self.r_gain
+
+    def _kc_ok(self, theta: np.ndarray) -> bool:
+        k, c = self.gains(theta[None], self.records[0])
+        return bool(np.all(np.diag(k[0] @ c[0]) <= 1.0))
+
+    def _kc(self, thetas: np.ndarray) -> np.ndarray:
+        """Diagonal of ``K C`` (B, nx) on the first record."""
+        k, c = self.gains(thetas, self.records[0])
+        return np.einsum("bij,bji->bi", k, c)
+
+    def _constrain(self, theta: np.ndarray, delta: np.ndarray, m: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The Gauss-Newton step with ``diag(K C) <= 1`` linearized and imposed on the
+        constraints it would break (Lagrange multipliers, an active set grown until none is)."""
+        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)
+        kc = self._kc(np.vstack([theta, theta + np.diag(h)]))
+        jac = ((kc[1:] - kc[:1]) / h[:, None]).T  # (nx, n)
+        active: list[int] = []
+        for _ in range(len(kc[0])):
+            broken = [i for i in np.flatnonzero(kc[0] + jac @ delta > 1.0) if i not in active]
+            if not broken:
+                break
+            active += broken
+            a = jac[active]
+            kkt = np.block([[m, a.T], [a, np.zeros((len(active), len(active)))]])
+            rhs = np.concatenate([g, 1.0 - 1e-6 - kc[0, active]])
+            delta = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:len(theta)]
+        return delta
+
+    def _cost(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        r = self._covariance(self._residuals(theta))
+        return float(np.sum(np.log(r))), r
+
+    def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
+        cost, r_new = self._cost(theta)
+        if iteration < F_UPDATE_FROM:
+            return theta, cost
+        nx = len(self.model.states)
+        _, c = self.gains(theta[None], self.records[0])
+        c2 = c[0] ** 2  # (ny, nx)
+        ri_old = 1.0 / self.r_gain
+        ratio = np.sqrt(r_new / self.r_gain)
+        scale = (c2.T @ (ri_old * ratio)) / (c2.T @ ri_old)
+        f_old, r_old = theta[-nx:].copy(), self.r_gain
+        self.r_gain = r_new
+        trial = theta.copy()
+        trial[-nx:] = f_old * scale
+        for halving in range(3):
+            c_new, _ = self._cost(trial)
+            if c_new <= cost and np.all(self._kc(trial[None]) <= 1.0):
+                return trial, c_new
+            trial[-nx:] = 0.5 * (trial[-nx:] + f_old)
+        self.r_gain = r_old
+        return theta, cost

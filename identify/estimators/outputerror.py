@@ -1,0 +1,185 @@
+"""Output-error estimation: maximum likelihood for measurement noise only.
+
+The model is integrated from its initial states with the measured inputs; the parameters
+minimize ``det(R)``, ``R`` the covariance of the output residuals, by the relaxation of
+Jategaonkar (2015, ch. 4): ``R`` in closed form, then a Gauss-Newton step on the parameters
+with ``R`` held, the step halved while the cost rises. Sensitivities are forward
+differences, integrated as one batch with the nominal model.
+"""
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from identify.estimators.dynamics import Record, StateSpaceModel, simulate
+from identify.estimators.results import TimeDomainResults
+from identify.lsq import lagged_gram
+
+
+class OutputError:
+    """Output-error estimator for one model over one or several records.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+    records : sequence of Record
+        Fitted together: the model's parameters are shared, initial states and output
+        biases are per record.
+    p0 : mapping or array_like
+        Starting values of the model's parameters (all of them; fixed ones keep theirs).
+    free : collection of str, optional
+        The model parameters to estimate; None: all.
+    x0_free : collection of str
+        States whose initial value is estimated, per record.
+    biases : collection of str
+        Outputs with an estimated bias, per record.
+    tol : float
+        Convergence: relative change of ``det(R)`` between iterations.
+    max_iter : int
+    step : float
+        Relative finite-difference step (absolute for parameters at zero).
+    """
+
+    method = "oe"
+
+    def __init__(self, model: StateSpaceModel, records: Sequence[Record], p0, free: Collection[str] | None = None,
+                 x0_free: Collection[str] = (), biases: Collection[str] = (), tol: float = 1e-5,
+                 max_iter: int = 50, step: float = 1e-4) -> None:
+        self.model = model
+        self.records = list(records)
+        p0 = np.array([p0[k] for k in model.params] if isinstance(p0, Mapping) else p0, dtype=float)
+        if p0.shape != (len(model.params),):
+            raise ValueError(f"p0 has {p0.size} values for {len(model.params)} parameters")
+        self.p_fixed = p0
+        free = model.params if free is None else tuple(free)
+        unknown = set(free) - set(model.params) | set(x0_free) - set(model.states) | set(biases) - set(model.outputs)
+        if unknown:
+            raise ValueError(f"unknown names: {sorted(unknown)}")
+        self.i_free = [model.params.index(k) for k in free]
+        self.i_x0 = [model.states.index(k) for k in x0_free]
+        self.i_bias = [model.outputs.index(k) for k in biases]
+        self.tol, self.max_iter, self.step = tol, max_iter, step
+        self.names = list(free)
+        for r in self.records:
+            self.names += [f"x0[{r.name}].{model.states[i]}" for i in self.i_x0]
+        for r in self.records:
+            self.names += [f"bias[{r.name}].{model.outputs[i]}" for i in self.i_bias]
+
+    def _start(self) -> np.ndarray:
+        theta = list(self.p_fixed[self.i_free])
+        for r in self.records:
+            theta += list(r.x0[self.i_x0])
+        for r in self.records:
+            theta += [0.0] * len(self.i_bias)
+        return np.array(theta)
+
+    def _unpack(self, thetas: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """Model parameters (B, np), initial states per record (B, nx), output biases per record (B, ny)."""
+        nb, nf, nx0, nbias = len(thetas), len(self.i_free), len(self.i_x0), len(self.i_bias)
+        p = np.repeat(self.p_fixed[None], nb, axis=0)
+        p[:, self.i_free] = thetas[:, :nf]
+        x0s, biases = [], []
+        for j, r in enumerate(self.records):
+            x0 = np.repeat(r.x0[None], nb, axis=0)
+            x0[:, self.i_x0] = thetas[:, nf + j * nx0: nf + (j + 1) * nx0]
+            x0s.append(x0)
+            b = np.zeros((nb, len(self.model.outputs)))
+            k = nf + len(self.records) * nx0 + j * nbias
+            b[:, self.i_bias] = thetas[:, k:k + nbias]
+            biases.append(b)
+        return p, x0s, biases
+
+    def predict(self, thetas: np.ndarray) -> list[np.ndarray]:
+        """Model outputs per record, shape (B, N, ny), for a batch of parameter vectors."""
+        p, x0s, biases = self._unpack(thetas)
+        return [simulate(self.model, p, x0, r) + b[:, None, :] for r, x0, b in zip(self.records, x0s, biases)]
+
+    def _residuals(self, theta: np.ndarray) -> list[np.ndarray]:
+        return [r.z - y[0] for r, y in zip(self.records, self.predict(theta[None]))]
+
+    def _sensitivities(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Residuals and output sensitivities ``dy/dtheta`` (N, ny, n) per record."""
+        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)
+        batch = np.vstack([theta, theta + np.diag(h)])
+        ys = self.predict(batch)
+        res = [r.z - y[0] for r, y in zip(self.records, ys)]
+        sens = [np.transpose((y[1:] - y[:1]) / h[:, None, None], (1, 2, 0)) for y in ys]
+        return res, sens
+
+    @staticmethod
+    def _covariance(res: list[np.ndarray]) -> np.ndarray:
+        stacked = np.vstack(res)
+        return np.mean(stacked ** 2, axis=0)
+
+    def _prepare(self, theta: np.ndarray) -> None:
+        """Hook run before each iteration's sensitivities (the filter error updates its gains)."""
+
+    def _constrain(self, theta: np.ndarray, delta: np.ndarray, m: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """Hook: the step under the estimator's constraints (none for the output error)."""
+        return delta
+
+    def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
+        """Hook after an accepted step; returns the parameters and the cost (log det R)."""
+        return theta, float(np.sum(np.log(self._covariance(self._residuals(theta)))))
+
+    def _information(self, res, sens, w) -> tuple[np.ndarray, np.ndarray]:
+        m = sum(np.einsum("nkp,k,nkq->pq", s, w, s) for s in sens)
+        g = sum(np.einsum("nkp,k,nk->p", s, w, e) for s, e in zip(sens, res))
+        return m, g
+
+    def _weights(self, res: list[np.ndarray]) -> np.ndarray:
+        return 1.0 / self._covariance(res)
+
+    def fit(self) -> TimeDomainResults:
+        """Estimate; trial steps that make the model diverge are halved, not reported."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._fit()
+
+    def _fit(self) -> TimeDomainResults:
+        theta = self._start()
+        self._prepare(theta)
+        res = self._residuals(theta)
+        cost = float(np.sum(np.log(self._covariance(res))))
+        history, converged, it = [float(np.exp(cost))], False, 0
+        for it in range(1, self.max_iter + 1):
+            self._prepare(theta)
+            res, sens = self._sensitivities(theta)
+            w = self._weights(res)
+            m, g = self._information(res, sens, w)
+            delta = self._constrain(theta, np.linalg.solve(m, g), m, g)
+            for _ in range(11):
+                trial = theta + delta
+                c = float(np.sum(np.log(self._covariance(self._residuals(trial)))))
+                if np.isfinite(c) and c <= cost:
+                    break
+                delta = 0.5 * delta
+            else:
+                break  # no decrease after ten halvings: at the minimum to numerical precision
+            theta, c = self._after_step(trial, it)
+            change = abs(np.expm1(c - cost))
+            cost = c
+            history.append(float(np.exp(cost)))
+            if change < self.tol:
+                converged = True
+                break
+        return self._results(theta, history, converged, it)
+
+    def _results(self, theta, history, converged, iterations) -> TimeDomainResults:
+        self._prepare(theta)
+        res, sens = self._sensitivities(theta)
+        r = self._covariance(res)
+        w = 1.0 / r
+        m, _ = self._information(res, sens, w)
+        cov = np.linalg.inv(m)
+        middle = np.zeros_like(m)
+        for e, s in zip(res, sens):
+            for k in range(e.shape[1]):
+                middle += w[k] ** 2 * lagged_gram(s[:, k, :], e[:, k], len(e) - 1)
+        cov_c = cov @ middle @ cov
+        preds = [z - e for z, e in zip((rec.z for rec in self.records), res)]
+        idx = pd.Index(self.names)
+        return TimeDomainResults(self.method, pd.Series(theta, index=idx), pd.Series(np.sqrt(np.diag(cov)), index=idx),
+                                 pd.Series(np.sqrt(np.diag(cov_c)), index=idx), pd.Series(r, index=self.model.outputs),
+                                 float(np.prod(r)), history, converged, iterations, preds, res, cov, cov_c)
