@@ -1,6 +1,11 @@
 """Identification accuracy over the full default matrix (run by hand, ~1 min on 2 cores).
 
     python benchmarks/identification_accuracy.py [WORKDIR]
+    python benchmarks/identification_accuracy.py --methods [WORKDIR]
+
+``--methods`` flies the bare model noise-free and with the flight-test profile (1.5 ft/s
+turbulence), identifies each with equation error, output error and filter error, and prints
+the bias and RMS error of each derivative against the XML over the matrix.
 
 Flies three campaigns (bare model, reference aircraft, reference with
 flight-test noise), identifies them and prints: derivative recovery against the
@@ -12,6 +17,7 @@ from __future__ import annotations
 
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -40,15 +46,47 @@ def campaign(work: Path, name: str, effects, noise="none", seed=0):
     return identify_logs(read_campaign(out))
 
 
+def xml_truth(mach: float) -> dict:
+    """The bare model's derivatives at a Mach number (per rad; Cm about the CG)."""
+    cla = np.interp(mach, *CLA)
+    return {("CL", "dalpha_rad"): cla, ("CL", "delevator_rad"): 0.40, ("CL", "dstabilizer_rad"): 0.95,
+            ("CL", "qhat_rad"): 4.5, ("Cm", "dalpha_rad"): -1.3 - cla * ARM,
+            ("Cm", "delevator_rad"): -1.4 - 0.4 * ARM, ("Cm", "dstabilizer_rad"): -3.4 - 0.95 * ARM,
+            ("Cm", "qhat_rad"): -25 - 4.5 * ARM, ("CD", "dalpha2_rad2"): 0.045 * cla ** 2}
+
+
+def methods(work: Path) -> None:
+    m = load_matrix()
+    print(f"{'data':<12}{'method':<8}{'derivative':<22}{'bias %':>9}{'RMS %':>9}{'max %':>9}{'|z|<3 %':>9}  s/point")
+    for label, noise, seed in (("noise-free", "none", 0), ("flight-test", "flight-test", 1)):
+        out = work / f"methods-{label}"
+        cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None)), seed, noise, m.maneuver_params,
+                           m.clmax_by_flap)
+        if not (out / "manifest.json").exists():
+            run_campaign(m, cfg, out, jobs=2, progress=False)
+        logs = read_campaign(out)
+        for method in ("ee", "oe", "fe"):
+            t0 = time.perf_counter()
+            ident = identify_logs(logs, jobs=2, method=method, series=())
+            per_point = (time.perf_counter() - t0) / len(ident.fits)
+            errs: dict = {}
+            for f in ident.fits:
+                for (c, r), t in xml_truth(f.condition[1]).items():
+                    v = f.param(c, r)
+                    if v is not None and r != "dalpha2_rad2":
+                        se = float(f.fits[c].bse[r])
+                        errs.setdefault((c, r), []).append(((v - t) / abs(t) * 100, abs(v - t) / se))
+            for (c, r), v in errs.items():
+                e, z = np.array(v).T
+                print(f"{label:<12}{method:<8}{c + ' ' + r:<22}{np.mean(e):>9.2f}{np.sqrt(np.mean(e ** 2)):>9.2f}"
+                      f"{np.max(np.abs(e)):>9.2f}{np.mean(z < 3) * 100:>9.0f}  {per_point:.2f}")
+
+
 def main(work: Path) -> None:
     bare = campaign(work, "bare", None)
     errs: dict = {}
     for f in bare.fits:
-        cla = np.interp(f.condition[1], *CLA)
-        truth = {("CL", "dalpha_rad"): cla, ("CL", "delevator_rad"): 0.40, ("CL", "dstabilizer_rad"): 0.95,
-                 ("CL", "qhat_rad"): 4.5, ("Cm", "dalpha_rad"): -1.3 - cla * ARM,
-                 ("Cm", "delevator_rad"): -1.4 - 0.4 * ARM, ("Cm", "dstabilizer_rad"): -3.4 - 0.95 * ARM,
-                 ("Cm", "qhat_rad"): -25 - 4.5 * ARM, ("CD", "dalpha2_rad2"): 0.045 * cla ** 2}
+        truth = xml_truth(f.condition[1])
         for (c, r), t in truth.items():
             v = f.param(c, r)
             errs.setdefault((c, r), []).append(np.nan if v is None else abs(v - t) / abs(t) * 100)
@@ -87,4 +125,6 @@ def main(work: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="idacc-")))
+    args = [a for a in sys.argv[1:] if a != "--methods"]
+    folder = Path(args[0]) if args else Path(tempfile.mkdtemp(prefix="idacc-"))
+    (methods if "--methods" in sys.argv else main)(folder)

@@ -83,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit plots for the paper's 2000 ft/M0.3/flap-up points only (default), every point, "
                             "or none")
     ident.add_argument("--jobs", type=_jobs, default=1, help="parallel workers for the per-point fits (default 1)")
+    ident.add_argument("--method", choices=("ee", "oe", "fe"), default="ee",
+                       help="eq. (3) estimator: equation error (the paper's least squares, default), output "
+                            "error, or filter error (for turbulent data); see the README's Methods")
 
     fly = sub.add_parser("fly", help="re-fly one status point",
                          description="Re-fly one status point; its logs are bit-identical to the "
@@ -163,17 +166,18 @@ def _config(args):
     return matrix, config
 
 
-def _identify(results: Path, out: Path | None, model: str | None, plots: str, jobs: int = 1) -> int:
+def _identify(results: Path, out: Path | None, model: str | None, plots: str, jobs: int = 1,
+              method: str = "ee") -> int:
     from campaign.aircraft import check_aircraft_folder
     from identify.logs import LogError
     from identify.pipeline import identify_campaign
     if model:
         check_aircraft_folder(model)
     try:
-        files = identify_campaign(results, out, Path(model) if model else None, plots, jobs)
+        files = identify_campaign(results, out, Path(model) if model else None, plots, jobs, method)
     except LogError as exc:
         raise UserError(str(exc)) from None
-    print(f"identification in {Path(files['json']).parent}: "
+    print(f"identification ({method}) in {Path(files['json']).parent}: "
           f"{sum(1 for k in files if k.startswith('plot'))} plots, "
           f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")
     return 0
@@ -257,9 +261,11 @@ def _main(args) -> int:
         if args.command == "identify":
             results = Path(args.results)
             if not results.is_dir():
-                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs)
+                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs,
+                                 args.method)
             with holding(results, "identify"):
-                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs)
+                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs,
+                                 args.method)
         matrix, config = _config(args)
         if args.command == "run":
             out = Path(args.out) if args.out else Path("results") / matrix.name

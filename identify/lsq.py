@@ -45,6 +45,9 @@ class LSResults:
     y: np.ndarray
     cov: np.ndarray = field(repr=False, default=None)
     kept: tuple | None = field(repr=False, default=None)  # (nobs, resid_max, resid_rms, rel_error_pct) once slim
+    bse_white: pd.Series | None = None  # the white-residual formula (equation error) or Cramér-Rao bound
+    method: str = "ee"  # "ee" equation error, "oe" output error, "fe" filter error
+    converged: bool = True
 
     @property
     def nobs(self) -> int:
@@ -78,6 +81,9 @@ class LSResults:
         return {
             "params": {k: float(v) for k, v in self.params.items()},
             "bse": {k: float(v) for k, v in self.bse.items()},
+            "se": {k: float(v) for k, v in (self.bse if self.bse_white is None else self.bse_white).items()},
+            "se_coloured": {k: float(v) for k, v in self.bse.items()},
+            "method": self.method,
             "rsquared": self.rsquared, "resid_max": self.resid_max, "resid_rms": self.resid_rms,
             "rel_error_pct": self.rel_error_pct, "nobs": self.nobs,
             "unexcited": dict(self.unexcited),
@@ -192,10 +198,12 @@ class LeastSquares:
         fitted = x @ theta
         resid = self.y - fitted
         cov = colored_residual_cov(x, resid, self.hac_lags)
+        white = float(resid @ resid) / max(len(resid) - x.shape[1], 1) * np.linalg.inv(x.T @ x)
         ss_tot = float(np.sum((self.y - self.y.mean()) ** 2))
         r2 = 1.0 - float(np.sum(resid ** 2)) / ss_tot if ss_tot > 0 else float("nan")
         return LSResults(self.name, pd.Series(theta, index=keep), pd.Series(np.sqrt(np.diag(cov)), index=keep),
-                         unexcited, r2, resid, fitted, self.y, cov)
+                         unexcited, r2, resid, fitted, self.y, cov,
+                         bse_white=pd.Series(np.sqrt(np.diag(white)), index=keep))
 
 
 def solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from identify.logs import Log, LogError, LogHead, read_heads
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
+from identify.timedomain import METHODS, refine_point
 from identify.workers import imap, pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
@@ -59,6 +60,7 @@ class Identification:
     arm_ft: tuple[float, float]  # AERORP aft of and above the CG [ft]
     compat: CompatResult | None = None  # instrument errors estimated and corrected before eq. (1)
     notes: tuple[str, ...] = ()  # why a model is missing
+    method: str = "ee"  # the eq. (3) estimator
 
 
 def _read(log: Log | LogHead, correct) -> Log:
@@ -75,8 +77,9 @@ def pack(item) -> bytes:
     return zlib.compress(pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL), 1)
 
 
-def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> bytes:
-    fit = fit_baseline(_read(log, correct), ref)
+def _fit(log: Log | LogHead, ref: Reference, correct, series: bool, method: str = "ee") -> bytes:
+    log = _read(log, correct)
+    fit = refine_point(log, fit_baseline(log, ref), method)
     return pack(fit if series else fit.slim())
 
 
@@ -85,7 +88,7 @@ def _increments(log: Log | LogHead, derivatives: dict, correct) -> Increments:
 
 
 def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: int = 1,
-                  series: Collection[str] | None = None) -> Identification:
+                  series: Collection[str] | None = None, method: str = "ee") -> Identification:
     """Baseline fits, linear gear models, increments and the eq. (9) surfaces.
 
     With ``compatibility`` the instrument errors are estimated first (from a sample of the
@@ -99,12 +102,17 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     logs : list of Log or LogHead
     series : collection of str, optional
         The points whose fits keep their per-sample series (for their plots); None: every one.
+    method : {"ee", "oe", "fe"}
+        The eq. (3) estimator: equation error (the paper's least squares), output error or
+        filter error (:mod:`identify.timedomain`, started from the equation error's estimates).
     """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     compat = estimate(logs) if compatibility else None
     correct = compat.correct if compat is not None else None
     order = reference_order(logs)
     refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))
-    fits = Packed(imap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series)
+    fits = Packed(imap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series, method)
                              for log in logs if not log.transition], jobs))
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
@@ -120,7 +128,8 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     g = logs[0].meta["geometry"]  # imported logs may not give the AERORP: then it is taken at the CG
     arm = ((g.get("aerorp_x_in", 0.0) - g.get("cg_x_in", 0.0)) / 12.0,
            (g.get("aerorp_z_in", 0.0) - g.get("cg_z_in", 0.0)) / 12.0)
-    return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat, _why_none(logs, linear, incs))
+    return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat, _why_none(logs, linear, incs),
+                          method)
 
 
 def _why_none(logs: list[Log], linear: dict, incs: dict) -> tuple[str, ...]:
@@ -231,6 +240,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
                          **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
+        "method": ident.method,
         "points": _LATER[0],
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
         "increments": _LATER[1],
@@ -308,7 +318,7 @@ def _draw(kind: str, args: tuple, path: Path) -> None:
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
-                      plots: str = "paper", jobs: int = 1) -> dict[str, str]:
+                      plots: str = "paper", jobs: int = 1, method: str = "ee") -> dict[str, str]:
     """Identify everything from a campaign folder; return the files written.
 
     The outputs are written into a staging folder beside ``out`` and swapped in
@@ -328,7 +338,7 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
-    ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS))
+    ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS), method=method)
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
     _swap(stage, final)

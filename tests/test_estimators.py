@@ -123,3 +123,32 @@ def test_bad_model_inputs_are_named():
         OutputError(short_period(), attas_records()[:1], [0.0, 1.0, 2.0])
     with pytest.raises(ValueError, match="unknown names"):
         OutputError(short_period(), attas_records()[:1], ATTAS_START, biases=("theta_rad",))
+
+
+def test_identify_method_fe_on_turbulent_737_logs(tmp_path, capsys):
+    """``campaign identify --method fe`` on our 737 flown with the flight-test profile (1.5 ft/s
+    turbulence): the JSON says which method, every parameter has both bounds, and the
+    derivatives land on the model's own XML values (per rad, Cm about the CG)."""
+    import json
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.cli import main
+    from tests.support import matrix_toml, pairs, run_matrix
+    data = run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "one"), str(DEFAULT_AIRCRAFT),
+                      noise="flight-test", seed=5)
+    assert main(["identify", str(data), "--out", str(tmp_path / "fe"), "--method", "fe", "--plots", "none"]) == 0
+    assert "identification (fe)" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "fe" / "identification.json").read_text())
+    assert doc["method"] == "fe"
+    arm = (638.95 - 635.84) / 155.81
+    truth = {("CL", "dalpha_rad"): 5.5, ("Cm", "dalpha_rad"): -1.3 - 5.5 * arm, ("Cm", "qhat_rad"): -25 - 4.5 * arm,
+             ("Cm", "delevator_rad"): -1.4 - 0.4 * arm}
+    for point in ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn"):
+        pt = doc["points"][point]
+        for c in ("CL", "CD", "Cm"):
+            assert pt[c]["method"] == "fe"
+            assert set(pt[c]["se"]) == set(pt[c]["se_coloured"]) == set(pt[c]["params"])
+        for (c, r), t in truth.items():
+            est, se = pt[c]["params"][r], pt[c]["se_coloured"][r]
+            assert abs(est - t) < 4 * se + 0.01 * abs(t), (point, c, r, est, se, t)
+    assert set(doc["linear"]["h02000_m0.30_f00"]["C0_gearDn"]) == {"CL", "CD", "Cm"}

@@ -66,13 +66,14 @@ LONGITUDINAL_OUTPUTS = ("V", "alpha_rad", "theta_rad", "q_rps", "qdot_rps2", "ax
 
 
 def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs: Sequence[str] = ("de_rad",),
-                 offsets: Mapping[str, float] | None = None) -> StateSpaceModel:
+                 offsets: Mapping[str, float] | None = None,
+                 outputs: Sequence[str] = LONGITUDINAL_OUTPUTS) -> StateSpaceModel:
     """Rigid-body longitudinal equations in the stability axes, coefficients linear in regressors.
 
     States V, alpha, theta, q; outputs those and qdot, ax, az (body accelerations at the CG,
     gravity excluded). ``CD``, ``CL``, ``Cm`` are each a sum of ``C<coef><regressor>`` times
     a regressor. Regressors: ``1``, ``V`` (``V/V0``), ``alpha`` (``alpha - offsets['alpha_rad']``),
-    ``alpha2`` (its square), ``qhat`` (``q cbar/(2 V0)``), ``mach`` (``V/a - offsets['mach']``,
+    ``alpha2`` (its square), ``qhat`` (``q cbar/(2 V0)``), ``qhat_v`` (``q cbar/(2 V)``), ``mach`` (``V/a - offsets['mach']``,
     needing an input ``a``), and any input by name minus its offset. The last inputs are
     ``thrust`` [N or lbf] and ``rho`` [kg/m^3 or slug/ft^3] when present, else the density is
     ``offsets['rho']``.
@@ -85,6 +86,8 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
         The record's input columns, in order.
     offsets : mapping, optional
         Reference values the regressors are taken about.
+    outputs : sequence of str
+        A selection of :data:`LONGITUDINAL_OUTPUTS`, in the record's order.
 
     Returns
     -------
@@ -116,6 +119,8 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
             return (a - off.get("alpha_rad", 0.0)) ** 2
         if name == "qhat":
             return q * af.chord / (2.0 * af.v0)
+        if name == "qhat_v":
+            return q * af.chord / (2.0 * v)
         if name == "mach":
             return v / u[ia] - off.get("mach", 0.0)
         return np.full_like(v, u[inputs.index(name)] - off.get(name, 0.0))
@@ -128,7 +133,7 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
         return out
 
     def forces(x, u, p):
-        v, a = x[:, 0], x[:, 1]
+        v = x[:, 0]
         rho = u[ir] if ir is not None else off["rho"]
         qs = 0.5 * rho * v ** 2 * af.area
         c = coefficients(x, u, p)
@@ -151,6 +156,11 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
         ax = (qs * (c["CL"] * sa - c["CD"] * ca) + thrust * np.cos(af.thrust_angle_rad)) / af.mass
         az = (qs * (-c["CL"] * ca - c["CD"] * sa) - thrust * np.sin(af.thrust_angle_rad)) / af.mass
         qdot = (qs * af.chord * c["Cm"] + af.thrust_arm * thrust) / af.iyy
-        return np.stack([v, a, th, q, qdot, ax, az], axis=1)
+        full = {"V": v, "alpha_rad": a, "theta_rad": th, "q_rps": q, "qdot_rps2": qdot, "ax": ax, "az": az}
+        return np.stack([full[k] for k in outputs], axis=1)
 
-    return StateSpaceModel(f, g, LONGITUDINAL_STATES, inputs, LONGITUDINAL_OUTPUTS, tuple(names))
+    outputs = tuple(outputs)
+    unknown = set(outputs) - set(LONGITUDINAL_OUTPUTS)
+    if unknown:
+        raise ValueError(f"unknown outputs {sorted(unknown)}; the model has {LONGITUDINAL_OUTPUTS}")
+    return StateSpaceModel(f, g, LONGITUDINAL_STATES, inputs, outputs, tuple(names))
