@@ -1,4 +1,4 @@
-"""Command line: ``campaign run | fly | identify | replay | plots | diagnose | import | points``."""
+"""Command line: ``campaign run | fly | identify | replay | plots | diagnose | report | import | points``."""
 from __future__ import annotations
 
 import argparse
@@ -131,7 +131,17 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--cluster", metavar="tcp://HOST:PORT",
                      help="compute the residuals, sensitivities, noise realizations and replays on the Dask "
                           "cluster whose scheduler is there (the plots stay on --jobs local workers)")
+    dia.add_argument("--refine", choices=("oe",),
+                     help="refine the extension's terms by output error through JSBSim replays of the fitted logs, "
+                          "and report its gain beside the equation-error extension's")
     dia.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    rep = sub.add_parser("report", help="write DIR/report.html: one self-contained page for a campaign or a diagnosis",
+                         description="One HTML file (figures inline, no network) for a campaign folder (coverage, "
+                                     "trim and hold, identification, a Part 60 page per replay case, hashes) or a "
+                                     "diagnosis folder (verdict, causes and evidence, replays, compatibility, "
+                                     "rejected candidates, extension). run, replay and diagnose refresh it.")
+    rep.add_argument("folder", metavar="DIR", help="a campaign folder (manifest.json) or a diagnosis (diagnosis.json)")
 
     imp = sub.add_parser("import", help="measured data in other names, units, rates and formats into logs",
                          description="Convert measured files (CSV, whitespace ASCII, .mat, Parquet) into logs of the "
@@ -183,6 +193,12 @@ def _identify(results: Path, out: Path | None, model: str | None, plots: str, jo
     return 0
 
 
+def _html_report(folder: Path) -> None:
+    """Write or refresh ``folder/report.html`` (:mod:`campaign.report`) and say where it is."""
+    from campaign.report import write_report
+    print(f"report: {write_report(folder)}")
+
+
 def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
             cluster: str | None = None) -> int:
     from campaign.replay import load_cases, run_replays, select
@@ -196,6 +212,7 @@ def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs
     files = write_report(results, names, jobs)
     print(files.pop("table"))
     print(f"replay logs, metrics and plots in {results / 'replays'}")
+    _html_report(results)
     return 1 if failures else 0
 
 
@@ -237,13 +254,21 @@ def _main(args) -> int:
             n_plots = sum(1 for k in files if k.startswith("plot"))
             print(f"{n_plots} plots in {Path(args.results) / 'replays' / 'plots'}")
             return 0
+        if args.command == "report":
+            folder = Path(args.folder)
+            if not folder.is_dir():
+                raise UserError(f"{folder}: not a folder")
+            _html_report(folder)
+            return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis
             doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out),
                                 plots="none" if args.no_plots else args.plots, jobs=args.jobs,
-                                progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
+                                progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster,
+                                refine=args.refine)
             print(doc["summary"])
             print(f"report in {args.out}")
+            _html_report(Path(args.out))
             return 0
         if args.command == "import":
             from campaign.importer import import_files, report_text
@@ -312,15 +337,19 @@ def _run(args, matrix, config, out: Path) -> int:
     print(f"logs and manifest in {out}")
     if summary.all_failed:
         print("no point flew: nothing to identify")
+        _html_report(out)
         return 1
     if args.no_identify:
+        _html_report(out)
         return 0
     _identify(out, None, None, "paper", args.jobs)
     if args.no_replay:
+        _html_report(out)
         return 0
     if not (out / "identification" / "aircraft_nonlinear").is_dir():
         print("replays skipped: no gear models were identified (the matrix needs a condition flown "
               "gear up and gear down, with a gear extension)")
+        _html_report(out)
         return 0
     return _replay(out, None, None, args.jobs, args.cluster)
 

@@ -1,0 +1,88 @@
+"""The diagnosis half of ``campaign report``: verdict, causes with their evidence, the plots, the
+before-and-after replays, the data compatibility, the rejected candidates and the extension."""
+from __future__ import annotations
+
+import json
+from html import escape
+from pathlib import Path
+
+from campaign import html
+
+
+def _cause_rows(causes: list[dict]) -> list[tuple]:
+    rows = []
+    for i, c in enumerate(causes, 1):
+        ev, v = c.get("evidence", {}), c.get("verdict", {})
+        alts = ", ".join(a.get("label", str(a)) if isinstance(a, dict) else str(a)
+                         for a in v.get("sensor_alternatives", v.get("alternatives", []))) or "none"
+        rows.append((f"{i}. {c['coefficient']} vs {' x '.join(c['variables'])}", c.get("kind", ""), c.get("shape", ""),
+                     c.get("size", float("nan")), ev.get("F", float("nan")), v.get("noise_floor", float("nan")),
+                     v.get("size_over_floor", float("nan")), v.get("instrument_errors_make", float("nan")),
+                     v.get("holdout_gain", float("nan")), alts))
+    return rows
+
+
+def _gain(g: dict) -> str:
+    rows = [(c, v["before"], v["after"], f"x{v['gain']:.2f}") for c, v in g["residual_rms"].items()]
+    rep = [(ch, v["before"], v["after"], f"x{v['gain']:.2f}") for ch, v in g["replay_max_error"].items()]
+    return (f"<p>First aerodynamic cause: <b>{escape(g['cause'])}</b>; it acts in {len(g['cause_exercised_in'])} of "
+            f"{len(g['held_out_logs'])} held-out manoeuvres.</p>"
+            + html.table(["coefficient", "residual RMS before", "after", "gain"], rows)
+            + html.table(["replay channel", "max error before", "after", "gain"], rep))
+
+
+def diagnosis_report(folder: Path) -> str:
+    doc = json.loads((folder / "diagnosis.json").read_text())
+    causes = doc["causes"]
+    verdict = doc["verdict"]
+    if causes:
+        verdict += f": {causes[0]['coefficient']} vs {' x '.join(causes[0]['variables'])} ({causes[0].get('shape', '')})"
+    elif doc.get("largest_rejected"):
+        lr = doc["largest_rejected"]
+        verdict += f" (largest candidate: {escape(str(lr.get('label', lr)) if isinstance(lr, dict) else str(lr))})"
+    header = ["cause", "kind", "shape", "size", "F", "noise floor", "size / floor", "instrument errors make",
+              "held-out gain", "sensor alternatives"]
+    sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>'
+                             + html.definitions([("data", doc["data"]["path"]), ("logs", doc["data"]["logs"]),
+                                                 ("held out", len(doc["data"]["held_out"])), ("model", doc["model"])]))]
+    body = html.table(header, _cause_rows(causes)) if causes else "<p>No cause named.</p>"
+    if doc.get("unconfirmed"):
+        body += "<h3>Discrepancies these data cannot confirm</h3>" + html.table(header, _cause_rows(doc["unconfirmed"]))
+    overview = folder / "plots" / "residuals_vs_cause.png"
+    if overview.exists():
+        body += html.png(overview, "residuals against each cause", "Residuals against each cause's variables.")
+    sections.append(html.section("causes", "Causes and evidence", body))
+    if doc.get("gain"):
+        body = _gain(doc["gain"])
+        for png in sorted((folder / "plots").glob("response_*.png")):
+            body += html.png(png, png.stem, f"Held-out manoeuvre {png.stem[len('response_'):]}: replays on the model "
+                             "and on the extended model against the data.")
+        r = doc.get("refine")
+        if r:
+            body += (f"<h3>Refined by output error ({r['iterations']} iterations)</h3>"
+                     + html.table(["term", "scale", "se", "se coloured"],
+                                  [(k, v, r["se"][k], r["se_coloured"][k]) for k, v in r["scales"].items()])
+                     + (f'<p class="note">{escape(r["caveat"])}</p>' if r.get("caveat") else "") + _gain(r["gain"]))
+        sections.append(html.section("gain", "Before and after, held-out data", body, page=True))
+    compat = doc.get("data_compatibility")
+    if compat:
+        rows = [(p["channel"], p["error"], p["estimate"] if p["identifiable"] else "n/i", p["se"] if p["identifiable"] else "",
+                 p["z"] if p["identifiable"] else "", p["applied"], p["reason"] or "") for p in compat["parameters"]]
+        sections.append(html.section("compat", "Data compatibility", html.table(
+            ["channel", "error", "estimate", "se", "z", "applied", "why not / note"], rows, left=2)
+            + f"<p>Vertical gust in the reconstruction: {compat.get('vertical_gust_rms_fps', float('nan')):.2g} ft/s RMS.</p>"))
+    rejected = [(f"{c['coefficient']} vs {' x '.join(c['variables'])}", c.get("kind", ""),
+                 c.get("verdict", {}).get("reason", "")) for c in doc["rejected"]]
+    sections.append(html.section("rejected", "Rejected candidates",
+                                 html.table(["candidate", "kind", "why"], rejected, left=3) if rejected
+                                 else "<p>None.</p>"))
+    xml = Path(doc["extension_xml"]) if doc.get("extension_xml") else None
+    if xml is not None and xml.exists():
+        sections.append(html.section("extension", "Extension (JSBSim XML)",
+                                     f"<p>Merged into <code>{escape(str(doc['extension']))}</code>.</p><details><summary>"
+                                     f"{escape(xml.name)}</summary><pre>{escape(xml.read_text())}</pre></details>"))
+    data = Path(doc["data"]["path"])
+    sections.append(html.section("trace", "Traceability", html.traceability(
+        folder, None, {"diagnosis": folder / "diagnosis.json", "data manifest": data / "manifest.json",
+                       "extension": folder / "extension.xml"})))
+    return html.document("Diagnosis", f"{doc['data']['path']} against {doc['model']}", sections)
