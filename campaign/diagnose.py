@@ -29,6 +29,7 @@ from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from campaign.cluster import connect, pack, unpack_source
+from campaign.refine import REFINE, refine_extension
 from identify.workers import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
 
@@ -60,7 +61,8 @@ def split(logs: list[Log], every: int = 3) -> tuple[list[Log], list[Log]]:
 
 
 def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint, Recorded]:
-    """The log's start as a status point and its inputs as offsets from that start.
+    """The log's start as a status point and its inputs as offsets from that start, at the log's
+    own rate (the replay resamples them onto the simulation step).
 
     The flight condition is the mean of the first ``head_s`` (trimmed flight,
     sensor noise averaged out); the controls are referenced to their first
@@ -77,7 +79,8 @@ def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint
     flap = round(float(head.flap_deg), 3)
     point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
     man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),
-                   tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}")
+                   tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}",
+                   dt_s=float(np.median(np.diff(d.t_s))))
     return point, man
 
 
@@ -101,7 +104,7 @@ def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | None:
 
 
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
-                  progress: bool = False, cluster: str | None = None) -> dict:
+                  progress: bool = False, cluster: str | None = None, refine: str | None = None) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
@@ -119,10 +122,16 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         ``tcp://HOST:PORT`` of a Dask scheduler: the residuals, sensitivities, noise realizations
         and replays run on its workers (the model and aircraft folders shipped with the tasks), the
         plots on ``jobs`` local workers. ``diagnosis.json`` is the same as a local run's, to the bit.
+    refine : {"oe"}, optional
+        Refine the extension's terms by output error through replays of the fitted logs
+        (:mod:`campaign.refine`, on the local workers) and report its gain beside the
+        equation-error extension's (``refine`` in ``diagnosis.json``).
     """
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
         raise UserError(f"plots: {plots!r} is not one of {', '.join(PLOTS)}")
+    if refine is not None and refine not in REFINE:
+        raise UserError(f"refine: {refine!r} is not one of {', '.join(REFINE)}")
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
@@ -137,14 +146,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise
     try:
         with on_cluster(client):
-            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client)
+            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client, refine)
     finally:
         if client is not None:
             client.close()
 
 
 def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
-               train: list[Log], held: list[Log], client) -> dict:
+               train: list[Log], held: list[Log], client, refine: str | None = None) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`identify.workers.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
@@ -197,6 +206,11 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
         flown = {lg.path: (early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext])
                  for i, lg in enumerate(held)}
         doc["gain"] = measure_gain(diag, held, before, after, flown)
+        if refine:
+            stage("refine")
+            with local_workers():
+                doc["refine"] = refine_extension(diag, model, out, held, before,
+                                                 {k: v[0] for k, v in flown.items()}, replay, jobs)
         acting = exercised(before, diag.aero_causes[0].variables)
         if plots != "none":
             stage("plots")

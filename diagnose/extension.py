@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,32 @@ def _term(prod: ET.Element, t: Term, beta: np.ndarray) -> None:
         _table_2d(prod, VARIABLES[t.variables[0]], pb, t.knots, bpb, vals)
 
 
+def aero_terms(diag: Diagnosis) -> list[tuple[str, int, Term]]:
+    """The extension's terms, ``(coefficient, index, term)``, in the order they are written."""
+    return [(c, i, t) for c, res in diag.results.items()
+            for i, t in enumerate([t for t in res.terms if not sensor_of(t.variables[0])])]
+
+
+def term_name(c: str, i: int, t: Term) -> str:
+    """A term's name in the extension (its JSBSim function is ``aero/coefficient/diag-<name>``)."""
+    return f"d{c}-{i}-{t.kind}-{'-'.join(t.variables).replace('_', '')}"
+
+
+def scaled(diag: Diagnosis, scales: dict[str, float]) -> Diagnosis:
+    """The diagnosis with each named term (:func:`term_name`) multiplied by its scale."""
+    results = {}
+    for c, res in diag.results.items():
+        beta = res.beta.copy()
+        at = 1
+        aero = [t for t in res.terms if not sensor_of(t.variables[0])]
+        for t in res.terms:
+            if t in aero:
+                beta[at:at + t.width] *= scales.get(term_name(c, aero.index(t), t), 1.0)
+            at += t.width
+        results[c] = replace(res, beta=beta)
+    return replace(diag, results=results)
+
+
 def extension_effects(diag: Diagnosis) -> ET.Element:
     """Every selected term (and each coefficient's offset) as an ``<effects>`` element."""
     root = ET.Element("effects")
@@ -108,8 +135,7 @@ def extension_effects(diag: Diagnosis) -> ET.Element:
         prod = _fn(axis, f"aero/coefficient/diag-d{c}-offset", c, f"Diagnosed offset of {c}")
         ET.SubElement(prod, "value").text = repr(float(res.beta[0]))
         for i, t in enumerate(aero):
-            slug = "-".join(t.variables).replace("_", "")
-            prod = _fn(axis, f"aero/coefficient/diag-d{c}-{i}-{t.kind}-{slug}", c,
+            prod = _fn(axis, f"aero/coefficient/diag-{term_name(c, i, t)}", c,
                        f"Diagnosed discrepancy of {c}: {t.label}")
             _term(prod, t, res.term_beta(t))
     ET.indent(root)

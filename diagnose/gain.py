@@ -19,13 +19,23 @@ from identify.logs import Log
 REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
 
 
+def on_log_times(flown: pd.DataFrame, t_s: np.ndarray, channels) -> np.ndarray:
+    """A replay's channels at the log's sample times (linear between the simulation's steps),
+    shape (N, len(channels)); NaN past the replay's end."""
+    t = flown["t_s"].to_numpy()
+    out = np.column_stack([np.interp(t_s, t, flown[ch].to_numpy()) for ch in channels])
+    out[t_s > t[-1] + 1e-9] = np.nan
+    return out
+
+
 def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[str, float]:
-    """Max |flown - measured| per :data:`REPLAY_CHANNELS` channel (NaN if the replay did not trim)."""
+    """Max |flown - measured| per :data:`REPLAY_CHANNELS` channel, compared at the log's sample
+    times over what both cover (NaN if the replay did not trim)."""
     if flown is None:
         return {ch: float("nan") for ch in REPLAY_CHANNELS}
-    n = min(len(measured), len(flown))
-    return {ch: float(np.max(np.abs(flown[ch].to_numpy()[:n] - measured[ch].to_numpy()[:n])))
-            for ch in REPLAY_CHANNELS}
+    t = measured["t_s"].to_numpy()
+    err = np.abs(on_log_times(flown, t, REPLAY_CHANNELS) - measured[list(REPLAY_CHANNELS)].to_numpy())
+    return {ch: float(np.nanmax(err[:, j])) for j, ch in enumerate(REPLAY_CHANNELS)}
 
 
 def exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:

@@ -54,6 +54,19 @@ def summary(diag: Diagnosis, doc: dict) -> str:
         for ch, v in g["replay_max_error"].items():
             lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
         lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
+    r = doc.get("refine")
+    if r:
+        lines += ["", f"Refined by output error through replays of {len(r['fitted_logs'])} fitted logs "
+                  f"({r['iterations']} iterations{'' if r['converged'] else ', not converged'}); term scales:"]
+        lines += [f"  {k}: {v:.3f} +- {r['se_coloured'][k]:.3f}" for k, v in r["scales"].items()]
+        gr = r["gain"]
+        lines.append(f"Gain where the cause acts, equation-error extension -> refined: residual x{g['residual_gain']:.2f}"
+                     f" -> x{gr['residual_gain']:.2f}; replay worst error:")
+        for ch, v in gr["replay_max_error"].items():
+            lines.append(f"  {ch}: x{g['replay_max_error'][ch]['gain']:.2f} -> x{v['gain']:.2f}")
+        lines.append(f"refined extension: {r['extension']} (functions in {r['extension_xml']})")
+        if r.get("caveat"):
+            lines.append(f"caveat: {r['caveat']}")
     n = len(doc["plotted_logs"])
     if n and n < len(doc["data"]["held_out"]):
         lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "

@@ -77,7 +77,9 @@ def refine_point(log: Log, fit: PointFit, method: str) -> PointFit:
     The per-coefficient results keep the equation-error shape (so the linear and nonlinear
     gear models follow from these estimates unchanged): parameters, ``bse`` the bound
     corrected for coloured residuals, ``bse_white`` the Cramér-Rao bound, and the
-    coefficient residuals the estimates leave on the measured eq. (1) coefficients.
+    coefficient residuals the estimates leave on the measured eq. (1) coefficients. When the
+    estimator fails outright the equation-error fit is kept, marked ``method="ee"`` and not
+    converged.
     """
     if method == "ee":
         return fit
@@ -90,7 +92,12 @@ def refine_point(log: Log, fit: PointFit, method: str) -> PointFit:
         est = FilterError(model, [rec], start, F0)
     else:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
-    res = est.fit()
+    try:
+        res = est.fit()
+    except (ValueError, np.linalg.LinAlgError):  # the integration left the model's domain from the start
+        res = None
+    if res is None or not np.all(np.isfinite(res.params)):
+        return replace(fit, fits={c: replace(r, converged=False) for c, r in fit.fits.items()})
     edge = int(round(EDGE_S / _dt(log)))
     inner = slice(edge, len(log.data) - edge)
     y = _filtered(log, coefficients(log.data, log.meta)).iloc[inner]

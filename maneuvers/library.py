@@ -5,6 +5,8 @@ turns it into step-indexed signals for a given time step.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from dataclasses import dataclass, fields
 
 from maneuvers.signals import Constant, Sampled, Signal, Step, multistep
@@ -180,6 +182,10 @@ class Recorded(Maneuver):
     gear_cmd : tuple of float
         Gear command per step [-].
     name : str
+    dt_s : float, optional
+        Sample interval of the recording [s]. When it is not the simulation's step, the
+        inputs are resampled onto that step (linear between samples, the gear command held),
+        so a 50 Hz recording plays over its own duration at 120 Hz. None: one value per step.
     """
 
     gear_start: float
@@ -188,14 +194,22 @@ class Recorded(Maneuver):
     throttle: tuple[float, ...]
     gear_cmd: tuple[float, ...]
     name: str = "recorded"
+    dt_s: float | None = None
 
     def gear_initial(self, point_gear_down: bool) -> float:
         return self.gear_start
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
-        n = len(self.elevator_deg)
-        return Program(Sampled(self.elevator_deg), Sampled(self.stabilizer_deg), Sampled(self.gear_cmd),
-                       False, n, None, n, Sampled(self.throttle))
+        signals = (self.elevator_deg, self.stabilizer_deg, self.gear_cmd, self.throttle)
+        if self.dt_s is not None and abs(self.dt_s - dt) > 1e-9 * dt:
+            t_rec = np.arange(len(self.elevator_deg)) * self.dt_s
+            t_sim = np.arange(int(round(t_rec[-1] / dt)) + 1) * dt
+            held = np.searchsorted(t_rec, t_sim + 1e-9 * dt, side="right") - 1
+            signals = tuple(tuple(np.asarray(s, dtype=float)[held]) if s is self.gear_cmd
+                            else tuple(np.interp(t_sim, t_rec, s)) for s in signals)
+        elevator, stabilizer, gear, throttle = signals
+        n = len(elevator)
+        return Program(Sampled(elevator), Sampled(stabilizer), Sampled(gear), False, n, None, n, Sampled(throttle))
 
 
 MANEUVERS: dict[str, type[Maneuver]] = {

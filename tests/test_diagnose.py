@@ -217,6 +217,29 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
         assert np.max(np.abs(again.alt_ft - f.log.alt_ft)) < 0.5, man
 
 
+def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
+    """A log recorded at 50 Hz (the flight-test profile, here in still air) is replayed over its
+    own 28 s at the simulation's 120 Hz, not compressed into 1400 steps (11.7 s), and follows the
+    data on its own aircraft within the instruments' errors."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.diagnose import replay
+    from campaign.engine import FlightConfig, fly
+    from campaign.matrix import load_matrix
+    from diagnose.gain import replay_errors
+    from identify.logs import Log
+    still = tmp_path / "still.toml"
+    still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
+    m = load_matrix()
+    src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
+    f = fly(m.point("h10000_m0.30_f00_gup"), "doublet", FlightConfig(src, 3, str(still), m.maneuver_params,
+                                                                    m.clmax_by_flap))
+    assert np.median(np.diff(f.log.t_s)) == pytest.approx(0.02)
+    again = replay(Log("x", f.log, f.meta), src)
+    assert again.t_s.iloc[-1] == pytest.approx(f.log.t_s.iloc[-1], abs=0.01)
+    err = replay_errors(f.log, again)
+    assert err["theta_deg"] < 0.5 and err["alt_ft"] < 30.0, err
+
+
 def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
     """The smooth terms' piecewise-linear basis, built in one pass, against its definition (np.interp
     of each knot's indicator) on uneven knots, at the knots, outside them and at NaN."""
@@ -279,3 +302,33 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
         assert 0 < float(np.std(together[2]["r_Cm"])) < 0.05
     finally:
         ev.close()
+
+
+def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path, capsys):
+    """``--refine oe`` on data flown through the flight-test instruments in still air: the
+    equation-error extension of a hidden gear-drag bump is refined through JSBSim replays of the
+    fitted logs, written beside it, and its gain reported beside the first one's."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from tests.hidden import fly_data
+    still = tmp_path / "still.toml"
+    still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
+    hidden = make("gear_bump", np.random.default_rng(5), "CD")
+    data, _ = fly_data(tmp_path / "w", hidden, seed=5, instruments=str(still))
+    out = tmp_path / "report"
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
+                 "--no-plots", "--quiet", "--jobs", "2", "--refine", "oe"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads((out / "diagnosis.json").read_text())
+    r = doc["refine"]
+    assert r["method"] == "oe" and r["caveat"] is None and r["fitted_logs"]
+    # the scales stay within 0.7 of 1 (today 1.64 +- 0.19: the replays' speed drift, from the trim
+    # taken off noisy data and the thrust channel's noise, leans on the only free knob); with the
+    # replays time-compressed (a 50 Hz log played at 120 Hz) it was 2.3
+    for name, scale in r["scales"].items():
+        assert abs(scale - 1.0) < 0.7 and r["se_coloured"][name] > 0, (name, scale, r["se_coloured"][name])
+    # both extensions fly the held-out gear extension closer to the data than the model does
+    for g in (doc["gain"], r["gain"]):
+        assert g["replay_max_error"]["theta_deg"]["gain"] > 1.3 and g["residual_gain"] > 1.0
+    assert (out / "extension_oe.xml").stat().st_size > 0 and (out / "extended_aircraft_oe" / "737" / "737.xml").exists()
+    assert "Refined by output error" in text and "equation-error extension -> refined" in text
+    assert not (out / ".refine").exists()  # the trial aircraft are cleaned up

@@ -63,7 +63,11 @@ class FilterError(OutputError):
         k = np.empty((len(thetas), nx, len(self.model.outputs)))
         for b in range(len(thetas)):
             ff = np.diag(thetas[b, -nx:] ** 2)
-            pcov = solve_continuous_are(a[b].T, c[b].T, ff, rdt)
+            try:
+                pcov = solve_continuous_are(a[b].T, c[b].T, ff, rdt)
+            except (ValueError, np.linalg.LinAlgError):  # a trial step off the model's domain: halved
+                k[b] = np.nan
+                continue
             k[b] = pcov @ c[b].T @ ri
         return k, c
 
