@@ -164,8 +164,10 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     final = json.loads((killed / "manifest.json").read_text())
     assert final["complete"] and len(final["points"]) == 9
     ref_files = {p.name: p.read_bytes() for p in ref.glob("*.parquet")}
-    got = {p.name: p.read_bytes() for p in killed.iterdir() if p.is_file() and p.name not in ("manifest.json", LOCK)}
+    got = {p.name: p.read_bytes() for p in killed.iterdir()
+           if p.is_file() and p.name not in ("manifest.json", LOCK, "report.html")}
     assert got == ref_files
+    assert (killed / "report.html").exists()  # the resumed run's report (its date differs from ref's)
     assert final["points"] == json.loads((ref / "manifest.json").read_text())["points"]
 
 
