@@ -22,11 +22,13 @@ from campaign.matrix import StatusPoint
 from diagnose.diagnosis import STAGES, diagnose
 from diagnose.evaluate import ModelEvaluator
 from diagnose.extension import write_extension
-from diagnose.gain import exercised, largest, measure_gain
+from diagnose.gain import exercised, largest, measure_gain, replay_table
 from diagnose.report import document, summary
 from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
+from identify.kinematics import measured_wind
+from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from campaign.cluster import connect, pack, unpack_source
 from campaign.refine import REFINE, refine_extension
@@ -60,13 +62,44 @@ def split(logs: list[Log], every: int = 3) -> tuple[list[Log], list[Log]]:
     return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
 
 
-def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint, Recorded]:
+#: Below this RMS [ft/s] the wind measured in a log is taken as still air (noise-free campaigns).
+STILL_AIR_FPS = 0.05
+#: The measured wind is low-passed here [Hz]: turbulence lies far below, the vanes' noise above.
+WIND_CUTOFF_HZ = 2.0
+
+
+def log_wind(log: Log, head_s: float = 0.5) -> np.ndarray | None:
+    """The wind measured in a log (:func:`identify.kinematics.measured_wind`) relative to its
+    mean over the first ``head_s`` (where the replay trims), low-passed at
+    :data:`WIND_CUTOFF_HZ`, shape (N, 3) [ft/s]; None in still air or without inertial velocities."""
+    w = measured_wind(log.data)
+    if w is None:
+        return None
+    t = log.data.t_s.to_numpy()
+    w = lowpass(w, float(np.median(np.diff(t))), WIND_CUTOFF_HZ)
+    return w if float(np.sqrt(np.mean(w ** 2))) > STILL_AIR_FPS else None
+
+
+def wind_note(log: Log) -> dict:
+    """What a held-out log's replays flew in: the measured wind's RMS per axis, or why still air."""
+    if measured_wind(log.data) is None:
+        return {"replayed_in": "still air", "why": "no inertial velocity logged (vn_fps, ve_fps, vd_fps)"}
+    w = log_wind(log)
+    if w is None:
+        return {"replayed_in": "still air", "why": f"measured wind below {STILL_AIR_FPS} ft/s RMS"}
+    rms = np.sqrt(np.mean((w - w.mean(axis=0)) ** 2, axis=0))
+    return {"replayed_in": "measured wind", "rms_fps": dict(zip(("north", "east", "down"), map(float, rms)))}
+
+
+def recorded(log: Log, head_s: float = 0.5, first: int = 3, wind: bool = True) -> tuple[StatusPoint, Recorded]:
     """The log's start as a status point and its inputs as offsets from that start, at the log's
     own rate (the replay resamples them onto the simulation step).
 
     The flight condition is the mean of the first ``head_s`` (trimmed flight,
     sensor noise averaged out); the controls are referenced to their first
-    ``first`` samples, because a hold may already be moving them.
+    ``first`` samples, because a hold may already be moving them. With ``wind``, the wind
+    measured in the log (:func:`log_wind`) is flown too: a replay of turbulent data meets the
+    gusts the aeroplane met.
     """
     d = log.data
     head = d[d.t_s < head_s].mean()
@@ -78,15 +111,19 @@ def recorded(log: Log, head_s: float = 0.5, first: int = 3) -> tuple[StatusPoint
         gear_cmd[moving[0]:] = round(float(d.gear_norm.iloc[-1]))
     flap = round(float(head.flap_deg), 3)
     point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
+    w = log_wind(log, head_s) if wind else None
+    winds = {} if w is None else {"wind_n_fps": tuple(w[:, 0]), "wind_e_fps": tuple(w[:, 1]),
+                                  "wind_d_fps": tuple(w[:, 2])}
     man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),
                    tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}",
-                   dt_s=float(np.median(np.diff(d.t_s))))
+                   dt_s=float(np.median(np.diff(d.t_s))), **winds)
     return point, man
 
 
-def replay(log: Log, source: AircraftSource) -> pd.DataFrame | None:
-    """Fly the log's inputs on an aircraft from a trim at the log's start."""
-    point, man = recorded(log)
+def replay(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame | None:
+    """Fly the log's inputs on an aircraft from a trim at the log's start, in the wind measured
+    in the log (``wind``; still air when it has none)."""
+    point, man = recorded(log, wind=wind)
     try:
         return fly(point, man, FlightConfig(source)).log
     except TrimError:
@@ -185,7 +222,7 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
                           "held_out": [lg.path for lg in held]}, str(model))
     before = diag.held
     raw_held, held = held, diag.held_logs  # as corrected for instrument errors
-    extended_eval = None
+    extended_eval = src_ext = after = None
     if diag.aero_causes:
         stage("extension")
         xml = write_extension(diag, out / "extension.xml")
@@ -194,32 +231,31 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
         extended_eval = ModelEvaluator(folder, jobs=fan)
         after = residual_data(held, extended_eval)
         src_ext = AircraftSource(str(folder), load_effects(None))
-        stage("replays")
-        early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
-        calls = [(i, src) for i in range(len(held)) for src in (src_model, src_ext) if src is src_ext or i not in early]
-        if client is None:
-            flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
-        else:  # the aircraft travel with the tasks
-            shipped = {id(s): pack(s) for s in (src_model, src_ext)}
-            flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
-                                                               for i, src in calls], fan)))
-        flown = {lg.path: (early[i] if i in early else flown_now[i, src_model], flown_now[i, src_ext])
-                 for i, lg in enumerate(held)}
+    stage("replays")
+    early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
+    sources = (src_model,) if src_ext is None else (src_model, src_ext)
+    calls = [(i, src) for i in range(len(held)) for src in sources if src is src_ext or i not in early]
+    if client is None:
+        flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
+    else:  # the aircraft travel with the tasks
+        shipped = {id(s): pack(s) for s in sources}
+        flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
+                                                           for i, src in calls], fan)))
+    flown = {lg.path: (early[i] if i in early else flown_now[i, src_model],
+                       flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
+    doc["replays"] = replay_table(held, flown, extended=src_ext is not None)
+    doc["wind"] = {Path(lg.path).name: wind_note(lg) for lg in held}
+    if diag.aero_causes:
         doc["gain"] = measure_gain(diag, held, before, after, flown)
         if refine:
             stage("refine")
             with local_workers():
                 doc["refine"] = refine_extension(diag, model, out, held, before,
                                                  {k: v[0] for k, v in flown.items()}, replay, jobs)
-        acting = exercised(before, diag.aero_causes[0].variables)
-        if plots != "none":
-            stage("plots")
-            doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs,
-                                         None if plots == "all" else acting)
-    elif plots != "none":
+    if plots != "none":
         stage("plots")
-        doc["plotted_logs"] = _plots(diag, held, before, None, {}, out, jobs,
-                                     None if plots == "all" else largest(before))
+        which = exercised(before, diag.aero_causes[0].variables) if diag.aero_causes else largest(before)
+        doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs, None if plots == "all" else which)
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = summary(diag, doc)

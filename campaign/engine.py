@@ -182,8 +182,9 @@ class Trim:
 TRIM_ALPHA_MAX_DEG = (30.0, 18.0, 15.0, 12.0)
 
 
-def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
-    """A fresh FDM trimmed at ``point``, retrying narrower alpha brackets.
+def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fps=None):
+    """A fresh FDM trimmed at ``point`` (in the gust ``gust_fps``, if given: :func:`trim`),
+    retrying narrower alpha brackets.
 
     Returns
     -------
@@ -198,18 +199,20 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float):
     for alpha_max in TRIM_ALPHA_MAX_DEG:
         fdm = new_fdm(source)
         try:
-            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max)
+            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max, gust_fps)
         except TrimError as exc:
             reason = reason or str(exc)
     raise TrimError(reason)
 
 
 def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, names: set[str],
-         alpha_max_deg: float = 30.0) -> Trim:
+         alpha_max_deg: float = 30.0, gust_fps=None) -> Trim:
     """Set the initial condition and run JSBSim's full trim.
 
     ``flap_cmd`` is the ``fcs/flap-cmd-norm`` that gives the point's flap angle
-    (:func:`flap_schedule`); JSBSim's trim moves the flaps there at once.
+    (:func:`flap_schedule`); JSBSim's trim moves the flaps there at once. With ``gust_fps``
+    (north, east, down [ft/s]) the aircraft trims in that wind, at the point's Mach relative
+    to the air: a flight in turbulence starts in equilibrium with its first gust.
 
     Raises
     ------
@@ -238,15 +241,24 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
     _set(fdm, names, cat.CONTROLS["set_running"], -1)
     cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])
     messages: list[str] = []
-    try:
-        with captured_stdout(messages):
-            fdm.do_trim(1)
-    except jsbsim.TrimFailureError:
-        said = "; ".join(sorted({m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable",
-                                                                   " not trimmable") for m in messages
-                                 if "trimmable" in m}))
-        raise TrimError(f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
-                        f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
+    for _ in range(4 if gust_fps is not None else 1):
+        if gust_fps is not None:
+            for prop, v in zip(cat.GUSTS, gust_fps):
+                _set(fdm, names, prop, float(v))
+        try:
+            with captured_stdout(messages):
+                fdm.do_trim(1)
+        except jsbsim.TrimFailureError:
+            said = "; ".join(sorted({m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable",
+                                                                       " not trimmable") for m in messages
+                                     if "trimmable" in m}))
+            raise TrimError(f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
+                            f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
+        if gust_fps is None or abs(fdm["velocities/mach"] - point.mach) < 1e-5:
+            break
+        # the initial condition's speed is inertial: move it until the speed through the air is the point's
+        _set(fdm, names, "ic/mach", fdm["ic/mach"] + point.mach - fdm["velocities/mach"])
+        fdm.run_ic()
     if abs(fdm[cat.FLAP_DEG] - point.flap_deg) > 1e-6:
         raise TrimError(f"flaps at {fdm[cat.FLAP_DEG]:g} deg after the trim, asked {point.flap_deg:g} deg")
     if point.weight_lb is not None and abs(fdm["inertia/weight-lbs"] - point.weight_lb) > 1.0:
@@ -341,8 +353,13 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     seed = derived_seed(config.seed, point.id, maneuver.name)
     profile = config.instruments
-    gusts = dryden_gusts(prog.max_steps, DT_S, fdm["velocities/vt-fps"], point.alt_ft, profile.sigma_fps,
-                         np.random.default_rng(derived_seed(seed, "turbulence")))
+    if prog.wind_fps is not None:  # a replay in the wind measured in the data
+        gusts = prog.wind_fps[np.minimum(np.arange(prog.max_steps), len(prog.wind_fps) - 1)]
+    else:
+        gusts = dryden_gusts(prog.max_steps, DT_S, fdm["velocities/vt-fps"], point.alt_ft, profile.sigma_fps,
+                             np.random.default_rng(derived_seed(seed, "turbulence")))
+    if gusts.size and np.any(gusts[0] != 0.0):  # start in equilibrium with the first gust
+        fdm, names, n_eng, optional, tr = trimmed_fdm(config.aircraft, point, gear0, gusts[0])
 
     pm = fdm.get_property_manager()
     node = lambda p: pm.get_node(p, False)  # noqa: E731
@@ -366,7 +383,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     trim_cmd = node(cat.CONTROLS["pitch_trim"])
     thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
     gear_cmd = node(cat.CONTROLS["gear_cmd"])
-    gust_nodes = [node(p) for p in cat.GUSTS] if profile.sigma_fps > 0 else []
+    gust_nodes = [node(p) for p in cat.GUSTS] if profile.sigma_fps > 0 or prog.wind_fps is not None else []
     rot_nodes = ([node(p) for p in cat.ANGULAR_ACCELERATIONS.values()]
                  if any(any(s.position_ft) for c, s in profile.sensors if c[0] == "a") else [])
     idx = {name: i for i, name in enumerate(cat.STATE_CHANNELS)}

@@ -3,7 +3,7 @@
 The equation-error extension fits the coefficient residuals. Output error asks instead what
 makes the aeroplane fly like the data: each term of the extension gets a scale (1 to start),
 the fitted logs where the first cause acts are replayed on the model extended with the scaled
-terms (same trimmed start, recorded inputs), and the scales minimize ``det(R)`` of the replay
+terms (same trimmed start, recorded inputs, the measured wind), and the scales minimize ``det(R)`` of the replay
 errors in theta, alpha, q and airspeed (:class:`identify.estimators.OutputError`, sensitivities
 by finite differences: one replay set per term per iteration). The refined extension is then
 measured on the held-out logs like the equation-error one.
@@ -24,6 +24,7 @@ from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
 from identify.estimators import OutputError, Record, StateSpaceModel
 from identify.export import merge_into_aircraft
+from identify.kinematics import measured_wind
 from identify.logs import Log
 from identify.workers import pmap
 
@@ -31,8 +32,8 @@ REFINE = ("oe",)
 CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt")
 #: At most this many fitted logs are replayed per parameter vector (those with the largest residual).
 MAX_LOGS = 4
-#: Above this vertical gust in the data compatibility's reconstruction [ft/s RMS] the still-air
-#: replays cannot follow the data and the refinement says so.
+#: Above this vertical gust in the data compatibility's reconstruction [ft/s RMS], replays in
+#: still air cannot follow the data: the refinement says so when a fitted log has no measured wind.
 TURBULENT_FPS = 0.5
 
 
@@ -142,10 +143,11 @@ def refine_extension(diag: Diagnosis, model: Path, out: Path, held: list[Log], b
     flown_new = pmap(replay, [(lg, src) for lg in held], jobs)
     flown = {lg.path: (flown_model[lg.path], f) for lg, f in zip(held, flown_new)}
     caveat = None
-    if gust is not None and gust > TURBULENT_FPS:
+    still = [Path(lg.path).name for lg in logs if measured_wind(lg.data) is None]
+    if gust is not None and gust > TURBULENT_FPS and still:
         caveat = (f"the data were flown in turbulence (vertical gust {gust:.2g} ft/s RMS in the reconstruction) and "
-                  "the replays fly in still air: the gusts are replay errors the scales are bent to reduce, so the "
-                  "refined extension is biased; trust the equation-error one")
+                  f"{len(still)} fitted logs have no inertial velocity, so their replays fly in still air: the gusts "
+                  "are replay errors the scales are bent to reduce; trust the equation-error extension")
     return {"method": "oe", "caveat": caveat, "fitted_logs": [Path(lg.path).name for lg in logs],
             "scales": scales, "se": dict(zip(est.terms, res.bse.to_numpy())),
             "se_coloured": dict(zip(est.terms, res.bse_coloured.to_numpy())),

@@ -9,13 +9,20 @@ from pathlib import Path
 from campaign import html
 
 
+def label(c: dict) -> str:
+    """A cause's name: ``CD vs mach`` for an aerodynamic one, ``ax_fps2 bias (in CD)`` for a sensor's."""
+    if c.get("variables"):
+        return f"{c['coefficient']} vs {' x '.join(c['variables'])}"
+    return f"{c.get('channel', '?')} {c.get('error', c.get('shape', ''))} (in {c.get('coefficient', '?')})"
+
+
 def _cause_rows(causes: list[dict]) -> list[tuple]:
     rows = []
     for i, c in enumerate(causes, 1):
         ev, v = c.get("evidence", {}), c.get("verdict", {})
         alts = ", ".join(a.get("label", str(a)) if isinstance(a, dict) else str(a)
                          for a in v.get("sensor_alternatives", v.get("alternatives", []))) or "none"
-        rows.append((f"{i}. {c['coefficient']} vs {' x '.join(c['variables'])}", c.get("kind", ""), c.get("shape", ""),
+        rows.append((f"{i}. {label(c)}", c.get("kind", ""), c.get("shape", ""),
                      c.get("size", float("nan")), ev.get("F", float("nan")), v.get("noise_floor", float("nan")),
                      v.get("size_over_floor", float("nan")), v.get("instrument_errors_make", float("nan")),
                      v.get("holdout_gain", float("nan")), alts))
@@ -36,7 +43,7 @@ def diagnosis_report(folder: Path) -> str:
     causes = doc["causes"]
     verdict = doc["verdict"]
     if causes:
-        verdict += f": {causes[0]['coefficient']} vs {' x '.join(causes[0]['variables'])} ({causes[0].get('shape', '')})"
+        verdict += f": {label(causes[0])} ({causes[0].get('shape', '')})"
     elif doc.get("largest_rejected"):
         lr = doc["largest_rejected"]
         verdict += f" (largest candidate: {escape(str(lr.get('label', lr)) if isinstance(lr, dict) else str(lr))})"
@@ -71,7 +78,7 @@ def diagnosis_report(folder: Path) -> str:
         sections.append(html.section("compat", "Data compatibility", html.table(
             ["channel", "error", "estimate", "se", "z", "applied", "why not / note"], rows, left=2)
             + f"<p>Vertical gust in the reconstruction: {compat.get('vertical_gust_rms_fps', float('nan')):.2g} ft/s RMS.</p>"))
-    rejected = [(f"{c['coefficient']} vs {' x '.join(c['variables'])}", c.get("kind", ""),
+    rejected = [(label(c), c.get("kind", ""),
                  c.get("verdict", {}).get("reason", "")) for c in doc["rejected"]]
     sections.append(html.section("rejected", "Rejected candidates",
                                  html.table(["candidate", "kind", "why"], rejected, left=3) if rejected

@@ -38,6 +38,18 @@ def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[st
     return {ch: float(np.nanmax(err[:, j])) for j, ch in enumerate(REPLAY_CHANNELS)}
 
 
+def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool) -> dict:
+    """``{log file: {channel: {"model": max error, "extended": max error or None}}}`` for every
+    held-out log (:func:`replay_errors`)."""
+    out = {}
+    for lg in held:
+        fm, fx = flown[lg.path]
+        em = replay_errors(lg.data, fm)
+        ex = replay_errors(lg.data, fx) if extended else {}
+        out[Path(lg.path).name] = {ch: {"model": em[ch], "extended": ex.get(ch)} for ch in REPLAY_CHANNELS}
+    return out
+
+
 def exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
     """Held-out logs (``log`` values of a residual frame) in which any of the cause's variables varies."""
     out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= MIN_STD[v] for v in variables)]
@@ -87,8 +99,11 @@ def measure_gain(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: 
         replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}
     worst = _with_gain({ch: {"before": max(r[ch]["before"] for r in replays.values()),
                              "after": max(r[ch]["after"] for r in replays.values())} for ch in REPLAY_CHANNELS})
+    where = [replays[Path(held[i].path).name] for i in acting]
+    where_acts = _with_gain({ch: {"before": max(r[ch]["before"] for r in where),
+                                  "after": max(r[ch]["after"] for r in where)} for ch in REPLAY_CHANNELS})
     return {"cause": first.label, "held_out_logs": [Path(lg.path).name for lg in held],
             "cause_exercised_in": [Path(held[i].path).name for i in acting],
             "residual_gain": rms_acting[first.coefficient]["gain"], "coefficient": first.coefficient,
             "residual_rms": rms_acting, "residual_rms_all_held_out": residual_rms(before, after),
-            "replay_max_error": worst, "replay_per_log": replays}
+            "replay_max_error": worst, "replay_where_acts": where_acts, "replay_per_log": replays}

@@ -67,6 +67,19 @@ def summary(diag: Diagnosis, doc: dict) -> str:
         lines.append(f"refined extension: {r['extension']} (functions in {r['extension_xml']})")
         if r.get("caveat"):
             lines.append(f"caveat: {r['caveat']}")
+    wind = doc.get("wind", {})
+    if wind:
+        n_wind = sum(w["replayed_in"] == "measured wind" for w in wind.values())
+        lines += ["", f"Held-out replays: {n_wind} of {len(wind)} flown in the wind measured in their log"
+                  + ("" if n_wind == len(wind) else
+                     " (the others in still air: " + "; ".join(sorted({w['why'] for w in wind.values()
+                                                                     if w['replayed_in'] == 'still air'})) + ")")
+                  + "; worst replay error per channel, model"
+                  + (" -> extended model:" if doc.get("extension") else ":")]
+        for ch in next(iter(doc["replays"].values()), {}):
+            m = max(r[ch]["model"] for r in doc["replays"].values())
+            x = [r[ch]["extended"] for r in doc["replays"].values() if r[ch]["extended"] is not None]
+            lines.append(f"  {ch}: {m:.3g}" + (f" -> {max(x):.3g}" if x else ""))
     n = len(doc["plotted_logs"])
     if n and n < len(doc["data"]["held_out"]):
         lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "

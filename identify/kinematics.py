@@ -174,3 +174,33 @@ def pitch_rate_derivative(t_s: np.ndarray, q_dps: np.ndarray) -> np.ndarray:
     """The pitch acceleration :func:`pitch_acceleration` takes from the pitch rate [deg/s^2]:
     ``q_dps`` [deg/s] one record (n,) or several of the same times as columns (n, k)."""
     return smooth_derivative(t_s, q_dps, 0.5 * JSBSIM_FRAME_S)
+
+
+WIND_CHANNELS = ("vn_fps", "ve_fps", "vd_fps")
+
+
+def measured_wind(data: pd.DataFrame) -> np.ndarray | None:
+    """The wind's time history, north, east, down [ft/s], shape (N, 3); None without a logged
+    inertial velocity.
+
+    The inertial velocity (``vn_fps``, ``ve_fps``, ``vd_fps``) minus the air-relative
+    velocity: true airspeed, alpha and beta (0 if not logged) in the body axes, rotated to
+    north-east-down by the logged attitude. The air data should be corrected first (the data
+    compatibility: vane positions, biases, scales). What it cannot hold: rotational gusts
+    (a gust gradient along the wing or fuselage is not a velocity at the CG), and the vanes'
+    and pitot's own noise, which passes straight into it.
+    """
+    if not set(WIND_CHANNELS) <= set(data.columns):
+        return None
+    a, b = _col(data, "alpha_deg", D2R), _col(data, "beta_deg", D2R)
+    vt = _col(data, "tas_kt", FT_PER_KT)
+    body = np.column_stack([vt * np.cos(a) * np.cos(b), vt * np.sin(b), vt * np.sin(a) * np.cos(b)])
+    ph, th, ps = _col(data, "phi_deg", D2R), _col(data, "theta_deg", D2R), _col(data, "psi_deg", D2R)
+    cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
+    # body to north-east-down (the transpose of the 3-2-1 Euler rotation)
+    rows = np.stack([
+        np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], axis=-1),
+        np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], axis=-1),
+        np.stack([-sth, sph * cth, cph * cth], axis=-1)], axis=1)
+    air = np.einsum("nij,nj->ni", rows, body)
+    return data[list(WIND_CHANNELS)].to_numpy(dtype=float) - air

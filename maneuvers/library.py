@@ -35,6 +35,9 @@ class Program:
         Hard limit [steps].
     throttle : Signal or None
         Throttle input added to the trim [-], when the hold does not fly.
+    wind_fps : ndarray or None
+        A prescribed wind, shape (steps, 3), north, east, down [ft/s] (a replay in the wind
+        measured in the data), flown instead of the instrument profile's turbulence.
     """
 
     elevator_deg: Signal
@@ -45,6 +48,7 @@ class Program:
     post_travel_steps: int | None
     max_steps: int
     throttle: Signal | None = None
+    wind_fps: np.ndarray | None = None
 
 
 class Maneuver:
@@ -186,6 +190,8 @@ class Recorded(Maneuver):
         Sample interval of the recording [s]. When it is not the simulation's step, the
         inputs are resampled onto that step (linear between samples, the gear command held),
         so a 50 Hz recording plays over its own duration at 120 Hz. None: one value per step.
+    wind_n_fps, wind_e_fps, wind_d_fps : tuple of float, optional
+        The wind to fly in, per recorded sample [ft/s] (resampled like the inputs).
     """
 
     gear_start: float
@@ -195,21 +201,26 @@ class Recorded(Maneuver):
     gear_cmd: tuple[float, ...]
     name: str = "recorded"
     dt_s: float | None = None
+    wind_n_fps: tuple[float, ...] | None = None
+    wind_e_fps: tuple[float, ...] | None = None
+    wind_d_fps: tuple[float, ...] | None = None
 
     def gear_initial(self, point_gear_down: bool) -> float:
         return self.gear_start
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
-        signals = (self.elevator_deg, self.stabilizer_deg, self.gear_cmd, self.throttle)
+        wind = (self.wind_n_fps, self.wind_e_fps, self.wind_d_fps) if self.wind_n_fps is not None else ()
+        signals = (self.elevator_deg, self.stabilizer_deg, self.gear_cmd, self.throttle, *wind)
         if self.dt_s is not None and abs(self.dt_s - dt) > 1e-9 * dt:
             t_rec = np.arange(len(self.elevator_deg)) * self.dt_s
             t_sim = np.arange(int(round(t_rec[-1] / dt)) + 1) * dt
             held = np.searchsorted(t_rec, t_sim + 1e-9 * dt, side="right") - 1
             signals = tuple(tuple(np.asarray(s, dtype=float)[held]) if s is self.gear_cmd
                             else tuple(np.interp(t_sim, t_rec, s)) for s in signals)
-        elevator, stabilizer, gear, throttle = signals
+        elevator, stabilizer, gear, throttle = signals[:4]
         n = len(elevator)
-        return Program(Sampled(elevator), Sampled(stabilizer), Sampled(gear), False, n, None, n, Sampled(throttle))
+        return Program(Sampled(elevator), Sampled(stabilizer), Sampled(gear), False, n, None, n, Sampled(throttle),
+                       np.column_stack(signals[4:]) if wind else None)
 
 
 MANEUVERS: dict[str, type[Maneuver]] = {
