@@ -324,7 +324,7 @@ def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path
     doc = json.loads((out / "diagnosis.json").read_text())
     r = doc["refine"]
     assert r["method"] == "oe" and r["caveat"] is None and r["fitted_logs"]
-    # the scales stay within 0.7 of 1 (today 1.64 +- 0.19: the replays' speed drift, from the trim
+    # the scales stay within 0.7 of 1 (today 1.51 +- 0.19: the replays' speed drift, from the trim
     # taken off noisy data and the thrust channel's noise, leans on the only free knob); with the
     # replays time-compressed (a 50 Hz log played at 120 Hz) it was 2.3
     for name, scale in r["scales"].items():
