@@ -134,6 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--refine", choices=("oe",),
                      help="refine the extension's terms by output error through JSBSim replays of the fitted logs, "
                           "and report its gain beside the equation-error extension's")
+    dia.add_argument("--bands", type=int, default=0, metavar="N",
+                     help="N Monte Carlo draws of the extension from its covariance: bands on the held-out replays "
+                          "where the cause acts, and their Part 60 pass probability (50 is usual; default 0: none)")
     dia.add_argument("--quiet", action="store_true", help="no progress bar")
 
     rep = sub.add_parser("report", help="write DIR/report.html: one self-contained page for a campaign or a diagnosis",
@@ -265,7 +268,7 @@ def _main(args) -> int:
             doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out),
                                 plots="none" if args.no_plots else args.plots, jobs=args.jobs,
                                 progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster,
-                                refine=args.refine)
+                                refine=args.refine, bands=args.bands)
             print(doc["summary"])
             print(f"report in {args.out}")
             _html_report(Path(args.out))

@@ -31,6 +31,7 @@ from identify.kinematics import measured_wind
 from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from campaign.cluster import connect, pack, unpack_source
+from campaign.bands import replay_bands
 from campaign.refine import REFINE, refine_extension
 from identify.workers import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
@@ -141,7 +142,8 @@ def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | None:
 
 
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
-                  progress: bool = False, cluster: str | None = None, refine: str | None = None) -> dict:
+                  progress: bool = False, cluster: str | None = None, refine: str | None = None,
+                  bands: int = 0) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
@@ -163,12 +165,17 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         Refine the extension's terms by output error through replays of the fitted logs
         (:mod:`campaign.refine`, on the local workers) and report its gain beside the
         equation-error extension's (``refine`` in ``diagnosis.json``).
+    bands : int
+        Monte Carlo draws of the extension for bands on the held-out replays where the cause
+        acts, and their Part 60 pass probability (:mod:`campaign.bands`; 0: none).
     """
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
         raise UserError(f"plots: {plots!r} is not one of {', '.join(PLOTS)}")
     if refine is not None and refine not in REFINE:
         raise UserError(f"refine: {refine!r} is not one of {', '.join(REFINE)}")
+    if bands < 0 or 0 < bands < 20:
+        raise UserError(f"--bands: {bands} draws; a band needs 20 or more (50 is usual), or 0 for none")
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
@@ -183,14 +190,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise
     try:
         with on_cluster(client):
-            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client, refine)
+            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client, refine, bands)
     finally:
         if client is not None:
             client.close()
 
 
 def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
-               train: list[Log], held: list[Log], client, refine: str | None = None) -> dict:
+               train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`identify.workers.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
@@ -252,10 +259,17 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
             with local_workers():
                 doc["refine"] = refine_extension(diag, model, out, held, before,
                                                  {k: v[0] for k, v in flown.items()}, replay, jobs)
+    band_arrays = {}
+    if bands and diag.aero_causes:
+        stage("bands")
+        acting = exercised(before, diag.aero_causes[0].variables)
+        with local_workers():
+            doc["bands"], band_arrays = replay_bands(diag, model, out, [held[i] for i in acting], bands, replay, jobs)
     if plots != "none":
         stage("plots")
         which = exercised(before, diag.aero_causes[0].variables) if diag.aero_causes else largest(before)
-        doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs, None if plots == "all" else which)
+        doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs, None if plots == "all" else which,
+                                     band_arrays)
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = summary(diag, doc)
@@ -268,7 +282,7 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
 
 
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
-           flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None) -> list[str]:
+           flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None, bands: dict | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
     drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
     from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
@@ -276,7 +290,7 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
               after[after.log == i] if after is not None else None,
-              *flown.get(held[i].path, (None, None)), out / "plots") for i in which]
+              *flown.get(held[i].path, (None, None)), out / "plots", (bands or {}).get(held[i].path)) for i in which]
     if jobs > 1:  # the overview too: the workers have matplotlib loaded, and this process waits anyway
         slim = replace(diag, held=None, logs=[], held_logs=[])  # what the overview draws, without the logs
         with local_workers():

@@ -64,6 +64,12 @@ def diagnosis_report(folder: Path) -> str:
         for png in sorted((folder / "plots").glob("response_*.png")):
             body += html.png(png, png.stem, f"Held-out manoeuvre {png.stem[len('response_'):]}: replays on the model "
                              "and on the extended model against the data.")
+        if doc.get("bands"):
+            body += ("<h3>Monte Carlo bands of the extended model</h3>" + html.table(
+                ["held-out log", "draws", "Part 60 pass probability", "held-back draw inside the band",
+                 "widest band, theta [deg]", "widest band, altitude [ft]"],
+                [(k, v["draws"], v["pass_probability"], f"{100 * v['held_back_draw_inside']:.0f} %",
+                  v["width_max"]["theta_deg"], v["width_max"]["alt_ft"]) for k, v in doc["bands"].items()]))
         r = doc.get("refine")
         if r:
             body += (f"<h3>Refined by output error ({r['iterations']} iterations)</h3>"

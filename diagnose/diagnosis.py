@@ -43,7 +43,7 @@ from identify.logs import Log
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
-          "verdict", "extension", "replays", "refine", "plots")
+          "verdict", "extension", "replays", "refine", "bands", "plots")
 
 
 def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:

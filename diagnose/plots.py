@@ -60,11 +60,16 @@ def plot_residuals(diag: Diagnosis, axes=None):
     return axes[0].figure
 
 
-def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
-    """Measured response against the model (and the extended model), same inputs and start."""
+def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None,
+                  band: dict | None = None):
+    """Measured response against the model (and the extended model), same inputs and start;
+    ``band`` (channel -> (t_s, lo, hi)) shades the extended model's Monte Carlo band."""
     if axes is None:
         axes = response_axes(plt.figure(figsize=RESPONSE_SIZE))
     for ax, (ch, label) in zip(axes, RESPONSE_CHANNELS):
+        if band and ch in band:
+            t, lo, hi = band[ch]
+            ax.fill_between(t, lo, hi, color="tab:blue", alpha=0.2, lw=0, label="extended model, 95 % band")
         ax.plot(data.t_s, data[ch], color="0.3", lw=3, alpha=0.4, label="measured")
         ax.plot(before.t_s, before[ch], "r--", lw=1.2, label="model")
         if after is not None:
@@ -103,7 +108,8 @@ def save_overview(diag: Diagnosis, folder: Path) -> None:
 
 
 def save_log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
-                   flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path) -> None:
+                   flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path,
+                   band: dict | None = None) -> None:
     """A held-out log's residual history (``residuals_<name>.png``) and, if it was replayed, its
     response (``response_<name>.png``), in ``folder``; one figure of each kind is reused per process."""
     fig = plot_residual_history(before, after, f"held out: {name}",
@@ -111,5 +117,5 @@ def save_log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: p
     fig.savefig(folder / f"residuals_{name}.png", dpi=90)
     if flown_before is not None:
         fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs",
-                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes))
+                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes), band=band)
         fig.savefig(folder / f"response_{name}.png", dpi=90)

@@ -80,6 +80,12 @@ def summary(diag: Diagnosis, doc: dict) -> str:
             m = max(r[ch]["model"] for r in doc["replays"].values())
             x = [r[ch]["extended"] for r in doc["replays"].values() if r[ch]["extended"] is not None]
             lines.append(f"  {ch}: {m:.3g}" + (f" -> {max(x):.3g}" if x else ""))
+    b = doc.get("bands")
+    if b:
+        lines += ["", f"Monte Carlo bands ({next(iter(b.values()))['draws']} draws of the extension from its covariance), "
+                  "held-out replays where the cause acts:"]
+        lines += [f"  {k}: Part 60 pass probability {v['pass_probability']:.2f}; a held-back draw inside the band "
+                  f"{100 * v['held_back_draw_inside']:.0f} % of the time" for k, v in b.items()]
     n = len(doc["plotted_logs"])
     if n and n < len(doc["data"]["held_out"]):
         lines.append(f"plots: the overview and {n} of the {len(doc['data']['held_out'])} held-out manoeuvres "

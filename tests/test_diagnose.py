@@ -373,3 +373,30 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     clean = read_campaign(run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "c"),
                                      str(DEFAULT_AIRCRAFT)))[0]
     assert np.abs(measured_wind(clean.data)).max() < 1e-3 and log_wind(clean) is None
+
+
+def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, capsys):
+    """``--bands 20``: the extension's terms drawn from their covariance, the held-out replays where
+    the cause acts flown for each draw in the measured wind. A 21st draw, held back from the band,
+    lies inside it nearly all the time; the pass probability and the shaded plot are reported."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from tests.hidden import fly_data
+    hidden = make("gear_bump", np.random.default_rng(5), "CD")
+    data, _ = fly_data(tmp_path / "w", hidden, seed=5)
+    out = tmp_path / "report"
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
+                 "--quiet", "--jobs", "2", "--bands", "20"]) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert set(doc["bands"]) == set(doc["gain"]["cause_exercised_in"])
+    for name, b in doc["bands"].items():
+        assert b["draws"] == 20 and 0.0 <= b["pass_probability"] <= 1.0
+        assert b["held_back_draw_inside"] >= 0.8, (name, b)
+        assert b["width_max"]["alt_ft"] > 0 and b["width_max"]["theta_deg"] > 0
+        assert (out / "plots" / f"response_{Path(name).stem}.png").exists()
+    assert "Monte Carlo bands" in capsys.readouterr().out
+    assert not (out / ".bands").exists()
+    capsys.readouterr()
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "x"),
+                 "--bands", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "--bands" in err and err.count("\n") == 1 and not (tmp_path / "x").exists()
