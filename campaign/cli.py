@@ -197,9 +197,14 @@ def _identify(results: Path, out: Path | None, model: str | None, plots: str, jo
 
 
 def _html_report(folder: Path) -> None:
-    """Write or refresh ``folder/report.html`` (:mod:`campaign.report`) and say where it is."""
+    """Write or refresh ``folder/report.html`` (:mod:`campaign.report`) and say where it is. At the
+    end of a run, a replay or a diagnosis, a report that cannot be written is said, not fatal:
+    the results are on disk (``campaign report`` tries again)."""
     from campaign.report import write_report
-    print(f"report: {write_report(folder)}")
+    try:
+        print(f"report: {write_report(folder)}")
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        sys.stderr.write(f"campaign: warning: {folder}: report.html not written ({type(exc).__name__}: {exc})\n")
 
 
 def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
@@ -258,10 +263,11 @@ def _main(args) -> int:
             print(f"{n_plots} plots in {Path(args.results) / 'replays' / 'plots'}")
             return 0
         if args.command == "report":
+            from campaign.report import write_report
             folder = Path(args.folder)
             if not folder.is_dir():
                 raise UserError(f"{folder}: not a folder")
-            _html_report(folder)
+            print(f"report: {write_report(folder)}")
             return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis

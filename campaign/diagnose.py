@@ -69,10 +69,13 @@ STILL_AIR_FPS = 0.05
 WIND_CUTOFF_HZ = 2.0
 
 
-def log_wind(log: Log, head_s: float = 0.5) -> np.ndarray | None:
-    """The wind measured in a log (:func:`identify.kinematics.measured_wind`) relative to its
-    mean over the first ``head_s`` (where the replay trims), low-passed at
-    :data:`WIND_CUTOFF_HZ`, shape (N, 3) [ft/s]; None in still air or without inertial velocities."""
+def log_wind(log: Log) -> np.ndarray | None:
+    """The wind measured in a log (:func:`identify.kinematics.measured_wind`), low-passed at
+    :data:`WIND_CUTOFF_HZ`, shape (N, 3) [ft/s]; None in still air or without inertial velocities.
+
+    The whole wind, steady part included: the replay trims in its first sample, so that its
+    inertial path (altitude) follows the data's. A steady error the data compatibility left in
+    the air data (an alpha bias) is then flown as a steady wind."""
     w = measured_wind(log.data)
     if w is None:
         return None
@@ -112,7 +115,7 @@ def recorded(log: Log, head_s: float = 0.5, first: int = 3, wind: bool = True) -
         gear_cmd[moving[0]:] = round(float(d.gear_norm.iloc[-1]))
     flap = round(float(head.flap_deg), 3)
     point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
-    w = log_wind(log, head_s) if wind else None
+    w = log_wind(log) if wind else None
     winds = {} if w is None else {"wind_n_fps": tuple(w[:, 0]), "wind_e_fps": tuple(w[:, 1]),
                                   "wind_d_fps": tuple(w[:, 2])}
     man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),

@@ -241,7 +241,8 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
     _set(fdm, names, cat.CONTROLS["set_running"], -1)
     cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])
     messages: list[str] = []
-    for _ in range(4 if gust_fps is not None else 1):
+    passes = 4 if gust_fps is not None else 1
+    for attempt in range(passes):
         if gust_fps is not None:
             for prop, v in zip(cat.GUSTS, gust_fps):
                 _set(fdm, names, prop, float(v))
@@ -256,6 +257,9 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
                             f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
         if gust_fps is None or abs(fdm["velocities/mach"] - point.mach) < 1e-5:
             break
+        if attempt == passes - 1:
+            raise TrimError(f"trim in the gust {tuple(round(float(g), 2) for g in gust_fps)} ft/s left Mach "
+                            f"{fdm['velocities/mach']:.4f} through the air, asked {point.mach:.4f}")
         # the initial condition's speed is inertial: move it until the speed through the air is the point's
         _set(fdm, names, "ic/mach", fdm["ic/mach"] + point.mach - fdm["velocities/mach"])
         fdm.run_ic()

@@ -10,6 +10,7 @@ import base64
 import datetime as dt
 import hashlib
 import io
+import re
 import subprocess
 from collections.abc import Iterable, Sequence
 from html import escape
@@ -118,6 +119,11 @@ def table(header: Sequence[str], rows: Iterable[Sequence], left: int = 1, raw: b
 
 def definitions(items: Iterable[tuple[str, object]]) -> str:
     return "<dl>" + "".join(f"<dt>{escape(k)}</dt><dd>{fmt(v)}</dd>" for k, v in items) + "</dl>"
+
+
+def anchor(text: str) -> str:
+    """A section id (and link target) from any text: letters, digits, ``-``, ``_`` and ``.`` kept."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "-", text)
 
 
 def section(anchor: str, title: str, body: str, page: bool = False) -> tuple[str, str, str]:

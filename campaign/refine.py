@@ -128,6 +128,8 @@ def refine_extension(diag: Diagnosis, model: Path, out: Path, held: list[Log], b
     try:
         est = ReplayOutputError(diag, model, logs, work, replay, jobs)
         res = est.fit()
+    except (ValueError, np.linalg.LinAlgError) as exc:  # no replay flew, or a term the replays cannot see
+        return {"method": "oe", "error": str(exc), "fitted_logs": [Path(lg.path).name for lg in logs]}
     finally:
         shutil.rmtree(work, ignore_errors=True)
     scales = dict(zip(est.terms, res.params.to_numpy()))

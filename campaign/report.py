@@ -60,7 +60,8 @@ def _coverage_figure(man: dict) -> str:
 
 def _holds(man: dict) -> str:
     rows = [(p["id"], man_, v.get("alpha_deg_max_dev", float("nan")), v.get("mach_max_dev", float("nan")),
-             v.get("alt_ft_max_dev", float("nan"))) for p in man["points"] for man_, v in p["excursions"].items()]
+             v.get("alt_ft_max_dev", float("nan"))) for p in man["points"]
+            for man_, v in p.get("excursions", {}).items()]
     if not rows:
         return "<p>No held manoeuvre in this campaign.</p>"
     worst = [max(r[i] for r in rows) for i in (2, 3, 4)]
@@ -80,7 +81,7 @@ def _identification(folder: Path) -> str:
             ("Cm", "qhat_rad", "Cmq"), ("Cm", "delevator_rad", "Cmde"), ("CD", "const", "CD0")]
     rows = []
     for point, p in doc["points"].items():
-        cells = [point, p["gear"]]
+        cells = [escape(point), escape(str(p["gear"]))]
         for c, r, _ in keys:
             se = p[c].get("se_coloured", p[c]["bse"]).get(r)
             v = p[c]["params"].get(r)
@@ -149,7 +150,8 @@ def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
         if plot.exists():
             body.append(html.png(plot, f"{case} {loop}", f"{case}, {loop} loop: identified models over the reference, "
                                  "errors with the tolerance bands about the reference."))
-        pages.append(html.section(f"case-{case}-{loop}", f"{case} ({loop} loop)", "".join(body), page=True))
+        pages.append(html.section(html.anchor(f"case-{case}-{loop}"), f"{case} ({loop} loop)", "".join(body),
+                                  page=True))
     return pages
 
 

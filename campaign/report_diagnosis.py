@@ -46,7 +46,7 @@ def diagnosis_report(folder: Path) -> str:
         verdict += f": {label(causes[0])} ({causes[0].get('shape', '')})"
     elif doc.get("largest_rejected"):
         lr = doc["largest_rejected"]
-        verdict += f" (largest candidate: {escape(str(lr.get('label', lr)) if isinstance(lr, dict) else str(lr))})"
+        verdict += f" (largest candidate: {lr.get('label', lr) if isinstance(lr, dict) else lr})"
     header = ["cause", "kind", "shape", "size", "F", "noise floor", "size / floor", "instrument errors make",
               "held-out gain", "sensor alternatives"]
     sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>'
@@ -71,7 +71,9 @@ def diagnosis_report(folder: Path) -> str:
                 [(k, v["draws"], v["pass_probability"], f"{100 * v['held_back_draw_inside']:.0f} %",
                   v["width_max"]["theta_deg"], v["width_max"]["alt_ft"]) for k, v in doc["bands"].items()]))
         r = doc.get("refine")
-        if r:
+        if r and r.get("error"):
+            body += f'<p class="note">Refinement by output error failed: {escape(r["error"])}</p>'
+        elif r:
             body += (f"<h3>Refined by output error ({r['iterations']} iterations)</h3>"
                      + html.table(["term", "scale", "se", "se coloured"],
                                   [(k, v, r["se"][k], r["se_coloured"][k]) for k, v in r["scales"].items()])

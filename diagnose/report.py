@@ -55,7 +55,9 @@ def summary(diag: Diagnosis, doc: dict) -> str:
             lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
         lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
     r = doc.get("refine")
-    if r:
+    if r and r.get("error"):
+        lines += ["", f"Refinement by output error failed: {r['error']}"]
+    elif r:
         lines += ["", f"Refined by output error through replays of {len(r['fitted_logs'])} fitted logs "
                   f"({r['iterations']} iterations{'' if r['converged'] else ', not converged'}); term scales:"]
         lines += [f"  {k}: {v:.3f} +- {r['se_coloured'][k]:.3f}" for k, v in r["scales"].items()]

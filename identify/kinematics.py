@@ -181,7 +181,7 @@ WIND_CHANNELS = ("vn_fps", "ve_fps", "vd_fps")
 
 def measured_wind(data: pd.DataFrame) -> np.ndarray | None:
     """The wind's time history, north, east, down [ft/s], shape (N, 3); None without a logged
-    inertial velocity.
+    inertial velocity, true airspeed, alpha or attitude (phi, theta, psi).
 
     The inertial velocity (``vn_fps``, ``ve_fps``, ``vd_fps``) minus the air-relative
     velocity: true airspeed, alpha and beta (0 if not logged) in the body axes, rotated to
@@ -190,8 +190,8 @@ def measured_wind(data: pd.DataFrame) -> np.ndarray | None:
     (a gust gradient along the wing or fuselage is not a velocity at the CG), and the vanes'
     and pitot's own noise, which passes straight into it.
     """
-    if not set(WIND_CHANNELS) <= set(data.columns):
-        return None
+    if not set(WIND_CHANNELS) | {"tas_kt", "alpha_deg", "theta_deg", "phi_deg", "psi_deg"} <= set(data.columns):
+        return None  # without the whole attitude the air-relative velocity cannot be put in north-east-down
     a, b = _col(data, "alpha_deg", D2R), _col(data, "beta_deg", D2R)
     vt = _col(data, "tas_kt", FT_PER_KT)
     body = np.column_stack([vt * np.cos(a) * np.cos(b), vt * np.sin(b), vt * np.sin(a) * np.cos(b)])

@@ -83,7 +83,7 @@ class LSResults:
             "bse": {k: float(v) for k, v in self.bse.items()},
             "se": {k: float(v) for k, v in (self.bse if self.bse_white is None else self.bse_white).items()},
             "se_coloured": {k: float(v) for k, v in self.bse.items()},
-            "method": self.method,
+            "method": self.method, "converged": self.converged,
             "rsquared": self.rsquared, "resid_max": self.resid_max, "resid_rms": self.resid_rms,
             "rel_error_pct": self.rel_error_pct, "nobs": self.nobs,
             "unexcited": dict(self.unexcited),

@@ -110,8 +110,12 @@ def refine_point(log: Log, fit: PointFit, method: str) -> PointFit:
         fitted = x[old.params.index].to_numpy() @ params.to_numpy()
         resid = y[c].to_numpy() - fitted
         ss_tot = float(np.sum((y[c] - y[c].mean()) ** 2))
+        bse = pd.Series(res.bse_coloured[names].to_numpy(), index=old.params.index)
+        # C0 is about the reference state, itself a mean of measured samples (as fit_baseline has it)
+        extra = sum((params[r] * se) ** 2 for r, se in fit.reference.se if r in params.index)
+        bse["const"] = float(np.sqrt(bse["const"] ** 2 + extra))
         fits[c] = replace(old, params=params,
-                          bse=pd.Series(res.bse_coloured[names].to_numpy(), index=old.params.index),
+                          bse=bse,
                           bse_white=pd.Series(res.bse[names].to_numpy(), index=old.params.index),
                           resid=resid, fitted=fitted, y=y[c].to_numpy(),
                           rsquared=1.0 - float(resid @ resid) / ss_tot if ss_tot > 0 else float("nan"),

@@ -215,8 +215,8 @@ class Recorded(Maneuver):
             t_rec = np.arange(len(self.elevator_deg)) * self.dt_s
             t_sim = np.arange(int(round(t_rec[-1] / dt)) + 1) * dt
             held = np.searchsorted(t_rec, t_sim + 1e-9 * dt, side="right") - 1
-            signals = tuple(tuple(np.asarray(s, dtype=float)[held]) if s is self.gear_cmd
-                            else tuple(np.interp(t_sim, t_rec, s)) for s in signals)
+            signals = tuple(tuple(np.asarray(s, dtype=float)[held]) if i == 2  # the gear command: held
+                            else tuple(np.interp(t_sim, t_rec, s)) for i, s in enumerate(signals))
         elevator, stabilizer, gear, throttle = signals[:4]
         n = len(elevator)
         return Program(Sampled(elevator), Sampled(stabilizer), Sampled(gear), False, n, None, n, Sampled(throttle),

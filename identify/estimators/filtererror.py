@@ -27,6 +27,8 @@ from identify.estimators.dynamics import Record, StateSpaceModel, linearize, sim
 from identify.estimators.outputerror import OutputError
 
 F_UPDATE_FROM = 1
+#: The linearized KC <= 1 constraint is imposed this far inside, so the true KC of the step stays within it.
+KC_MARGIN = 1e-3
 
 
 class FilterError(OutputError):
@@ -87,10 +89,6 @@ class FilterError(OutputError):
     def _weights(self, res: list[np.ndarray]) -> np.ndarray:
         return 1.0 / self.r_gain
 
-    def _kc_ok(self, theta: np.ndarray) -> bool:
-        k, c = self.gains(theta[None], self.records[0])
-        return bool(np.all(np.diag(k[0] @ c[0]) <= 1.0))
-
     def _kc(self, thetas: np.ndarray) -> np.ndarray:
         """Diagonal of ``K C`` (B, nx) on the first record."""
         k, c = self.gains(thetas, self.records[0])
@@ -110,9 +108,12 @@ class FilterError(OutputError):
             active += broken
             a = jac[active]
             kkt = np.block([[m, a.T], [a, np.zeros((len(active), len(active)))]])
-            rhs = np.concatenate([g, 1.0 - 1e-6 - kc[0, active]])
+            rhs = np.concatenate([g, 1.0 - KC_MARGIN - kc[0, active]])
             delta = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:len(theta)]
         return delta
+
+    def _trial_ok(self, trial: np.ndarray) -> bool:
+        return bool(np.all(self._kc(trial[None]) <= 1.0))
 
     def _cost(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         r = self._covariance(self._residuals(theta))

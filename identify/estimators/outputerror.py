@@ -120,6 +120,10 @@ class OutputError:
         """Hook: the step under the estimator's constraints (none for the output error)."""
         return delta
 
+    def _trial_ok(self, trial: np.ndarray) -> bool:
+        """Hook: whether a trial step keeps the estimator's constraints (always, for the output error)."""
+        return True
+
     def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
         """Hook after an accepted step; returns the parameters and the cost (log det R)."""
         return theta, float(np.sum(np.log(self._covariance(self._residuals(theta)))))
@@ -152,11 +156,14 @@ class OutputError:
             for _ in range(11):
                 trial = theta + delta
                 c = float(np.sum(np.log(self._covariance(self._residuals(trial)))))
-                if np.isfinite(c) and c <= cost:
+                if np.isfinite(c) and c <= cost and self._trial_ok(trial):
                     break
                 delta = 0.5 * delta
             else:
-                break  # no decrease after ten halvings: at the minimum to numerical precision
+                # no decrease after ten halvings: at the (constrained) minimum to numerical precision
+                # when the last accepted step had nearly stopped changing the cost
+                converged = len(history) > 1 and abs(history[-1] / history[-2] - 1.0) < 10 * self.tol
+                break
             theta, c = self._after_step(trial, it)
             change = abs(np.expm1(c - cost))
             cost = c
