@@ -104,6 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     rep.add_argument("--cluster", metavar="tcp://HOST:PORT",
                      help="fly the replays on the Dask cluster whose scheduler is there")
+    rep.add_argument("--bands", type=int, metavar="N",
+                     help="N >= 20 Monte Carlo draws of each identified gear model from its covariance, each "
+                          "flown through the cases on the local workers: shaded 95 %% bands in the plots and a "
+                          "Part 60 pass probability in metrics.csv")
 
     plo = sub.add_parser("plots", help="redraw the replay plots and metrics from stored logs (no flying)",
                          description="Redraw the comparison plots (and metrics) from RESULTS_DIR/replays "
@@ -208,15 +212,22 @@ def _html_report(folder: Path) -> None:
 
 
 def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
-            cluster: str | None = None) -> int:
+            cluster: str | None = None, bands: int | None = None) -> int:
     from campaign.replay import load_cases, run_replays, select
-    from campaign.replay_report import write_report
+    from campaign.replay_bands import check_draws, load_surfaces, replay_bands
+    from campaign.replay_report import drop_bands, write_report
     if not (results / "manifest.json").exists():
         raise UserError(f"{results}: no manifest.json (not a campaign folder)")
     cases = select(load_cases(cases_file), names)
+    if bands is not None:
+        check_draws(bands)
+        load_surfaces(results)
     failures = run_replays(results, cases, jobs, cases_file, cluster)
     for why in failures:
         print(f"replay failed: {why}")
+    drop_bands(results, [c.name for c in cases])
+    if bands is not None and not failures:
+        replay_bands(results, cases, bands, jobs)
     files = write_report(results, names, jobs)
     print(files.pop("table"))
     print(f"replay logs, metrics and plots in {results / 'replays'}")
@@ -291,7 +302,7 @@ def _main(args) -> int:
             if not (results / "manifest.json").exists():
                 raise UserError(f"{results}: no manifest.json (not a campaign folder)")
             with holding(results, "replay"):
-                return _replay(results, args.case, args.cases, args.jobs, args.cluster)
+                return _replay(results, args.case, args.cases, args.jobs, args.cluster, args.bands)
         if args.command == "identify":
             results = Path(args.results)
             if not results.is_dir():

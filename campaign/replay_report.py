@@ -7,6 +7,8 @@ largest pitch-angle change during the test).
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 import matplotlib
@@ -52,8 +54,14 @@ def load_replays(results: Path, names: list[str] | None = None) -> dict[tuple[st
     return out
 
 
-def metrics(replays: dict) -> pd.DataFrame:
-    """Max and RMS errors against the reference, and the Part 60 verdict."""
+def metrics(replays: dict, bands: dict | None = None) -> pd.DataFrame:
+    """Max and RMS errors against the reference, and the Part 60 verdict.
+
+    With ``bands`` (:func:`campaign.replay_bands.load_bands`'s summary), each model's
+    ``pass_probability`` (the share of its Monte Carlo draws within the tolerances) and
+    ``band_draws``; otherwise empty.
+    """
+    bands = bands or {}
     rows = []
     for (case, model, loop), log in sorted(replays.items()):
         ref = replays.get((case, "reference", loop))
@@ -69,10 +77,13 @@ def metrics(replays: dict) -> pd.DataFrame:
         row["tol_theta_deg"] = tol_theta
         row["qtg_pass"] = bool(row["max_err_tas_kt"] <= TOL_TAS_KT and row["max_err_alt_ft"] <= TOL_ALT_FT
                                and row["max_err_theta_deg"] <= tol_theta)
+        b = bands.get(f"{case}__{model}__{loop}", {})
+        row["pass_probability"] = b.get("pass_probability", np.nan)
+        row["band_draws"] = b.get("draws", np.nan)
         rows.append(row)
     df = pd.DataFrame(rows)
     first = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
-             "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass"]
+             "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass", "pass_probability"]
     return df[first + [c for c in df.columns if c not in first]]
 
 
@@ -81,6 +92,10 @@ def metrics_text(df: pd.DataFrame) -> str:
             "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "tol_theta_deg", "qtg_pass"]
     head = ("Replay errors against the reference aircraft (max |model - reference|).\n"
             "Part 60 gear change (2.c.4): airspeed 3 kt, altitude 100 ft, pitch 1.5 deg or 20 % of its change.\n\n")
+    if df["pass_probability"].notna().any():
+        cols.append("pass_probability")
+        head += ("pass_probability: the share of the identified model's Monte Carlo draws (from its covariance, "
+                 "campaign replay --bands) within the tolerances.\n\n")
     table = df[cols].copy()
     table["qtg_pass"] = table["qtg_pass"].map({True: "pass", False: "FAIL"})
     text = head + table.to_string(index=False, float_format=lambda v: f"{v:#.3g}") + "\n"
@@ -98,12 +113,14 @@ def _case_axes(fig) -> np.ndarray:
     return axes
 
 
-def plot_case(replays: dict, case: str, loop: str, axes=None):
+def plot_case(replays: dict, case: str, loop: str, axes=None, bands: dict | None = None):
     """Time histories and residuals of one case and loop (paper Figs. 13-16).
 
     Left: reference, linear and nonlinear models. Right: model minus reference,
-    with the Part 60 tolerance bands where they apply.
+    with the Part 60 tolerance bands where they apply. ``bands`` (``{(case, model, loop):
+    frame of t_s, <channel>_lo, <channel>_hi}``) shades each model's 95 % Monte Carlo band.
     """
+    bands = bands or {}
     ref = replays[(case, "reference", loop)]
     if axes is None:
         axes = _case_axes(plt.figure(figsize=FIGSIZE))
@@ -122,6 +139,14 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
             else:
                 ax.plot(log.t_s, log[ch], color=COLORS[model], lw=1.2, ls="-" if model != "linear" else "--",
                         label=model)
+            band = bands.get((case, model, loop))
+            if band is not None:
+                ax.fill_between(band.t_s, band[f"{ch}_lo"], band[f"{ch}_hi"], color=COLORS[model], alpha=0.18,
+                                lw=0, label=f"{model}: 95 % band")
+                n = min(len(ref), len(band))
+                r = ref[ch].to_numpy()[:n]
+                axr.fill_between(band.t_s[:n], band[f"{ch}_lo"].to_numpy()[:n] - r, band[f"{ch}_hi"].to_numpy()[:n] - r,
+                                 color=COLORS[model], alpha=0.18, lw=0)
             if model != "reference":
                 n = min(len(ref), len(log))
                 axr.plot(log.t_s[:n], log[ch].to_numpy()[:n] - ref[ch].to_numpy()[:n], color=COLORS[model],
@@ -144,8 +169,8 @@ def plot_case(replays: dict, case: str, loop: str, axes=None):
     return fig
 
 
-def _save_plot(replays: dict, case: str, loop: str, path: Path) -> str:
-    fig = plot_case(replays, case, loop, axes=emptied_axes("replay_case", FIGSIZE, _case_axes))
+def _save_plot(replays: dict, case: str, loop: str, path: Path, bands: dict | None = None) -> str:
+    fig = plot_case(replays, case, loop, axes=emptied_axes("replay_case", FIGSIZE, _case_axes), bands=bands)
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     return str(path)
 
@@ -157,7 +182,8 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     results = Path(results)
     replays = load_replays(results, names)
     out = results / "replays"
-    df = metrics(load_replays(results) if names else replays)
+    summary, bands = load_bands(results)
+    df = metrics(load_replays(results) if names else replays, summary)
     clean_temporaries(out)
     atomic_write(out / "metrics.csv", lambda tmp: df.to_csv(tmp, index=False))
     atomic_write(out / "metrics.txt", lambda tmp: Path(tmp).write_text(metrics_text(df)))
@@ -166,9 +192,70 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     plots.mkdir(exist_ok=True)
     todo = sorted({(c, lp) for c, m, lp in replays if m == "reference"})
     subsets = [{k: v for k, v in replays.items() if k[0] == case and k[2] == loop} for case, loop in todo]
-    paths = pmap(_save_plot, [(sub, case, loop, plots / f"{case}__{loop}.png")
+    paths = pmap(_save_plot, [(sub, case, loop, plots / f"{case}__{loop}.png",
+                               {k: v for k, v in bands.items() if k[0] == case and k[2] == loop})
                               for sub, (case, loop) in zip(subsets, todo)], jobs)
     files.update({f"plot_{case}_{loop}": p for (case, loop), p in zip(todo, paths)})
     selected = df[df.case.isin({c for c, _, _ in replays})]
     files["table"] = metrics_text(selected)
     return files
+
+
+# Monte Carlo bands (written by campaign.replay_bands; read here, without JSBSim)
+
+def surfaces_file(results: Path) -> Path:
+    return Path(results) / "identification" / "gear_surfaces.json"
+
+
+def surfaces_sha(path: Path) -> str:
+    """SHA-256 of the surfaces file the bands were drawn from."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def bands_doc_text(doc: dict) -> str:
+    return json.dumps(doc, indent=1) + "\n"
+
+
+def stored_bands_doc(results: Path, sha: str) -> dict:
+    """``bands.json`` as it stands if drawn from the same identification, else a new one."""
+    p = Path(results) / "replays" / "bands.json"
+    if p.exists():
+        doc = json.loads(p.read_text())
+        if doc.get("surfaces_sha256") == sha:
+            return doc
+    return {"cases": {}}
+
+
+def drop_bands(results: Path, names: list[str]) -> None:
+    """Forget the bands of re-flown cases: they were drawn about the replays they replace."""
+    rep = Path(results) / "replays"
+    p = rep / "bands.json"
+    if not p.exists():
+        return
+    doc = json.loads(p.read_text())
+    gone = [k for k in doc.get("cases", {}) if k.split("__")[0] in names]
+    if not gone:
+        return
+    for k in gone:
+        doc["cases"].pop(k)
+        (rep / "bands" / f"{k}.parquet").unlink(missing_ok=True)
+    text = bands_doc_text(doc)
+    atomic_write(p, lambda tmp: Path(tmp).write_text(text))
+
+
+def load_bands(results: Path) -> tuple[dict, dict[tuple[str, str, str], pd.DataFrame]]:
+    """The stored bands that belong to the current identification: ``(summary per
+    "case__model__loop", {(case, model, loop): band})``; empty if none."""
+    rep = Path(results) / "replays"
+    p, s = rep / "bands.json", surfaces_file(results)
+    if not p.exists() or not s.exists():
+        return {}, {}
+    doc = json.loads(p.read_text())
+    if doc.get("surfaces_sha256") != surfaces_sha(s):
+        return {}, {}
+    frames = {}
+    for name in doc.get("cases", {}):
+        f = rep / "bands" / f"{name}.parquet"
+        if f.exists():
+            frames[tuple(name.split("__"))] = pd.read_parquet(f)
+    return doc.get("cases", {}), frames

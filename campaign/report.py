@@ -131,9 +131,11 @@ def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
             margins = (TOL_TAS_KT - r["max_err_tas_kt"], TOL_ALT_FT - r["max_err_alt_ft"],
                        tol_theta - r["max_err_theta_deg"])
             ok = bool(r["qtg_pass"])
+            prob = r.get("pass_probability", float("nan"))
             result_rows.append((r["model"], r["max_err_tas_kt"], r["max_err_alt_ft"], r["max_err_theta_deg"],
                                 tol_theta, f"{min(margins[0] / TOL_TAS_KT, margins[1] / TOL_ALT_FT, margins[2] / tol_theta) * 100:.0f} %",
-                                f'<span class="{"pass" if ok else "fail"}">{"PASS" if ok else "FAIL"}</span>'))
+                                f'<span class="{"pass" if ok else "fail"}">{"PASS" if ok else "FAIL"}</span>',
+                                "not drawn" if pd.isna(prob) else f"{prob * 100:.0f} % of {int(r['band_draws'])} draws"))
         body = [f"<p><b>Objective.</b> {escape(objective)}</p>", "<h3>Initial conditions</h3>",
                 html.definitions((k, v) for k, v in initial if v is not None),
                 f"<h3>Driven or constrained</h3><p>{escape(driven)}</p>",
@@ -143,9 +145,12 @@ def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
                 "with) flying the same case: <code>" + escape(f"replays/{case}__reference__{loop}.parquet") + "</code>.</p>",
                 f"<h3>Result ({stamp})</h3>",
                 html.table(["model", "max err airspeed [kt]", "max err altitude [ft]", "max err pitch [deg]",
-                            "pitch tolerance [deg]", "smallest margin", "result"],
-                           [(m, html.fmt(a), html.fmt(b), html.fmt(t), html.fmt(tt), mg, res)
-                            for m, a, b, t, tt, mg, res in result_rows], raw=True)]
+                            "pitch tolerance [deg]", "smallest margin", "result", "pass probability"],
+                           [(m, html.fmt(a), html.fmt(b), html.fmt(t), html.fmt(tt), mg, res, escape(pp))
+                            for m, a, b, t, tt, mg, res, pp in result_rows], raw=True),
+                "<p>Pass probability: the share of the identified model's Monte Carlo draws from its covariance "
+                "(<code>campaign replay --bands N</code>) that stay within the tolerances; the plots shade their "
+                "95 % bands.</p>"]
         plot = rep / "plots" / f"{case}__{loop}.png"
         if plot.exists():
             body.append(html.png(plot, f"{case} {loop}", f"{case}, {loop} loop: identified models over the reference, "

@@ -256,6 +256,9 @@ class Increments:
     grid: np.ndarray
     smooth: dict[str, np.ndarray]
     alpha_deg: np.ndarray
+    #: Standard error of :attr:`smooth` [-], one value per coefficient (the noise about the
+    #: spline over its effective number of parameters).
+    se: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"gear_norm": self.grid.tolist(), **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
@@ -290,15 +293,20 @@ def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments
             f = f - v * x[r].to_numpy()
         raw[c] = f
     g = d["gear_norm"].to_numpy()
-    smooth = {c: _spline_on_grid(g, raw[c]) for c in COEFFS}
-    return Increments(log.point, log.condition, ref.alpha_deg, g, raw, GRID, smooth, d["alpha_deg"].to_numpy())
+    fitted = {c: _spline_on_grid(g, raw[c]) for c in COEFFS}
+    return Increments(log.point, log.condition, ref.alpha_deg, g, raw, GRID, {c: v for c, (v, _) in fitted.items()},
+                      d["alpha_deg"].to_numpy(), {c: se for c, (_, se) in fitted.items()})
 
 
-def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> np.ndarray:
-    """Smoothing spline of f(g), its smoothing chosen by GCV, evaluated on GRID.
+def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> tuple[np.ndarray, float]:
+    """Smoothing spline of f(g), its smoothing chosen by GCV, evaluated on GRID, and its
+    standard error.
 
     Samples are first averaged in ``bins`` equal bins of g (weights: counts),
-    so the end stops and the slow end of the travel do not crowd the spline.
+    so the end stops and the slow end of the travel do not crowd the spline. The standard
+    error is the average pointwise one, ``sigma sqrt(edf / n)``: ``sigma`` the weighted scatter
+    of the bin means about the spline over ``n - edf`` degrees of freedom, ``edf`` the spline's
+    effective number of parameters.
     """
     edges = np.linspace(0.0, 1.0, bins + 1)
     idx = np.clip(np.digitize(g, edges[1:-1]), 0, bins - 1)
@@ -310,17 +318,22 @@ def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> np.ndarray
             ys.append(float(f[sel].mean()))
             ws.append(float(sel.sum()))
     x, y, w = np.array(xs), np.array(ys), np.array(ws) / np.mean(ws)
-    return make_smoothing_spline(x, y, w=w, lam=gcv_lambda(x, y, w))(GRID)
+    lam, edf = gcv_lambda(x, y, w, edf=True)
+    spline = make_smoothing_spline(x, y, w=w, lam=lam)
+    n = len(x)
+    sigma2 = float(np.sum(w * (y - spline(x)) ** 2)) / max(n - edf, 1.0)
+    return spline(GRID), float(np.sqrt(sigma2 * edf / n))
 
 
-def gcv_lambda(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
+def gcv_lambda(x: np.ndarray, y: np.ndarray, w: np.ndarray, edf: bool = False) -> float | tuple[float, float]:
     """The smoothing ``lam`` that scipy's ``make_smoothing_spline(x, y, w, lam=None)`` chooses by
     generalized cross-validation, found in the Reinsch form with one eigendecomposition.
 
     The same criterion (unweighted residual over ``(1 - tr A / n)^2``) and the same bounded
     search over ``[0, n]``; each evaluation is a matrix-vector product instead of scipy's
     banded inverse in Python loops (5-6 times faster at 100 points, the same ``lam`` to
-    about 1e-7).
+    about 1e-7). With ``edf`` it returns ``(lam, edf)``, ``edf`` the smoother's trace (its
+    effective number of parameters).
     """
     n = len(x)
     h = np.diff(x)
@@ -337,7 +350,8 @@ def gcv_lambda(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
         res = v @ (lam * d / (1 + lam * d) * z)
         return (res @ res / n) / (1 - np.sum(1 / (1 + lam * d)) / n) ** 2
 
-    return float(minimize_scalar(gcv, bounds=(0, n), method="Bounded").x)
+    lam = float(minimize_scalar(gcv, bounds=(0, n), method="Bounded").x)
+    return (lam, float(np.sum(1 / (1 + lam * d)))) if edf else lam
 
 
 ALPHA_MARGIN_DEG = 5.0
@@ -357,6 +371,12 @@ class GearSurface:
     interpolates linearly; outside them it holds the nearest. In alpha and Mach
     it extrapolates linearly up to :data:`ALPHA_MARGIN_DEG` and
     :data:`MACH_MARGIN` beyond the data, and holds its value further out.
+
+    :attr:`basis` carries each fit's uncertainty: a draw of the surface is
+    ``coef + sum_j z_j basis[j]`` (:meth:`draw`), whose covariance is the least-squares one
+    (see :func:`fit_surface`). The ``z_j`` are standard normal times one
+    ``sqrt(dof / chi2(dof))`` per fit: Student's t, as the residual variance is itself estimated
+    from ``dof`` degrees of freedom.
     """
 
     grid: np.ndarray
@@ -366,6 +386,47 @@ class GearSurface:
     alpha_range: dict[int, tuple[float, float]]
     mach_range: dict[int, tuple[float, float]]
     cv_rmse: dict[tuple[int, str], dict[str, float]]
+    basis: dict[tuple[int, str], np.ndarray] = field(default_factory=dict)  # (flap, C) -> (m, n_grid, n_terms)
+    dof: dict[tuple[int, str], float] = field(default_factory=dict)  # residual degrees of freedom (inf: known)
+
+    def se(self, flap: int, c: str) -> np.ndarray:
+        """Standard errors of :attr:`coef` ``[(flap, c)]`` [-], shape (n_grid, n_terms)."""
+        b = self.basis.get((flap, c))
+        return np.zeros_like(self.coef[(flap, c)]) if b is None or not len(b) else np.sqrt(np.sum(b ** 2, axis=0))
+
+    def draw(self, rng: np.random.Generator) -> "GearSurface":
+        """The surface with its coefficients drawn from their covariance."""
+        coef = {}
+        for k, v in self.coef.items():
+            b = self.basis.get(k, ())
+            if not len(b):
+                coef[k] = v.copy()
+                continue
+            z = rng.standard_normal(len(b))
+            dof = self.dof.get(k, np.inf)
+            if np.isfinite(dof):
+                z *= np.sqrt(dof / rng.chisquare(dof))
+            coef[k] = v + np.einsum("m,mgp->gp", z, b)
+        return replace(self, coef=coef)
+
+    def to_arrays(self) -> dict:
+        """Everything :meth:`from_arrays` needs, as JSON-ready lists."""
+        return {**self.to_dict(), "coef": {f"{f}/{c}": v.tolist() for (f, c), v in self.coef.items()},
+                "basis": {f"{f}/{c}": v.tolist() for (f, c), v in self.basis.items()},
+                "dof": {f"{f}/{c}": v if np.isfinite(v) else None for (f, c), v in self.dof.items()}}
+
+    @classmethod
+    def from_arrays(cls, d: dict) -> "GearSurface":
+        def key(k: str) -> tuple[float, str]:
+            f, c = k.split("/")
+            return float(f), c
+        return cls(np.array(d["grid"]), [float(f) for f in d["flaps"]], {key(k): v for k, v in d["designs"].items()},
+                   {key(k): np.array(v) for k, v in d["coef"].items()},
+                   {float(f): tuple(v) for f, v in d["alpha_range_deg"].items()},
+                   {float(f): tuple(v) for f, v in d["mach_range"].items()},
+                   {key(k): v for k, v in d["cv_rmse"].items()},
+                   {key(k): np.array(v).reshape(-1, *np.shape(d["coef"][k])) for k, v in d["basis"].items()},
+                   {key(k): np.inf if v is None else float(v) for k, v in d.get("dof", {}).items()})
 
     def table_range(self, flap: int) -> tuple[tuple[float, float], tuple[float, float]]:
         """Alpha [deg] and Mach intervals the tables span (data plus margins)."""
@@ -404,18 +465,24 @@ class GearSurface:
                 "mach_range": {str(f): list(v) for f, v in self.mach_range.items()}}
 
 
-def fit_surface(curves: list[tuple[tuple, float, np.ndarray, dict[str, np.ndarray]]]) -> GearSurface:
+def fit_surface(curves: list[tuple]) -> GearSurface:
     """Fit eq. (9) from per-condition curves.
+
+    The coefficients' covariance is least squares' ``(X'X)^-1`` (across conditions) times the
+    covariance of the curves' scatter about the fit (across grid nodes, over ``n - p``
+    degrees of freedom), so it holds the measurement noise and what the design leaves
+    unexplained. A flap setting with no degrees of freedom left (as many conditions as terms)
+    falls back on the curves' own standard errors.
 
     Parameters
     ----------
-    curves : list of (condition, alpha_trim_deg, grid, {C: values on grid})
+    curves : list of (condition, alpha_trim_deg, grid, {C: values on grid}[, {C: standard error on grid}])
     """
     grid = curves[0][2]
     flaps = sorted({cond[2] for cond, *_ in curves})
-    designs, coef, cv, ar, mr = {}, {}, {}, {}, {}
+    designs, coef, cv, ar, mr, basis, dof = {}, {}, {}, {}, {}, {}, {}
     for flap in flaps:
-        rows = [(a, cond[1], vals) for cond, a, _, vals in curves if cond[2] == flap]
+        rows = [(cur[1], cur[0][1], cur[3], cur[4] if len(cur) > 4 else {}) for cur in curves if cur[0][2] == flap]
         alpha = np.array([r[0] for r in rows])
         mach = np.array([r[1] for r in rows])
         ar[flap] = (float(alpha.min()), float(alpha.max()))
@@ -436,7 +503,28 @@ def fit_surface(curves: list[tuple[tuple, float, np.ndarray, dict[str, np.ndarra
             designs[(flap, c)] = best
             coef[(flap, c)] = beta.T
             cv[(flap, c)] = scores
-    return GearSurface(grid, flaps, designs, coef, ar, mr, cv)
+            se = np.array([np.broadcast_to(r[3].get(c, 0.0), len(grid)) for r in rows], dtype=float)
+            basis[(flap, c)] = _coef_basis(x, y - x @ beta, se)
+            dof[(flap, c)] = float(len(rows) - x.shape[1]) if len(rows) > x.shape[1] else np.inf
+    return GearSurface(grid, flaps, designs, coef, ar, mr, cv, basis, dof)
+
+
+def _coef_basis(x: np.ndarray, resid: np.ndarray, se: np.ndarray) -> np.ndarray:
+    """The perturbation basis of a least-squares fit of curves ``y (n, n_grid) ~ x (n, p)``:
+    ``(m, n_grid, p)`` such that ``sum_j z_j basis[j]`` has the coefficients' covariance.
+
+    With ``n > p``: ``(X'X)^-1 kron S``, ``S = resid' resid / (n - p)``, factored as
+    ``L[:, a] F[r, :]`` (``L L' = (X'X)^-1``, ``F = resid / sqrt(n - p)``). With ``n = p`` the
+    curves' own errors ``se (n, n_grid)``, taken as fully correlated along each curve, through
+    ``X^-1``.
+    """
+    n, p = x.shape
+    if n > p:
+        lo = np.linalg.cholesky(np.linalg.pinv(x.T @ x))
+        f = resid / np.sqrt(n - p)
+        return np.einsum("ia,rg->argi", lo, f).reshape(p * n, resid.shape[1], p)
+    xinv = np.linalg.pinv(x)  # (p, n)
+    return np.einsum("ik,kg->kgi", xinv, se)
 
 
 def _loo_rmse(x: np.ndarray, y: np.ndarray) -> float:

@@ -121,10 +121,13 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     lin_surface = None
     if linear:
         lin_surface = fit_surface([(c, m.alpha_trim_deg, np.array([0.0, 1.0]),
-                                    {k: np.array([0.0, m.increment(k)]) for k in COEFFS})
+                                    {k: np.array([0.0, m.increment(k)]) for k in COEFFS},
+                                    {k: np.array([0.0, np.hypot(m.c0_up_bse.get(k, 0.0), m.c0_dn_bse.get(k, 0.0))])
+                                     for k in COEFFS})
                                    for c, m in linear.items()])
-    nl_surface = fit_surface([(i.condition, i.alpha_trim_deg, i.grid, i.smooth) for i in incs.values()]) \
-        if incs else None
+    nl_surface = fit_surface([(i.condition, i.alpha_trim_deg, i.grid, i.smooth,
+                               {k: np.where(i.grid > 0.0, v, 0.0) for k, v in i.se.items()})
+                              for i in incs.values()]) if incs else None
     g = logs[0].meta["geometry"]  # imported logs may not give the AERORP: then it is taken at the CG
     arm = ((g.get("aerorp_x_in", 0.0) - g.get("cg_x_in", 0.0)) / 12.0,
            (g.get("aerorp_z_in", 0.0) - g.get("cg_z_in", 0.0)) / 12.0)
@@ -235,6 +238,12 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         files[f"xml_{kind}"] = str(xml)
         if model_dir is not None and Path(model_dir).is_dir():
             files[f"aircraft_{kind}"] = str(merge_into_aircraft(model_dir, xml, out / f"aircraft_{kind}"))
+
+    surfaces = {k: s.to_arrays() for k, s in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface))
+                if s}
+    if surfaces:
+        (out / "gear_surfaces.json").write_text(json.dumps({"arm_ft": list(ident.arm_ft), **surfaces}) + "\n")
+        files["surfaces"] = str(out / "gear_surfaces.json")
 
     points = ((f.point, {"gear": "down" if f.gear_down else "up",
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},

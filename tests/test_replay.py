@@ -1,6 +1,7 @@
 """Replays: cases, three aircraft, open and closed loop, metrics, plots without JSBSim."""
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -130,3 +131,92 @@ def test_a_case_figure_drawn_on_the_reused_axes_equals_a_new_figure(tmp_path):
         fig.savefig(tmp_path / f"{case}_new.png", dpi=100, format="png")
         plt.close(fig)
         assert np.array_equal(plt.imread(tmp_path / f"{case}_reused.png"), plt.imread(tmp_path / f"{case}_new.png"))
+
+
+@pytest.fixture(scope="module")
+def banded(replayed, tmp_path_factory):
+    """A copy of the replayed campaign with 20-draw bands on one case (4 draws held back)."""
+    import shutil
+
+    from campaign.replay import load_cases, select
+    from campaign.replay_bands import replay_bands
+    from campaign.replay_report import write_report
+    out = tmp_path_factory.mktemp("bands") / "c"
+    shutil.copytree(replayed, out)
+    doc = replay_bands(out, select(load_cases(), ["landing-135kt"]), 20, jobs=2, held_back=4)
+    write_report(out)
+    return out, doc
+
+
+def test_bands_cover_models_drawn_from_the_covariance_and_give_pass_probabilities(banded):
+    """Four draws of each identified model, held back from its 20-draw band, fly inside it: the band
+    covers a model whose parameters were perturbed within their covariance."""
+    out, doc = banded
+    assert sorted(doc["cases"]) == [f"landing-135kt__{m}__{lp}" for m in ("linear", "nonlinear")
+                                    for lp in ("closed", "open")]
+    for name, e in doc["cases"].items():
+        assert e["draws"] == 20 and e["draws_flown"] == 20, name
+        assert e["held_back_inside"] >= 0.6, (name, e["held_back_inside"])
+        assert 0.0 <= e["pass_probability"] <= 1.0
+        assert (out / "replays" / "bands" / f"{name}.parquet").exists()
+    nl = doc["cases"]["landing-135kt__nonlinear__open"]["width_max"]
+    lin = doc["cases"]["landing-135kt__linear__open"]["width_max"]
+    assert 0.0 < nl["theta_deg"] < 1.5 and 0.0 < nl["alt_ft"] < 100.0  # a band, narrower than the tolerance
+    assert lin["theta_deg"] > 0.0
+    df = pd.read_csv(out / "replays" / "metrics.csv")
+    landing = df[df.case == "landing-135kt"]
+    assert landing.pass_probability.between(0, 1).all() and (landing.band_draws == 20).all()
+    assert df[df.case != "landing-135kt"].pass_probability.isna().all()
+    # the nonlinear model meets Part 60 in every draw; the linear one's open loop is far from its band
+    assert (landing[landing.model == "nonlinear"].pass_probability == 1.0).all()
+    assert "pass_probability" in (out / "replays" / "metrics.txt").read_text()
+    from campaign.report import write_report as html_report
+    page = Path(html_report(out)).read_text()
+    assert page.count("% of 20 draws") == 4 and page.count("not drawn") == 16
+
+
+def test_bands_are_shaded_in_the_case_plots_and_dropped_when_stale(banded, tmp_path):
+    import shutil
+
+    from campaign.replay_report import load_bands, load_replays, plot_case
+    src, _ = banded
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    summary, frames = load_bands(out)
+    replays = load_replays(out, ["landing-135kt"])
+    fig = plot_case({k: v for k, v in replays.items() if k[2] == "open"}, "landing-135kt", "open",
+                    bands={k: v for k, v in frames.items() if k[2] == "open"})
+    assert all(len(ax.collections) == 2 for ax in fig.axes[:1])  # a band per identified model
+    assert any("95 % band" in t.get_text() for t in fig.axes[0].get_legend().get_texts())
+    # re-flying the case without --bands forgets its bands
+    assert main(["replay", str(out), "--case", "landing-135kt"]) == 0
+    assert load_bands(out) == ({}, {})
+    assert pd.read_csv(out / "replays" / "metrics.csv").pass_probability.isna().all()
+
+
+def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
+    import shutil
+
+    from campaign.replay_report import load_bands
+    src, _ = banded
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    assert load_bands(out)[0]
+    f = out / "identification" / "gear_surfaces.json"
+    f.write_text(f.read_text().replace('"arm_ft": [', '"arm_ft": [ '))
+    assert load_bands(out) == ({}, {})
+
+
+@pytest.mark.parametrize("args, says", [(["--bands", "5"], "20 draws or more"),
+                                        (["--bands", "20"], "gear_surfaces.json: missing")])
+def test_bad_bands_request_is_one_line_and_writes_nothing(replayed, tmp_path, capsys, args, says):
+    import shutil
+    out = tmp_path / "c"
+    shutil.copytree(replayed, out)
+    if "missing" in says:
+        (out / "identification" / "gear_surfaces.json").unlink()
+    before = {p: p.read_bytes() for p in (out / "replays").rglob("*") if p.is_file()}
+    assert main(["replay", str(out), "--case", "landing-135kt", *args]) == 2
+    err = capsys.readouterr().err
+    assert says in err and err.count("\n") == 1
+    assert {p: p.read_bytes() for p in (out / "replays").rglob("*") if p.is_file()} == before
