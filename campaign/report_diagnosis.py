@@ -32,10 +32,16 @@ def _cause_rows(causes: list[dict]) -> list[tuple]:
 def _gain(g: dict) -> str:
     rows = [(c, v["before"], v["after"], f"x{v['gain']:.2f}") for c, v in g["residual_rms"].items()]
     rep = [(ch, v["before"], v["after"], f"x{v['gain']:.2f}") for ch, v in g["replay_max_error"].items()]
+    moved = g.get("replay_moved", {})
+    acts = [(ch + (" (moved most)" if ch == g.get("replay_moved_most") else ""), v["before"], v["after"],
+             f"x{v['gain']:.2f}", moved.get(ch, float("nan"))) for ch, v in g.get("replay_where_acts", {}).items()]
     return (f"<p>First aerodynamic cause: <b>{escape(g['cause'])}</b>; it acts in {len(g['cause_exercised_in'])} of "
             f"{len(g['held_out_logs'])} held-out manoeuvres.</p>"
             + html.table(["coefficient", "residual RMS before", "after", "gain"], rows)
-            + html.table(["replay channel", "max error before", "after", "gain"], rep))
+            + html.table(["replay channel", "max error before", "after", "gain"], rep)
+            + "<p>Where the cause acts (<code>trim_</code>: the trimmed start's controls, the model's trim against "
+              "the measured one; moved: how far the extension moves the replay, in Part 60 tolerances):</p>"
+            + html.table(["replay channel", "max error before", "after", "gain", "moved [tolerances]"], acts))
 
 
 def diagnosis_report(folder: Path) -> str:

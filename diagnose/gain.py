@@ -17,6 +17,19 @@ from identify.logs import Log
 
 #: The channels a replay is compared on.
 REPLAY_CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
+#: The controls a replay's trimmed start is compared on: its own trim against the measured one,
+#: averaged over the first :data:`HEAD_S` (where an effect of the flight condition alone, a drag
+#: at one Mach, shows: the replay re-trims it away from the time histories).
+TRIM_CHANNELS = ("elevator_deg", "throttle_norm")
+HEAD_S = 0.5
+#: Every compared quantity: the time histories, then ``trim_<control>``.
+COMPARED = REPLAY_CHANNELS + tuple(f"trim_{c}" for c in TRIM_CHANNELS)
+#: What a difference of one unit is worth per compared quantity, to say which one an extension
+#: moves most: Part 60's tolerances (gear change 2.c.4: pitch 1.5 deg, airspeed 3 kt, altitude
+#: 100 ft; short period 2.c.6 and trim 2.a: alpha 1.5 deg, pitch rate 2 deg/s, pitch control
+#: 1 deg, power 5 %).
+SCALES = {"theta_deg": 1.5, "alpha_deg": 1.5, "q_dps": 2.0, "tas_kt": 3.0, "alt_ft": 100.0,
+          "trim_elevator_deg": 1.0, "trim_throttle_norm": 0.05}
 
 
 def on_log_times(flown: pd.DataFrame, t_s: np.ndarray, channels) -> np.ndarray:
@@ -28,14 +41,37 @@ def on_log_times(flown: pd.DataFrame, t_s: np.ndarray, channels) -> np.ndarray:
     return out
 
 
+def _head(frame: pd.DataFrame, channel: str) -> float:
+    return float(frame.loc[frame.t_s < frame.t_s.iloc[0] + HEAD_S, channel].mean())
+
+
 def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None) -> dict[str, float]:
     """Max |flown - measured| per :data:`REPLAY_CHANNELS` channel, compared at the log's sample
-    times over what both cover (NaN if the replay did not trim)."""
+    times over what both cover, and |flown - measured| of the trimmed start's controls
+    (``trim_<control>``, their means over the first :data:`HEAD_S`). NaN if the replay did not
+    trim, or a control is not logged."""
     if flown is None:
-        return {ch: float("nan") for ch in REPLAY_CHANNELS}
+        return {ch: float("nan") for ch in COMPARED}
     t = measured["t_s"].to_numpy()
     err = np.abs(on_log_times(flown, t, REPLAY_CHANNELS) - measured[list(REPLAY_CHANNELS)].to_numpy())
-    return {ch: float(np.nanmax(err[:, j])) for j, ch in enumerate(REPLAY_CHANNELS)}
+    out = {ch: float(np.nanmax(err[:, j])) for j, ch in enumerate(REPLAY_CHANNELS)}
+    for c in TRIM_CHANNELS:
+        out[f"trim_{c}"] = abs(_head(flown, c) - _head(measured, c)) \
+            if c in flown and c in measured else float("nan")
+    return out
+
+
+def moved(model: pd.DataFrame | None, extended: pd.DataFrame | None, t_s: np.ndarray) -> dict[str, float]:
+    """How far the extension moves a replay, per compared quantity, in units of :data:`SCALES`:
+    max |extended - model| over the log's times (the trimmed start's controls for ``trim_``)."""
+    if model is None or extended is None:
+        return {ch: float("nan") for ch in COMPARED}
+    d = np.abs(on_log_times(extended, t_s, REPLAY_CHANNELS) - on_log_times(model, t_s, REPLAY_CHANNELS))
+    out = {ch: float(np.nanmax(d[:, j])) / SCALES[ch] for j, ch in enumerate(REPLAY_CHANNELS)}
+    for c in TRIM_CHANNELS:
+        out[f"trim_{c}"] = abs(_head(extended, c) - _head(model, c)) / SCALES[f"trim_{c}"] \
+            if c in model and c in extended else float("nan")
+    return out
 
 
 def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool) -> dict:
@@ -46,7 +82,7 @@ def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool) -> di
         fm, fx = flown[lg.path]
         em = replay_errors(lg.data, fm)
         ex = replay_errors(lg.data, fx) if extended else {}
-        out[Path(lg.path).name] = {ch: {"model": em[ch], "extended": ex.get(ch)} for ch in REPLAY_CHANNELS}
+        out[Path(lg.path).name] = {ch: {"model": em[ch], "extended": ex.get(ch)} for ch in COMPARED}
     return out
 
 
@@ -64,7 +100,8 @@ def largest(frame: pd.DataFrame) -> list[int]:
 
 def _with_gain(table: dict) -> dict:
     for v in table.values():
-        v["gain"] = v["before"] / v["after"] if v["after"] > 0 else float("inf")
+        v["gain"] = v["before"] / v["after"] if v["after"] > 0 else (float("nan") if np.isnan(v["after"])
+                                                                     else float("inf"))
     return table
 
 
@@ -96,14 +133,24 @@ def measure_gain(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: 
     for lg in held:
         fb, fa = flown[lg.path]
         eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
-        replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in REPLAY_CHANNELS}
-    worst = _with_gain({ch: {"before": max(r[ch]["before"] for r in replays.values()),
-                             "after": max(r[ch]["after"] for r in replays.values())} for ch in REPLAY_CHANNELS})
+        replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in COMPARED}
+    worst = _with_gain({ch: {"before": _max(r[ch]["before"] for r in replays.values()),
+                             "after": _max(r[ch]["after"] for r in replays.values())} for ch in COMPARED})
     where = [replays[Path(held[i].path).name] for i in acting]
-    where_acts = _with_gain({ch: {"before": max(r[ch]["before"] for r in where),
-                                  "after": max(r[ch]["after"] for r in where)} for ch in REPLAY_CHANNELS})
+    where_acts = _with_gain({ch: {"before": _max(r[ch]["before"] for r in where),
+                                  "after": _max(r[ch]["after"] for r in where)} for ch in COMPARED})
+    shifts = [moved(*flown[held[i].path], held[i].data["t_s"].to_numpy()) for i in acting]
+    shift = {ch: _max(m[ch] for m in shifts) for ch in COMPARED}
+    most = max((ch for ch in COMPARED if np.isfinite(shift[ch])), key=shift.get, default=None)
     return {"cause": first.label, "held_out_logs": [Path(lg.path).name for lg in held],
             "cause_exercised_in": [Path(held[i].path).name for i in acting],
             "residual_gain": rms_acting[first.coefficient]["gain"], "coefficient": first.coefficient,
             "residual_rms": rms_acting, "residual_rms_all_held_out": residual_rms(before, after),
-            "replay_max_error": worst, "replay_where_acts": where_acts, "replay_per_log": replays}
+            "replay_max_error": worst, "replay_where_acts": where_acts, "replay_per_log": replays,
+            "replay_moved": shift, "replay_moved_most": most}
+
+
+def _max(values) -> float:
+    """The largest finite value (NaN if none)."""
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return max(v) if v else float("nan")

@@ -53,6 +53,12 @@ def summary(diag: Diagnosis, doc: dict) -> str:
         lines.append("Replays of the held-out manoeuvres (same start, same inputs), worst error:")
         for ch, v in g["replay_max_error"].items():
             lines.append(f"  replay max error {ch}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f})")
+        most = g.get("replay_moved_most")
+        if most:
+            v = g["replay_where_acts"][most]
+            lines.append(f"Where the cause acts, the extension moves the replays most in {most} "
+                         f"({g['replay_moved'][most]:.2f} of its tolerance): worst error {v['before']:.3g} -> "
+                         f"{v['after']:.3g}  (x{v['gain']:.1f})")
         lines += ["", f"extension: {doc['extension']} (functions in {doc['extension_xml']})"]
     r = doc.get("refine")
     if r and r.get("error"):

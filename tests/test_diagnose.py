@@ -30,6 +30,16 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff):
     assert r["coefficient_ok"] and r["variable_ok"], (hidden.description, first)
     assert r["shape_error"] < 0.10, (hidden.description, r["shape_error"])
     assert r["gain"] >= 2.0, (hidden.description, r["gain"])
+    # the replays in the measured wind show the gain where the cause moves them most; a drag at one
+    # Mach only moves the trim, and the trimmed start's throttle shows it. An elevator derivative
+    # moves the replays by a fifth of a tolerance, less than the wind errors: the truth itself
+    # replays x1.07 better (benchmarks/replay_gain.py), so no x2 is there to show.
+    g = r["doc"]["gain"]
+    most = g["replay_moved_most"]
+    if family == "mach":
+        assert most == "trim_throttle_norm", g["replay_moved"]
+    if first["verdict"]["size_over_floor"] >= 10 and family != "elevator_derivative":
+        assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
 
 SENSOR_CASES = [("alpha_bias", 0.4, None), ("alpha_scale", 0.06, None), ("alpha_delay", 0.06, None),
