@@ -223,8 +223,69 @@ class Recorded(Maneuver):
                        np.column_stack(signals[4:]) if wind else None)
 
 
+@dataclass(frozen=True)
+class Multisine(Maneuver):
+    """Orthogonal phase-optimized multisines on the elevator and the stabilizer together (Morelli;
+    :mod:`maneuvers.multisine`).
+
+    The harmonics of ``1 / duration_s`` in ``[f_lo_hz, f_hi_hz]`` are dealt out to the two inputs
+    by interleaving; each input starts and ends at zero, and its peak is its amplitude, scaled by
+    the point's stall margin like the 2-3-1-1's.
+
+    Parameters
+    ----------
+    amplitude_deg : float
+        Elevator peak with a full stall margin [deg].
+    stabilizer_amplitude_deg : float
+        Stabilizer peak with a full stall margin [deg]; 0: the elevator alone gets every harmonic.
+    duration_s : float
+        Length of the inputs, ``T`` [s].
+    f_lo_hz, f_hi_hz : float
+        The band [Hz]. It should cover the short period and not much more: on our 737 the energy
+        above about 0.5 Hz moves alpha and q little (``benchmarks/multisine_information.py``),
+        below 0.1 Hz it drives the phugoid.
+    lead_s, tail_s : float
+        Trimmed flight before and free response after the inputs [s].
+    """
+
+    amplitude_deg: float = 3.0
+    stabilizer_amplitude_deg: float = 1.0
+    duration_s: float = 18.0
+    f_lo_hz: float = 0.1
+    f_hi_hz: float = 0.5
+    lead_s: float = 2.0
+    tail_s: float = 8.0
+    name: str = "multisine"
+
+    def __post_init__(self) -> None:
+        if not 0 < self.amplitude_deg <= 10.0:
+            raise ValueError(f"amplitude_deg must be in (0, 10] deg, not {self.amplitude_deg}")
+        if not 0 <= self.stabilizer_amplitude_deg <= 5.0:
+            raise ValueError(f"stabilizer_amplitude_deg must be in [0, 5] deg, not {self.stabilizer_amplitude_deg}")
+        if not 0 < self.f_lo_hz < self.f_hi_hz <= 5.0:
+            raise ValueError(f"the band must satisfy 0 < f_lo_hz < f_hi_hz <= 5 Hz, not {self.f_lo_hz}-{self.f_hi_hz}")
+        inputs = 2 if self.stabilizer_amplitude_deg > 0 else 1
+        harmonics = int(np.floor(self.f_hi_hz * self.duration_s + 1e-9)) - max(
+            1, int(np.ceil(self.f_lo_hz * self.duration_s - 1e-9))) + 1
+        if harmonics < 2 * inputs:
+            raise ValueError(f"the band {self.f_lo_hz:g}-{self.f_hi_hz:g} Hz holds {max(harmonics, 0)} harmonics "
+                             f"of 1/{self.duration_s:g} s: fewer than 2 per input (widen it or lengthen duration_s)")
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        from maneuvers.multisine import multisine_signals
+        lead, n = _steps(self.lead_s, dt), _steps(self.duration_s, dt)
+        peaks = (self.amplitude_deg * amplitude_scale,)
+        if self.stabilizer_amplitude_deg > 0:
+            peaks += (self.stabilizer_amplitude_deg * amplitude_scale,)
+        signals, _ = multisine_signals(n, dt, self.f_lo_hz, self.f_hi_hz, peaks, start=lead)
+        stabilizer = signals[1] if len(signals) > 1 else Constant(0.0)
+        total = lead + n + _steps(self.tail_s, dt)
+        return Program(signals[0], stabilizer, None, False, total, None, total)
+
+
 MANEUVERS: dict[str, type[Maneuver]] = {
     "doublet": Doublet2311,
+    "multisine": Multisine,
     "gear_extension": GearTransition,
     "gear_retraction": GearTransition,
 }
