@@ -64,6 +64,14 @@ class Maneuver:
         raise NotImplementedError
 
 
+def _check_amplitudes(elevator_deg: float, stabilizer_deg: float) -> None:
+    """Elevator in (0, 10] deg and stabilizer in [0, 5] deg, or ValueError naming the field."""
+    if not 0 < elevator_deg <= 10.0:
+        raise ValueError(f"amplitude_deg must be in (0, 10] deg, not {elevator_deg}")
+    if not 0 <= stabilizer_deg <= 5.0:
+        raise ValueError(f"stabilizer_amplitude_deg must be in [0, 5] deg, not {stabilizer_deg}")
+
+
 def _steps(seconds: float, dt: float) -> int:
     return int(round(seconds / dt))
 
@@ -102,10 +110,7 @@ class Doublet2311(Maneuver):
     name: str = "doublet"
 
     def __post_init__(self) -> None:
-        if not 0 < self.amplitude_deg <= 10.0:
-            raise ValueError(f"amplitude_deg must be in (0, 10] deg, not {self.amplitude_deg}")
-        if not 0 <= self.stabilizer_amplitude_deg <= 5.0:
-            raise ValueError(f"stabilizer_amplitude_deg must be in [0, 5] deg, not {self.stabilizer_amplitude_deg}")
+        _check_amplitudes(self.amplitude_deg, self.stabilizer_amplitude_deg)
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
         a = self.amplitude_deg * amplitude_scale
@@ -258,10 +263,7 @@ class Multisine(Maneuver):
     name: str = "multisine"
 
     def __post_init__(self) -> None:
-        if not 0 < self.amplitude_deg <= 10.0:
-            raise ValueError(f"amplitude_deg must be in (0, 10] deg, not {self.amplitude_deg}")
-        if not 0 <= self.stabilizer_amplitude_deg <= 5.0:
-            raise ValueError(f"stabilizer_amplitude_deg must be in [0, 5] deg, not {self.stabilizer_amplitude_deg}")
+        _check_amplitudes(self.amplitude_deg, self.stabilizer_amplitude_deg)
         if not 0 < self.f_lo_hz < self.f_hi_hz <= 5.0:
             raise ValueError(f"the band must satisfy 0 < f_lo_hz < f_hi_hz <= 5 Hz, not {self.f_lo_hz}-{self.f_hi_hz}")
         inputs = 2 if self.stabilizer_amplitude_deg > 0 else 1
