@@ -222,11 +222,13 @@ def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs
     if bands is not None:
         check_draws(bands)
         load_surfaces(results)
+    drop_bands(results, [c.name for c in cases])  # drawn about the replays about to be replaced
     failures = run_replays(results, cases, jobs, cases_file, cluster)
     for why in failures:
         print(f"replay failed: {why}")
-    drop_bands(results, [c.name for c in cases])
-    if bands is not None and not failures:
+    if bands is not None and failures:
+        print(f"bands not drawn: {len(failures)} replay(s) failed")
+    elif bands is not None:
         replay_bands(results, cases, bands, jobs)
     files = write_report(results, names, jobs)
     print(files.pop("table"))

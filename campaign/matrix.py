@@ -118,6 +118,9 @@ def _maneuver_list(path: str, where: str, value) -> tuple[str, ...]:
     for name in value:
         if name not in MANEUVERS:
             raise UserError(f"{path}: {where}: unknown manoeuvre {name!r} (known: {', '.join(MANEUVERS)})")
+    if {"doublet", "multisine"} <= set(value):
+        raise UserError(f"{path}: {where}: doublet and multisine both fit eq. (3) at the point; fly one of them "
+                        f"per point (identification pairs one fit per gear)")
     return tuple(value)
 
 

@@ -41,13 +41,23 @@ def load_surfaces(results: Path) -> tuple[dict[str, GearSurface], tuple[float, f
     p = surfaces_file(results)
     if not p.exists():
         raise UserError(f"{p}: missing (an identification older than the bands); run 'campaign identify {results}' again")
-    doc = json.loads(p.read_text())
-    return {k: GearSurface.from_arrays(doc[k]) for k in KINDS if k in doc}, tuple(doc["arm_ft"])
+    try:
+        doc = json.loads(p.read_text())
+        return {k: GearSurface.from_arrays(doc[k]) for k in KINDS if k in doc}, tuple(doc["arm_ft"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"{p}: does not read ({type(exc).__name__}: {exc}); run 'campaign identify {results}' "
+                        f"again") from None
 
 
 def check_draws(n: int) -> None:
     if n < MIN_DRAWS:
         raise UserError(f"--bands {n}: a band needs {MIN_DRAWS} draws or more")
+
+
+def _fly_channels(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> np.ndarray | None:
+    """One draw's flight: its :data:`CHANNELS` only (float32), None if it did not trim."""
+    log, _, _ = _fly_one(case, model, source, loop)
+    return None if log is None else log[list(CHANNELS)].to_numpy(np.float32)
 
 
 def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, seed: int = 0,
@@ -81,11 +91,11 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
                 xml = write_effects(surface.draw(rng), kind, arm, folder / f"gear_{kind}.xml")
                 src = AircraftSource(str(merge_into_aircraft(model, xml, folder / "aircraft")), load_effects(None))
                 flights += [(c, kind, src, lp, k) for c in cases for lp in LOOPS]
-        flown = pmap(_fly_one, [f[:4] for f in flights], jobs)
+        flown = pmap(_fly_channels, [f[:4] for f in flights], jobs)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     runs: dict[tuple, list] = {}
-    for (c, kind, _, lp, k), (log, _, _) in zip(flights, flown):
+    for (c, kind, _, lp, k), log in zip(flights, flown):
         runs.setdefault((c.name, kind, lp), [None] * (n + held_back))[k] = log
     doc = stored_bands_doc(results, sha)
     doc["surfaces_sha256"] = sha
@@ -97,17 +107,19 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
         for k, log in enumerate(logs):
             if log is not None:
                 m = min(len(t), len(log))
-                ys[k, :m] = log[list(CHANNELS)].to_numpy()[:m]
+                ys[k, :m] = log[:m]
         held, rest = ys[:held_back], ys[held_back:]
         lo, hi = np.nanpercentile(rest, 2.5, axis=0), np.nanpercentile(rest, 97.5, axis=0)
-        inside = np.nanmean((held >= lo - 1e-9) & (held <= hi + 1e-9), axis=(0, 1))
+        held = held[~np.isnan(held).all(axis=(1, 2))]  # a held-back draw that did not trim checks nothing
+        inside = (np.nanmean((held >= lo - 1e-9) & (held <= hi + 1e-9), axis=(0, 1)) if len(held)
+                  else np.full(len(CHANNELS), np.nan))
         tol = {"tas_kt": TOL_TAS_KT, "alt_ft": TOL_ALT_FT, "theta_deg": theta_tolerance(ref)}
         ok = np.ones(n, bool)
         for ch, limit in tol.items():
             i = CHANNELS.index(ch)
-            ok &= np.nanmax(np.abs(rest[:, :, i] - ref[ch].to_numpy()), axis=1) <= limit
+            err = np.abs(rest[:, :, i] - ref[ch].to_numpy())
+            ok &= np.isfinite(err).all(axis=1) & (np.nan_to_num(err, nan=np.inf).max(axis=1) <= limit)
         flew = ~np.isnan(rest[:, :, 0]).all(axis=1)
-        ok &= flew
         band = pd.DataFrame({"t_s": t, **{f"{ch}_lo": lo[:, i] for i, ch in enumerate(CHANNELS)},
                              **{f"{ch}_hi": hi[:, i] for i, ch in enumerate(CHANNELS)}})
         name = f"{case}__{kind}__{lp}"
@@ -115,7 +127,7 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
                      lambda tmp: band.to_parquet(tmp, index=False, compression="zstd"))
         doc["cases"][name] = {"draws": n, "seed": seed, "pass_probability": float(np.mean(ok)),
                               "draws_flown": int(flew.sum()),
-                              "held_back": held_back, "held_back_inside": float(np.min(inside)),
+                              "held_back": held_back, "held_back_inside": float(np.min(inside)),  # NaN: none flew
                               "width_max": {ch: float(np.nanmax(hi[:, i] - lo[:, i])) for i, ch in enumerate(CHANNELS)}}
     text = bands_doc_text(doc)
     atomic_write(rep / "bands.json", lambda tmp: Path(tmp).write_text(text))

@@ -57,7 +57,7 @@ def load_replays(results: Path, names: list[str] | None = None) -> dict[tuple[st
 def metrics(replays: dict, bands: dict | None = None) -> pd.DataFrame:
     """Max and RMS errors against the reference, and the Part 60 verdict.
 
-    With ``bands`` (:func:`campaign.replay_bands.load_bands`'s summary), each model's
+    With ``bands`` (:func:`load_bands`'s summary), each model's
     ``pass_probability`` (the share of its Monte Carlo draws within the tolerances) and
     ``band_draws``; otherwise empty.
     """
@@ -216,24 +216,30 @@ def bands_doc_text(doc: dict) -> str:
     return json.dumps(doc, indent=1) + "\n"
 
 
+def _bands_json(p: Path) -> dict | None:
+    """``bands.json``, or None if it is missing or does not read (it is derived: drawn again, it is
+    written whole)."""
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("cases"), dict) else None
+
+
 def stored_bands_doc(results: Path, sha: str) -> dict:
     """``bands.json`` as it stands if drawn from the same identification, else a new one."""
-    p = Path(results) / "replays" / "bands.json"
-    if p.exists():
-        doc = json.loads(p.read_text())
-        if doc.get("surfaces_sha256") == sha:
-            return doc
-    return {"cases": {}}
+    doc = _bands_json(Path(results) / "replays" / "bands.json")
+    return doc if doc is not None and doc.get("surfaces_sha256") == sha else {"cases": {}}
 
 
 def drop_bands(results: Path, names: list[str]) -> None:
     """Forget the bands of re-flown cases: they were drawn about the replays they replace."""
     rep = Path(results) / "replays"
     p = rep / "bands.json"
-    if not p.exists():
+    doc = _bands_json(p)
+    if doc is None:
         return
-    doc = json.loads(p.read_text())
-    gone = [k for k in doc.get("cases", {}) if k.split("__")[0] in names]
+    gone = [k for k in doc["cases"] if k.split("__")[0] in names]
     if not gone:
         return
     for k in gone:
@@ -248,10 +254,8 @@ def load_bands(results: Path) -> tuple[dict, dict[tuple[str, str, str], pd.DataF
     "case__model__loop", {(case, model, loop): band})``; empty if none."""
     rep = Path(results) / "replays"
     p, s = rep / "bands.json", surfaces_file(results)
-    if not p.exists() or not s.exists():
-        return {}, {}
-    doc = json.loads(p.read_text())
-    if doc.get("surfaces_sha256") != surfaces_sha(s):
+    doc = _bands_json(p)
+    if doc is None or not s.exists() or doc.get("surfaces_sha256") != surfaces_sha(s):
         return {}, {}
     frames = {}
     for name in doc.get("cases", {}):

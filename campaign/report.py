@@ -109,6 +109,11 @@ def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
     if not (rep / "metrics.csv").exists():
         return [html.section("replays", "Replays", "<p>No replays (run <code>campaign replay</code>).</p>")]
     metrics = pd.read_csv(rep / "metrics.csv")
+    if "pass_probability" in metrics:  # only bands drawn from the identification on disk
+        from campaign.replay_report import load_bands
+        valid = load_bands(folder)[0]
+        keys = metrics.case + "__" + metrics.model + "__" + metrics.loop
+        metrics.loc[~keys.isin(valid), "pass_probability"] = float("nan")
     cases = {c["name"]: c for c in json.loads((rep / "cases.json").read_text())} if (rep / "cases.json").exists() else {}
     stamp = dt.datetime.fromtimestamp((rep / "metrics.csv").stat().st_mtime, dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     pages = []

@@ -390,7 +390,8 @@ class GearSurface:
     dof: dict[tuple[int, str], float] = field(default_factory=dict)  # residual degrees of freedom (inf: known)
 
     def se(self, flap: int, c: str) -> np.ndarray:
-        """Standard errors of :attr:`coef` ``[(flap, c)]`` [-], shape (n_grid, n_terms)."""
+        """Standard errors of :attr:`coef` ``[(flap, c)]`` [-], shape (n_grid, n_terms): the scale of the
+        draws (their Student-t spread is wider by ``sqrt(dof / (dof - 2))`` where that is finite)."""
         b = self.basis.get((flap, c))
         return np.zeros_like(self.coef[(flap, c)]) if b is None or not len(b) else np.sqrt(np.sum(b ** 2, axis=0))
 
@@ -520,7 +521,7 @@ def _coef_basis(x: np.ndarray, resid: np.ndarray, se: np.ndarray) -> np.ndarray:
     """
     n, p = x.shape
     if n > p:
-        lo = np.linalg.cholesky(np.linalg.pinv(x.T @ x))
+        lo = np.linalg.inv(np.linalg.qr(x, mode="r"))  # L L' = R^-1 R^-T = (X'X)^-1
         f = resid / np.sqrt(n - p)
         return np.einsum("ia,rg->argi", lo, f).reshape(p * n, resid.shape[1], p)
     xinv = np.linalg.pinv(x)  # (p, n)

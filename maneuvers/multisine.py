@@ -71,7 +71,7 @@ def optimized_phases(ks: tuple[int, ...], starts: int = 12) -> tuple[tuple[float
         w = np.abs(u / scale) ** (p - 1) * np.sign(u)
         m = float(np.mean(np.abs(u / scale) ** p))
         f = scale * m ** (1 / p)
-        return f, f / (p * m) * p * (w @ (np.cos(arg) * amps)) / len(t)
+        return f, f / (scale * m) * (w @ (np.cos(arg) * amps)) / len(t)
 
     rng = np.random.default_rng(len(k))
     best, best_rpf = None, np.inf

@@ -96,3 +96,11 @@ def test_a_flown_multisine_identifies_the_models_own_derivatives(tmp_path):
         assert p["Cm"]["delevator_rad"] == pytest.approx(-1.4 - 0.40 * arm, rel=0.005), f.point
         assert p["Cm"]["dstabilizer_rad"] == pytest.approx(-3.4 - 0.95 * arm, rel=0.01), f.point
         assert p["Cm"]["qhat_rad"] == pytest.approx(-25.0 - 4.5 * arm, rel=0.01), f.point
+
+
+def test_a_point_flying_both_baseline_manoeuvres_is_refused(tmp_path):
+    p = tmp_path / "m.toml"
+    p.write_text(matrix_toml(pairs((0, 0.3, 5000)), "ms", '[defaults]\nmaneuvers_gear_up = ["doublet", "multisine"]\n'))
+    with pytest.raises(UserError) as err:
+        load_matrix(p)
+    assert str(p) in str(err.value) and "defaults.maneuvers_gear_up" in str(err.value)

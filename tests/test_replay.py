@@ -205,16 +205,23 @@ def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
     f = out / "identification" / "gear_surfaces.json"
     f.write_text(f.read_text().replace('"arm_ft": [', '"arm_ft": [ '))
     assert load_bands(out) == ({}, {})
+    from campaign.report import write_report as html_report
+    page = Path(html_report(out)).read_text()
+    assert "% of 20 draws" not in page and page.count("not drawn") == 20
 
 
 @pytest.mark.parametrize("args, says", [(["--bands", "5"], "20 draws or more"),
-                                        (["--bands", "20"], "gear_surfaces.json: missing")])
+                                        (["--bands", "20"], "gear_surfaces.json: missing"),
+                                        (["--bands", "20"], "gear_surfaces.json: does not read")])
 def test_bad_bands_request_is_one_line_and_writes_nothing(replayed, tmp_path, capsys, args, says):
     import shutil
     out = tmp_path / "c"
     shutil.copytree(replayed, out)
+    surfaces = out / "identification" / "gear_surfaces.json"
     if "missing" in says:
-        (out / "identification" / "gear_surfaces.json").unlink()
+        surfaces.unlink()
+    elif "does not read" in says:
+        surfaces.write_text(surfaces.read_text()[:1000])
     before = {p: p.read_bytes() for p in (out / "replays").rglob("*") if p.is_file()}
     assert main(["replay", str(out), "--case", "landing-135kt", *args]) == 2
     err = capsys.readouterr().err
