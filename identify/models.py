@@ -515,15 +515,18 @@ def _coef_basis(x: np.ndarray, resid: np.ndarray, se: np.ndarray) -> np.ndarray:
     ``(m, n_grid, p)`` such that ``sum_j z_j basis[j]`` has the coefficients' covariance.
 
     With ``n > p``: ``(X'X)^-1 kron S``, ``S = resid' resid / (n - p)``, factored as
-    ``L[:, a] F[r, :]`` (``L L' = (X'X)^-1``, ``F = resid / sqrt(n - p)``). With ``n = p`` the
+    ``L[:, a] F[r, :]`` (``L L' = (X'X)^-1`` from QR, ``F'F = S`` from its eigenvectors: at most
+    ``n_grid`` rows, so the basis does not grow with the number of conditions). With ``n = p`` the
     curves' own errors ``se (n, n_grid)``, taken as fully correlated along each curve, through
     ``X^-1``.
     """
     n, p = x.shape
     if n > p:
         lo = np.linalg.inv(np.linalg.qr(x, mode="r"))  # L L' = R^-1 R^-T = (X'X)^-1
-        f = resid / np.sqrt(n - p)
-        return np.einsum("ia,rg->argi", lo, f).reshape(p * n, resid.shape[1], p)
+        w, v = np.linalg.eigh(resid.T @ resid / (n - p))
+        keep = w > 1e-12 * max(float(w.max(initial=0.0)), 1e-300)
+        f = (np.sqrt(w[keep]) * v[:, keep]).T  # F'F = S in at most n_grid rows, however many conditions
+        return np.einsum("ia,rg->argi", lo, f).reshape(p * len(f), resid.shape[1], p)
     xinv = np.linalg.pinv(x)  # (p, n)
     return np.einsum("ik,kg->kgi", xinv, se)
 
