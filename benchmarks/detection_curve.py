@@ -1,6 +1,7 @@
 """The detection curve: hit rate against size / noise floor, false positives, invented causes.
 
     python benchmarks/detection_curve.py [--effects N] [--nulls N] [--seed-base S] [--out DIR]
+                                         [--aircraft "stock 737"] [--sigma-fps 3]
 
 Random effects from the shape grammar (tests/shapes.py: every candidate variable and pairs of
 them, late onset, early saturation, bump, dip, step, ramp above a threshold, dead band, random
@@ -39,14 +40,20 @@ BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
 A320 = matrix_toml(pairs((0, 0.3, 5000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
 
 
-def aircraft(rng: np.random.Generator) -> tuple[str, str, str]:
-    """(name, folder, matrix TOML) of one of the three aircraft."""
+AIRCRAFT = ("our 737", "stock 737", "A320")
+
+
+def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, str, str]:
+    """(name, folder, matrix TOML) of one of the three aircraft (drawn; ``only`` forces it, the
+    draw still made so that the rest of the case is the same)."""
     import jsbsim
 
     from campaign.aircraft import DEFAULT_AIRCRAFT
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
-    return [("our 737", str(DEFAULT_AIRCRAFT), DIAG_MATRIX), ("stock 737", str(stock / "737"), CLEAN),
-            ("A320", str(stock / "A320"), A320)][int(rng.integers(3))]
+    every = [("our 737", str(DEFAULT_AIRCRAFT), DIAG_MATRIX), ("stock 737", str(stock / "737"), CLEAN),
+             ("A320", str(stock / "A320"), A320)]
+    drawn = every[int(rng.integers(3))]
+    return every[AIRCRAFT.index(only)] if only else drawn
 
 
 def realized_size(data: Path, folder: str, fx: Path, coefficient: str, work: Path) -> float:
@@ -62,9 +69,11 @@ def realized_size(data: Path, folder: str, fx: Path, coefficient: str, work: Pat
     return float(np.ptp(r[0] - r[1]))
 
 
-def profile(rng: np.random.Generator, work: Path, sensor: bool) -> tuple[str, str]:
-    """An instrument profile (a file) and its description: 1.5 or 3 ft/s, a sensor error or none."""
+def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None) -> tuple[str, str]:
+    """An instrument profile (a file) and its description: 1.5 or 3 ft/s (or ``sigma_fps``), a sensor
+    error or none."""
     sigma = float(rng.choice([1.5, 3.0]))
+    sigma = sigma if sigma_fps is None else float(sigma_fps)
     text, what = f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma}\n', f"{sigma:g} ft/s"
     if sensor:
         fault = make_sensor(str(rng.choice(SENSOR_FAMILIES)), rng)
@@ -75,11 +84,12 @@ def profile(rng: np.random.Generator, work: Path, sensor: bool) -> tuple[str, st
     return str(path), what
 
 
-def case(seed: int, null: bool = False) -> dict:
-    """Draw, fly, diagnose and score one case."""
+def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: float | None = None) -> dict:
+    """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``: force the aircraft or the
+    turbulence)."""
     from campaign.diagnose import run_diagnosis
     rng = np.random.default_rng(seed)
-    name, folder, matrix = aircraft(rng)
+    name, folder, matrix = aircraft(rng, only)
     work = Path(tempfile.mkdtemp(prefix="curve-"))
     effect = None
     if not null:
@@ -89,7 +99,7 @@ def case(seed: int, null: bool = False) -> dict:
             pick = (pick[0],)
         effect = draw(rng, variables=pick)
     sensor = rng.uniform() < 0.2
-    prof, what = profile(rng, work, sensor)
+    prof, what = profile(rng, work, sensor, sigma_fps)
     fx = None
     if effect is not None:
         fx = work / "hidden.xml"
@@ -167,11 +177,13 @@ def main() -> int:
     ap.add_argument("--nulls", type=int, default=60)
     ap.add_argument("--seed-base", type=int, default=2_000_000)
     ap.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "detection-curve")
+    ap.add_argument("--aircraft", choices=AIRCRAFT, help="fly every case on this aircraft")
+    ap.add_argument("--sigma-fps", type=float, help="every case in this turbulence [ft/s]")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.effects + a.nulls):
-        r = case(a.seed_base + i, null=i >= a.effects)
+        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps)
         rows.append(r)
         print(f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
               f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
