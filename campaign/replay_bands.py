@@ -24,15 +24,16 @@ import pandas as pd
 from campaign.aircraft import AircraftSource, load_effects
 from campaign.errors import UserError
 from campaign.replay import LOOPS, ReplayCase, _fly_one, aircraft_for
-from campaign.replay_report import (TOL_ALT_FT, TOL_TAS_KT, bands_doc_text, stored_bands_doc, surfaces_file,
-                                    surfaces_sha, theta_tolerance)
+from campaign.replay_report import bands_doc_text, stored_bands_doc, surfaces_file, surfaces_sha
+from diagnose.gain import REPLAY_CHANNELS
+from diagnose.uncertainty import band, pass_probability
 from campaign.store import atomic_write, read_log
 from identify.export import merge_into_aircraft, write_effects
 from identify.models import GearSurface
 from identify.workers import pmap
 
 MIN_DRAWS = 20
-CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
+CHANNELS = REPLAY_CHANNELS
 KINDS = ("linear", "nonlinear")
 
 
@@ -109,23 +110,19 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
                 m = min(len(t), len(log))
                 ys[k, :m] = log[:m]
         held, rest = ys[:held_back], ys[held_back:]
-        lo, hi = np.nanpercentile(rest, 2.5, axis=0), np.nanpercentile(rest, 97.5, axis=0)
+        lo, hi = band(rest)
         held = held[~np.isnan(held).all(axis=(1, 2))]  # a held-back draw that did not trim checks nothing
         inside = (np.nanmean((held >= lo - 1e-9) & (held <= hi + 1e-9), axis=(0, 1)) if len(held)
                   else np.full(len(CHANNELS), np.nan))
-        tol = {"tas_kt": TOL_TAS_KT, "alt_ft": TOL_ALT_FT, "theta_deg": theta_tolerance(ref)}
-        ok = np.ones(n, bool)
-        for ch, limit in tol.items():
-            i = CHANNELS.index(ch)
-            err = np.abs(rest[:, :, i] - ref[ch].to_numpy())
-            ok &= np.isfinite(err).all(axis=1) & (np.nan_to_num(err, nan=np.inf).max(axis=1) <= limit)
+        probability = pass_probability({ch: rest[:, :, i] for i, ch in enumerate(CHANNELS)},
+                                       {ch: ref[ch].to_numpy() for ch in CHANNELS})
         flew = ~np.isnan(rest[:, :, 0]).all(axis=1)
-        band = pd.DataFrame({"t_s": t, **{f"{ch}_lo": lo[:, i] for i, ch in enumerate(CHANNELS)},
+        frame = pd.DataFrame({"t_s": t, **{f"{ch}_lo": lo[:, i] for i, ch in enumerate(CHANNELS)},
                              **{f"{ch}_hi": hi[:, i] for i, ch in enumerate(CHANNELS)}})
         name = f"{case}__{kind}__{lp}"
         atomic_write(rep / "bands" / f"{name}.parquet",
-                     lambda tmp: band.to_parquet(tmp, index=False, compression="zstd"))
-        doc["cases"][name] = {"draws": n, "seed": seed, "pass_probability": float(np.mean(ok)),
+                     lambda tmp: frame.to_parquet(tmp, index=False, compression="zstd"))
+        doc["cases"][name] = {"draws": n, "seed": seed, "pass_probability": probability,
                               "draws_flown": int(flew.sum()),
                               "held_back": held_back, "held_back_inside": float(np.min(inside)),  # NaN: none flew
                               "width_max": {ch: float(np.nanmax(hi[:, i] - lo[:, i])) for i, ch in enumerate(CHANNELS)}}

@@ -42,8 +42,9 @@ def draws(diag: Diagnosis, n: int, seed: int = 0) -> list[Diagnosis]:
 def tolerance(channel: str, measured: np.ndarray) -> float:
     """The Part 60 tolerance of a channel about the measured time history."""
     tol = TOLERANCES[channel]
-    if channel == "theta_deg":
-        tol = max(tol, 0.2 * float(np.nanmax(np.abs(measured - measured[0]))))
+    finite = measured[np.isfinite(measured)]
+    if channel == "theta_deg" and finite.size:
+        tol = max(tol, 0.2 * float(np.max(np.abs(finite - finite[0]))))
     return tol
 
 
@@ -55,6 +56,9 @@ def band(flown: np.ndarray, lo_pct: float = 2.5, hi_pct: float = 97.5) -> tuple[
 def pass_probability(flown: dict[str, np.ndarray], measured: dict[str, np.ndarray]) -> float:
     """The share of draws whose replay stays within every Part 60 tolerance of the measurement.
 
+    A draw that does not cover every measured sample (it did not trim, ended early or went
+    non-finite) fails.
+
     Parameters
     ----------
     flown : dict
@@ -64,6 +68,8 @@ def pass_probability(flown: dict[str, np.ndarray], measured: dict[str, np.ndarra
     """
     ok = None
     for ch in TOLERANCES:
-        inside = np.nanmax(np.abs(flown[ch] - measured[ch]), axis=1) <= tolerance(ch, measured[ch])
+        err = np.abs(flown[ch] - measured[ch])[:, np.isfinite(measured[ch])]
+        inside = np.isfinite(err).all(axis=1) & (np.nan_to_num(err, nan=np.inf).max(axis=1, initial=0.0)
+                                                 <= tolerance(ch, measured[ch]))
         ok = inside if ok is None else ok & inside
     return float(np.mean(ok))

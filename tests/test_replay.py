@@ -227,3 +227,19 @@ def test_bad_bands_request_is_one_line_and_writes_nothing(replayed, tmp_path, ca
     err = capsys.readouterr().err
     assert says in err and err.count("\n") == 1
     assert {p: p.read_bytes() for p in (out / "replays").rglob("*") if p.is_file()} == before
+
+
+def test_a_draw_that_does_not_cover_the_whole_time_history_fails_part60():
+    """Judged on its finite head only, a draw that diverged or ended early would pass."""
+    import numpy as np
+
+    from diagnose.uncertainty import pass_probability
+    measured = {c: np.zeros(5) for c in ("tas_kt", "alt_ft", "theta_deg")}
+    flown = {c: np.zeros((3, 5)) for c in measured}
+    flown["tas_kt"][1, 3] = np.nan  # went non-finite partway
+    flown["alt_ft"][2, :] = np.nan  # did not trim
+    assert pass_probability(flown, measured) == pytest.approx(1 / 3)
+    measured["theta_deg"][0] = np.nan  # a measured gap is not held against the draws
+    flown = {c: np.zeros((2, 5)) for c in measured}
+    flown["theta_deg"][:, 0] = np.nan
+    assert pass_probability(flown, measured) == 1.0
