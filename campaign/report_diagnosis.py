@@ -20,8 +20,8 @@ def _cause_rows(causes: list[dict]) -> list[tuple]:
     rows = []
     for i, c in enumerate(causes, 1):
         ev, v = c.get("evidence", {}), c.get("verdict", {})
-        alts = ", ".join(a.get("label", str(a)) if isinstance(a, dict) else str(a)
-                         for a in v.get("sensor_alternatives", v.get("alternatives", []))) or "none"
+        alts = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}"
+                         for a in ev.get("sensor_alternatives", [])) or "none"
         rows.append((f"{i}. {label(c)}", c.get("kind", ""), c.get("shape", ""),
                      c.get("size", float("nan")), ev.get("F", float("nan")), v.get("noise_floor", float("nan")),
                      v.get("size_over_floor", float("nan")), v.get("instrument_errors_make", float("nan")),
@@ -65,6 +65,16 @@ def diagnosis_report(folder: Path) -> str:
     if overview.exists():
         body += html.png(overview, "residuals against each cause", "Residuals against each cause's variables.")
     sections.append(html.section("causes", "Causes and evidence", body))
+    if doc.get("rivals"):
+        rows = [(r["cause"], r["rival"], r["kind"], r["separation_se"], r["predicted_se"],
+                 "settled" if r["separation_se"] >= 5.0 else "not settled: campaign plan",
+                 ", ".join(f"{k} {v:.3g}" for k, v in r.get("by_coefficient", {}).items() if v > 0))
+                for r in doc["rivals"]]
+        sections.append(html.section("rivals", "Rival explanations", html.table(
+            ["cause", "rival", "kind", "separation [se]", "expected [se]", "", "likelihood ratio from"], rows, left=3)
+            + "<p>The separation is the likelihood ratio of the cause's fit and the rival's, over CL, CD and Cm "
+              "and the data compatibility's estimate, in standard errors; at 5 or more these data reject the "
+              "rival. <code>campaign plan</code> designs the flights that would settle the others.</p>"))
     if doc.get("gain"):
         body = _gain(doc["gain"])
         for png in sorted((folder / "plots").glob("response_*.png")):
@@ -102,8 +112,9 @@ def diagnosis_report(folder: Path) -> str:
         sections.append(html.section("extension", "Extension (JSBSim XML)",
                                      f"<p>Merged into <code>{escape(str(doc['extension']))}</code>.</p><details><summary>"
                                      f"{escape(xml.name)}</summary><pre>{escape(xml.read_text())}</pre></details>"))
-    data = Path(doc["data"]["path"])
+    paths = [Path(p) for p in doc["data"].get("paths", [doc["data"]["path"]])]
+    manifests = {("data manifest" if len(paths) == 1 else f"data manifest {i}"): p / "manifest.json"
+                 for i, p in enumerate(paths, 1)}
     sections.append(html.section("trace", "Traceability", html.traceability(
-        folder, None, {"diagnosis": folder / "diagnosis.json", "data manifest": data / "manifest.json",
-                       "extension": folder / "extension.xml"})))
+        folder, None, {"diagnosis": folder / "diagnosis.json", **manifests, "extension": folder / "extension.xml"})))
     return html.document("Diagnosis", f"{doc['data']['path']} against {doc['model']}", sections)

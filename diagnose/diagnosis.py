@@ -33,6 +33,7 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
+from diagnose.separation import cause_rivals, noise_weights
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
@@ -114,7 +115,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
         by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
                                                                                                  data)) for c in aero],
-                                                      data))) if aero else {}
+                                                      data, weights=noise_weights(data, results, lags)))) if aero else {}
         reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
         noisy = [floor.noisy(c.variables) for c in causes]
         data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
@@ -126,6 +127,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         if better is None:
             break
         compat = better
+    rivals = cause_rivals(causes, results, terms, data, floor, compat, lags) if causes else []
     aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
@@ -138,4 +140,4 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
     corrected.forget()
     return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
-                     logs, held)
+                     logs, held, rivals)

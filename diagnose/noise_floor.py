@@ -386,7 +386,7 @@ class NoiseFloor:
         return v[:, keep] * np.sqrt(w[keep])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
-              radius: float = REACH_SE) -> list[dict]:
+              radius: float = REACH_SE, weights=None) -> list[dict]:
         """What the remaining instrument errors can make of each cause's fitted shape.
 
         For a cause on coefficient ``c`` with terms ``T`` and fitted contribution ``f``
@@ -394,7 +394,10 @@ class NoiseFloor:
         (projected on its span, as a fit would see them), and the errors within
         ``radius`` standard errors (Mahalanobis, the data compatibility's covariance)
         that come closest to ``f`` are found (a trust-region least-squares problem). The
-        part of ``f`` left is what no plausible instrument error can make. Each
+        part of ``f`` left is what no plausible instrument error can make. With ``weights`` (one
+        over each coefficient's noise per effective sample, CL, CD, Cm) the errors must also fit
+        the other coefficients' residuals, each weighted so: an error that would make the cause
+        but leave in CD or Cm a signature the data do not hold cannot make it. Each
         instrument error alone, at any size, is also fitted to ``f``: the alternatives
         that make most of it, with the size they would need.
 
@@ -438,7 +441,19 @@ class NoiseFloor:
             if resp:
                 assert all(len(r) == len(data) for r in resp)
                 seen = through_terms(np.column_stack([r[f"r_{c}"].to_numpy() for r in resp]))
-                made = seen @ _trust_region(seen, f, radius)
+                a, b = seen, f
+                if weights is not None:
+                    w = dict(zip(COEFFS, weights))
+                    a, b = [w[c] * seen], [w[c] * f]
+                    for o in COEFFS:
+                        if o != c and w[o] > 0:
+                            cols = np.column_stack([r[f"r_{o}"].to_numpy() for r in resp])
+                            y = data[f"r_{o}"].to_numpy(float)
+                            ok = np.isfinite(y) & np.isfinite(cols).all(axis=1)
+                            a.append(w[o] * np.where(ok[:, None], cols - cols[ok].mean(axis=0), 0.0))
+                            b.append(w[o] * np.where(ok, y - y[ok].mean(), 0.0))
+                    a, b = np.vstack(a), np.concatenate(b)
+                made = seen @ _trust_region(a, b, radius)
                 for j, (ch, err) in enumerate(self.uncertain):
                     k, share = alone(seen @ to_axes[:, j] * se[j])  # one standard error of this error alone
                     alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k, "se": float(se[j]),

@@ -7,8 +7,18 @@ import numpy as np
 import pandas as pd
 
 from diagnose.causes import Cause
+from diagnose.separation import SETTLED_SE
 from diagnose.stepwise import StepwiseResult
 from identify.compat import CompatResult
+def _where(rival: dict) -> str:
+    """Where the data reject a rival most: the coefficients (or the data compatibility) holding most
+    of the likelihood ratio."""
+    by = {k: v for k, v in rival.get("by_coefficient", {}).items() if v > 0}
+    total = sum(by.values()) or 1.0
+    return ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(by.items(), key=lambda kv: -kv[1])
+                     if v >= 0.1 * total)
+
+
 @dataclass
 class Diagnosis:
     """The result: residuals, stepwise fits, the causes named and those rejected.
@@ -33,6 +43,8 @@ class Diagnosis:
         The data compatibility (instrument errors estimated and corrected first).
     logs, held_logs : list of Log
         The logs fitted on and held out, as corrected.
+    rivals : list of dict
+        Each named aero cause against each rival explanation (:func:`diagnose.separation.pair`).
     """
 
     data: pd.DataFrame
@@ -46,6 +58,7 @@ class Diagnosis:
     compat: CompatResult | None = None
     logs: list = field(default_factory=list)
     held_logs: list = field(default_factory=list)
+    rivals: list = field(default_factory=list)
 
     @property
     def discrepancy(self) -> bool:
@@ -124,10 +137,20 @@ class Diagnosis:
                          f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
                          f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
                          f"noise floor of {v['noise_floor']:.3g}{made}; held-out gain x{v['holdout_gain']:.2f}")
+            settled = {(r["term"] or r["rival"]): r for r in e.get("rivals", []) if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):
+                if a["term"] in settled:
+                    continue
                 lines.append(f"   caution: the data hardly separate it from {a['term']} "
                              f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
             for a in e.get("sensor_alternatives", []):
+                r = settled.get(f"{a['channel']} {a['error']}")
+                if r is not None:
+                    lines.append(f"   not a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                                 f"{a['explains_pct']:.0f} % of it in {c.coefficient} alone; fitted to CL, CD, Cm and "
+                                 f"the data compatibility together, these data reject it at {r['separation_se']:.1f} "
+                                 f"standard errors ({_where(r)} of the evidence)")
+                    continue
                 if a.get("unmeasured"):
                     lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
                                  f"{a['explains_pct']:.0f} % of it; the data compatibility could not measure that "
@@ -136,6 +159,11 @@ class Diagnosis:
                 lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
                              f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
                              f"0 +- {a['se']:.2g} after correction ({abs(a['needs_se']):.1f} standard errors away)")
+            for r in e.get("rivals", []):
+                if r["separation_se"] < SETTLED_SE:
+                    lines.append(f"   rival {r['rival']}: these data separate it from the cause by only "
+                                 f"{r['separation_se']:+.1f} standard errors (`campaign plan` designs the flights "
+                                 f"that would settle it)")
         if self.causes and self.rejected:
             lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
         lines.append("")

@@ -1,0 +1,353 @@
+"""Rival explanations of a cause, and how far data separate them.
+
+A cause the diagnosis names may have rivals: an instrument error that alone would make most of it
+(its ``sensor_alternatives``), or another term nearly as strong when it entered
+(``hardly_separated_from``). Each explanation is a hypothesis: columns over the stacked residuals of
+CL, CD and Cm, each coefficient's rows weighted by one over its noise per effective sample, and, for
+an instrument error the data compatibility measured, its estimate as one more observation. All
+share an intercept per coefficient and the terms of the other causes on it.
+
+The separation of a cause A from a rival B is the likelihood ratio of their fits in standard errors,
+``sqrt(RSS_B - RSS_A)`` (negative when the rival fits better). The same algebra predicts data not
+yet flown (:mod:`campaign.plan`): A's fit taken as the truth, B refitted to A's prediction leaves
+``c - b' G^+ b`` with ``G = Z_B' Z_B``, ``b = Z_B' z_A``, ``c = z_A' z_A`` summed over old and new
+rows (T-optimal discrimination, Atkinson and Fedorov 1975), less what A's fitted noise adds to it
+(:func:`left`). The old rows enter through these sums, which ``diagnosis.json`` stores; a flight
+adds its own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from diagnose.noise_floor import design_matrix
+from diagnose.residuals import COEFFS
+from diagnose.terms import Term
+
+#: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
+#: units, scale [-], delay [s]); the signature is linear in it (the model's answer is linearised).
+UNIT = {"bias": 0.1, "scale": 0.01, "delay": 0.01}
+#: A rival is settled when the data separate it from the cause by this many standard errors.
+SETTLED_SE = 5.0
+
+
+def term_to_dict(t: Term) -> dict:
+    """A :class:`Term` as JSON (infinite clipping ranges as null)."""
+    return {"kind": t.kind, "variables": list(t.variables), "knots": list(t.knots), "centers": list(t.centers),
+            "ranges": [[None if not np.isfinite(x) else float(x) for x in r] for r in t.ranges]}
+
+
+def term_from_dict(d: dict) -> Term:
+    """The inverse of :func:`term_to_dict`."""
+    inf = {0: -np.inf, 1: np.inf}
+    return Term(d["kind"], tuple(d["variables"]), tuple(float(k) for k in d["knots"]),
+                tuple(float(c) for c in d["centers"]),
+                tuple(tuple(inf[i] if x is None else float(x) for i, x in enumerate(r)) for r in d["ranges"]))
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One explanation of a discrepancy.
+
+    Attributes
+    ----------
+    name : str
+        ``"CL vs alpha_deg"`` or ``"alpha_deg scale"``.
+    kind : {"aero", "sensor"}
+    coefficient : str
+        The coefficient an aero hypothesis acts on.
+    terms : tuple of Term
+        An aero hypothesis's terms.
+    channel, error : str
+        A sensor hypothesis's instrument error.
+    prior : (float, float) or None
+        What the data compatibility measured of that error in the data as corrected: estimate and
+        standard error (channel units; scale [-], delay [s]); None if it could not measure it.
+    """
+
+    name: str
+    kind: str
+    coefficient: str = ""
+    terms: tuple = ()
+    channel: str = ""
+    error: str = ""
+    prior: tuple | None = None
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.channel, self.error
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "coefficient": self.coefficient,
+                "terms": [term_to_dict(t) for t in self.terms], "channel": self.channel, "error": self.error,
+                "prior": None if self.prior is None else [float(x) for x in self.prior]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Hypothesis":
+        return cls(d["name"], d["kind"], d.get("coefficient", ""), tuple(term_from_dict(t) for t in d["terms"]),
+                   d.get("channel", ""), d.get("error", ""), None if d.get("prior") is None else tuple(d["prior"]))
+
+
+class Stack:
+    """One data set's rows, the three coefficients stacked and weighted.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        Residual data: the variables the terms read, and ``r_CL``... if ``y`` is wanted.
+    weights : sequence of 3 float
+        One over the noise per effective sample of CL, CD and Cm.
+    signatures : dict
+        (channel, error) -> array (3, n): the residuals one unit of that error makes [per unit].
+    context : dict
+        Coefficient -> terms of the other causes on it (fitted with every hypothesis).
+    """
+
+    def __init__(self, frame: pd.DataFrame, weights, signatures: dict, context: dict) -> None:
+        self.frame, self.w, self.sig, self.context = frame, np.asarray(weights, float), signatures, context
+        self.n = len(frame)
+
+    def _blocks(self, per: dict[str, np.ndarray], width: int) -> np.ndarray:
+        out = np.zeros((3 * self.n, width))
+        for i, c in enumerate(COEFFS):
+            if c in per:
+                out[i * self.n:(i + 1) * self.n] = per[c] * self.w[i]
+        return out
+
+    def nuisance(self) -> np.ndarray:
+        """An intercept per coefficient, then the context terms (3n, q)."""
+        cols = [self._blocks({c: np.ones((self.n, 1))}, 1) for c in COEFFS]
+        for c in COEFFS:
+            terms = self.context.get(c, [])
+            if terms:
+                cols.append(self._blocks({c: design_matrix(terms, self.frame)[:, 1:]}, sum(t.width for t in terms)))
+        return np.hstack(cols)
+
+    def columns(self, h: Hypothesis) -> np.ndarray:
+        """The hypothesis's own columns (3n, p)."""
+        if h.kind == "aero":
+            return self._blocks({h.coefficient: design_matrix(list(h.terms), self.frame)[:, 1:]},
+                                sum(t.width for t in h.terms))
+        s = self.sig[h.key]
+        return self._blocks({c: s[i][:, None] for i, c in enumerate(COEFFS)}, 1)
+
+    def target(self) -> np.ndarray:
+        """The weighted residuals, stacked (3n)."""
+        return self._blocks({c: self.frame[f"r_{c}"].to_numpy(float)[:, None] for c in COEFFS}, 1)[:, 0]
+
+    def designs(self, hs, y: np.ndarray | None = None) -> list[np.ndarray]:
+        """Nuisance and own columns of each hypothesis (3n, q + p), the rows where any of them (or
+        ``y``) is not finite zeroed in all (and in ``y``, in place)."""
+        nuis = self.nuisance()
+        zs = [np.hstack([nuis, self.columns(h)]) for h in hs]
+        bad = np.zeros(3 * self.n, bool)
+        for z in zs:
+            bad |= ~np.isfinite(z).all(axis=1)
+        if y is not None:
+            bad |= ~np.isfinite(y)
+            y[bad] = 0.0
+        for z in zs:
+            z[bad] = 0.0
+        return zs
+
+
+def _prior_rows(hs: tuple[Hypothesis, Hypothesis]) -> list[tuple[int, float, float]]:
+    """(which hypothesis, 1 / se, estimate / se) of each measured instrument error among ``hs``."""
+    return [(i, 1.0 / h.prior[1], h.prior[0] / h.prior[1]) for i, h in enumerate(hs)
+            if h.kind == "sensor" and h.prior is not None and h.prior[1] > 0]
+
+
+def _with_priors(z: np.ndarray, which: int, priors: list) -> np.ndarray:
+    rows = np.zeros((len(priors), z.shape[1]))
+    for r, (i, w, _) in enumerate(priors):
+        if i == which:
+            rows[r, -1] = w
+    return np.vstack([z, rows])
+
+
+def _sums(zb: np.ndarray, za: np.ndarray, za_hat: np.ndarray) -> dict:
+    """The sums of one way over some rows: the rival's design ``zb``, the truth's ``za`` and its
+    prediction ``za_hat``."""
+    return {"G": zb.T @ zb, "b": zb.T @ za_hat, "c": float(za_hat @ za_hat), "H": za.T @ za, "C": zb.T @ za}
+
+
+def left(stats: dict) -> float:
+    """What a rival refitted to the truth's prediction leaves, in standard errors.
+
+    ``c - b'G^+b`` is the squared distance; the prediction is the truth's fit to noisy data, whose
+    noise the rival cannot follow either: ``tr((H - C'G^+C) V)`` of it (``V``, the fit's
+    covariance in these units, from the data it was fitted on) is taken off, so that the
+    expectation is the separation the data will show.
+    """
+    g, b = np.asarray(stats["G"], float), np.asarray(stats["b"], float)
+    gi = np.linalg.pinv(g, rcond=1e-12)
+    lam = float(stats["c"]) - float(b @ gi @ b)
+    if "V" in stats:
+        h, cr = np.asarray(stats["H"], float), np.asarray(stats["C"], float)
+        lam -= float(np.trace((h - cr.T @ gi @ cr) @ np.asarray(stats["V"], float)))
+    return float(np.sqrt(max(lam, 0.0)))
+
+
+def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
+    """A cause ``a`` and its rival ``b`` fitted to ``stack``'s residuals.
+
+    Returns
+    -------
+    dict
+        ``separation_se`` (the likelihood ratio in standard errors, negative if the rival fits
+        better), ``by_coefficient`` (that likelihood ratio's share from each coefficient's rows and
+        from the data compatibility's measurement, in squared standard errors), ``predicted_se`` (what the fits, taken as the truth each way, separate on these
+        rows; the smaller way), ``theta`` (each fit's nuisance and own coefficients) and
+        ``stats`` (the sums of :func:`left` each way: a as the truth, then b), as JSON.
+    """
+    hs = (a, b)
+    priors = _prior_rows(hs)
+    rows = stack.target()
+    zs = [_with_priors(z, i, priors) for i, z in enumerate(stack.designs(hs, rows))]
+    y = np.concatenate([rows, [t for _, _, t in priors]])
+    thetas, rss, fitted = [], [], []
+    for z in zs:
+        th = np.linalg.lstsq(z, y, rcond=None)[0]
+        thetas.append(th)
+        fitted.append(z @ th)
+        rss.append(float(np.sum((y - z @ th) ** 2)))
+    d = rss[1] - rss[0]
+    blocks = {c: slice(i * stack.n, (i + 1) * stack.n) for i, c in enumerate(COEFFS)}
+    blocks["data compatibility"] = slice(3 * stack.n, len(y))
+    by = {k: float(np.sum((y[s] - fitted[1][s]) ** 2) - np.sum((y[s] - fitted[0][s]) ** 2)) for k, s in blocks.items()}
+    stats = [_sums(zs[1], zs[0], fitted[0]), _sums(zs[0], zs[1], fitted[1])]
+    for st in stats:
+        st["V"] = np.linalg.pinv(st["H"], rcond=1e-12, hermitian=True)
+    return {"cause": a.name, "rival": b.name, "kind": b.kind, "hypotheses": [a.to_dict(), b.to_dict()],
+            "separation_se": float(np.sign(d) * np.sqrt(abs(d))), "predicted_se": min(left(s) for s in stats),
+            "by_coefficient": by, "theta": [t.tolist() for t in thetas], "weights": stack.w.tolist(),
+            "stats": [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in stats]}
+
+
+def predicted(stack: Stack, doc: dict) -> list[dict]:
+    """The sums of a :func:`pair` document's two ways over ``stack``'s rows (new data: the fits of
+    the old ones taken as the truth; no instrument-error observation), to add to the old sums."""
+    hs = [Hypothesis.from_dict(h) for h in doc["hypotheses"]]
+    zs = stack.designs(hs)
+    out = []
+    for truth, rival in ((0, 1), (1, 0)):
+        z_hat = zs[truth] @ np.asarray(doc["theta"][truth], float)
+        out.append(_sums(zs[rival], zs[truth], z_hat))
+    return out
+
+
+def add(a: list[dict], b: list[dict]) -> list[dict]:
+    """Sums of two data sets, each way (the fit's covariance ``V`` stays the first's: the fit
+    was made on it)."""
+    out = []
+    for x, y in zip(a, b):
+        z = {k: np.asarray(x[k], float) + np.asarray(y[k], float) for k in ("G", "b", "H", "C")}
+        z["c"] = float(x["c"]) + float(y["c"])
+        if "V" in x:
+            z["V"] = np.asarray(x["V"], float)
+        out.append(z)
+    return out
+
+
+def separation(stats: list[dict]) -> float:
+    """The smaller of the two ways' :func:`left`: the separation whichever hypothesis is true."""
+    return min(left(s) for s in stats)
+
+
+def noise_weights(data: pd.DataFrame, results: dict, lags) -> np.ndarray:
+    """One over each coefficient's residual noise per effective sample, after its fitted terms:
+    ``sqrt(n_eff / n) / rms`` (an autocorrelated residual counts fewer independent samples)."""
+    w = []
+    for c in COEFFS:
+        e = data[f"r_{c}"].to_numpy(float) - results[c].predict(data)
+        e = np.where(np.isfinite(e), e, 0.0)
+        rms = float(np.sqrt(np.mean(e ** 2)))
+        w.append(np.sqrt(lags.n_eff(e) / max(len(e), 1)) / rms if rms > 0 else 0.0)
+    return np.array(w)
+
+
+def compat_prior(compat, channel: str, error: str) -> tuple[float, float] | None:
+    """What the data compatibility measured of an instrument error in the logs as corrected."""
+    if compat is None:
+        return None
+    try:
+        p = compat.get(f"{channel}.{error}")
+    except KeyError:
+        return None
+    if not p.identifiable or not np.isfinite(p.se) or p.se <= 0:
+        return None
+    return (0.0 if p.applied else float(p.estimate), float(p.se))
+
+
+def signatures(floor, keys) -> dict:
+    """(channel, error) -> the residuals (3, n) one unit of each error makes in ``floor``'s logs."""
+    keys = sorted(set(keys))
+    frames = floor.realization_batch(set(), [{"k": 0, "noise": False, "errors": np.array([UNIT[e]]),
+                                              "names": [(ch, e)]} for ch, e in keys]) if keys else []
+    return {k: np.stack([f[f"r_{c}"].to_numpy(float) for c in COEFFS]) / UNIT[k[1]] for k, f in zip(keys, frames)}
+
+
+def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat) -> list[Hypothesis]:
+    """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
+    they alone make most of it at a plausible size), and each term nearly as strong as one of its
+    terms when that entered (the cause with that term swapped)."""
+    out = []
+    for a in alternatives:
+        out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
+                              prior=compat_prior(compat, a["channel"], a["error"])))
+    by_label = {t.label: t for t in pool}
+    for t in cause.terms:
+        for a in result.close.get(t.label, []):
+            r = by_label.get(a["term"])
+            if r is None:
+                continue
+            terms = tuple(r if u == t else u for u in cause.terms)
+            out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
+                                  cause.coefficient, terms))
+    return out
+
+
+def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, compat, lags) -> list[dict]:
+    """:func:`pair` of every named (or unconfirmed) aero cause with each of its rivals.
+
+    Parameters
+    ----------
+    causes : list of Cause
+        After the verdict.
+    results : dict
+        Coefficient -> StepwiseResult.
+    pools : dict
+        Coefficient -> candidate terms.
+    data : DataFrame
+        The residual data fitted on.
+    floor : NoiseFloor
+        Of the same logs (the instrument errors' signatures).
+    compat : CompatResult or None
+    lags : Lags
+    """
+    aero = [c for c in causes if c.kind == "aero" and (c.verdict.get("accepted") or c.verdict.get("unconfirmed"))]
+    rivals = {id(c): rival_hypotheses(c, results[c.coefficient], pools[c.coefficient],
+                                      c.evidence.get("sensor_alternatives", []), compat) for c in aero}
+    if not any(rivals.values()):
+        return []
+    weights = noise_weights(data, results, lags)
+    sig = signatures(floor, [h.key for hs in rivals.values() for h in hs if h.kind == "sensor"])
+    out = []
+    for c in aero:
+        if not rivals[id(c)]:
+            continue
+        context = {k: [t for o in aero if o is not c and o.coefficient == k for t in o.terms] for k in COEFFS}
+        stack = Stack(data, weights, sig, context)
+        mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
+        for h in rivals[id(c)]:
+            doc = pair(stack, mine, h)
+            doc["context"] = {k: [term_to_dict(t) for t in v] for k, v in context.items()}
+            out.append(doc)
+            swapped = [t.label for t in h.terms if t not in c.terms]
+            c.evidence.setdefault("rivals", []).append(
+                {"rival": h.name, "kind": h.kind, "term": swapped[0] if swapped else None,
+                 "channel": h.channel or None, "error": h.error or None, "separation_se": doc["separation_se"],
+                 "predicted_se": doc["predicted_se"], "by_coefficient": doc["by_coefficient"]})
+    return out
