@@ -121,8 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Residuals of the model against measured data, the cause named by "
                                      "stepwise regression, the model extended with it (JSBSim XML merged into a "
                                      "copy), and the gain on held-out manoeuvres.")
-    dia.add_argument("--data", required=True, metavar="PATH",
-                     help="measured logs: a campaign folder, a folder of CSV logs with JSON sidecars, or a file")
+    dia.add_argument("--data", required=True, metavar="PATH", action="append",
+                     help="measured logs: a campaign folder, a folder of CSV logs with JSON sidecars, or a file "
+                          "(repeat to diagnose several together, e.g. a campaign and the flights `plan` designed)")
     dia.add_argument("--model", required=True, metavar="AIRCRAFT_DIR", help="the model aircraft folder")
     dia.add_argument("--out", required=True, metavar="DIR", help="new folder for the report")
     which = dia.add_mutually_exclusive_group()
@@ -158,6 +159,20 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--map", required=True, metavar="MAP.toml", help="channel map: names, units, constants, "
                                                                        "aircraft data (see the README)")
     imp.add_argument("--out", required=True, metavar="DIR", help="folder for the logs and the import report")
+
+    pla = sub.add_parser("plan", help="design the flights that separate a diagnosis's rival explanations",
+                         description="Fly candidate status points and manoeuvres on the model, predict how far each "
+                                     "would separate each rival explanation the diagnosis could not tell apart, and "
+                                     "choose the flights that separate them most per flight minute: a matrix TOML "
+                                     "(plan.toml) and a plan report.")
+    pla.add_argument("--diagnosis", required=True, metavar="DIR", help="a diagnosis folder (diagnosis.json)")
+    pla.add_argument("--budget-min", type=float, metavar="M",
+                     help="flight minutes to spend (default: a quarter of the minutes already flown)")
+    pla.add_argument("--matrix", metavar="FILE", help="candidate points to choose from (default: around the "
+                                                     "diagnosis's conditions)")
+    pla.add_argument("--out", metavar="DIR", help="new folder for the plan (default DIR/plan)")
+    pla.add_argument("--jobs", type=_jobs, default=1, help="parallel workers flying the candidates (default 1)")
+    pla.add_argument("--quiet", action="store_true", help="no progress bar")
 
     pts = sub.add_parser("points", help="list the status points of a matrix",
                          description="List the status points of a matrix with their manoeuvres.")
@@ -284,13 +299,19 @@ def _main(args) -> int:
             return 0
         if args.command == "diagnose":
             from campaign.diagnose import run_diagnosis
-            doc = run_diagnosis(Path(args.data), Path(args.model), Path(args.out),
+            doc = run_diagnosis([Path(d) for d in args.data], Path(args.model), Path(args.out),
                                 plots="none" if args.no_plots else args.plots, jobs=args.jobs,
                                 progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster,
                                 refine=args.refine, bands=args.bands)
             print(doc["summary"])
             print(f"report in {args.out}")
             _html_report(Path(args.out))
+            return 0
+        if args.command == "plan":
+            from campaign.plan import plan
+            result = plan(Path(args.diagnosis), args.out and Path(args.out), args.budget_min, args.matrix, args.jobs,
+                          progress=not args.quiet and sys.stderr.isatty())
+            print(result["text"], end="")
             return 0
         if args.command == "import":
             from campaign.importer import import_files, report_text

@@ -151,8 +151,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
 
     Parameters
     ----------
-    data_path, model_dir, out : Path
-        Measured logs (:func:`load_data`), the model aircraft folder, a new report folder.
+    data_path : Path or list of Path
+        Measured logs (:func:`load_data`), several read together (a campaign and the flights
+        ``campaign plan`` designed).
+    model_dir, out : Path
+        The model aircraft folder, a new report folder.
     plots : {"key", "all", "none"} or bool
         Which plots to draw (:data:`PLOTS`; True is ``key``, False ``none``). The overview of
         the residuals against each cause is always drawn unless ``none``.
@@ -184,8 +187,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
+    paths = [Path(p) for p in data_path] if isinstance(data_path, (list, tuple)) else [Path(data_path)]
     try:
-        logs = load_data(data_path)
+        logs = [lg for p in paths for lg in load_data(p)]
+        names = [Path(lg.path).name for lg in logs]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise UserError(f"--data: log {twice[0]} is in the data more than once (each --data must hold other "
+                            f"flights)")
         train, held = split(logs)
     except UserError:
         if client is not None:
@@ -193,13 +202,13 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise
     try:
         with on_cluster(client):
-            return _diagnosis(data_path, model, out, plots, jobs, progress, logs, train, held, client, refine, bands)
+            return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands)
     finally:
         if client is not None:
             client.close()
 
 
-def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
+def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
                train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`identify.workers.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
@@ -228,7 +237,8 @@ def _diagnosis(data_path: Path, model: Path, out: Path, plots: str, jobs: int, p
     finally:
         ahead.stop()
     out.mkdir(parents=True, exist_ok=True)
-    doc = document(diag, {"path": str(data_path), "logs": len(logs), "train": [lg.path for lg in train],
+    doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
+                          "logs": len(logs), "train": [lg.path for lg in train],
                           "held_out": [lg.path for lg in held]}, str(model))
     before = diag.held
     raw_held, held = held, diag.held_logs  # as corrected for instrument errors

@@ -1,0 +1,338 @@
+"""Design the next flight: the status points and manoeuvres that best separate a diagnosis's rivals.
+
+``campaign plan --diagnosis DIR`` reads the rival explanations the diagnosis could not tell apart
+(:mod:`diagnose.separation`: a cause against an instrument error or another term, separated by
+fewer than 5 standard errors), flies every candidate flight on the model under test (noise-free:
+the expected data), and predicts how far each flight would separate each pair, with the cause's
+and the rival's fits to the old data taken in turn as the truth (T-optimal discrimination). Flights
+are chosen greedily by separation gained per flight minute until every pair is predicted beyond
+:data:`PLAN_SE` or the budget is spent. Writes ``plan.toml`` (a matrix ``campaign run`` flies),
+``plan.json`` and ``plan.txt``.
+
+Candidates: the ``--matrix`` given (its points, each with its own manoeuvres), or,
+by default, one factor at a time away from every condition of the old data: 6,000 ft above and below,
+Mach 0.1 either side, and the aircraft's lowest, middle and highest flap angle; each gear up (2-3-1-1,
+multisine) and gear down (2-3-1-1, multisine, gear extension, gear retraction). A flight already in
+the old data is not a candidate.
+"""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.diagnose import load_data
+from campaign.engine import FlightConfig, check_flaps
+from campaign.errors import UserError
+from campaign.matrix import Matrix, StatusPoint, load_matrix
+from campaign.store import read_manifest
+from diagnose import separation as sep
+from identify.logs import Log
+
+#: Flights are added until every rival is predicted this far from its cause [standard errors]: the
+#: measured separation scatters about the prediction by about one, and must clear
+#: :data:`diagnose.separation.SETTLED_SE`.
+PLAN_SE = 7.0
+#: Default budget: this share of the old data's flight time.
+BUDGET_SHARE = 0.25
+#: Candidate manoeuvres by gear.
+GEAR_UP = ("doublet", "multisine")
+GEAR_DOWN = ("doublet", "multisine", "gear_extension", "gear_retraction")
+#: Excitation inputs: one per point (identification pairs one eq. (3) fit per gear).
+EXCITATION = ("doublet", "multisine")
+
+
+def read_diagnosis(folder: Path) -> dict:
+    """``diagnosis.json`` of a diagnosis folder, with one-line errors."""
+    path = Path(folder) / "diagnosis.json"
+    if not path.is_file():
+        raise UserError(f"{path}: not found (--diagnosis takes the folder `campaign diagnose --out` wrote)")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: does not read as JSON ({exc})") from None
+    if "rivals" not in doc:
+        raise UserError(f"{path}: rivals: missing (written before rivals were measured); diagnose again")
+    return doc
+
+
+def open_rivals(doc: dict, where: Path) -> list[dict]:
+    """The rivals not yet separated; a one-line error if there is nothing to separate."""
+    rivals = doc["rivals"]
+    if not rivals:
+        raise UserError(f"{where}: rivals: nothing to separate (the diagnosis names no rival explanation)")
+    left = [r for r in rivals if r["separation_se"] < sep.SETTLED_SE]
+    if not left:
+        done = "; ".join(f"{r['rival']} at {r['separation_se']:.1f}" for r in rivals)
+        raise UserError(f"{where}: rivals: nothing to separate (these data already reject every rival at "
+                        f"{sep.SETTLED_SE:g} standard errors or more: {done})")
+    return left
+
+
+def data_paths(doc: dict) -> list[Path]:
+    d = doc["data"]
+    return [Path(p) for p in d.get("paths", [d["path"]])]
+
+
+def minutes(log: Log) -> float:
+    t = log.data["t_s"].to_numpy()
+    return float(t[-1] - t[0]) / 60.0
+
+
+def _old_matrix(paths: list[Path]) -> Matrix | None:
+    """The matrix the old campaign flew, if its manifest names one that still reads."""
+    for p in paths:
+        m = read_manifest(p) if p.is_dir() else None
+        f = (m or {}).get("settings", {}).get("matrix")
+        if f and Path(f).is_file():
+            try:
+                return load_matrix(f)
+            except UserError:
+                return None
+    return None
+
+
+def other_flaps(source: AircraftSource, like: Matrix | None, have: set[float]) -> list[float]:
+    """Up to three flap angles not in ``have``: the aircraft's lowest, middle and highest, each snapped
+    to the nearest angle of ``like``'s CLmax table in range (the stall margin is known there)."""
+    from campaign.engine import flap_schedule
+    s = flap_schedule(source)
+    if not s.moves:
+        return []
+    lo, hi = s.range
+    known = [f for f, _ in (like.clmax_by_flap if like else ()) if lo - 1e-6 <= f <= hi + 1e-6]
+    out = []
+    for f in (lo, 0.5 * (lo + hi), hi):
+        f = min(known, key=lambda k: abs(k - f)) if known else round(f, 1)
+        if f not in have and f not in out:
+            out.append(float(f))
+    return out
+
+
+def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None,
+               given: Matrix | None) -> list[StatusPoint]:
+    """Candidate points, each with its candidate manoeuvres (see the module's docstring): one factor
+    at a time away from each condition of the old data."""
+    if given is not None:
+        return list(given.points)
+    conditions = sorted({lg.condition for lg in logs})
+    flaps = other_flaps(source, like, {f for _, _, f in conditions})
+    seen, out = set(), []
+    for alt, mach, flap in conditions:
+        variants = [(alt, mach, flap), (alt + 6000.0, mach, flap), (max(alt - 6000.0, 1500.0), mach, flap),
+                    (alt, round(mach - 0.1, 4), flap), (alt, round(mach + 0.1, 4), flap)]
+        variants += [(alt, mach, f) for f in flaps]
+        for a, m, f in variants:
+            if not 0.15 <= m <= 0.85:
+                continue
+            for down in (False, True):
+                if (a, m, f, down) not in seen:
+                    seen.add((a, m, f, down))
+                    out.append(StatusPoint(a, m, f, down, None, GEAR_DOWN if down else GEAR_UP, "candidates"))
+    return out
+
+
+def _matrix(name: str, points: list[StatusPoint], like: Matrix | None) -> Matrix:
+    return Matrix(name, name, tuple(points), like.maneuver_params if like else (),
+                  like.clmax_by_flap if like else (), "")
+
+
+def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, out: Path, jobs: int,
+                   progress: bool) -> list[Log]:
+    """Fly the candidates on the model, noise-free, into ``out``; the logs flown."""
+    from campaign.runner import run_campaign
+    from identify.logs import read_campaign
+    cfg = FlightConfig(AircraftSource(str(model), load_effects(None)), 0, "none",
+                       like.maneuver_params if like else (), like.clmax_by_flap if like else ())
+    run_campaign(_matrix("candidates", points, like), cfg, out, jobs=jobs, progress=progress)
+    return read_campaign(out)
+
+
+def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, jobs: int) -> list[list[list[dict]]]:
+    """Per log, per rival: the sums each way (:func:`diagnose.separation.predicted`)."""
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.noise_floor import NoiseFloor
+    from diagnose.residuals import residual_data
+    evaluator = ModelEvaluator(model, jobs=jobs)
+    try:
+        frame = residual_data(logs, evaluator)
+        keys = sorted({(h["channel"], h["error"]) for r in rivals for h in r["hypotheses"] if h["kind"] == "sensor"})
+        sig = {}
+        if keys:
+            floor = NoiseFloor(logs, evaluator, {k: float(v) for k, v in noise.items()}, realizations=0, jobs=jobs)
+            sig = sep.signatures(floor, keys)
+    finally:
+        evaluator.close()
+    ids = frame["log"].to_numpy()
+    out = []
+    for i in range(len(logs)):
+        rows = np.flatnonzero(ids == i)
+        part = frame.iloc[rows].reset_index(drop=True)
+        s = {k: v[:, rows] for k, v in sig.items()}
+        per = []
+        for r in rivals:
+            context = {c: [sep.term_from_dict(t) for t in ts] for c, ts in r.get("context", {}).items()}
+            per.append(sep.predicted(sep.Stack(part, r["weights"], s, context), r))
+        out.append(per)
+    return out
+
+
+def choose(old: list[list[dict]], flights: list[dict], budget: float) -> tuple[list[int], list[list[dict]]]:
+    """Greedy choice: the flight that gains most separation (capped at :data:`PLAN_SE` per rival,
+    squared) per minute, until every rival reaches it or the budget is spent.
+
+    ``flights``: ``{"minutes", "sums" (per rival), "point", "maneuver"}``; returns the chosen
+    indices in order and the sums they reach."""
+    def score(sums):
+        return sum(min(sep.separation(s), PLAN_SE) ** 2 for s in sums)
+
+    now, chosen, spent = old, [], 0.0
+    while min(sep.separation(s) for s in now) < PLAN_SE:
+        excited = {flights[j]["point"] for j in chosen if flights[j]["maneuver"] in EXCITATION}
+        base, best = score(now), None
+        for j, f in enumerate(flights):
+            if j in chosen or spent + f["minutes"] > budget or (f["maneuver"] in EXCITATION and f["point"] in excited):
+                continue
+            trial = [sep.add(a, b) for a, b in zip(now, f["sums"])]
+            gain = (score(trial) - base) / max(f["minutes"], 1e-6)
+            if gain > 0 and (best is None or gain > best[0]):
+                best = (gain, j, trial)
+        if best is None:
+            break
+        chosen.append(best[1])
+        now = best[2]
+        spent += flights[best[1]]["minutes"]
+    return chosen, now
+
+
+def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = None, matrix: str | None = None,
+         jobs: int = 1, progress: bool = False) -> dict:
+    """The whole plan; returns what ``plan.json`` holds (see the module's docstring)."""
+    diagnosis = Path(diagnosis)
+    doc = read_diagnosis(diagnosis)
+    where = diagnosis / "diagnosis.json"
+    rivals = open_rivals(doc, where)
+    if budget_min is not None and not budget_min > 0:
+        raise UserError(f"--budget-min: {budget_min:g} minutes; the plan needs a budget of more than 0")
+    out = Path(out) if out else diagnosis / "plan"
+    if out.exists() and any(out.iterdir()):
+        raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
+    model = check_aircraft_folder(Path(doc["model"]))
+    paths = data_paths(doc)
+    logs = [lg for p in paths for lg in load_data(p)]
+    old_minutes = sum(minutes(lg) for lg in logs)
+    budget = BUDGET_SHARE * old_minutes if budget_min is None else float(budget_min)
+    like = _old_matrix(paths)
+    given = load_matrix(matrix) if matrix else None
+    source = AircraftSource(str(model), load_effects(None))
+    points = candidates(logs, source, like, given)
+    check_flaps(source, [(f"{given.path if given else 'candidates'}: {p.entry}.flap_deg", p.flap_deg)
+                         for p in points])
+    flown_before = {(lg.point, lg.maneuver) for lg in logs}
+    points = [replace(p, maneuvers=tuple(m for m in p.maneuvers if (p.id, m) not in flown_before)) for p in points]
+    points = [p for p in points if p.maneuvers]
+    like = given or like
+    out.mkdir(parents=True, exist_ok=True)
+    flown = fly_candidates(points, like, model, out / "candidates", jobs, progress)
+    if not flown:
+        raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the candidate "
+                        f"points")
+    sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs)
+    old = [[{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
+           for r in rivals]
+    flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s, "log": lg}
+               for lg, s in zip(flown, sums)]
+    chosen, reached = choose(old, flights, budget)
+    result = {
+        "diagnosis": str(diagnosis), "model": str(model), "budget_min": budget, "old_minutes": old_minutes,
+        "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
+        "settled_se": sep.SETTLED_SE, "candidates": len(flights),
+        "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": r["separation_se"],
+                    "predicted_now_se": sep.separation(o), "planned_se": sep.separation(n)}
+                   for r, o, n in zip(rivals, old, reached)],
+        "flights": [{"point": flights[j]["point"], "maneuver": flights[j]["maneuver"],
+                     "minutes": flights[j]["minutes"],
+                     "alone_se": [sep.separation(sep.add(o, s)) for o, s in zip(old, flights[j]["sums"])]}
+                    for j in chosen]}
+    if chosen:
+        chosen_points = {}
+        by_id = {p.id: p for p in points}
+        for j in chosen:
+            p = by_id[flights[j]["point"]]
+            chosen_points.setdefault(p.id, (p, []))[1].append(flights[j]["maneuver"])
+        (out / "plan.toml").write_text(matrix_toml(diagnosis.name, [(p, ms) for p, ms in chosen_points.values()],
+                                                   like))
+        result["matrix"] = str(out / "plan.toml")
+    else:
+        result["matrix"] = None
+    text = report(result)
+    (out / "plan.json").write_text(json.dumps(result, indent=1) + "\n")
+    (out / "plan.txt").write_text(text)
+    result["text"] = text
+    return result
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return repr(float(v)) if isinstance(v, float) else str(v)
+
+
+def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Matrix | None) -> str:
+    """A matrix file of the chosen flights (each point with its own manoeuvres), readable by
+    :func:`campaign.matrix.load_matrix`."""
+    lines = [f"# Flights planned by `campaign plan` to separate the rivals of diagnosis {name}.",
+             f"name = {_value('plan-' + name)}", 'description = "flights that separate a diagnosis\'s rivals"', ""]
+    for m, params in (like.maneuver_params if like else ()):
+        lines.append(f"[maneuvers.{m}]")
+        lines += [f"{k} = {_value(v)}" for k, v in params]
+        lines.append("")
+    if like and like.clmax_by_flap:
+        lines.append("[stall.clmax_by_flap]")
+        lines += [f"{_value(f'{f:g}')} = {_value(c)}" for f, c in like.clmax_by_flap]
+        lines.append("")
+    for p, ms in points:
+        lines += ["[[points]]", f"gear = {_value('down' if p.gear_down else 'up')}", f"flap_deg = {_value(p.flap_deg)}",
+                  f"mach = {_value(p.mach)}", f"alt_ft = {_value(p.alt_ft)}", f"maneuvers = {_value(ms)}"]
+        if p.weight_lb is not None:
+            lines.append(f"weight_lb = {_value(p.weight_lb)}")
+        lines.append("")
+    text = "\n".join(lines)
+    tomllib.loads(text)
+    return text
+
+
+def report(r: dict) -> str:
+    """``plan.txt``."""
+    lines = ["Flight plan", "===========", "", f"diagnosis: {r['diagnosis']}", f"model: {r['model']}",
+             f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
+             f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model", "",
+             "Rivals (separation in standard errors; settled at "
+             f"{r['settled_se']:g}, planned to {r['target_se']:g}):"]
+    for x in r["rivals"]:
+        lines.append(f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now "
+                     f"(expected {x['predicted_now_se']:.1f}), {x['planned_se']:.1f} predicted with the plan")
+    lines.append("")
+    if not r["flights"]:
+        lines.append("No candidate flight separates them within the budget: raise --budget-min or give "
+                     "--matrix other points.")
+    else:
+        lines.append(f"Flights, in the order chosen ({r['planned_minutes']:.1f} min, "
+                     f"{100 * r['planned_minutes'] / max(r['old_minutes'], 1e-9):.0f} % more flight time):")
+        for f in r["flights"]:
+            alone = ", ".join(f"{s:.1f}" for s in f["alone_se"])
+            lines.append(f"  {f['point']} {f['maneuver']} ({f['minutes']:.2f} min): alone with the old data {alone}")
+        short = [x for x in r["rivals"] if x["planned_se"] < r["settled_se"]]
+        if short:
+            lines.append("Within the budget the plan does not settle: " + "; ".join(x["rival"] for x in short))
+        lines += ["", f"Fly it:        campaign run --matrix {r['matrix']} --aircraft AIRCRAFT --out NEW",
+                  f"Then diagnose: campaign diagnose --data OLD --data NEW --model {r['model']} --out DIR"]
+    return "\n".join(lines) + "\n"

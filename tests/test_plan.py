@@ -1,0 +1,186 @@
+"""Rivals, their separation, and ``campaign plan``: the flights that settle what the data cannot.
+
+The separation's algebra is checked against its definition on synthetic rows; the plan end to end:
+a gear x alpha effect on Cm hidden in a campaign too narrow to tell alpha from CL (one flap, one
+altitude, gear extensions without a gear-down 2-3-1-1) is diagnosed, the plan is flown on the
+truth (only the test reads the overlay), and old and new data diagnosed together.
+"""
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from campaign.aircraft import DEFAULT_AIRCRAFT
+from campaign.cli import main
+from campaign.plan import PLAN_SE
+from diagnose import separation as sep
+from diagnose.terms import Term
+from tests.hidden import Hidden, _wrap, fly_data, make
+from tests.support import matrix_toml, pairs
+
+NARROW = matrix_toml(pairs((5, [0.25, 0.3, 0.35, 0.4], 5000)), "narrow",
+                     '[defaults]\nmaneuvers_gear_down = ["gear_extension"]\n')
+
+
+def _frame(rng, n=400):
+    x = rng.uniform(-1, 1, n)
+    return pd.DataFrame({"a": x, "b": x + 0.05 * rng.standard_normal(n), "c": rng.uniform(-1, 1, n)})
+
+
+def _lin(v, frame):
+    return Term("linear", (v,), (), (0.0,), ((-np.inf, np.inf),))
+
+
+def test_separation_is_the_likelihood_ratio_and_its_sums_add_over_data_sets():
+    rng = np.random.default_rng(0)
+    old, new = _frame(rng), _frame(rng)
+    a = sep.Hypothesis("CL vs a", "aero", "CL", (_lin("a", old),))
+    b = sep.Hypothesis("CL vs b", "aero", "CL", (_lin("b", old),))
+    w = [100.0, 300.0, 50.0]
+    for f in (old, new):  # the data are the cause's own prediction: no noise
+        f["r_CL"], f["r_CD"], f["r_Cm"] = 0.01 + 0.02 * f["a"], 0.0, 0.0
+    one = sep.pair(sep.Stack(old, w, {}, {}), a, b)
+    # noise-free, the likelihood ratio is what the rival refitted to the cause's prediction leaves
+    # (the correction for the fit's own noise aside)
+    one["stats"] = [{k: v for k, v in s.items() if k != "V"} for s in one["stats"]]
+    assert one["separation_se"] == pytest.approx(sep.left(one["stats"][0]), rel=1e-6)
+    direct = np.sqrt(np.sum((w[0] * 0.02 * (old["a"] - old["b"]).to_numpy()) ** 2))
+    assert 0 < one["separation_se"] <= direct  # the rival's slope and intercept absorb a part
+    assert one["by_coefficient"]["CD"] == pytest.approx(0.0, abs=1e-9)
+    # the old sums plus a new data set's equal the pair on both together
+    both = sep.pair(sep.Stack(pd.concat([old, new], ignore_index=True), w, {}, {}), a, b)
+    added = sep.add(one["stats"], sep.predicted(sep.Stack(new, w, {}, {}), one))
+    assert sep.left(added[0]) == pytest.approx(both["separation_se"], rel=1e-6)
+    assert sep.separation(added) > one["predicted_se"]
+    # the same explanation twice is no separation; an unrelated one is separated by all of it
+    assert sep.pair(sep.Stack(old, w, {}, {}), a, a)["separation_se"] == pytest.approx(0.0, abs=1e-6)
+    c = sep.Hypothesis("CL vs c", "aero", "CL", (_lin("c", old),))
+    far = sep.pair(sep.Stack(old, w, {}, {}), a, c)
+    assert far["separation_se"] > 0.9 * direct * np.std(old["a"]) / np.std(old["a"] - old["b"])
+    # terms travel through JSON
+    t = Term("smooth_x_linear", ("gear_norm", "alpha_deg"), (0.0, 0.5, 1.0), (0.0, 4.0), ((0.0, 1.0), (-np.inf, 9.0)))
+    assert sep.term_from_dict(json.loads(json.dumps(sep.term_to_dict(t)))) == t
+
+
+def test_the_predicted_separation_is_what_noisy_data_show_on_average():
+    """The cause's fit holds noise the rival cannot follow: uncorrected, the predicted squared
+    separation is too large by about the cause's extra dimensions (here 5); corrected, its mean
+    is the likelihood ratio's mean (equal widths: E[RSS_B - RSS_A] is the noncentrality)."""
+    rng = np.random.default_rng(3)
+    f = _frame(rng, 300)
+    f["b"] = f["a"] + 0.3 * rng.standard_normal(len(f))
+    knots = tuple(np.linspace(-1.5, 1.5, 6))
+    a = sep.Hypothesis("CL vs a", "aero", "CL", (Term("smooth", ("a",), knots),))
+    b = sep.Hypothesis("CL vs b", "aero", "CL", (Term("smooth", ("b",), knots),))
+    truth = 0.4 * np.sin(2 * f["a"].to_numpy())
+    lr, raw, corrected = [], [], []
+    for _ in range(300):
+        f["r_CL"], f["r_CD"], f["r_Cm"] = truth + rng.standard_normal(len(f)), 0.0, 0.0
+        d = sep.pair(sep.Stack(f, [1.0, 1.0, 1.0], {}, {}), a, b)
+        lr.append(np.sign(d["separation_se"]) * d["separation_se"] ** 2)
+        corrected.append(sep.left(d["stats"][0]) ** 2)
+        raw.append(sep.left({k: v for k, v in d["stats"][0].items() if k != "V"}) ** 2)
+    assert np.mean(raw) - np.mean(lr) > 3.0, (np.mean(raw), np.mean(lr))
+    assert abs(np.mean(corrected) - np.mean(lr)) < 0.25 * np.mean(lr) + 1.0, (np.mean(corrected), np.mean(lr))
+
+
+def test_an_instrument_error_is_judged_on_every_coefficient_it_moves():
+    """A sensor rival carries its signature in CL, CD and Cm and the data compatibility's estimate:
+    a CL discrepancy without the CD that error would make rejects it; with it, it does not."""
+    rng = np.random.default_rng(1)
+    f = _frame(rng)
+    sig = {("alpha_deg", "scale"): np.stack([f["a"].to_numpy(), 0.3 * f["a"].to_numpy(), np.zeros(len(f))])}
+    a = sep.Hypothesis("CL vs a", "aero", "CL", (_lin("a", f),))
+    s = sep.Hypothesis("alpha_deg scale", "sensor", channel="alpha_deg", error="scale", prior=(0.0, 0.5))
+    noise = 0.001 * rng.standard_normal((3, len(f)))
+    f["r_CL"], f["r_CD"], f["r_Cm"] = 0.02 * f["a"] + noise[0], noise[1], noise[2]
+    assert sep.pair(sep.Stack(f, [1000.0] * 3, sig, {}), a, s)["separation_se"] > 20
+    f["r_CD"] = 0.3 * 0.02 * f["a"] + noise[1]  # what the vane would make in CD is there too
+    r = sep.pair(sep.Stack(f, [1000.0] * 3, sig, {}), a, s)
+    assert r["separation_se"] < 2
+
+
+@pytest.fixture(scope="module")
+def narrow(tmp_path_factory):
+    """A gear x alpha effect on Cm in a campaign that cannot tell alpha from CL, diagnosed."""
+    w = tmp_path_factory.mktemp("narrow")
+    hidden = make("gear_x_alpha", np.random.default_rng(6), "Cm")
+    data, fx = fly_data(w, hidden, seed=6, matrix=NARROW)
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(w / "d1"),
+                 "--no-plots", "--jobs", "2"]) == 0
+    return w, data, fx, json.loads((w / "d1" / "diagnosis.json").read_text())
+
+
+def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
+    w, data, fx, doc = narrow
+    first = doc["causes"][0]
+    assert first["coefficient"] == "Cm" and "gear_norm" in first["variables"]
+    open_ = [r for r in doc["rivals"] if r["separation_se"] < sep.SETTLED_SE]
+    assert open_, [(r["rival"], r["separation_se"]) for r in doc["rivals"]]
+    assert "campaign plan" in (w / "d1" / "diagnosis.txt").read_text()
+    assert main(["plan", "--diagnosis", str(w / "d1"), "--out", str(w / "plan"), "--jobs", "2", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    result = json.loads((w / "plan" / "plan.json").read_text())
+    assert (w / "plan" / "plan.txt").read_text() == text
+    assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
+    assert all(r["planned_se"] >= PLAN_SE for r in result["rivals"]), result["rivals"]
+    # fly the plan on the truth, through the same instruments, and diagnose old and new together
+    assert main(["run", "--matrix", str(w / "plan" / "plan.toml"), "--aircraft", str(DEFAULT_AIRCRAFT),
+                 "--effects", str(fx), "--noise", "flight-test", "--seed", "11", "--out", str(w / "new"),
+                 "--no-identify", "--quiet"]) == 0
+    assert main(["diagnose", "--data", str(data), "--data", str(w / "new"), "--model", str(DEFAULT_AIRCRAFT),
+                 "--out", str(w / "d2"), "--no-plots", "--jobs", "2"]) == 0
+    after = json.loads((w / "d2" / "diagnosis.json").read_text())
+    assert after["data"]["paths"] == [str(data), str(w / "new")]
+    first = after["causes"][0]
+    assert first["coefficient"] == "Cm" and first["variables"][:2] == ["gear_norm", "alpha_deg"], first["variables"]
+    rivals = {r["rival"]: r["separation_se"] for r in first["evidence"]["rivals"]}
+    assert all(v >= sep.SETTLED_SE for v in rivals.values()), rivals
+
+
+def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsys):
+    w, data, fx, doc = narrow
+    capsys.readouterr()
+    before = {p: p.read_bytes() for p in (w / "d1").iterdir() if p.is_file()}
+    cases = []
+    assert main(["plan", "--diagnosis", str(w / "d1"), "--budget-min", "0", "--out", str(tmp_path / "a")]) == 2
+    cases.append(("--budget-min", "0 minutes"))
+    bad = tmp_path / "bad.toml"
+    bad.write_text(matrix_toml([("down", 85, 0.3, 5000)], "bad"))
+    assert main(["plan", "--diagnosis", str(w / "d1"), "--matrix", str(bad), "--out", str(tmp_path / "b")]) == 2
+    cases.append((f"{bad.resolve()}: points[0].flap_deg", "outside aircraft"))
+    none = tmp_path / "none"
+    shutil.copytree(w / "d1", none)
+    (none / "diagnosis.json").write_text(json.dumps({**doc, "rivals": []}))
+    assert main(["plan", "--diagnosis", str(none)]) == 2
+    cases.append(("rivals", "nothing to separate"))
+    assert main(["plan", "--diagnosis", str(tmp_path)]) == 2
+    cases.append(("diagnosis.json", "not found"))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == len(cases), err
+    for line, (field, words) in zip(err, cases):
+        assert field in line and words in line and "Traceback" not in line, line
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists() and not (none / "plan").exists()
+    assert before == {p: p.read_bytes() for p in (w / "d1").iterdir() if p.is_file()}
+
+
+def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys):
+    """A lift-slope error looks like a 3 % alpha-vane scale in CL, at 2 standard errors of the
+    kinematics' estimate; the CD and Cm residuals that scale would make are not there: the cause is
+    named, the vane rejected beyond 5 standard errors, and there is nothing left to plan."""
+    body = "        <property>aero/alpha-rad</property>\n        <value>0.17</value>"
+    hidden = Hidden("slope", "CL", ("alpha_deg",), _wrap("CL", body, "slope"), "dCL = 0.17 alpha")
+    data, _ = fly_data(tmp_path / "w", hidden, seed=7)
+    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d"),
+                 "--no-plots", "--jobs", "2"]) == 0
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    first = doc["causes"][0]
+    assert first["kind"] == "aero" and first["coefficient"] == "CL" and first["variables"] == ["alpha_deg"]
+    vane = [r for r in first["evidence"]["rivals"] if r["rival"] == "alpha_deg scale"]
+    assert vane and vane[0]["separation_se"] >= sep.SETTLED_SE, first["evidence"].get("rivals")
+    assert "not a sensor: alpha_deg scale" in (tmp_path / "d" / "diagnosis.txt").read_text()
+    capsys.readouterr()
+    assert main(["plan", "--diagnosis", str(tmp_path / "d")]) == 2
+    assert "nothing to separate" in capsys.readouterr().err
