@@ -54,9 +54,11 @@ def load_data(path: Path) -> list[Log]:
     raise UserError(f"{path}: not a campaign folder, a CSV or a Parquet log")
 
 
-def split(logs: list[Log], every: int = 3) -> tuple[list[Log], list[Log]]:
-    """Hold out every ``every``-th flight condition (all its manoeuvres)."""
-    conds = sorted({log.condition for log in logs})
+def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
+    """Hold out every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
+    ``logs``): logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a
+    held-out condition, so that adding them moves no condition out of the fit."""
+    conds = sorted({log.condition for log in (first or logs)})
     if len(conds) < 2:
         raise UserError("--data: needs logs from at least two flight conditions (one is held out)")
     held = {c for i, c in enumerate(conds) if i % every == every - 1} or {conds[-1]}
@@ -187,15 +189,19 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
-    paths = [Path(p) for p in data_path] if isinstance(data_path, (list, tuple)) else [Path(data_path)]
+    paths = [Path(p).resolve() for p in (data_path if isinstance(data_path, (list, tuple)) else [data_path])]
     try:
-        logs = [lg for p in paths for lg in load_data(p)]
-        names = [Path(lg.path).name for lg in logs]
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise UserError(f"--data: log {twice[0]} is in the data more than once (each --data must hold other "
-                            f"flights)")
-        train, held = split(logs)
+        sets = [load_data(p) for p in paths]
+        logs = [lg for s in sets for lg in s]
+        where = {}
+        for p, s in zip(paths, sets):
+            for lg in s:
+                name = Path(lg.path).name
+                if name in where:
+                    raise UserError(f"--data: log {name} is in {where[name]} and in {p} (the report names logs by "
+                                    f"file: each --data must hold other flights)")
+                where[name] = p
+        train, held = split(logs, first=sets[0])
     except UserError:
         if client is not None:
             client.close()

@@ -18,7 +18,6 @@ the old data is not a candidate.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -42,6 +41,8 @@ BUDGET_SHARE = 0.25
 #: Candidate manoeuvres by gear.
 GEAR_UP = ("doublet", "multisine")
 GEAR_DOWN = ("doublet", "multisine", "gear_extension", "gear_retraction")
+#: Highest candidate altitude (the matrix's own bound) [ft].
+MAX_ALT_FT = 45000.0
 #: Excitation inputs: one per point (identification pairs one eq. (3) fit per gear).
 EXCITATION = ("doublet", "multisine")
 
@@ -113,26 +114,47 @@ def other_flaps(source: AircraftSource, like: Matrix | None, have: set[float]) -
     return out
 
 
-def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None,
-               given: Matrix | None) -> list[StatusPoint]:
+def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
+    """A measured flap angle snapped into what the aircraft can fly (0 without flaps, else clipped
+    to its range): imported data log the mean of a measured flap channel."""
+    from campaign.engine import flap_schedule
+    s = flap_schedule(source)
+    if not s.moves:
+        return 0.0
+    lo, hi = s.range
+    return float(min(max(round(flap_deg, 1), lo), hi))
+
+
+def _condition(alt: float, mach: float, flap: float) -> tuple:
+    return round(alt, 1), round(mach, 4), round(flap, 1)
+
+
+def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, given: Matrix | None,
+               held: set | None = None) -> list[StatusPoint]:
     """Candidate points, each with its candidate manoeuvres (see the module's docstring): one factor
-    at a time away from each condition of the old data."""
+    at a time away from each condition of the old data, at its weight. None at a condition the
+    diagnosis holds out (``held``): a flight there would be held out too."""
+    held = {_condition(*c) for c in (held or ())}
     if given is not None:
-        return list(given.points)
-    conditions = sorted({lg.condition for lg in logs})
-    flaps = other_flaps(source, like, {f for _, _, f in conditions})
+        return [p for p in given.points if _condition(p.alt_ft, p.mach, p.flap_deg) not in held]
+    weights = {}
+    for lg in logs:
+        weights.setdefault(lg.condition, lg.meta["status_point"].get("weight_lb"))
+    conditions = sorted(weights)
+    flaps = other_flaps(source, like, {_flyable_flap(source, f) for _, _, f in conditions})
     seen, out = set(), []
-    for alt, mach, flap in conditions:
+    for alt, mach, measured_flap in conditions:
+        weight, flap = weights[(alt, mach, measured_flap)], _flyable_flap(source, measured_flap)
         variants = [(alt, mach, flap), (alt + 6000.0, mach, flap), (max(alt - 6000.0, 1500.0), mach, flap),
                     (alt, round(mach - 0.1, 4), flap), (alt, round(mach + 0.1, 4), flap)]
         variants += [(alt, mach, f) for f in flaps]
         for a, m, f in variants:
-            if not 0.15 <= m <= 0.85:
+            if not (0.15 <= m <= 0.85 and a <= MAX_ALT_FT) or _condition(a, m, f) in held:
                 continue
             for down in (False, True):
                 if (a, m, f, down) not in seen:
                     seen.add((a, m, f, down))
-                    out.append(StatusPoint(a, m, f, down, None, GEAR_DOWN if down else GEAR_UP, "candidates"))
+                    out.append(StatusPoint(a, m, f, down, weight, GEAR_DOWN if down else GEAR_UP, "candidates"))
     return out
 
 
@@ -142,11 +164,18 @@ def _matrix(name: str, points: list[StatusPoint], like: Matrix | None) -> Matrix
 
 
 def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, out: Path, jobs: int,
-                   progress: bool) -> list[Log]:
-    """Fly the candidates on the model, noise-free, into ``out``; the logs flown."""
+                   progress: bool, rate_hz: float | None = None) -> list[Log]:
+    """Fly the candidates on the model, noise-free, recorded at ``rate_hz`` (the old data's: the
+    residuals are thinned per second, and the weights count rows), into ``out``; the logs flown."""
+    from campaign.instruments import load_profile
     from campaign.runner import run_campaign
     from identify.logs import read_campaign
-    cfg = FlightConfig(AircraftSource(str(model), load_effects(None)), 0, "none",
+    profile = "none"
+    if rate_hz is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out.parent / "candidates.toml").write_text(f'extends = "none"\nrate_hz = {rate_hz!r}\n')
+        profile = load_profile(str(out.parent / "candidates.toml"))
+    cfg = FlightConfig(AircraftSource(str(model), load_effects(None)), 0, profile,
                        like.maneuver_params if like else (), like.clmax_by_flap if like else ())
     run_campaign(_matrix("candidates", points, like), cfg, out, jobs=jobs, progress=progress)
     return read_campaign(out)
@@ -175,30 +204,39 @@ def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, j
         s = {k: v[:, rows] for k, v in sig.items()}
         per = []
         for r in rivals:
-            context = {c: [sep.term_from_dict(t) for t in ts] for c, ts in r.get("context", {}).items()}
+            context = {c: [sep.unclipped(sep.term_from_dict(t)) for t in ts] for c, ts in r.get("context", {}).items()}
             per.append(sep.predicted(sep.Stack(part, r["weights"], s, context), r))
         out.append(per)
     return out
 
 
-def choose(old: list[list[dict]], flights: list[dict], budget: float) -> tuple[list[int], list[list[dict]]]:
-    """Greedy choice: the flight that gains most separation (capped at :data:`PLAN_SE` per rival,
-    squared) per minute, until every rival reaches it or the budget is spent.
+def planned(sums: list[dict], base: tuple[float, float]) -> float:
+    """The separation a rival will show: what the data in hand show (``base[0]``, signed) plus what
+    the new flights add to the prediction (``base[1]``: the prediction for the data in hand)."""
+    now, before = base
+    lam = np.sign(now) * now ** 2 + sep.separation(sums) ** 2 - before ** 2
+    return float(np.sign(lam) * np.sqrt(abs(lam)))
+
+
+def choose(old: list[list[dict]], flights: list[dict], budget: float,
+           base: list[tuple[float, float]]) -> tuple[list[int], list[list[dict]]]:
+    """Greedy choice: the flight that gains most :func:`planned` separation (capped at
+    :data:`PLAN_SE` per rival, squared) per minute, until every rival reaches it or the budget is spent.
 
     ``flights``: ``{"minutes", "sums" (per rival), "point", "maneuver"}``; returns the chosen
     indices in order and the sums they reach."""
     def score(sums):
-        return sum(min(sep.separation(s), PLAN_SE) ** 2 for s in sums)
+        return sum(min(max(planned(s, b), 0.0), PLAN_SE) ** 2 for s, b in zip(sums, base))
 
     now, chosen, spent = old, [], 0.0
-    while min(sep.separation(s) for s in now) < PLAN_SE:
+    while min(planned(s, b) for s, b in zip(now, base)) < PLAN_SE:
         excited = {flights[j]["point"] for j in chosen if flights[j]["maneuver"] in EXCITATION}
-        base, best = score(now), None
+        current, best = score(now), None
         for j, f in enumerate(flights):
             if j in chosen or spent + f["minutes"] > budget or (f["maneuver"] in EXCITATION and f["point"] in excited):
                 continue
             trial = [sep.add(a, b) for a, b in zip(now, f["sums"])]
-            gain = (score(trial) - base) / max(f["minutes"], 1e-6)
+            gain = (score(trial) - current) / max(f["minutes"], 1e-6)
             if gain > 0 and (best is None or gain > best[0]):
                 best = (gain, j, trial)
         if best is None:
@@ -212,63 +250,83 @@ def choose(old: list[list[dict]], flights: list[dict], budget: float) -> tuple[l
 def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = None, matrix: str | None = None,
          jobs: int = 1, progress: bool = False) -> dict:
     """The whole plan; returns what ``plan.json`` holds (see the module's docstring)."""
+    import shutil
     diagnosis = Path(diagnosis)
     doc = read_diagnosis(diagnosis)
     where = diagnosis / "diagnosis.json"
     rivals = open_rivals(doc, where)
-    if budget_min is not None and not budget_min > 0:
-        raise UserError(f"--budget-min: {budget_min:g} minutes; the plan needs a budget of more than 0")
+    if budget_min is not None and not 0 < budget_min < float("inf"):
+        raise UserError(f"--budget-min: {budget_min:g} minutes; the plan needs a finite budget of more than 0")
     out = Path(out) if out else diagnosis / "plan"
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     model = check_aircraft_folder(Path(doc["model"]))
     paths = data_paths(doc)
-    logs = [lg for p in paths for lg in load_data(p)]
+    logs = []
+    for i, p in enumerate(paths):
+        try:
+            logs += load_data(p)
+        except UserError as exc:
+            raise UserError(f"{where}: data.paths[{i}]: the logs diagnosed do not read any more ({exc})") from None
+    held_paths = set(doc["data"].get("held_out", []))
+    held = {lg.condition for lg in logs if lg.path in held_paths}
     old_minutes = sum(minutes(lg) for lg in logs)
     budget = BUDGET_SHARE * old_minutes if budget_min is None else float(budget_min)
     like = _old_matrix(paths)
     given = load_matrix(matrix) if matrix else None
     source = AircraftSource(str(model), load_effects(None))
-    points = candidates(logs, source, like, given)
-    check_flaps(source, [(f"{given.path if given else 'candidates'}: {p.entry}.flap_deg", p.flap_deg)
-                         for p in points])
+    points = candidates(logs, source, like, given, held)
+    if given is not None:
+        check_flaps(source, [(f"{given.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
     flown_before = {(lg.point, lg.maneuver) for lg in logs}
     points = [replace(p, maneuvers=tuple(m for m in p.maneuvers if (p.id, m) not in flown_before)) for p in points]
     points = [p for p in points if p.maneuvers]
+    if not points:
+        raise UserError(f"{given.path if given else where}: points: no candidate flight left (each is flown "
+                        f"already or at a condition the diagnosis holds out)")
     like = given or like
+    rates = [1.0 / float(lg.meta["dt_s"]) for lg in logs if float(lg.meta.get("dt_s") or 0) > 0]
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    flown = fly_candidates(points, like, model, out / "candidates", jobs, progress)
-    if not flown:
-        raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the candidate "
-                        f"points")
-    sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs)
+    try:
+        flown = fly_candidates(points, like, model, out / "candidates", jobs, progress,
+                               float(np.median(rates)) if rates else None)
+        if not flown:
+            raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the "
+                            f"candidate points")
+        sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs)
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     old = [[{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
            for r in rivals]
-    flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s, "log": lg}
+    base = [(float(r["separation_se"]), sep.separation(o)) for r, o in zip(rivals, old)]
+    flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s}
                for lg, s in zip(flown, sums)]
-    chosen, reached = choose(old, flights, budget)
+    chosen, reached = choose(old, flights, budget, base)
     result = {
         "diagnosis": str(diagnosis), "model": str(model), "budget_min": budget, "old_minutes": old_minutes,
         "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
         "settled_se": sep.SETTLED_SE, "candidates": len(flights),
-        "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": r["separation_se"],
-                    "predicted_now_se": sep.separation(o), "planned_se": sep.separation(n)}
-                   for r, o, n in zip(rivals, old, reached)],
+        "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": b[0],
+                    "predicted_now_se": b[1], "planned_se": planned(n, b)}
+                   for r, b, n in zip(rivals, base, reached)],
         "flights": [{"point": flights[j]["point"], "maneuver": flights[j]["maneuver"],
                      "minutes": flights[j]["minutes"],
-                     "alone_se": [sep.separation(sep.add(o, s)) for o, s in zip(old, flights[j]["sums"])]}
+                     "alone_se": [planned(sep.add(o, s), b) for o, s, b in zip(old, flights[j]["sums"], base)]}
                     for j in chosen]}
+    result["matrix"] = None
     if chosen:
         chosen_points = {}
         by_id = {p.id: p for p in points}
         for j in chosen:
             p = by_id[flights[j]["point"]]
             chosen_points.setdefault(p.id, (p, []))[1].append(flights[j]["maneuver"])
-        (out / "plan.toml").write_text(matrix_toml(diagnosis.name, [(p, ms) for p, ms in chosen_points.values()],
-                                                   like))
-        result["matrix"] = str(out / "plan.toml")
-    else:
-        result["matrix"] = None
+        toml = out / "plan.toml"
+        toml.write_text(matrix_toml(diagnosis.name, [(p, ms) for p, ms in chosen_points.values()], like))
+        load_matrix(toml)  # what `campaign run` will read
+        result["matrix"] = str(toml)
     text = report(result)
     (out / "plan.json").write_text(json.dumps(result, indent=1) + "\n")
     (out / "plan.txt").write_text(text)
@@ -305,9 +363,7 @@ def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Ma
         if p.weight_lb is not None:
             lines.append(f"weight_lb = {_value(p.weight_lb)}")
         lines.append("")
-    text = "\n".join(lines)
-    tomllib.loads(text)
-    return text
+    return "\n".join(lines)
 
 
 def report(r: dict) -> str:
@@ -318,8 +374,9 @@ def report(r: dict) -> str:
              "Rivals (separation in standard errors; settled at "
              f"{r['settled_se']:g}, planned to {r['target_se']:g}):"]
     for x in r["rivals"]:
-        lines.append(f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now "
-                     f"(expected {x['predicted_now_se']:.1f}), {x['planned_se']:.1f} predicted with the plan")
+        lines.append(f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now, {x['planned_se']:+.1f} "
+                     f"predicted with the plan (now, plus what the plan adds to the {x['predicted_now_se']:.1f} "
+                     f"the fits expect of the data in hand)")
     lines.append("")
     if not r["flights"]:
         lines.append("No candidate flight separates them within the budget: raise --budget-min or give "

@@ -137,9 +137,10 @@ class Diagnosis:
                          f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
                          f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
                          f"noise floor of {v['noise_floor']:.3g}{made}; held-out gain x{v['holdout_gain']:.2f}")
-            settled = {(r["term"] or r["rival"]): r for r in e.get("rivals", []) if r["separation_se"] >= SETTLED_SE}
+            rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
+            settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):
-                if a["term"] in settled:
+                if a["term"] in rivals:  # judged below, on the final fits
                     continue
                 lines.append(f"   caution: the data hardly separate it from {a['term']} "
                              f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")

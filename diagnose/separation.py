@@ -17,7 +17,7 @@ adds its own.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -196,11 +196,13 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
     Returns
     -------
     dict
-        ``separation_se`` (the likelihood ratio in standard errors, negative if the rival fits
-        better), ``by_coefficient`` (that likelihood ratio's share from each coefficient's rows and
-        from the data compatibility's measurement, in squared standard errors), ``predicted_se`` (what the fits, taken as the truth each way, separate on these
-        rows; the smaller way), ``theta`` (each fit's nuisance and own coefficients) and
-        ``stats`` (the sums of :func:`left` each way: a as the truth, then b), as JSON.
+        ``separation_se`` (the likelihood ratio in standard errors, less what the cause's extra
+        columns fit of noise alone; negative if the rival fits better), ``by_coefficient`` (that
+        likelihood ratio's share from each coefficient's rows and from the data compatibility's
+        measurement, in squared standard errors), ``predicted_se`` (what the fits, taken as the
+        truth each way, separate on these rows; the smaller way), ``theta`` (each fit's nuisance
+        and own coefficients) and ``stats`` (the sums of :func:`left` each way: a as the truth,
+        then b), as JSON.
     """
     hs = (a, b)
     priors = _prior_rows(hs)
@@ -213,7 +215,9 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
         thetas.append(th)
         fitted.append(z @ th)
         rss.append(float(np.sum((y - z @ th) ** 2)))
-    d = rss[1] - rss[0]
+    # a hypothesis with more columns fits more noise: E[RSS_B - RSS_A] = lambda + p_A - p_B
+    own = [np.linalg.matrix_rank(z) for z in zs]
+    d = rss[1] - rss[0] - (own[0] - own[1])
     blocks = {c: slice(i * stack.n, (i + 1) * stack.n) for i, c in enumerate(COEFFS)}
     blocks["data compatibility"] = slice(3 * stack.n, len(y))
     by = {k: float(np.sum((y[s] - fitted[1][s]) ** 2) - np.sum((y[s] - fitted[0][s]) ** 2)) for k, s in blocks.items()}
@@ -226,10 +230,18 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
             "stats": [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in stats]}
 
 
+def unclipped(t: Term) -> Term:
+    """The term with its linear factors no longer clipped to the old data's range: new flights go
+    beyond it, and a diagnosis of old and new data together sets its ranges on both."""
+    return replace(t, ranges=tuple((-np.inf, np.inf) for _ in t.ranges))
+
+
 def predicted(stack: Stack, doc: dict) -> list[dict]:
     """The sums of a :func:`pair` document's two ways over ``stack``'s rows (new data: the fits of
-    the old ones taken as the truth; no instrument-error observation), to add to the old sums."""
-    hs = [Hypothesis.from_dict(h) for h in doc["hypotheses"]]
+    the old ones taken as the truth, their terms :func:`unclipped`; no instrument-error
+    observation), to add to the old sums."""
+    hs = [replace(h, terms=tuple(unclipped(t) for t in h.terms))
+          for h in (Hypothesis.from_dict(d) for d in doc["hypotheses"])]
     zs = stack.designs(hs)
     out = []
     for truth, rival in ((0, 1), (1, 0)):
@@ -262,9 +274,10 @@ def noise_weights(data: pd.DataFrame, results: dict, lags) -> np.ndarray:
     w = []
     for c in COEFFS:
         e = data[f"r_{c}"].to_numpy(float) - results[c].predict(data)
-        e = np.where(np.isfinite(e), e, 0.0)
-        rms = float(np.sqrt(np.mean(e ** 2)))
-        w.append(np.sqrt(lags.n_eff(e) / max(len(e), 1)) / rms if rms > 0 else 0.0)
+        ok = np.isfinite(e)
+        rms = float(np.sqrt(np.mean(e[ok] ** 2))) if ok.any() else 0.0
+        n_eff = lags.n_eff(np.where(ok, e, 0.0)) * ok.mean()
+        w.append(np.sqrt(n_eff / max(int(ok.sum()), 1)) / rms if rms > 0 else 0.0)
     return np.array(w)
 
 
@@ -274,7 +287,7 @@ def compat_prior(compat, channel: str, error: str) -> tuple[float, float] | None
         return None
     try:
         p = compat.get(f"{channel}.{error}")
-    except KeyError:
+    except (KeyError, StopIteration):
         return None
     if not p.identifiable or not np.isfinite(p.se) or p.se <= 0:
         return None

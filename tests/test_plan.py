@@ -99,7 +99,22 @@ def test_an_instrument_error_is_judged_on_every_coefficient_it_moves():
     assert sep.pair(sep.Stack(f, [1000.0] * 3, sig, {}), a, s)["separation_se"] > 20
     f["r_CD"] = 0.3 * 0.02 * f["a"] + noise[1]  # what the vane would make in CD is there too
     r = sep.pair(sep.Stack(f, [1000.0] * 3, sig, {}), a, s)
-    assert r["separation_se"] < 2
+    assert r["separation_se"] < -5  # the vane fits better
+
+
+def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
+    """Old and new data diagnosed together hold out what the old data alone held out: a new
+    condition would otherwise shift every third condition (and could hold out the plan itself)."""
+    from types import SimpleNamespace
+
+    from campaign.diagnose import split
+    old = [SimpleNamespace(condition=(5000.0, m, 5.0)) for m in (0.25, 0.3, 0.35, 0.4)]
+    new = [SimpleNamespace(condition=c) for c in ((5000.0, 0.3, 15.0), (1500.0, 0.3, 5.0), (5000.0, 0.35, 5.0))]
+    train, held = split(old)
+    train2, held2 = split(old + new, first=old)
+    assert {lg.condition for lg in held2} == {lg.condition for lg in held} == {(5000.0, 0.35, 5.0)}
+    assert new[0] in train2 and new[1] in train2 and new[2] in held2
+    assert {lg.condition for lg in split(old + new)[1]} != {(5000.0, 0.35, 5.0)}  # what it guards against
 
 
 @pytest.fixture(scope="module")
@@ -120,11 +135,16 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     open_ = [r for r in doc["rivals"] if r["separation_se"] < sep.SETTLED_SE]
     assert open_, [(r["rival"], r["separation_se"]) for r in doc["rivals"]]
     assert "campaign plan" in (w / "d1" / "diagnosis.txt").read_text()
+    html = (w / "d1" / "report.html").read_text()
+    assert "Rival explanations" in html and "not settled: campaign plan" in html
     assert main(["plan", "--diagnosis", str(w / "d1"), "--out", str(w / "plan"), "--jobs", "2", "--quiet"]) == 0
     text = capsys.readouterr().out
     result = json.loads((w / "plan" / "plan.json").read_text())
     assert (w / "plan" / "plan.txt").read_text() == text
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
+    by_rival = {r["rival"]: r for r in doc["rivals"]}
+    for r in result["rivals"]:  # the old rows' sums came through the JSON intact
+        assert r["predicted_now_se"] == pytest.approx(by_rival[r["rival"]]["predicted_se"], rel=1e-9)
     assert all(r["planned_se"] >= PLAN_SE for r in result["rivals"]), result["rivals"]
     # fly the plan on the truth, through the same instruments, and diagnose old and new together
     assert main(["run", "--matrix", str(w / "plan" / "plan.toml"), "--aircraft", str(DEFAULT_AIRCRAFT),
@@ -138,6 +158,13 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     assert first["coefficient"] == "Cm" and first["variables"][:2] == ["gear_norm", "alpha_deg"], first["variables"]
     rivals = {r["rival"]: r["separation_se"] for r in first["evidence"]["rivals"]}
     assert all(v >= sep.SETTLED_SE for v in rivals.values()), rivals
+    # what was open is settled, not dropped: the open rival's term is now the cause's or a rival
+    # rejected at 5 se, and so is each term of the earlier cause the new one does not hold
+    before = doc["causes"][0]
+    opened = {r["term"] for r in before["evidence"]["rivals"] if r["separation_se"] < sep.SETTLED_SE}
+    now, judged = set(first["evidence"]["terms"]), {r["term"] for r in first["evidence"]["rivals"]}
+    assert opened and opened <= now | judged, (opened, now, judged)
+    assert set(before["evidence"]["terms"]) - now <= judged, (before["evidence"]["terms"], now, judged)
 
 
 def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsys):
@@ -151,6 +178,10 @@ def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsy
     bad.write_text(matrix_toml([("down", 85, 0.3, 5000)], "bad"))
     assert main(["plan", "--diagnosis", str(w / "d1"), "--matrix", str(bad), "--out", str(tmp_path / "b")]) == 2
     cases.append((f"{bad.resolve()}: points[0].flap_deg", "outside aircraft"))
+    flown = tmp_path / "flown.toml"  # every flight of it is in the data already
+    flown.write_text(NARROW)
+    assert main(["plan", "--diagnosis", str(w / "d1"), "--matrix", str(flown), "--out", str(tmp_path / "c")]) == 2
+    cases.append((f"{flown.resolve()}: points", "no candidate flight left"))
     none = tmp_path / "none"
     shutil.copytree(w / "d1", none)
     (none / "diagnosis.json").write_text(json.dumps({**doc, "rivals": []}))
@@ -162,7 +193,7 @@ def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsy
     assert len(err) == len(cases), err
     for line, (field, words) in zip(err, cases):
         assert field in line and words in line and "Traceback" not in line, line
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists() and not (none / "plan").exists()
+    assert not any((tmp_path / x).exists() for x in "abc") and not (none / "plan").exists()
     assert before == {p: p.read_bytes() for p in (w / "d1").iterdir() if p.is_file()}
 
 
