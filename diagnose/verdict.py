@@ -41,8 +41,9 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     """Leave-one-condition-out check of one cause on every condition flown.
 
     For each flight condition, the coefficient's selected terms are fitted on
-    the others and predict it; the gain is the residual RMS without the cause's
-    part of that prediction over the RMS with it, over the logs where the cause
+    the others and predict it, and so are its terms without the cause's (refitted: two
+    collinear causes that cancel each other are no better than neither); the gain is the
+    residual RMS of the second prediction over that of the first, over the logs where the cause
     acts (where its contribution departs from the model by :data:`ACTING_SHARE` of its
     size): pooled, and per condition. Only conditions the others can predict count: a condition
     whose removal leaves the coefficient's terms not all estimable (the only condition at its
@@ -87,14 +88,16 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     order = np.argsort(code, kind="stable")  # rows by condition: one sort, no string compares
     rows = np.split(order, np.flatnonzero(np.diff(code[order])) + 1)
     testable = np.zeros(len(y), bool)
+    k = x_rest.shape[1]
     for out in rows:
         xo = xs[out]
         left = gram - xo.T @ xo
         testable[out] = _rank(left) == rank
-        beta = solve_normal(left, xty - xo.T @ y[out]) / scale  # fitted without this condition
-        base = y[out] - x_rest[out] @ beta[:x_rest.shape[1]]
-        before[out] = base
-        after[out] = base - x_own[out] @ beta[x_rest.shape[1]:]
+        rhs = xty - xo.T @ y[out]
+        beta = solve_normal(left, rhs) / scale  # fitted without this condition
+        beta_rest = solve_normal(left[:k, :k], rhs[:k]) / scale[:k]  # ... and without the cause
+        before[out] = y[out] - x_rest[out] @ beta_rest
+        after[out] = y[out] - x[out] @ beta
     acts = np.isin(data["log"].to_numpy(), acting)
     sel = acts & testable
 

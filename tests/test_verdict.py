@@ -120,3 +120,37 @@ def test_a_condition_whose_removal_leaves_the_cause_unestimable_cannot_veto_it()
     assert sorted(acting) == [0, 1, 2]
     assert np.isnan(by["5000/0.3/15"]) and by["5000/0.3/0"] > 3 and by["10000/0.5/0"] > 3
     assert gain > 3
+
+
+def test_two_collinear_causes_that_cancel_gain_nothing_on_held_out_data():
+    """Two terms on nearly collinear variables, fitted with large opposite coefficients to a small
+    residual (the stock 737's CD against CL and against alpha x elevator in 3 ft/s turbulence, each
+    0.075 in size where together they explained 0.0002): each cause's held-out gain is that of the
+    terms with it over the terms refitted without it, not of removing its part alone from the joint
+    fit (which gave x17 to both); and a real effect beside them keeps its gain."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    from diagnose.verdict import holdout_gain
+    rng = np.random.default_rng(1)
+    frames = []
+    for i in range(4):
+        a = rng.uniform(0, 1, 500) + i
+        frames.append(pd.DataFrame({"condition": f"c{i}", "log": i, "a": a, "b": a + rng.normal(0, 0.01, 500),
+                                    "g": rng.uniform(0, 1, 500)}))
+    data = pd.concat(frames, ignore_index=True)
+    data["r_CD"] = 0.002 * (data["g"] - 0.5) + rng.normal(0, 0.0003, len(data))
+    terms = [Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),)) for v in ("a", "b", "g")]
+    x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
+    beta = np.linalg.lstsq(x, data.r_CD.to_numpy(), rcond=None)[0]
+    beta[1], beta[2] = 0.04, -0.04  # cancelling: the fit is nearly the same, each part large
+    res = StepwiseResult("CD", terms, beta, {}, [], 0.0, 0.0, len(data))
+    for t, v in zip(terms[:2], ("a", "b")):
+        size = float(np.ptp(t.design(data)[:, 0] * 0.04))
+        gain, _, by = holdout_gain(res, Cause("CD", [v], [t], "linear", {"p_value": 0.0}, size / 2, size=size), data)
+        assert gain < 1.02, (v, gain, by)
+    g = terms[2]
+    gain, _, _ = holdout_gain(res, Cause("CD", ["g"], [g], "linear", {"p_value": 0.0}, 0.001, size=0.002), data)
+    assert gain > 2.0, gain
