@@ -74,6 +74,9 @@ HOLD_INPUTS: dict[str, str] = {
     "w_fps": "velocities/w-fps",
 }
 
+#: Lateral controls, written only by the bank hold of a level turn (not required otherwise).
+LATERAL_CONTROLS: dict[str, str] = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
+
 #: Properties written by the engine.
 CONTROLS: dict[str, str] = {
     "elevator": "fcs/elevator-cmd-norm",

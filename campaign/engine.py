@@ -29,7 +29,7 @@ from campaign.matrix import StatusPoint  # noqa: E402
 from campaign.instruments import InstrumentProfile, load_profile, record  # noqa: E402
 from campaign.turbulence import dryden_gusts  # noqa: E402
 from identify.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
-from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
+from maneuvers.autopilot import HoldAutopilot, HoldGains, bank_hold  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
 from maneuvers.signals import Constant  # noqa: E402
 
@@ -351,6 +351,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     clmax = dict(config.clmax_by_flap).get(point.flap_deg)
     margin = 1.0 - tr.cl / clmax if clmax else None
     scale = 1.0 if margin is None else float(np.clip(margin / 0.35, 0.2, 1.0))
+    maneuver = maneuver.at_trim(float(fdm["velocities/vt-fps"]), _gravity(fdm))
     prog = maneuver.program(DT_S, scale)
     de_gain = elevator_gain_deg(config.aircraft)
     dh_gain = stabilizer_gain_deg(config.aircraft)
@@ -400,6 +401,17 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
                              speed(), tr.theta_deg, tr.elevator_deg,
                              tr.throttle, tr.qbar_psf)
     gear_final = maneuver.gear_final if isinstance(maneuver, GearTransition) else None
+    bank_in = None
+    if prog.bank_deg is not None:
+        lateral = [node(cat.LATERAL_CONTROLS[c]) for c in ("aileron", "rudder")]
+        if any(n is None for n in lateral):
+            raise TrimError(f"{maneuver.name}: aircraft {config.aircraft.name} has no "
+                            f"{' or '.join(cat.LATERAL_CONTROLS.values())}: no bank hold")
+        set_aileron, set_rudder = (n.set_double_value for n in lateral)
+        bank_in = prog.bank_deg.series(0, prog.max_steps).tolist()
+        i_phi, i_p, i_beta = idx["phi_deg"], idx["p_dps"], idx["beta_deg"]
+        s_phi, s_p, s_beta = state_scale[i_phi], state_scale[i_p], state_scale[i_beta]
+        phi = p_roll = beta = 0.0
 
     n_state = len(state_nodes)
     read_nodes = (state_nodes + force_nodes + ([stab_node] if stab_node else []) + [flap_node] + thr_nodes
@@ -446,6 +458,10 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         if dh_gain:
             trim_cmd.set_double_value(tr.pitch_trim_norm + stab_in[k] / dh_gain)
         gear_cmd.set_double_value(gear_in[k])
+        if bank_in is not None:
+            aileron, rudder = bank_hold(config.gains, bank_in[k], phi, p_roll, beta)
+            set_aileron(aileron)
+            set_rudder(rudder)
         if gust_n is not None:
             set_gust_n(gust_n[k])
             set_gust_e(gust_e[k])
@@ -455,6 +471,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         row = k * n_read
         if hold is not None:
             h, theta, q = buf[row + i_alt] * s_alt, buf[row + i_theta] * s_theta, buf[row + i_q] * s_q
+        if bank_in is not None:
+            phi, p_roll, beta = buf[row + i_phi] * s_phi, buf[row + i_p] * s_p, buf[row + i_beta] * s_beta
         if (gear_final is not None and end == prog.max_steps and gear_in[k] == gear_final
                 and abs(buf[row + i_gear] * s_gear - gear_final) < 1e-9):
             end = k + 1 + prog.post_travel_steps

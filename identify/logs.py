@@ -21,6 +21,8 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
 DERIVED = {"qdot_dps2": "derivative of the quintic spline through q_dps, half a JSBSim frame ahead, "
                         "low-passed at 3 Hz with the coefficients"}
 TRANSITIONS = ("gear_extension", "gear_retraction")
+#: Manoeuvres flown for the data compatibility (air-data calibration), not for eq. (3) fits.
+CALIBRATION = ("level_turn",)
 REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
 #: Physically plausible ranges; a value outside is a unit or sign mistake.
 PLAUSIBLE = {"alpha_deg": (-30.0, 60.0), "mach": (0.0, 3.0), "tas_kt": (0.0, 2000.0), "qbar_psf": (0.0, 3000.0),
@@ -57,8 +59,14 @@ class _Described:
 
     @property
     def transition(self) -> bool:
-        """A gear extension or retraction (anything else is an excitation: a 2-3-1-1, say)."""
+        """A gear extension or retraction."""
         return self.maneuver in TRANSITIONS
+
+    @property
+    def excitation(self) -> bool:
+        """An input for eq. (3) (a 2-3-1-1, a multisine): neither a gear transition nor a
+        calibration manoeuvre (a level turn)."""
+        return self.maneuver not in TRANSITIONS + CALIBRATION
 
 
 @dataclass

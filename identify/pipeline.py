@@ -113,7 +113,7 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     order = reference_order(logs)
     refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))
     fits = Packed(imap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series, method)
-                             for log in logs if not log.transition], jobs))
+                             for log in logs if log.excitation], jobs))
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
     incs = dict(zip((log.point for log in moves),
@@ -139,8 +139,8 @@ def _why_none(logs: list[Log], linear: dict, incs: dict) -> tuple[str, ...]:
     """Why the gear models are missing, if they are."""
     notes = []
     if not linear:
-        up = sorted({_cond_key(lg.condition) for lg in logs if not lg.transition and not lg.gear_down})
-        dn = sorted({_cond_key(lg.condition) for lg in logs if not lg.transition and lg.gear_down})
+        up = sorted({_cond_key(lg.condition) for lg in logs if lg.excitation and not lg.gear_down})
+        dn = sorted({_cond_key(lg.condition) for lg in logs if lg.excitation and lg.gear_down})
         notes.append("No linear gear model (eq. 4): it needs excitation manoeuvres gear up and gear down at one "
                      f"condition; gear up at {', '.join(up) or 'none'}, gear down at {', '.join(dn) or 'none'}.")
     if not incs:

@@ -1,4 +1,4 @@
-"""Altitude and speed hold for gear transitions (paper section 3.3).
+"""Altitude and speed hold for gear transitions (paper section 3.3), and the bank hold of a level turn.
 
 The elevator holds altitude through a pitch-attitude inner loop; the throttle
 holds speed. Gains are scheduled on dynamic pressure so one set works across
@@ -28,6 +28,24 @@ class HoldGains:
     v_int_per_fps_s: float = 0.06
     vdot_per_fps2: float = 0.6
     qbar_ref_psf: float = 150.0
+    aileron_per_deg: float = 0.05
+    aileron_per_dps: float = 0.1
+    rudder_per_deg: float = 0.1
+
+
+def bank_hold(gains: HoldGains, bank_cmd_deg: float, phi_deg: float, p_dps: float,
+              beta_deg: float) -> tuple[float, float]:
+    """Lateral hold of a level turn: aileron to the commanded bank (roll-rate damped), rudder
+    against sideslip. JSBSim's convention: a positive aileron or rudder command rolls or yaws right.
+
+    Returns
+    -------
+    aileron, rudder : float
+        Normalised commands, clipped to [-1, 1] [-].
+    """
+    a = gains.aileron_per_deg * (bank_cmd_deg - phi_deg) - gains.aileron_per_dps * p_dps
+    r = -gains.rudder_per_deg * beta_deg
+    return min(max(a, -1.0), 1.0), min(max(r, -1.0), 1.0)
 
 
 class HoldAutopilot:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, replace, fields
 
 from maneuvers.signals import Constant, Sampled, Signal, Step, multistep
 
@@ -38,6 +38,10 @@ class Program:
     wind_fps : ndarray or None
         A prescribed wind, shape (steps, 3), north, east, down [ft/s] (a replay in the wind
         measured in the data), flown instead of the instrument profile's turbulence.
+    bank_deg : Signal or None
+        Commanded bank angle, positive right wing down [deg]: the bank hold
+        (:func:`maneuvers.autopilot.bank_hold`) flies the ailerons and rudder; None leaves them
+        at the trim.
     """
 
     elevator_deg: Signal
@@ -49,6 +53,7 @@ class Program:
     max_steps: int
     throttle: Signal | None = None
     wind_fps: np.ndarray | None = None
+    bank_deg: Signal | None = None
 
 
 class Maneuver:
@@ -62,6 +67,10 @@ class Maneuver:
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:  # pragma: no cover
         raise NotImplementedError
+
+    def at_trim(self, tas_fps: float, gravity_fps2: float) -> "Maneuver":
+        """This manoeuvre as flown from a trim at ``tas_fps`` [ft/s] (most do not depend on it)."""
+        return self
 
 
 def _check_amplitudes(elevator_deg: float, stabilizer_deg: float) -> None:
@@ -285,11 +294,68 @@ class Multisine(Maneuver):
         return Program(signals[0], stabilizer, None, False, total, None, total)
 
 
+@dataclass(frozen=True)
+class LevelTurn(Maneuver):
+    """A steady level turn under the altitude/speed hold and the bank hold: the heading change
+    that lets the data compatibility tell an airspeed scale or bias from a steady wind (a full
+    circle makes a constant error along the track orthogonal to any steady wind).
+
+    Parameters
+    ----------
+    bank_deg : float
+        Bank angle of the turn, positive right [deg].
+    heading_deg : float
+        Heading change the turn aims at [deg]: the time at full bank follows from the trimmed
+        airspeed, ``g tan(bank) / V`` of turn rate (:meth:`at_trim`).
+    roll_s : float
+        Roll-in and roll-out, each a ramp of the bank command [s].
+    turn_s : float
+        Time at the full bank [s]; 0 (the default): from ``heading_deg`` at the trimmed speed.
+    lead_s, tail_s : float
+        Wings-level flight before the roll-in and after the roll-out [s].
+    """
+
+    name = "level_turn"
+    bank_deg: float = 25.0
+    heading_deg: float = 360.0
+    roll_s: float = 5.0
+    turn_s: float = 0.0
+    lead_s: float = 2.0
+    tail_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < abs(self.bank_deg) <= 25.0:
+            raise ValueError(f"bank_deg must be within 0 < |bank| <= 25 deg (the envelope stops at 30), "
+                             f"not {self.bank_deg!r}")
+        if not 0.0 < self.heading_deg <= 720.0:
+            raise ValueError(f"heading_deg must be within 0 < heading <= 720 deg, not {self.heading_deg!r}")
+        if self.roll_s <= 0 or self.turn_s < 0:
+            raise ValueError("roll_s must be > 0 and turn_s >= 0")
+
+    def at_trim(self, tas_fps: float, gravity_fps2: float) -> "LevelTurn":
+        if self.turn_s:
+            return self
+        rate = gravity_fps2 * np.tan(np.radians(abs(self.bank_deg))) / tas_fps  # [rad/s]
+        # each ramp turns about half as much as its time at full bank would
+        return replace(self, turn_s=max(np.radians(self.heading_deg) / rate - self.roll_s, 1.0))
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        if not self.turn_s:
+            raise ValueError("level_turn: the time at full bank is set from the trim (at_trim) or by turn_s")
+        lead, roll, turn, tail = (_steps(x, dt) for x in (self.lead_s, self.roll_s, self.turn_s, self.tail_s))
+        k = np.arange(lead + 2 * roll + turn + tail, dtype=float)
+        up = np.clip((k - lead) / roll, 0.0, 1.0)
+        down = np.clip((k - lead - roll - turn) / roll, 0.0, 1.0)
+        bank = Sampled(tuple(self.bank_deg * (up - down)))
+        return Program(Constant(0.0), Constant(0.0), None, True, len(k), None, len(k), bank_deg=bank)
+
+
 MANEUVERS: dict[str, type[Maneuver]] = {
     "doublet": Doublet2311,
     "multisine": Multisine,
     "gear_extension": GearTransition,
     "gear_retraction": GearTransition,
+    "level_turn": LevelTurn,
 }
 
 

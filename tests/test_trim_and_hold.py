@@ -165,3 +165,71 @@ def test_signal_series_equal_their_values_bit_for_bit(name):
         assert got.tobytes() == want.tobytes()
         assert s.series(5, 5).shape == (0,)
     assert np.ptp(np.array([prog.elevator_deg.value(k) for k in range(n)])) > 0 or name.startswith("gear")
+
+
+@pytest.mark.parametrize("aircraft", ["ours", "stock 737"])
+def test_a_level_turn_circles_once_coordinated_at_its_altitude(reference_config, aircraft):
+    """The bank hold flies a full circle from the trimmed speed (heading_deg 360 at 25 deg), with
+    the altitude/speed hold on; a longitudinal channel sees the bank's load factor only."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    import jsbsim
+
+    from campaign.aircraft import AircraftSource, load_effects
+    from campaign.matrix import StatusPoint
+    cfg = reference_config if aircraft == "ours" else replace(
+        reference_config, aircraft=AircraftSource(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"),
+                                                      load_effects(None)),
+        clmax_by_flap=())
+    f = fly(StatusPoint(alt_ft=10000.0, mach=0.3, flap_deg=0.0, gear_down=False), "level_turn", cfg)
+    log, meta = f.log, f.meta
+    heading = np.unwrap(np.radians(log.psi_deg))
+    turned = np.degrees(heading[-1] - heading[0])
+    assert 330.0 <= turned <= 400.0, turned
+    assert meta["maneuver_params"]["turn_s"] > 60.0  # set from the trimmed speed, not the default 0
+    full = log[(log.t_s > 15.0) & (log.t_s < log.t_s.iloc[-1] - 15.0)]
+    assert np.abs(full.phi_deg - 25.0).max() < 2.0
+    assert np.abs(log.beta_deg).max() < 1.5  # coordinated
+    assert np.abs(log.alt_ft - log.alt_ft.iloc[0]).max() < 60.0
+    assert np.abs(log.mach - log.mach.iloc[0]).max() < 0.01
+    assert log.gear_norm.eq(0.0).all()
+    n = 1.0 / np.cos(np.radians(25.0))  # the load factor of a level turn
+    assert -full.az_fps2.mean() / meta["gravity_fps2"] == pytest.approx(n, rel=0.03)
+
+
+def test_a_level_turn_is_not_an_excitation(tmp_path):
+    """Flown for the data compatibility: neither the eq. (3) fits nor the reconstruction use it yet
+    (in a turn a steady wind and the gusts trade freely without a prior on the gusts)."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnose import load_data
+    from identify.compat import estimate
+    from identify.pipeline import identify_logs
+    from tests.support import run_matrix
+    text = ('name = "turn"\n[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
+            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
+            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.4\nalt_ft = 2000\nmaneuvers = ["doublet"]\n')
+    logs = load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3))
+    turn = [lg for lg in logs if lg.maneuver == "level_turn"]
+    assert len(turn) == 1 and not turn[0].excitation and not turn[0].transition
+    assert all(lg.excitation for lg in logs if lg.maneuver == "doublet")
+    fits = identify_logs(logs, compatibility=False).fits
+    assert sorted(f.path for f in fits) == sorted(str(lg.path) for lg in logs if lg.excitation)
+    both, straight = estimate(logs), estimate([lg for lg in logs if lg.excitation])
+    assert both.logs == straight.logs and turn[0].path not in both.logs
+    assert [(p.name, p.estimate, p.se) for p in both.parameters] == [(p.name, p.estimate, p.se)
+                                                                     for p in straight.parameters]
+
+
+def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
+    """The reconstruction's standard errors are the spread between logs: one log has none (it gave
+    0, so z = inf, and a correction of nothing but noise was applied)."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnose import load_data
+    from identify.compat import estimate
+    from tests.support import run_matrix
+    text = ('name = "one"\n[maneuvers.doublet]\ntail_s = 2.0\n'
+            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet"]\n')
+    res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3)))
+    assert not res.applied
+    assert all(not p.identifiable and "at least two" in p.reason for p in res.parameters)

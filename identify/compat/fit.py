@@ -12,7 +12,7 @@ from identify.compat.reconstruction import (ESSENTIAL, INS, _attitude, _body_to_
                                             _shift_columns)
 from identify.compat.result import (D2R, FT_PER_KT, MAX_VIF, PRUNE_FIRST, TURBULENT_FPS, CompatResult, _parameters,
                                     at_cg, columns_of, documented_positions)
-from identify.logs import Log
+from identify.logs import CALIBRATION, Log
 def estimate(logs: list[Log]) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
@@ -26,13 +26,19 @@ def estimate(logs: list[Log]) -> CompatResult:
     -------
     CompatResult
     """
+    # A level turn lets a steady wind be told from an airspeed error only with a prior on the gusts'
+    # size, which the reconstruction does not have yet: without one, the wind and the gusts trade
+    # freely in a turn and take the other errors with them. Turns are left out.
+    logs = [lg for lg in logs if lg.maneuver not in CALIBRATION]
     params = _parameters()
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
-    if missing:
+    if missing or len(logs) < 2:
+        why = (f"{missing[0]} is not logged" if missing else
+               "one log (its standard errors come from the spread between logs: at least two are needed)")
         for p in params:
-            p.identifiable, p.reason = False, f"no reconstruction: {missing[0]} is not logged"
+            p.identifiable, p.reason = False, f"no reconstruction: {why}"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
     chosen = [lg.read() for lg in _select(logs)]
     data = _prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
