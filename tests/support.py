@@ -4,6 +4,15 @@ from __future__ import annotations
 import numpy as np
 
 
+#: Gear-up 2-3-1-1s at three conditions, a gear-down one at flap 30 (the diagnosis matrix's
+#: conditions), and a full-circle level turn at Mach 0.3 and 10,000 ft.
+TURN_MATRIX = ('name = "turn"\n'
+               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 2000\n'
+               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
+               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.5\nalt_ft = 10000\n'
+               '[[points]]\ngear = "down"\nflap_deg = 30\nmach = 0.2\nalt_ft = 2000\n')
+
+
 def _toml_value(v) -> str:
     return "[" + ", ".join(_toml_value(x) for x in v) + "]" if isinstance(v, (list, tuple)) else repr(v)
 

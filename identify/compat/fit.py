@@ -7,12 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from identify.compat.reconstruction import (ESSENTIAL, INS, _attitude, _body_to_ned, _excited, _gauss_newton,
-                                            _gust_basis, _noise, _prepare, _responses, _rotations, _select, _shift,
-                                            _shift_columns)
-from identify.compat.result import (D2R, FT_PER_KT, MAX_VIF, PRUNE_FIRST, TURBULENT_FPS, CompatResult, _parameters,
-                                    at_cg, columns_of, documented_positions)
-from identify.logs import CALIBRATION, Log
+from identify.compat.reconstruction import (ESSENTIAL, INS, TURN_SPAN_DEG, _attitude, _body_to_ned, _excited,
+                                            _gauss_newton, _gust_basis, _noise, _prepare, _responses, _rotations,
+                                            _select, _shift, _shift_columns, _turned)
+from identify.compat.result import (BLOCK_S, D2R, DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS, MAX_VIF,
+                                    PRUNE_FIRST, TURBULENT_FPS, CompatResult, _parameters, at_cg, columns_of,
+                                    documented_positions)
+from identify.logs import Log
 def estimate(logs: list[Log]) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
@@ -26,10 +27,6 @@ def estimate(logs: list[Log]) -> CompatResult:
     -------
     CompatResult
     """
-    # A level turn lets a steady wind be told from an airspeed error only with a prior on the gusts'
-    # size, which the reconstruction does not have yet: without one, the wind and the gusts trade
-    # freely in a turn and take the other errors with them. Turns are left out.
-    logs = [lg for lg in logs if lg.maneuver not in CALIBRATION]
     params = _parameters()
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
@@ -154,9 +151,14 @@ def estimate(logs: list[Log]) -> CompatResult:
                 "alt_ft": h,
                 **(dict(zip(INS[1:], ned)) if ins else {})}
 
+    prior = {"fps": 0.0}  # the gusts' prior standard deviation [ft/s]; 0: none
+
     def resid2(x):
         m = model2(x)
-        return np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs2])
+        e = np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs2])
+        if not prior["fps"]:
+            return e
+        return np.concatenate([e, x[len(s2):].reshape(L, n_per)[:, g0:].ravel() / prior["fps"]])
 
     def perlog2(x):
         """d(residual)/d(each log's initial velocity, altitude and gust coefficients), by the chain rule."""
@@ -198,6 +200,17 @@ def estimate(logs: list[Log]) -> CompatResult:
                 block[:] = _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per)[valid]
                 block *= 1 + v[f"{c}.scale"]
             block /= -sig[c]
+        if prior["fps"]:
+            gusts = np.zeros((L, 3 * k_gust, n_per))
+            gusts[:, :, g0:] = np.eye(3 * k_gust) / prior["fps"]
+            out = np.vstack([out, gusts.reshape(-1, n_per)])
+            steady = np.zeros((len(out), 3))  # d(residual)/d(a steady gust along each body axis)
+            for b, c in enumerate(outs2):
+                if c in d_out:
+                    d = -d_out[c] * mask[..., None]
+                    steady[b * n_valid:(b + 1) * n_valid] = (_shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, 3)[
+                        valid] * (1 + v[f"{c}.scale"]) / -sig[c])
+            prior["steady"] = steady
         return out
 
     a0, b0 = data.ch["alpha_deg"][:, 0], data.ch["beta_deg"][:, 0]
@@ -206,8 +219,29 @@ def estimate(logs: list[Log]) -> CompatResult:
                      data.ch["alt_ft"][:, 0]], 1)
     x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
     rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
+    turned = _turned(data) >= TURN_SPAN_DEG if n_wind else np.zeros(L, bool)
+    if turned.all():
+        for e in ("bias", "scale"):
+            by[f"tas_kt.{e}"].identifiable = False
+            by[f"tas_kt.{e}"].reason = ("every log turns: the gusts' size, which tells a steady wind from an "
+                                        "airspeed error in a turn, needs a straight log too")
+    elif turned.any():
+        # In a turn a steady wind turns in body axes as slowly as the gusts' splines move: without a
+        # prior on the gusts' size the two trade freely, and with them an airspeed scale or bias. The
+        # prior is the turbulence the straight logs show (the vertical gust, as Dryden's isotropic).
+        prior["fps"] = max(estimate([lg for lg, t in zip(chosen, turned) if not t]).turbulence_fps,
+                           GUST_PRIOR_FLOOR_FPS)
+        rows2 = np.concatenate([rows2, np.repeat(np.arange(L), 3 * k_gust)])
+        # one log pins the airspeed error: time blocks, not logs, are the clusters of its uncertainty
+        label = (np.arange(L)[:, None] * 100_000 + np.floor(data.t / BLOCK_S)).ravel()[valid]
+        blocks2 = np.concatenate([np.tile(label, len(outs2)), np.repeat(np.arange(L) * 100_000 - 1, 3 * k_gust)])
+        # the splines are zero-mean over each log: the mean gust over a log of T seconds, of variance
+        # sigma^2 2 tau / T for a correlation time tau = L / V (Dryden), is the error they leave out
+        span = np.array([data.t[i][mask[i]][-1] for i in range(L)])
+        speed = np.array([np.median(data.ch["tas_kt"][i][mask[i]]) for i in range(L)])
+        prior["offset_sd"] = prior["fps"] * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / span)
     x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
-                      covs)
+                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None)
     per = x2[len(s2):].reshape(L, n_per)
     w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
     turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
@@ -226,10 +260,17 @@ def estimate(logs: list[Log]) -> CompatResult:
     return CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
 
 
+def _covariance(blk, blocks: tuple | None) -> np.ndarray:
+    """The delete-one-log jackknife; with ``blocks`` (a log turns), the time-block sandwich plus
+    the steady gusts the splines leave out (:func:`identify.compat.reconstruction._gauss_newton`)."""
+    return blk.cluster_cov() if blocks is None else blk.block_cov() + blk.offset_cov(blocks[2])
+
+
 def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,
-                 perlog=None, covs: list | None = None) -> np.ndarray:
+                 perlog=None, covs: list | None = None, blocks: tuple | None = None) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
-    errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0."""
+    errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0.
+    ``blocks``: for the standard errors when a log turns (:func:`_covariance`)."""
     ns = len(names)
     free = np.zeros(ns, bool)
     rows = [np.flatnonzero(rows == i) for i in range(L)]  # residual rows of each log
@@ -244,8 +285,8 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
     free[:] = [by[s].identifiable for s in names]
     pairs = []  # (pruned, kept) indices into names
     while True:
-        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog)
-        cov = blk.cluster_cov()
+        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, robust=blocks)
+        cov = _covariance(blk, blocks)
         idx = np.flatnonzero(free)
         sd = np.sqrt(np.abs(np.diag(cov)))
         if len(idx) < 2:
@@ -279,10 +320,10 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
         alt_free[pruned], alt_free[kept] = True, False
         x_alt = x.copy()
         x_alt[kept] = 0.0
-        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog)
+        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks)
         j = int(np.flatnonzero(np.flatnonzero(alt_free) == pruned)[0])
         p = by[names[pruned]]
-        p.estimate, p.se = float(x_alt[pruned]), float(np.sqrt(abs(blk_alt.cluster_cov()[j, j])))
+        p.estimate, p.se = float(x_alt[pruned]), float(np.sqrt(abs(_covariance(blk_alt, blocks)[j, j])))
         p.identifiable, p.confounded_with = True, names[kept]
     for i, c in enumerate(outs):
         rms[c]["after"] = float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))

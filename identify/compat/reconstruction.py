@@ -8,8 +8,8 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from identify.compat.result import (D2R, EARTH_RADIUS_FT, EARTH_RATE, FT_PER_KT, G0_FPS2, GUST_KNOT_S, LATERAL_SPAN,
-                                    MAX_LOGS, RATE_HZ, THETA_BIAS_SPAN)
-from identify.logs import Log
+                                    MAX_LOGS, NEEDS_TURN, RATE_HZ, THETA_BIAS_SPAN)
+from identify.logs import CALIBRATION, Log
 # ----------------------------------------------------------------------------- data
 
 
@@ -28,8 +28,10 @@ class _Data:
 
 
 def _select(logs: list[Log]) -> list[Log]:
-    """At most MAX_LOGS logs spread over the conditions, 2-3-1-1s first (they excite most)."""
-    ranked = sorted(logs, key=lambda lg: (lg.transition, lg.gear_down, lg.condition, lg.path))
+    """At most MAX_LOGS logs spread over the conditions: calibration manoeuvres (level turns)
+    first, then 2-3-1-1s (they excite most)."""
+    ranked = sorted(logs, key=lambda lg: (lg.maneuver not in CALIBRATION, lg.transition, lg.gear_down,
+                                          lg.condition, lg.path))
     out, seen = [], set()
     for lg in ranked:  # one per condition and manoeuvre first
         key = (lg.condition, lg.maneuver)
@@ -243,19 +245,18 @@ def _responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: n
 
 
 def _gust_basis(data: _Data) -> np.ndarray:
-    """Zero-mean cubic B-splines, knots :data:`GUST_KNOT_S` apart over each log (L, n, K):
-    the slow wander of the air mass (turbulence) the air data see and the kinematics do not."""
+    """Zero-mean cubic B-splines, knots about :data:`GUST_KNOT_S` apart over each log (L, n, K):
+    the slow wander of the air mass (turbulence) the air data see and the kinematics do not. A
+    log shorter than the longest leaves its last columns zero."""
     L, n = data.t.shape
-    span = float(max(data.t[i][data.mask[i]][-1] for i in range(L)))
-    inner = max(int(np.ceil(span / GUST_KNOT_S)), 1)
-    out = np.zeros((L, n, inner + 3))
-    for i in range(L):
-        t = data.t[i]
-        end = float(t[data.mask[i]][-1])
-        knots = np.concatenate([[0.0] * 3, np.linspace(0.0, end, inner + 1), [end] * 3])
-        b = BSpline.design_matrix(np.clip(t, 0.0, end), knots, 3).toarray()
+    ends = [float(data.t[i][data.mask[i]][-1]) for i in range(L)]
+    inner = [max(int(np.ceil(end / GUST_KNOT_S)), 1) for end in ends]
+    out = np.zeros((L, n, max(inner) + 3))
+    for i, (end, k) in enumerate(zip(ends, inner)):
+        knots = np.concatenate([[0.0] * 3, np.linspace(0.0, end, k + 1), [end] * 3])
+        b = BSpline.design_matrix(np.clip(data.t[i], 0.0, end), knots, 3).toarray()
         b -= b[data.mask[i]].mean(axis=0)
-        out[i] = b * data.mask[i][:, None]
+        out[i, :, :k + 3] = b * data.mask[i][:, None]
     return out
 
 
@@ -272,8 +273,18 @@ class _Blocks:
     by its own log's parameters only.
     """
 
-    def __init__(self, Js: np.ndarray, Jp: np.ndarray, e: np.ndarray, rows: list[np.ndarray]) -> None:
+    def __init__(self, Js: np.ndarray, Jp: np.ndarray, e: np.ndarray, rows: list[np.ndarray],
+                 blocks: np.ndarray | None = None, steady: np.ndarray | None = None) -> None:
         self.rows = rows
+        self.scores = None  # per log: each time block's (shared, per-log) gradient, with ``blocks``
+        # per log: the shared and per-log normal-equation columns of the steady gusts, with ``steady``
+        self.steady = None if steady is None else [(Js[r].T @ steady[r], Jp[r].T @ steady[r]) for r in rows]
+        if blocks is not None:
+            self.scores = []
+            for r in rows:
+                labels = blocks[r]
+                self.scores.append([(Js[r[labels == b]].T @ e[r[labels == b]], Jp[r[labels == b]].T @ e[r[labels == b]])
+                                    for b in np.unique(labels)])
         ns, per = Js.shape[1], Jp.shape[1]
         self.Hll, self.Hsl, self.gl, self.Bb, self.gb = [], [], [], [], []  # each log's products only
         for r in rows:
@@ -312,6 +323,29 @@ class _Blocks:
         dl = [-hi @ (g + h.T @ ds) for h, hi, g in zip(self.Hsl, hll_inv, self.gl)]
         return ds, dl
 
+    def block_cov(self) -> np.ndarray:
+        """Covariance of the shared parameters robust to correlation within a time block (the
+        sandwich with blocks as clusters, each log's own parameters eliminated). Unlike the
+        delete-one-log jackknife it holds when one log alone pins a parameter down (a turn)."""
+        if not len(self.gs):
+            return np.zeros((0, 0))
+        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
+        S_inv = np.linalg.pinv(self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv)))
+        g = np.array([b - h @ hi @ a for h, hi, blocks in zip(self.Hsl, hll_inv, self.scores) for b, a in blocks])
+        B = len(g)
+        return S_inv @ (g.T @ g) @ S_inv * (B / max(B - 1, 1))
+
+    def offset_cov(self, sd: np.ndarray) -> np.ndarray:
+        """Covariance the shared parameters take from a steady gust along each body axis in each
+        log, of standard deviation ``sd`` per log [ft/s], which the fit holds at zero: each gust's
+        effect on the estimate through the normal equations, each log's own parameters refitted."""
+        if not len(self.gs) or self.steady is None:
+            return np.zeros((len(self.gs), len(self.gs)))
+        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
+        S_inv = np.linalg.pinv(self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv)))
+        moves = [S_inv @ (js - h @ hi @ jp) * s for (js, jp), h, hi, s in zip(self.steady, self.Hsl, hll_inv, sd)]
+        return sum(m @ m.T for m in moves)
+
     def cluster_cov(self) -> np.ndarray:
         """Covariance of the shared parameters robust to any correlation within a log (logs as
         clusters; turbulence makes the air data wander for seconds against the kinematics, longer
@@ -329,6 +363,19 @@ class _Blocks:
                       for gb, g, h, hi, s_l in zip(self.gb, self.gl, self.Hsl, hll_inv, own)])
         d -= d.mean(axis=0)
         return d.T @ d * ((L - 1) / L)
+
+
+#: A log whose heading turns through this much lets a steady wind be told from an airspeed scale
+#: and bias [deg].
+TURN_SPAN_DEG = 60.0
+
+
+def _turned(data: _Data) -> np.ndarray:
+    """Heading change of each log [deg] (0 without a heading channel)."""
+    if "psi_deg" not in data.present:
+        return np.zeros(len(data.mask))
+    psi = np.unwrap(data.ch["psi_deg"], axis=1)
+    return np.array([float(np.ptp(psi[i][m])) / D2R if m.any() else 0.0 for i, m in enumerate(data.mask)])
 
 
 def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
@@ -364,9 +411,13 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
     if theta_span < THETA_BIAS_SPAN:
         out.setdefault("theta_deg.bias", f"confounded with the longitudinal accelerometer's bias through gravity "
                                          f"(pitch spans {theta_span:.0f} deg, needs {THETA_BIAS_SPAN:g})")
+    ins = all(c in data.present for c in INS)
+    turned = float(_turned(data).max(initial=0.0)) if ins else 0.0
     for e in ("bias", "scale", "delay"):
-        out.setdefault(f"tas_kt.{e}", "a steady wind along the track takes it (no turns in the manoeuvres)"
-                       if all(c in data.present for c in INS) else
+        if e != "delay" and turned >= TURN_SPAN_DEG:
+            continue  # a steady wind in the earth's axes, seen from several headings, is not an airspeed error
+        out.setdefault(f"tas_kt.{e}", (f"{NEEDS_TURN} (no turn in the manoeuvres: the "
+                                       f"heading spans {turned:.0f} deg, needs {TURN_SPAN_DEG:g})") if ins else
                        "no inertial speed reference in the logs (ground speed): each log's own initial speed "
                        "absorbs it")
     for c in ("p_dps", "r_dps", "ay_fps2"):
@@ -378,13 +429,16 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
 
 
 def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, per: int,
-                  rows: list[np.ndarray], perlog=None, max_iter: int = 40):
+                  rows: list[np.ndarray], perlog=None, max_iter: int = 40,
+                  robust: tuple | None = None):
     """Damped Gauss-Newton: x = [shared (ns), per log (L x per)]; ``free`` masks the shared ones
     (each log's own parameters are always free).
 
     The shared columns of the Jacobian are forward differences; the per-log ones
     too (one evaluation per slot: each log's rows depend on its own only), unless
-    ``perlog(x)`` gives them: an array (residual rows, per).
+    ``perlog(x)`` gives them: an array (residual rows, per). ``robust``: (each row's time block,
+    a callable giving the steady gusts' residual columns at the last ``perlog``, their standard
+    deviations per log) for :meth:`_Blocks.block_cov` and :meth:`_Blocks.offset_cov`.
 
     Returns
     -------
@@ -412,7 +466,7 @@ def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, pe
                 xp = x0.copy()
                 xp[cols] += steps[cols]
                 Jp[:, slot] = (residual(xp) - e0) / steps[cols][row_log]
-        return _Blocks(Js, Jp, e0, rows)
+        return _Blocks(Js, Jp, e0, rows, *((robust[0], robust[1]()) if robust is not None else ()))
 
     e = residual(x)
     cost = float(e @ e)

@@ -46,6 +46,17 @@ TURBULENT_FPS = 0.5
 #: Knot spacing of each log's gust [s]: Dryden turbulence has most of its power below V / (2 pi L),
 #: about 0.04 Hz at 1750 ft scale length; a 2-3-1-1 excites 0.15-1 Hz.
 GUST_KNOT_S = 3.0
+#: How the reconstruction says an airspeed error needs a turn.
+NEEDS_TURN = "a steady wind along the track takes it"
+#: Smallest prior standard deviation of the gusts' spline coefficients [ft/s] (still air still
+#: leaves the kinematic model's own mismatch, about 0.1 ft/s).
+GUST_PRIOR_FLOOR_FPS = 0.3
+#: Time blocks whose residuals are taken as correlated within, independent between [s], for the
+#: standard errors when a turn pins the airspeed errors: several of Dryden's correlation times.
+BLOCK_S = 15.0
+#: Dryden's longitudinal scale length above 2,000 ft (MIL-F-8785C) [ft]: the correlation time of the
+#: gusts is this over the airspeed.
+DRYDEN_LENGTH_FT = 1750.0
 
 
 @dataclass
@@ -171,9 +182,11 @@ class CompatResult:
 
     @property
     def unmeasured(self) -> list[tuple[str, str]]:
-        """Air-data errors the manoeuvres could have shown but the conditions hid (turbulence)."""
+        """Air-data errors the manoeuvres could have shown but the conditions hid (turbulence), and
+        the airspeed's scale that only a turn can tell from a steady wind."""
         return [(p.channel, p.error) for p in self.parameters
-                if not p.identifiable and p.reason.startswith("turbulence") and p.channel == "alpha_deg"]
+                if not p.identifiable and ((p.reason.startswith("turbulence") and p.channel == "alpha_deg")
+                                           or (p.name == "tas_kt.scale" and p.reason.startswith(NEEDS_TURN)))]
 
     def get(self, name: str) -> Parameter:
         return next(p for p in self.parameters if p.name == name)
