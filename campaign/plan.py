@@ -12,8 +12,15 @@ are chosen greedily by separation gained per flight minute until every pair is p
 Candidates: the ``--matrix`` given (its points, each with its own manoeuvres), or,
 by default, one factor at a time away from every condition of the old data: 6,000 ft above and below,
 Mach 0.1 either side, and the aircraft's lowest, middle and highest flap angle; each gear up (2-3-1-1,
-multisine) and gear down (2-3-1-1, multisine, gear extension, gear retraction). A flight already in
-the old data is not a candidate.
+multisine) and gear down (2-3-1-1, multisine, gear extension, gear retraction); and, when a rival
+is an airspeed error the data compatibility could not measure (it needs a heading change) and the
+logs hold an inertial velocity, a full-circle level turn gear up at each condition. A flight already
+in the old data is not a candidate.
+
+A turn's worth to an airspeed rival is the data compatibility's measurement of the error: a steady
+wind is told from an error along the track over the circle, to within the mean along-track gust
+over the turn, ``sigma sqrt(2 L / (V T))`` (Dryden's scale length ``L``, the turbulence ``sigma`` the
+diagnosis reconstructed, the turn's speed ``V`` and duration ``T``).
 """
 from __future__ import annotations
 
@@ -45,6 +52,10 @@ GEAR_DOWN = ("doublet", "multisine", "gear_extension", "gear_retraction")
 MAX_ALT_FT = 45000.0
 #: Excitation inputs: one per point (identification pairs one eq. (3) fit per gear).
 EXCITATION = ("doublet", "multisine")
+#: The greedy choice is also started from this many of the flights that gain most alone.
+SEEDED = 8
+#: Channels a turn needs to measure an airspeed error: an inertial velocity and heading.
+TURN_NEEDS = ("psi_deg", "vn_fps", "ve_fps", "vd_fps")
 
 
 def read_diagnosis(folder: Path) -> dict:
@@ -130,10 +141,11 @@ def _condition(alt: float, mach: float, flap: float) -> tuple:
 
 
 def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, given: Matrix | None,
-               held: set | None = None) -> list[StatusPoint]:
+               held: set | None = None, turns: bool = False) -> list[StatusPoint]:
     """Candidate points, each with its candidate manoeuvres (see the module's docstring): one factor
-    at a time away from each condition of the old data, at its weight. None at a condition the
-    diagnosis holds out (``held``): a flight there would be held out too."""
+    at a time away from each condition of the old data, at its weight, with a level turn gear up
+    if ``turns``. None at a condition the diagnosis holds out (``held``): a flight there would be
+    held out too."""
     held = {_condition(*c) for c in (held or ())}
     if given is not None:
         return [p for p in given.points if _condition(p.alt_ft, p.mach, p.flap_deg) not in held]
@@ -154,7 +166,8 @@ def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, giv
             for down in (False, True):
                 if (a, m, f, down) not in seen:
                     seen.add((a, m, f, down))
-                    out.append(StatusPoint(a, m, f, down, weight, GEAR_DOWN if down else GEAR_UP, "candidates"))
+                    up = GEAR_UP + (("level_turn",) if turns and f == flap else ())
+                    out.append(StatusPoint(a, m, f, down, weight, GEAR_DOWN if down else up, "candidates"))
     return out
 
 
@@ -181,8 +194,10 @@ def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, 
     return read_campaign(out)
 
 
-def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, jobs: int) -> list[list[list[dict]]]:
-    """Per log, per rival: the sums each way (:func:`diagnose.separation.predicted`)."""
+def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, jobs: int,
+                turbulence_fps: float = 0.0) -> list[list[list[dict]]]:
+    """Per log, per rival: the sums each way (:func:`diagnose.separation.predicted`), and a level
+    turn's measurement of an airspeed rival (:func:`with_turn`)."""
     from diagnose.evaluate import ModelEvaluator
     from diagnose.noise_floor import NoiseFloor
     from diagnose.residuals import residual_data
@@ -205,8 +220,74 @@ def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, j
         per = []
         for r in rivals:
             context = {c: [sep.unclipped(sep.term_from_dict(t)) for t in ts] for c, ts in r.get("context", {}).items()}
-            per.append(sep.predicted(sep.Stack(part, r["weights"], s, context), r))
+            if to_measure(r):
+                turn = logs[i].maneuver == "level_turn" and airspeed_rival(r)
+                per.append(measurement(measured_se(r, logs[i], turbulence_fps) if turn else 0.0))
+                continue
+            sums = sep.predicted(sep.Stack(part, r["weights"], s, context), r)
+            if logs[i].maneuver == "level_turn" and airspeed_rival(r):
+                sums = with_turn(sums, r, logs[i], turbulence_fps)
+            per.append(sums)
         out.append(per)
+    return out
+
+
+def airspeed_rival(r: dict) -> bool:
+    """Whether a rival is an airspeed error (what a turn measures)."""
+    return r["kind"] == "sensor" and r["hypotheses"][1].get("channel") == "tas_kt"
+
+
+def unmeasured(r: dict) -> bool:
+    """Whether a rival is an instrument error the data compatibility could not measure."""
+    return r["kind"] == "sensor" and r["hypotheses"][1].get("prior") is None
+
+
+def turn_se(log: Log, turbulence_fps: float) -> float:
+    """What the data compatibility will measure of the airspeed error along the track from this
+    turn, one standard error [kt] (see the module's docstring)."""
+    from identify.compat.result import DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS
+    t = log.data["t_s"].to_numpy(float)
+    speed = float(np.median(log.data["tas_kt"])) * FT_PER_KT
+    sigma = max(float(turbulence_fps), GUST_PRIOR_FLOOR_FPS)
+    return sigma * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / (t[-1] - t[0])) / FT_PER_KT
+
+
+def to_measure(r: dict) -> bool:
+    """A rival the residuals already prefer to the cause (by :data:`diagnose.separation.SETTLED_SE`
+    or more), an instrument error the data compatibility could not measure: what settles it is a
+    measurement of the error, nothing the residuals can add."""
+    return unmeasured(r) and r["separation_se"] <= -sep.SETTLED_SE
+
+
+def measurement(z: float) -> list[dict]:
+    """The sums each way of a measurement that finds the rival's error at ``z`` standard errors
+    (:func:`diagnose.separation.left` gives ``z``; they add in squares over flights)."""
+    st = {"G": np.ones((1, 1)), "b": np.zeros(1), "c": float(z) ** 2, "H": np.zeros((1, 1)), "C": np.zeros((1, 1))}
+    return [st, dict(st)]
+
+
+def error_se(r: dict, log: Log, turbulence_fps: float) -> float:
+    """One standard error of the turn ``log``'s measurement of the airspeed rival's error, in its
+    units (scale [-], bias [kt])."""
+    se_kt = turn_se(log, turbulence_fps)
+    return se_kt / float(np.median(log.data["tas_kt"])) if r["hypotheses"][1]["error"] == "scale" else se_kt
+
+
+def measured_se(r: dict, log: Log, turbulence_fps: float) -> float:
+    """How far the turn ``log`` will find the airspeed rival's error from 0 [standard errors]."""
+    return abs(float(r["theta"][1][-1])) / error_se(r, log, turbulence_fps)
+
+
+def with_turn(sums: list[dict], r: dict, log: Log, turbulence_fps: float) -> list[dict]:
+    """A rival's sums each way (:func:`flight_sums`) plus the data compatibility's measurement of
+    its airspeed error from the turn ``log``: a row on the sensor's own column (the last), which the
+    cause's fit cannot follow; the cause taken as the truth makes it measure 0."""
+    w = 1.0 / error_se(r, log, turbulence_fps)
+    out = [{k: (np.array(v, float) if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in sums]
+    out[0]["G"][-1, -1] += w * w  # the cause as the truth: the rival's error is measured at 0
+    theta = float(r["theta"][1][-1])  # the rival as the truth: its error is measured
+    out[1]["H"][-1, -1] += w * w
+    out[1]["c"] = float(out[1]["c"]) + (w * theta) ** 2
     return out
 
 
@@ -222,28 +303,45 @@ def choose(old: list[list[dict]], flights: list[dict], budget: float,
            base: list[tuple[float, float]]) -> tuple[list[int], list[list[dict]]]:
     """Greedy choice: the flight that gains most :func:`planned` separation (capped at
     :data:`PLAN_SE` per rival, squared) per minute, until every rival reaches it or the budget is spent.
+    Greedy by the minute can spend the budget on cheap flights and leave no room for the one long
+    flight a rival needs (a turn), so it is also started from each of the :data:`SEEDED` flights that
+    gain most alone, and the best end (most capped separation, then fewest minutes) is kept.
 
     ``flights``: ``{"minutes", "sums" (per rival), "point", "maneuver"}``; returns the chosen
     indices in order and the sums they reach."""
     def score(sums):
         return sum(min(max(planned(s, b), 0.0), PLAN_SE) ** 2 for s, b in zip(sums, base))
 
-    now, chosen, spent = old, [], 0.0
-    while min(planned(s, b) for s, b in zip(now, base)) < PLAN_SE:
-        excited = {flights[j]["point"] for j in chosen if flights[j]["maneuver"] in EXCITATION}
-        current, best = score(now), None
-        for j, f in enumerate(flights):
-            if j in chosen or spent + f["minutes"] > budget or (f["maneuver"] in EXCITATION and f["point"] in excited):
-                continue
-            trial = [sep.add(a, b) for a, b in zip(now, f["sums"])]
-            gain = (score(trial) - current) / max(f["minutes"], 1e-6)
-            if gain > 0 and (best is None or gain > best[0]):
-                best = (gain, j, trial)
-        if best is None:
-            break
-        chosen.append(best[1])
-        now = best[2]
-        spent += flights[best[1]]["minutes"]
+    def trial(now, j):
+        return [sep.add(a, b) for a, b in zip(now, flights[j]["sums"])]
+
+    def greedy(first: int | None):
+        now, chosen, spent = old, [], 0.0
+        if first is not None:
+            now, chosen, spent = trial(old, first), [first], flights[first]["minutes"]
+        while min(planned(s, b) for s, b in zip(now, base)) < PLAN_SE:
+            excited = {flights[j]["point"] for j in chosen if flights[j]["maneuver"] in EXCITATION}
+            current, best = score(now), None
+            for j, f in enumerate(flights):
+                if (j in chosen or spent + f["minutes"] > budget
+                        or (f["maneuver"] in EXCITATION and f["point"] in excited)):
+                    continue
+                t = trial(now, j)
+                gain = (score(t) - current) / max(f["minutes"], 1e-6)
+                if gain > 0 and (best is None or gain > best[0]):
+                    best = (gain, j, t)
+            if best is None:
+                break
+            chosen.append(best[1])
+            now = best[2]
+            spent += flights[best[1]]["minutes"]
+        return score(now), -spent, chosen, now
+
+    start = score(old)
+    alone = sorted((j for j, f in enumerate(flights) if f["minutes"] <= budget),
+                   key=lambda j: -(score(trial(old, j)) - start))[:SEEDED]
+    ends = [greedy(None)] + [greedy(j) for j in alone if score(trial(old, j)) > start]
+    _, _, chosen, now = max(ends, key=lambda e: (round(e[0], 9), e[1]))
     return chosen, now
 
 
@@ -275,7 +373,9 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     like = _old_matrix(paths)
     given = load_matrix(matrix) if matrix else None
     source = AircraftSource(str(model), load_effects(None))
-    points = candidates(logs, source, like, given, held)
+    turns = (any(airspeed_rival(r) for r in rivals)
+             and all(c in lg.columns for lg in logs for c in TURN_NEEDS))
+    points = candidates(logs, source, like, given, held, turns)
     if given is not None:
         check_flaps(source, [(f"{given.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
     flown_before = {(lg.point, lg.maneuver) for lg in logs}
@@ -294,14 +394,16 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
         if not flown:
             raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the "
                             f"candidate points")
-        sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs)
+        sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs,
+                           (doc.get("data_compatibility") or {}).get("vertical_gust_rms_fps") or 0.0)
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    old = [[{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
+    old = [measurement(0.0) if to_measure(r) else
+           [{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
            for r in rivals]
-    base = [(float(r["separation_se"]), sep.separation(o)) for r, o in zip(rivals, old)]
+    base = [(0.0 if to_measure(r) else float(r["separation_se"]), sep.separation(o)) for r, o in zip(rivals, old)]
     flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s}
                for lg, s in zip(flown, sums)]
     chosen, reached = choose(old, flights, budget, base)
@@ -310,7 +412,8 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
         "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
         "settled_se": sep.SETTLED_SE, "candidates": len(flights),
         "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": b[0],
-                    "predicted_now_se": b[1], "planned_se": planned(n, b)}
+                    "predicted_now_se": b[1], "planned_se": planned(n, b), "to_measure": to_measure(r),
+                    "residuals_se": float(r["separation_se"])}
                    for r, b, n in zip(rivals, base, reached)],
         "flights": [{"point": flights[j]["point"], "maneuver": flights[j]["maneuver"],
                      "minutes": flights[j]["minutes"],
@@ -374,6 +477,11 @@ def report(r: dict) -> str:
              "Rivals (separation in standard errors; settled at "
              f"{r['settled_se']:g}, planned to {r['target_se']:g}):"]
     for x in r["rivals"]:
+        if x.get("to_measure"):
+            lines.append(f"  {x['cause']}  against  {x['rival']}: the residuals prefer the instrument error "
+                         f"({x['residuals_se']:+.1f}), which the data compatibility could not measure; the plan "
+                         f"measures it to {x['planned_se']:.1f} standard errors of its size")
+            continue
         lines.append(f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now, {x['planned_se']:+.1f} "
                      f"predicted with the plan (now, plus what the plan adds to the {x['predicted_now_se']:.1f} "
                      f"the fits expect of the data in hand)")

@@ -33,7 +33,7 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.separation import cause_rivals, noise_weights
+from diagnose.separation import cause_rivals, instrument_preferred, noise_weights
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
@@ -128,6 +128,10 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             break
         compat = better
     rivals = cause_rivals(causes, results, terms, data, floor, compat, lags) if causes else []
+    for c in causes:
+        preferred = instrument_preferred(c)
+        if preferred and c.verdict["accepted"]:
+            c.verdict.update(accepted=False, unconfirmed=True, reason=preferred)
     aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])

@@ -44,7 +44,8 @@ def plot_residuals(diag: Diagnosis, axes=None):
     d = diag.data
     first = {}
     for cause in diag.causes:
-        first.setdefault(cause.coefficient, cause)
+        if cause.kind == "aero":  # an instrument error's "variable" is its channel, not a residual column
+            first.setdefault(cause.coefficient, cause)
     for ax, c in zip(axes, COEFFS):
         cause = first.get(c)
         var = cause.variables[0] if cause else "gear_norm"

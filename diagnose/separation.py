@@ -364,3 +364,19 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
                  "channel": h.channel or None, "error": h.error or None, "separation_se": doc["separation_se"],
                  "predicted_se": doc["predicted_se"], "by_coefficient": doc["by_coefficient"]})
     return out
+
+
+def instrument_preferred(cause) -> str:
+    """Why a cause is not named: an instrument error the data compatibility could not measure fits
+    the residuals better, by :data:`SETTLED_SE` or more (``""`` if none does). The residuals alone
+    point to it, and only a measurement of it (`campaign plan`) can confirm either."""
+    alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", []) if a.get("unmeasured")}
+    better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
+              and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE]
+    if not better:
+        return ""
+    r = min(better, key=lambda r: r["separation_se"])
+    a = alts[(r["channel"], r["error"])]
+    return (f"an instrument error the data compatibility could not measure fits the residuals better: "
+            f"{r['channel']} {r['error']} {a['needs']:+.3g} ({-r['separation_se']:.1f} standard errors better, "
+            f"fitted to CL, CD and Cm together); `campaign plan` designs the flight that measures it")

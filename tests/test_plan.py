@@ -215,3 +215,45 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     capsys.readouterr()
     assert main(["plan", "--diagnosis", str(tmp_path / "d")]) == 2
     assert "nothing to separate" in capsys.readouterr().err
+
+
+def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, capsys):
+    """A 6 % airspeed scale (the pitot's) on our 737 through the flight-test instruments: without a
+    turn the data compatibility cannot tell it from a steady wind, and the residuals name a pitch
+    damping error (Cm vs qhat) that the scale makes. The scale fits the residuals better by far, so
+    the cause is not confirmed; the plan flies the level turn that measures the scale, and old and
+    new data together name the instrument error and nothing else."""
+    from tests.hidden import DIAG_MATRIX
+    prof = tmp_path / "pitot.toml"
+    prof.write_text('extends = "flight-test"\n[channels.tas_kt]\nscale = 1.06\n')
+    matrix = tmp_path / "m.toml"
+    matrix.write_text(DIAG_MATRIX.replace('name = "diagnosis"\n', 'name = "diagnosis"\n[defaults]\n'
+                                          'maneuvers_gear_down = ["doublet", "gear_extension", "gear_retraction"]\n'))
+    truth = ["--aircraft", str(DEFAULT_AIRCRAFT), "--effects", "none", "--instruments", str(prof)]
+    assert main(["run", "--matrix", str(matrix), *truth, "--seed", "21", "--out", str(tmp_path / "old"),
+                 "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
+    assert main(["diagnose", "--data", str(tmp_path / "old"), "--model", str(DEFAULT_AIRCRAFT),
+                 "--out", str(tmp_path / "d1"), "--no-plots", "--jobs", "2"]) == 0
+    doc = json.loads((tmp_path / "d1" / "diagnosis.json").read_text())
+    assert not any(c["coefficient"] == "Cm" and "qhat_rad" in c["variables"] for c in doc["causes"]), doc["summary"]
+    assert "tas_kt scale" in doc["summary"] and "cause not confirmed" in doc["summary"], doc["summary"]
+    airspeed = [r for r in doc["rivals"] if r["rival"] == "tas_kt scale"]
+    assert airspeed and airspeed[0]["separation_se"] <= -sep.SETTLED_SE, [(r["rival"], r["separation_se"])
+                                                                           for r in doc["rivals"]]
+    capsys.readouterr()
+    assert main(["plan", "--diagnosis", str(tmp_path / "d1"), "--out", str(tmp_path / "plan"), "--jobs", "2",
+                 "--quiet"]) == 0
+    result = json.loads((tmp_path / "plan" / "plan.json").read_text())
+    assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
+    assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
+    measured = [r for r in result["rivals"] if r["rival"] == "tas_kt scale"][0]
+    assert measured["to_measure"] and measured["planned_se"] >= PLAN_SE, measured
+    assert main(["run", "--matrix", str(tmp_path / "plan" / "plan.toml"), *truth, "--seed", "22",
+                 "--out", str(tmp_path / "new"), "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
+    assert main(["diagnose", "--data", str(tmp_path / "old"), "--data", str(tmp_path / "new"),
+                 "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d2"), "--no-plots", "--jobs", "2"]) == 0
+    after = json.loads((tmp_path / "d2" / "diagnosis.json").read_text())
+    first = after["causes"][0]
+    assert first["kind"] == "sensor" and (first["channel"], first["error"]) == ("tas_kt", "scale"), after["summary"]
+    assert abs(first["estimate"] - 0.06) <= max(3 * first["se"], 0.006) and first["estimate"] / first["se"] >= 5
+    assert all(c["kind"] == "sensor" for c in after["causes"]) and not after["unconfirmed"], after["summary"]
