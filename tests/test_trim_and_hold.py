@@ -227,3 +227,5 @@ def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
     res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3)))
     assert not res.applied
     assert all(not p.identifiable and "at least two" in p.reason for p in res.parameters)
+    said = [line for line in res.summary().splitlines() if "not identifiable" in line]
+    assert len(said) == 1 and said[0].split()[:2] == ["every", "error"], said  # once, not for each error

@@ -216,8 +216,14 @@ class CompatResult:
         lines = [f"Data compatibility (flight-path reconstruction of {len(self.logs)} logs):"]
         for c, r in self.positions.items():
             lines.append(f"  {c} sensor documented at {r} ft from the CG: corrected for")
+        why = {p.reason for p in self.parameters if not p.identifiable}
+        none = len(why) == 1 and not any(p.identifiable for p in self.parameters)  # one reason for all
+        if none:
+            lines.append(f"  {'every error':<22} not identifiable ({next(iter(why))})")
         for p in self.parameters:
             if not p.identifiable:
+                if none:
+                    continue
                 lines.append(f"  {p.name:<22} not identifiable ({p.reason})")
                 continue
             mark = ("  applied" + (f" ({p.chosen})" if p.chosen else "") if p.applied else
