@@ -3,6 +3,7 @@ and velocity integrated from the gyros and accelerometers, and the Gauss-Newton 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -323,14 +324,21 @@ class _Blocks:
         dl = [-hi @ (g + h.T @ ds) for h, hi, g in zip(self.Hsl, hll_inv, self.gl)]
         return ds, dl
 
+    @cached_property
+    def _reduced(self) -> tuple[list[np.ndarray], np.ndarray]:
+        """Each log's own normal matrix inverted, and the shared parameters' normal matrix with
+        every log's own parameters eliminated (the covariances' common part)."""
+        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
+        return hll_inv, self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv))
+
     def block_cov(self) -> np.ndarray:
         """Covariance of the shared parameters robust to correlation within a time block (the
         sandwich with blocks as clusters, each log's own parameters eliminated). Unlike the
         delete-one-log jackknife it holds when one log alone pins a parameter down (a turn)."""
         if not len(self.gs):
             return np.zeros((0, 0))
-        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
-        S_inv = np.linalg.pinv(self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv)))
+        hll_inv, S = self._reduced
+        S_inv = np.linalg.pinv(S)
         g = np.array([b - h @ hi @ a for h, hi, blocks in zip(self.Hsl, hll_inv, self.scores) for b, a in blocks])
         B = len(g)
         return S_inv @ (g.T @ g) @ S_inv * (B / max(B - 1, 1))
@@ -341,8 +349,8 @@ class _Blocks:
         effect on the estimate through the normal equations, each log's own parameters refitted."""
         if not len(self.gs) or self.steady is None:
             return np.zeros((len(self.gs), len(self.gs)))
-        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
-        S_inv = np.linalg.pinv(self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv)))
+        hll_inv, S = self._reduced
+        S_inv = np.linalg.pinv(S)
         moves = [S_inv @ (js - h @ hi @ jp) * s for (js, jp), h, hi, s in zip(self.steady, self.Hsl, hll_inv, sd)]
         return sum(m @ m.T for m in moves)
 
@@ -355,9 +363,8 @@ class _Blocks:
         uncertain as those few logs make it."""
         if not len(self.gs):
             return np.zeros((0, 0))
-        hll_inv = [np.linalg.pinv(h) for h in self.Hll]
+        hll_inv, S = self._reduced
         own = [bb - h @ hi @ h.T for bb, h, hi in zip(self.Bb, self.Hsl, hll_inv)]
-        S = self.Hss - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv))
         L = len(self.rows)
         d = np.array([np.linalg.pinv(S - s_l) @ (gb - h @ hi @ g)
                       for gb, g, h, hi, s_l in zip(self.gb, self.gl, self.Hsl, hll_inv, own)])
