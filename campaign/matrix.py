@@ -94,8 +94,12 @@ class Matrix:
         }
 
 
-#: Manoeuvre parameters for which 0 means "leave it out" (no stabilizer 2-3-1-1).
-MAY_BE_ZERO = ("stabilizer_amplitude_deg",)
+#: Manoeuvre parameters for which 0 means "leave it out" (no stabilizer 2-3-1-1) or "from the trim"
+#: (a level turn's time at full bank).
+MAY_BE_ZERO = ("stabilizer_amplitude_deg", "turn_s")
+#: Manoeuvre parameters whose sign means something (a level turn's bank: negative turns left); the
+#: manoeuvre checks their size.
+SIGNED = ("bank_deg",)
 
 
 def _number(path: str, where: str, value, positive: bool = False) -> float:
@@ -167,8 +171,8 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                     raise UserError(f"{ps}: maneuvers.{name}.hold: expected true or false")
                 items.append((k, v))
             else:
-                x = _number(ps, f"maneuvers.{name}.{k}", v, positive=k not in MAY_BE_ZERO)
-                if x < 0:
+                x = _number(ps, f"maneuvers.{name}.{k}", v, positive=k not in MAY_BE_ZERO + SIGNED)
+                if x < 0 and k not in SIGNED:
                     raise UserError(f"{ps}: maneuvers.{name}.{k}: must be >= 0, found {v!r}")
                 items.append((k, x))
         try:
