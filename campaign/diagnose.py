@@ -55,14 +55,48 @@ def load_data(path: Path) -> list[Log]:
 
 
 def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
-    """Hold out every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
-    ``logs``): logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a
-    held-out condition, so that adding them moves no condition out of the fit."""
-    conds = sorted({log.condition for log in (first or logs)})
+    """Hold out about every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
+    ``logs``), chosen so that the rest still brackets what was flown: every altitude, Mach, flap angle and
+    gear state of the held-out conditions in the fit or within its range (:func:`_unbracketed`).
+    Logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a held-out
+    condition, so that adding them moves no condition out of the fit."""
+    first = first or logs
+    conds = sorted({log.condition for log in first})
     if len(conds) < 2:
         raise UserError("--data: needs logs from at least two flight conditions (one is held out)")
     held = {c for i, c in enumerate(conds) if i % every == every - 1} or {conds[-1]}
+    states = {c: set() for c in conds}
+    for lg in first:
+        states[lg.condition].add(_gear_state(lg))
+    best = _unbracketed(held, conds, states)
+    while best > 0:
+        score, h, c = min(((_unbracketed((held - {h}) | {c}, conds, states), h, c) for h in sorted(held)
+                           for c in conds if c not in held), key=lambda s: s[0])
+        if not score < best:
+            break
+        held, best = (held - {h}) | {c}, score
     return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
+
+
+def _gear_state(log: Log) -> str:
+    try:
+        return "transition" if log.transition else "down" if log.gear_down else "up"
+    except (AttributeError, KeyError, TypeError):
+        return "up"
+
+
+def _unbracketed(held: set, conds: list, states: dict) -> int:
+    """What holding out ``held`` takes from the fit: values of altitude, Mach, flap or gear state that no
+    fitted condition has and that lie outside the fitted range (one inside it is interpolated; and taking
+    an inner condition instead can confound two variables: Mach 0.3 flown clean and with flap 15, the clean
+    one held out, leaves Mach 0.3 and flap 15 one and the same in the fit)."""
+    train = [c for c in conds if c not in held]
+    outside = 0
+    for j in range(3):
+        have = {c[j] for c in train}
+        outside += sum(not min(have) < v < max(have) for v in {c[j] for c in held} - have)
+    fitted = set().union(*(states[c] for c in train))
+    return outside + len(set().union(*(states[c] for c in held)) - fitted)
 
 
 #: Below this RMS [ft/s] the wind measured in a log is taken as still air (noise-free campaigns).
