@@ -26,6 +26,9 @@
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import numpy as np
 import pandas as pd
 
 from diagnose.arbitration import arbitrate, compat_causes, residual_delays, residual_refinement
@@ -45,6 +48,17 @@ from identify.logs import Log
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
           "verdict", "extension", "replays", "refine", "bands", "plots")
+
+
+#: An instrument error the residuals refined (:func:`diagnose.arbitration.residual_refinement`) moves every
+#: coefficient along its own derivative: the refinement stands only if no coefficient's residual RMS grows by
+#: more than this factor (a lift change with alpha on a model whose drag follows CL squared looks like a vane
+#: scale in CL and CD; corrected as one, it cut CL's residual 3-fold and grew CD's 6-fold).
+REFINED_WORSE = 1.1
+
+
+def _rms(data: pd.DataFrame, coefficient: str) -> float:
+    return float(np.sqrt(np.mean(data[f"r_{coefficient}"].to_numpy() ** 2)))
 
 
 def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
@@ -87,7 +101,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
-    for refined in (False, True):
+    def one_pass(compat):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")
         data = corrected.residuals(compat)
@@ -122,11 +136,17 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                              ignore_index=True)
         stage("verdict")
         judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6), data)
-        better = (None if refined or compat is None else
-                  residual_refinement(compat, causes, reach, kw.get("alpha_in", 1e-6)))
-        if better is None:
-            break
-        compat = better
+        return SimpleNamespace(compat=compat, logs=logs, held=held, data=data, held_data=held_data, noise=noise,
+                               lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
+
+    p = one_pass(compat)
+    better = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
+    if better is not None:
+        q = one_pass(better)
+        if not any(_rms(q.data, c) > REFINED_WORSE * _rms(p.data, c) for c in COEFFS):
+            p = q
+    compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise
+    lags, terms, results, causes, floor = p.lags, p.terms, p.results, p.causes, p.floor
     rivals = cause_rivals(causes, results, terms, data, floor, compat, lags) if causes else []
     for c in causes:
         preferred = instrument_preferred(c)
