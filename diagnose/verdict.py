@@ -26,10 +26,13 @@ ACTING_SHARE = 0.05
 #: Evidence strong enough that no single condition left out may veto a cause: this many times its
 #: noise floor beyond what instrument errors make ...
 STRONG_OVER_FLOOR = 10.0
-#: ... with this pooled held-out gain. Below it, every condition where the cause acts must gain when
-#: left out: in turbulence, null flights of the stock 737 gave causes up to 4.5 times the floor
-#: with a pooled gain of 1.4 that one condition refuted (x0.87).
+#: ... with this pooled held-out gain. Below it, no condition where the cause acts may get worse when
+#: left out (by more than :data:`MIN_HOLDOUT_GAIN`: a condition that neither gains nor loses holds
+#: little of the cause and says nothing): in turbulence, null flights of the stock 737 gave causes up
+#: to 4.5 times the floor with a pooled gain of 1.4 that one condition refuted (x0.87).
 STRONG_GAIN = 1.5
+#: Nor may one condition veto a cause with this F statistic and a pooled gain of :data:`STRONG_GAIN`.
+STRONG_F = 1e3
 
 
 def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
@@ -47,7 +50,12 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     acts (where its contribution departs from the model by :data:`ACTING_SHARE` of its
     size): pooled, and per condition. Only conditions the others can predict count: a condition
     whose removal leaves the coefficient's terms not all estimable (the only condition at its
-    flap angle, for a term in flap) cannot test the cause, and says nothing of it.
+    flap angle, for a term in flap) cannot test the cause, and says nothing of it. Rows outside the
+    range the other conditions span in the cause's variables (:func:`_bracketed`) are predicted by
+    extrapolation: they may confirm a cause, not refute it (a shape the fit has not seen there, a
+    step in Mach between the conditions flown, is no evidence against it). The pooled gain is the
+    larger of that over every testable row and that over the rows within range; a condition
+    whose rows all lie beyond the others' range counts only if it gains.
 
     Parameters
     ----------
@@ -88,11 +96,13 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     order = np.argsort(code, kind="stable")  # rows by condition: one sort, no string compares
     rows = np.split(order, np.flatnonzero(np.diff(code[order])) + 1)
     testable = np.zeros(len(y), bool)
+    inside = np.zeros(len(y), bool)
     k = x_rest.shape[1]
     for out in rows:
         xo = xs[out]
         left = gram - xo.T @ xo
         testable[out] = _rank(left) == rank
+        inside[out] = _bracketed(data, out, cause.variables)
         rhs = xty - xo.T @ y[out]
         beta = solve_normal(left, rhs) / scale  # fitted without this condition
         beta_rest = solve_normal(left[:k, :k], rhs[:k]) / scale[:k]  # ... and without the cause
@@ -107,8 +117,32 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
         ss = float(after[m] @ after[m])
         return float(np.sqrt(before[m] @ before[m] / ss)) if ss > 0 else float("inf")
 
-    by = {str(names[code[out[0]]]): ratio(out[sel[out]]) for out in rows if acts[out].any()}
-    return ratio(sel), acting, dict(sorted(by.items()))
+    def one(out: np.ndarray) -> float:
+        mine = out[sel[out] & inside[out]]
+        if mine.size:
+            return ratio(mine)
+        g = ratio(out[sel[out]])  # beyond the others' range: it may confirm the cause, not refute it
+        return g if g >= 1.0 else float("nan")
+
+    by = {str(names[code[out[0]]]): one(out) for out in rows if acts[out].any()}
+    pooled = [g for g in (ratio(sel), ratio(sel & inside)) if np.isfinite(g)]
+    return max(pooled, default=float("nan")), acting, dict(sorted(by.items()))
+
+
+def _bracketed(data: pd.DataFrame, out: np.ndarray, variables: list[str]) -> np.ndarray:
+    """Which rows ``out`` (one condition) lie within the range the other rows span in each of the cause's
+    variables: the others interpolate there. Outside it a fit extrapolates, and a shape it does not know
+    (a step in Mach between the conditions flown, predicted at the highest Mach from the two below)
+    would refute a cause it cannot test."""
+    ok = np.ones(len(out), bool)
+    rest = np.ones(len(data), bool)
+    rest[out] = False
+    for v in variables:
+        if v not in data or not rest.any():
+            continue
+        x = data[v].to_numpy(float)
+        ok &= (x[out] >= np.nanmin(x[rest])) & (x[out] <= np.nanmax(x[rest]))
+    return ok
 
 
 def _rank(gram: np.ndarray, rtol: float = 1e-9) -> int:
@@ -145,9 +179,9 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
           alpha_in: float = 1e-6, data: pd.DataFrame | None = None) -> None:
     """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
     better on held-out data where it acts: pooled over the conditions, each left out in turn,
-    and on every one of them unless the evidence is strong (:data:`STRONG_OVER_FLOOR` times
-    the floor and a pooled gain of :data:`STRONG_GAIN`: one condition's few logs may hold little
-    of an effect the others show whole). A strong cause that acts at a single condition, where
+    and worse on none of them unless the evidence is strong (a pooled gain of :data:`STRONG_GAIN`
+    with :data:`STRONG_OVER_FLOOR` times the floor or an F of :data:`STRONG_F`: one condition's few
+    logs may hold little of an effect the others show whole). A strong cause that acts at a single condition, where
     no other condition can test it, is ``unconfirmed``: a discrepancy all the same, named with
     that caution, but not put into the extension. So is a cause :data:`STRONG_OVER_FLOOR` times the
     floor that improves held-out data by :data:`STRONG_GAIN` but that instrument errors within
@@ -203,11 +237,12 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         elif not gain >= MIN_HOLDOUT_GAIN:
             reasons.append("no held-out data where it acts" if not np.isfinite(gain) else
                            f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
-        elif not worst >= MIN_HOLDOUT_GAIN and not (strong and gain >= STRONG_GAIN):
+        elif (not worst >= 1.0 / MIN_HOLDOUT_GAIN and not (gain >= STRONG_GAIN and (
+                strong or cause.evidence.get("F", 0.0) >= STRONG_F))):
             c_worst = min(tested, key=tested.get)
-            reasons.append(f"does not improve every condition it acts on when that condition is left out "
-                           f"(x{worst:.3f} at {c_worst}, needs x{MIN_HOLDOUT_GAIN}, or {STRONG_OVER_FLOOR:g} times "
-                           f"the floor and x{STRONG_GAIN} pooled)")
+            reasons.append(f"makes a condition it acts on worse when that condition is left out "
+                           f"(x{worst:.3f} at {c_worst}, needs x{1.0 / MIN_HOLDOUT_GAIN:.2f}, or x{STRONG_GAIN} "
+                           f"pooled with {STRONG_OVER_FLOOR:g} times the floor or F {STRONG_F:g})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
                 and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
                 and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]

@@ -122,6 +122,53 @@ def test_a_condition_whose_removal_leaves_the_cause_unestimable_cannot_veto_it()
     assert gain > 3
 
 
+def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
+    """CL 0.0135 lower from Mach 0.35 up, flown at Mach 0.3 (twice), 0.4 and 0.5 (the stock A320's
+    four conditions): a line in Mach fitted without Mach 0.5 extrapolates the step to twice its
+    size there, and that condition refuted a cause 15 times its floor (pooled x0.83). It lies
+    outside what the others span and says nothing; Mach 0.4, between them, is predicted (half the
+    step, against a third of it by the mean of the others) and gains x1.33."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    from diagnose.verdict import holdout_gain
+    rng = np.random.default_rng(2)
+    conds = [("5000/0.3/0", 0.3), ("5000/0.3/15", 0.3), ("10000/0.4/0", 0.4), ("10000/0.5/0", 0.5)]
+    frames = [pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.002, 400),
+                            "r_CL": -0.0135 * (m > 0.35) + rng.normal(0, 0.0015, 400)})
+              for i, (c, m) in enumerate(conds)]
+    data = pd.concat(frames, ignore_index=True)
+    term = Term("linear", ("mach",), centers=(0.3,), ranges=((0.3, 0.5),))  # zero at its lowest, as a smooth term
+    x = np.column_stack([np.ones(len(data)), term.design(data)])
+    beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
+    res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
+    cause = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0}, 0.01, size=0.0135)
+    gain, acting, by = holdout_gain(res, cause, data)
+    assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
+    assert gain > 1.25
+
+
+def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
+    """A random 8-knot table in Mach (development seed 3,000,041 of the detection curve: CL up to
+    0.009, 4.4 times the floor, 3 ft/s turbulence, our 737): Mach 0.2 and 0.5, each flown at one
+    condition, were predicted by extrapolation and refuted it (x0.81 pooled); the answer was
+    "no significant discrepancy"."""
+    from pathlib import Path
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnose import run_diagnosis
+    from tests.support import run_matrix
+    fx = Path(__file__).parent / "data" / "lift_mach_table.xml"
+    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
+    data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(fx), noise=str(tmp_path / "ft3.toml"),
+                      seed=3000041)
+    doc = run_diagnosis(data, DEFAULT_AIRCRAFT, tmp_path / "report", plots=False, jobs=2)
+    aero = [c for c in doc["causes"] if c["kind"] == "aero"] or doc["unconfirmed"]
+    assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
+
+
 def test_two_collinear_causes_that_cancel_gain_nothing_on_held_out_data():
     """Two terms on nearly collinear variables, fitted with large opposite coefficients to a small
     residual (the stock 737's CD against CL and against alpha x elevator in 3 ft/s turbulence, each
