@@ -410,3 +410,23 @@ def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, 
                  "--bands", "5"]) == 2
     err = capsys.readouterr().err
     assert "--bands" in err and err.count("\n") == 1 and not (tmp_path / "x").exists()
+
+
+def test_the_held_out_condition_is_one_the_fitted_ones_bracket():
+    """Three conditions, one Mach 0.5 and one flap 15: holding out either leaves the fit without
+    that Mach or flap, and an effect there is visible in held-out data only (a Mach step hidden in
+    the A320's data gave no candidate at all). The third is held out; a condition that alone
+    flew the gear down stays in the fit."""
+    from types import SimpleNamespace
+
+    from campaign.diagnose import split
+
+    def log(c, gear="up"):
+        return SimpleNamespace(condition=c, transition=False, gear_down=gear == "down")
+    a320 = [log(c) for c in ((5000.0, 0.3, 0.0), (10000.0, 0.5, 0.0), (5000.0, 0.3, 15.0))]
+    assert [lg.condition for lg in split(a320)[1]] == [(5000.0, 0.3, 0.0)]
+    four = [log(c) for c in ((2000.0, 0.2, 30.0), (2000.0, 0.3, 0.0), (10000.0, 0.3, 0.0), (10000.0, 0.5, 0.0))]
+    assert [lg.condition for lg in split(four)[1]] == [(10000.0, 0.3, 0.0)]  # as every third: nothing lost
+    down = four + [log((10000.0, 0.3, 0.0), "down")]
+    train, held = split(down)
+    assert any(lg.gear_down for lg in train) and len({lg.condition for lg in held}) == 1
