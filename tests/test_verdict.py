@@ -127,7 +127,8 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
     four conditions): a line in Mach fitted without Mach 0.5 extrapolates the step to twice its
     size there, and that condition refuted a cause 15 times its floor (pooled x0.83). It lies
     outside what the others span and says nothing; Mach 0.4, between them, is predicted (half the
-    step, against a third of it by the mean of the others) and gains x1.33."""
+    step, against a third of it by the mean of the others) and gains x1.33. Only for a cause with F of
+    1,000 or more: a weaker one is refuted by extrapolation as before."""
     import pandas as pd
 
     from diagnose.causes import Cause
@@ -144,10 +145,13 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
     x = np.column_stack([np.ones(len(data)), term.design(data)])
     beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
-    cause = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0}, 0.01, size=0.0135)
+    cause = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 1e4}, 0.01, size=0.0135)
     gain, acting, by = holdout_gain(res, cause, data)
     assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
     assert gain > 1.25
+    weak = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 100.0}, 0.01, size=0.0135)
+    gain, acting, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
+    assert by["10000/0.5/0"] < 1.0 and gain < 1.02
 
 
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
