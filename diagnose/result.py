@@ -109,10 +109,12 @@ class Diagnosis:
             big = self.largest_rejected()
             if big:
                 lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
-        for c in self.unconfirmed:
-            e, v = c.evidence, c.verdict
-            lines.append(f"Discrepancy, cause not confirmed: {c.label}: {c.shape}; peak {c.peak:.4g}; F = {e['F']:.4g}; "
-                         f"size {c.size:.3g} against a noise floor of {v['noise_floor']:.3g}; {v['reason']}")
+        top = max((c.verdict.get("size_over_floor", 0.0) for c in self.aero_causes), default=0.0)
+        unsure = [f"Discrepancy, cause not confirmed: {c.label}: {c.shape}; peak {c.peak:.4g}; F = {c.evidence['F']:.4g}; "
+                  f"size {c.size:.3g} against a noise floor of {c.verdict['noise_floor']:.3g}; {c.verdict['reason']}"
+                  for c in self.unconfirmed]
+        larger = [c.verdict.get("size_over_floor", 0.0) > top for c in self.unconfirmed]  # the largest first
+        lines += [u for u, big in zip(unsure, larger) if big]
         for i, c in enumerate(self.causes, 1):
             e, v = c.evidence, c.verdict
             if c.kind == "sensor" and not c.terms:
@@ -165,6 +167,7 @@ class Diagnosis:
                     lines.append(f"   rival {r['rival']}: these data separate it from the cause by only "
                                  f"{r['separation_se']:+.1f} standard errors (`campaign plan` designs the flights "
                                  f"that would settle it)")
+        lines += [u for u, big in zip(unsure, larger) if not big]
         if self.causes and self.rejected:
             lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
         lines.append("")

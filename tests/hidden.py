@@ -152,6 +152,13 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instrumen
     return workdir / "data", fx
 
 
+def discrepancies(doc: dict) -> list[dict]:
+    """The aerodynamic discrepancies a diagnosis names, causes and those it cannot confirm, the largest
+    (beyond instrument errors, over its floor) first, as its summary lists them."""
+    return sorted([c for c in doc["causes"] if c["kind"] == "aero"] + doc.get("unconfirmed", []),
+                  key=lambda c: -c["verdict"].get("size_over_floor", 0.0))
+
+
 def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
           matrix: str = DIAG_MATRIX) -> dict:
     """Fly, diagnose against the bare model, and score the answer against the hidden truth."""
@@ -166,7 +173,7 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
     data, fx = fly_data(workdir, hidden, seed, jobs, instruments, matrix)
     doc = run_diagnosis(data, DEFAULT_AIRCRAFT, workdir / "report", plots=False)
     out = {"doc": doc, "discrepancy": doc["discrepancy"]}
-    aero = [c for c in doc["causes"] if c["kind"] == "aero"] or doc.get("unconfirmed", [])
+    aero = discrepancies(doc)
     if hidden is None or not aero:
         return out
     first = aero[0]

@@ -5,17 +5,16 @@ Only these tests read the overlays, to score the answer."""
 import numpy as np
 import pytest
 
-from tests.hidden import DIAG_MATRIX, score
+from tests.hidden import DIAG_MATRIX, discrepancies, score
 from tests.shapes import draw
 from tests.support import matrix_toml
 
 
 def _named_first(r: dict, effect) -> bool:
-    """The first aero cause, or without one the first unconfirmed discrepancy, is the effect's
+    """The largest aero discrepancy named, a cause or one the data cannot confirm, is the effect's
     coefficient and (first) variable."""
     return bool(r.get("coefficient_ok") and r["doc"]["discrepancy"]) and (
-        ([c for c in r["doc"]["causes"] if c["kind"] == "aero"] or r["doc"]["unconfirmed"])[0]["variables"][0]
-        == effect.variables[0])
+        discrepancies(r["doc"])[0]["variables"][0] == effect.variables[0])
 
 
 def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path):
@@ -169,7 +168,7 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(fx), noise=str(tmp_path / "ft3.toml"),
                       seed=3000041)
     doc = run_diagnosis(data, DEFAULT_AIRCRAFT, tmp_path / "report", plots=False, jobs=2)
-    aero = [c for c in doc["causes"] if c["kind"] == "aero"] or doc["unconfirmed"]
+    aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
 
 
@@ -205,3 +204,55 @@ def test_two_collinear_causes_that_cancel_gain_nothing_on_held_out_data():
     g = terms[2]
     gain, _, _ = holdout_gain(res, Cause("CD", ["g"], [g], "linear", {"p_value": 0.0}, 0.001, size=0.002), data)
     assert gain > 2.0, gain
+
+
+def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it():
+    """A drag dip in alpha on the stock 737 in 3 ft/s turbulence (development seed 3,000,174: 19 times
+    the floor) was fitted by smooth(alpha) and then quadratic(CL), nearly the same variable: each
+    cause, tested against the other, gained nothing on held-out data (x0.69 and x0.90) and the answer
+    was "no significant discrepancy". The first to enter is also tested against the terms that entered
+    before it (none), the stepwise search's own order; the larger gain stands. The second still gains
+    nothing."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    from diagnose.verdict import holdout_gain
+    rng = np.random.default_rng(3)
+    frames = []
+    for i in range(4):
+        a = rng.uniform(0, 2, 500) + 2 * i
+        frames.append(pd.DataFrame({"condition": f"c{i}", "log": i, "a": a, "b": a + rng.normal(0, 0.3, 500)}))
+    data = pd.concat(frames, ignore_index=True)
+    data["r_CD"] = 0.002 * data["a"] + rng.normal(0, 0.001, len(data))
+    terms = [Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),)) for v in ("a", "b")]
+    x = np.column_stack([np.ones(len(data))] + [t.design(data) for t in terms])
+    beta = np.linalg.lstsq(x, data.r_CD.to_numpy(), rcond=None)[0]
+    res = StepwiseResult("CD", terms, beta, {}, [], 0.0, 0.0, len(data))
+    first = Cause("CD", ["a"], [terms[0]], "linear", {"p_value": 0.0}, 0.008, size=0.016)
+    gain, _, by = holdout_gain(res, first, data)
+    assert gain > 1.5, (gain, by)
+    size = float(np.ptp(terms[1].design(data) @ res.term_beta(terms[1])))
+    second = Cause("CD", ["b"], [terms[1]], "linear", {"p_value": 0.0}, size / 2, size=size)
+    gain, _, by = holdout_gain(res, second, data)
+    assert gain < 1.02, (gain, by)
+
+
+def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
+    """CL changed by +0.0134 times a dip over alpha (development seed 3,000,203 of the detection curve, our 737, 3 ft/s
+    turbulence, 9 times the floor): fitted 3.5 times its floor beyond instrument errors, x1.31 on
+    held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. A pooled
+    gain of x1.3 with 3 times the floor is beyond what the veto stopped on 110 development nulls."""
+    from pathlib import Path
+
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnose import run_diagnosis
+    from tests.support import run_matrix
+    fx = Path(__file__).parent / "data" / "lift_alpha_dip.xml"
+    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
+    data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(fx), noise=str(tmp_path / "ft3.toml"),
+                      seed=3000203)
+    doc = run_diagnosis(data, DEFAULT_AIRCRAFT, tmp_path / "report", plots=False, jobs=2)
+    aero = discrepancies(doc)
+    assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
