@@ -159,6 +159,21 @@ def discrepancies(doc: dict) -> list[dict]:
                   key=lambda c: -c["verdict"].get("size_over_floor", 0.0))
 
 
+def diagnose_overlay(workdir, overlay: str, aircraft, matrix: str, seed: int, sigma_fps: float = 3.0) -> dict:
+    """Fly ``matrix`` on ``aircraft`` with the effects overlay ``tests/data/<overlay>`` hidden, in the
+    flight-test profile with ``sigma_fps`` turbulence, and diagnose it against the bare model: the
+    diagnosis document."""
+    from pathlib import Path
+
+    from campaign.diagnose import run_diagnosis
+    from tests.support import run_matrix
+    workdir = Path(workdir)
+    fx = Path(__file__).parent / "data" / overlay
+    (workdir / "turbulence.toml").write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma_fps}\n')
+    data = run_matrix(workdir, matrix, str(aircraft), str(fx), noise=str(workdir / "turbulence.toml"), seed=seed)
+    return run_diagnosis(data, Path(aircraft), workdir / "report", plots=False, jobs=2)
+
+
 def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
           matrix: str = DIAG_MATRIX) -> dict:
     """Fly, diagnose against the bare model, and score the answer against the hidden truth."""

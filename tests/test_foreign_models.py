@@ -22,7 +22,7 @@ from identify.coefficients import coefficients
 from diagnose.diagnosis import diagnose
 from diagnose.residuals import residual_data
 from diagnose.evaluate import ModelEvaluator, moment_transfer
-from tests.hidden import CLEAN, OWN_TERMS, discrepancies
+from tests.hidden import CLEAN, OWN_TERMS, diagnose_overlay, discrepancies
 from tests.support import matrix_toml, pairs, run_matrix, scaled_copy
 
 STOCK = Path(jsbsim.get_default_root_dir()) / "aircraft"
@@ -289,11 +289,7 @@ def test_a_drag_dip_in_alpha_fitted_by_two_near_collinear_terms_is_named(tmp_pat
     the stock 737 in 3 ft/s turbulence, 19 times the floor): the stepwise search fitted smooth(alpha)
     and then quadratic(CL), and each, held out against the other, gained nothing (x0.69, x0.90). The
     answer was "no significant discrepancy". The first is also tested against the terms before it."""
-    from campaign.diagnose import run_diagnosis
-    fx = Path(__file__).parent / "data" / "drag_alpha_table.xml"
-    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp_path, CLEAN, str(STOCK / "737"), str(fx), noise=str(tmp_path / "ft3.toml"), seed=3000174)
-    doc = run_diagnosis(data, STOCK / "737", tmp_path / "report", plots=False, jobs=2)
+    doc = diagnose_overlay(tmp_path, "drag_alpha_table.xml", STOCK / "737", CLEAN, 3000174)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CD", "alpha_deg"), doc["summary"]
 
@@ -304,11 +300,8 @@ def test_a_lift_change_with_alpha_on_a_drag_polar_is_not_taken_for_a_vane_scale(
     the residuals' refinement applied one (-2.8 %): CL's residual fell 3-fold, CD's grew 6-fold and
     Cm's doubled, and the cause named was CL vs qhat. A refinement that makes a coefficient worse is
     undone, and the lift change is named."""
-    from campaign.diagnose import run_diagnosis
-    fx = Path(__file__).parent / "data" / "lift_alpha_table.xml"  # +0.027 in CL, rising with alpha (6 knots)
-    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp_path, CLEAN, str(STOCK / "737"), str(fx), noise=str(tmp_path / "ft3.toml"), seed=3000073)
-    doc = run_diagnosis(data, STOCK / "737", tmp_path / "report", plots=False, jobs=2)
+    # +0.027 in CL, rising with alpha (6 knots)
+    doc = diagnose_overlay(tmp_path, "lift_alpha_table.xml", STOCK / "737", CLEAN, 3000073)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), \
         doc["summary"]

@@ -5,7 +5,7 @@ Only these tests read the overlays, to score the answer."""
 import numpy as np
 import pytest
 
-from tests.hidden import DIAG_MATRIX, discrepancies, score
+from tests.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies, score
 from tests.shapes import draw
 from tests.support import matrix_toml
 
@@ -158,16 +158,8 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     0.009, 4.4 times the floor, 3 ft/s turbulence, our 737): Mach 0.2 and 0.5, each flown at one
     condition, were predicted by extrapolation and refuted it (x0.81 pooled); the answer was
     "no significant discrepancy"."""
-    from pathlib import Path
-
     from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import run_diagnosis
-    from tests.support import run_matrix
-    fx = Path(__file__).parent / "data" / "lift_mach_table.xml"
-    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(fx), noise=str(tmp_path / "ft3.toml"),
-                      seed=3000041)
-    doc = run_diagnosis(data, DEFAULT_AIRCRAFT, tmp_path / "report", plots=False, jobs=2)
+    doc = diagnose_overlay(tmp_path, "lift_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000041)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
 
@@ -244,15 +236,7 @@ def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
     turbulence, 9 times the floor): fitted 3.5 times its floor beyond instrument errors, x1.31 on
     held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. A pooled
     gain of x1.3 with 3 times the floor is beyond what the veto stopped on 110 development nulls."""
-    from pathlib import Path
-
     from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import run_diagnosis
-    from tests.support import run_matrix
-    fx = Path(__file__).parent / "data" / "lift_alpha_dip.xml"
-    (tmp_path / "ft3.toml").write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(fx), noise=str(tmp_path / "ft3.toml"),
-                      seed=3000203)
-    doc = run_diagnosis(data, DEFAULT_AIRCRAFT, tmp_path / "report", plots=False, jobs=2)
+    doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
