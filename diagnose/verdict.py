@@ -40,6 +40,10 @@ STRONG_F = 1e3
 #: others x1.03; on 150 development effects, real causes it stopped gained x1.07-2.4.
 CLEAR_OVER_FLOOR = 3.0
 CLEAR_GAIN = 1.3
+#: A cause tested against the terms chosen before it alone must be at least this share of its size
+#: so: one part of a cancelling pair is much larger in the joint fit than alone (a vane scale's
+#: moment against alpha, 466 times its floor beside the moment against CL, on a stock-737 null).
+ALONE_SHARE = 0.5
 
 
 def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
@@ -70,7 +74,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     A cause whose terms the stepwise search chose before others, if it gains less than
     :data:`STRONG_GAIN` so, is also tested against the terms chosen before it alone (those after it
     left out of both fits), the search's own order; a gain of :data:`STRONG_GAIN` or more that way
-    stands. A drag dip in alpha fitted by smooth(alpha) and then quadratic(CL), nearly the same
+    stands, if the cause fitted so is :data:`ALONE_SHARE` of its size or more. A drag dip in alpha fitted by smooth(alpha) and then quadratic(CL), nearly the same
     variable, gained nothing against the other either way (x0.69, x0.90): two halves of one effect.
     A weaker gain that way does not count: on stock-737 nulls in 3 ft/s, drag against elevator
     gained x1.03 alone and x0.26 against the drag against alpha that followed it.
@@ -156,11 +160,18 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
 
     gain, by = against([t for t in res.terms if t not in cause.terms])
     earlier = [t for t in res.terms[:first] if t not in cause.terms]
-    if len(earlier) + len(own) < len(res.terms) and not gain >= STRONG_GAIN:
+    if len(earlier) + len(own) < len(res.terms) and not gain >= STRONG_GAIN and _alone(
+            y, design_matrix(earlier, data), x_own) >= ALONE_SHARE * cause.size:
         g, b = against(earlier)
         if g >= STRONG_GAIN:
             gain, by = g, b
     return gain, acting, by
+
+
+def _alone(y: np.ndarray, x_rest: np.ndarray, x_own: np.ndarray) -> float:
+    """The size (range) of the ``x_own`` part of a least-squares fit of ``y`` on ``x_rest`` and ``x_own``."""
+    beta = np.linalg.lstsq(np.hstack([x_rest, x_own]), y, rcond=None)[0]
+    return float(np.ptp(x_own @ beta[x_rest.shape[1]:]))
 
 
 def _bracketed(data: pd.DataFrame, out: np.ndarray, variables: list[str]) -> np.ndarray:

@@ -229,6 +229,15 @@ def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it
     second = Cause("CD", ["b"], [terms[1]], "linear", {"p_value": 0.0}, size / 2, size=size)
     gain, _, by = holdout_gain(res, second, data)
     assert gain < 1.02, (gain, by)
+    # one of a cancelling pair (a vane scale's moment against alpha beside the moment against CL, 466
+    # times its floor, on a stock-737 null): its part of the joint fit is 20 times what it is alone,
+    # and is not tested alone
+    beta[1], beta[2] = 0.04, -0.038
+    pair = StepwiseResult("CD", terms, beta, {}, [], 0.0, 0.0, len(data))
+    size = float(np.ptp(terms[0].design(data)[:, 0] * 0.04))
+    gain, _, by = holdout_gain(pair, Cause("CD", ["a"], [terms[0]], "linear", {"p_value": 0.0}, size / 2, size=size),
+                               data)
+    assert gain < 1.5, (gain, by)
 
 
 def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
