@@ -74,8 +74,9 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     A cause whose terms the stepwise search chose before others, if it gains less than
     :data:`STRONG_GAIN` so, is also tested against the terms chosen before it alone (those after it
     left out of both fits), the search's own order; a gain of :data:`STRONG_GAIN` or more that way
-    stands, if the cause fitted so is :data:`ALONE_SHARE` of its size or more. A drag dip in alpha fitted by smooth(alpha) and then quadratic(CL), nearly the same
-    variable, gained nothing against the other either way (x0.69, x0.90): two halves of one effect.
+    stands, if the cause fitted so is :data:`ALONE_SHARE` of its size or more. A drag dip in alpha
+    fitted by smooth(alpha) and then quadratic(CL), nearly the same variable, gained nothing against
+    the other either way (x0.69, x0.90): two halves of one effect.
     A weaker gain that way does not count: on stock-737 nulls in 3 ft/s, drag against elevator
     gained x1.03 alone and x0.26 against the drag against alpha that followed it.
 
