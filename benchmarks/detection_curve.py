@@ -12,8 +12,9 @@ our 737 and of the stock 737 and A320 of the jsbsim package, flown through the f
 is diagnosed against the bare model. Nulls: the same without an effect.
 
 A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
-size beyond instrument errors over its floor; the summary lists them so), is the effect's coefficient, holds the effect's variables, and leads with one
-of them. Invented: an aero cause named beside it on another coefficient or none of its variables.
+size beyond instrument errors over its floor; the summary lists them so), is the effect's
+coefficient, holds the effect's variables, and leads with one of them. Invented: another such
+discrepancy named beside it, on another coefficient or none of its variables.
 The size is the effect's range over the data flown (the model and the model with the effect
 evaluated at the measured states), against the coefficient's floor (tests/shapes.py). A false
 positive: a null with an aero cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
