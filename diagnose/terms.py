@@ -114,7 +114,10 @@ def _spread(knots: np.ndarray) -> tuple[float, ...]:
 
 def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[Term]:
     """The candidate pool of one coefficient's residual: every excited variable,
-    linear and smooth, and pairs (interactions carry their main effects).
+    linear and smooth, and pairs (interactions carry their main effects): products of two,
+    a smooth gear term that varies linearly with each other variable, and a smooth term in
+    alpha or Mach that varies linearly with the other (a shape in alpha that compressibility
+    scales: with only their product, a table in alpha growing with Mach was named against one).
 
     Rates normalised by cbar/2V enter linearly only. A coefficient is never
     regressed on itself (the measured CL holds the CL residual).
@@ -127,6 +130,7 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
     rng = {v: (-np.inf, np.inf) if v in RATES else (float(data[v].min()), float(data[v].max())) for v in excited}
     shaped = [v for v in excited if v not in RATES]
     terms = []
+    smooth_knots = {}
     for v in excited:
         terms.append(Term("linear", (v,), (), (center[v],), (rng[v],)))
         if v in shaped and v not in ("gear_norm", "flap_deg"):
@@ -140,6 +144,7 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
                 knots = _spread(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
             if len(knots) >= 3:
                 terms.append(Term("smooth", (v,), knots))
+                smooth_knots[v] = knots
     for a, b in combinations(shaped, 2):
         terms.append(Term("product", (a, b), (), (center[a], center[b]), (rng[a], rng[b])))
     if "gear_norm" in shaped:
@@ -147,6 +152,9 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
             if b != "gear_norm":
                 terms.append(Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]),
                                   ((0.0, 1.0), rng[b])))
+    for a, b in (("alpha_deg", "mach"), ("mach", "alpha_deg")):
+        if a in smooth_knots and b in shaped:
+            terms.append(Term("smooth_x_linear", (a, b), smooth_knots[a], (0.0, center[b]), (rng[a], rng[b])))
     for sig in SIGNATURES:  # sensor errors the kinematics cannot see compete with the aero terms
         v = f"{sig}_{coefficient}"
         if coefficient and v in data and float(data[v].std()) > 1e-6:

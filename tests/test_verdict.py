@@ -249,3 +249,15 @@ def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
     doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
+
+
+def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_path):
+    """A random 7-knot table in alpha times (Mach - 0.2) / 0.3 in Cm (development seed 3,600,081 of
+    the detection curve: 5.7 times the floor, 3 ft/s, our 737). With no smooth term in alpha that
+    varies with Mach among the candidates, it was named "Cm vs mach": the right coefficient, not
+    the shape."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    doc = diagnose_overlay(tmp_path, "moment_alpha_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3600081)
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
+        doc["summary"]
