@@ -131,11 +131,12 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                                                                                                  data)) for c in aero],
                                                       data, weights=noise_weights(data, results, lags)))) if aero else {}
         reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
-        noisy = [floor.noisy(c.variables) for c in causes]
+        factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
+        eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
         data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
                              ignore_index=True)
         stage("verdict")
-        judge(causes, results, data_all, floors, noisy, reach, kw.get("alpha_in", 1e-6), data)
+        judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
         return SimpleNamespace(compat=compat, logs=logs, held=held, data=data, held_data=held_data, noise=noise,
                                lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
 

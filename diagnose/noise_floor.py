@@ -258,6 +258,38 @@ class NoiseFloor:
         """Whether any of the variables is computed from a channel that holds noise."""
         return any(self.noise.get(ch, 0.0) > 0 for v in variables for ch in SOURCES.get(v, (v,)))
 
+    def eiv_factors(self, variables) -> dict[str, float]:
+        """How much more errors-in-variables the logs' own noise makes than the floor's realizations
+        show, per variable (1 for a variable without noise, at most 2).
+
+        A realization adds fresh noise of variance s2 to regressors that already hold noise of that
+        variance, so a fit's errors-in-variables bias, which goes as s2 / (V + s2) for a regressor
+        whose true values vary by V, is simulated as s2 / (V + 2 s2): the floor is low by up to
+        (V + 2 s2) / (V + s2). s2 is measured as a realization's variable less the same without fresh
+        noise (filtered and thinned as the regressors are), V as the variable's variance within each
+        log less s2 (within a log, not across conditions: the smaller, the larger the factor).
+
+        Parameters
+        ----------
+        variables : iterable of str
+            Candidate variables (:data:`diagnose.residuals.VARIABLES`).
+        """
+        noisy = sorted(v for v in set(variables) if self.noisy([v]))
+        out = {v: 1.0 for v in set(variables) if v not in noisy}
+        if not noisy:
+            return out
+        fresh, base = self.realization_batch(set(noisy), [{"k": 0}, {"k": 0, "noise": False}])
+        starts = np.cumsum([0] + [len(kept(len(d), float(np.median(np.diff(d[:, cols.get_loc("t_s")]))), self.step))
+                                  for cols, d in self._numbers])
+        for v in noisy:
+            x = base[v].to_numpy(float)
+            s2 = float(np.nanvar(fresh[v].to_numpy(float) - x))
+            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in zip(starts, starts[1:])
+                                                      if b > a]) ** 2))
+            v_true = max(within - s2, 0.0)
+            out[v] = (v_true + 2.0 * s2) / (v_true + s2) if v_true + s2 > 0 else 1.0
+        return out
+
     def realization(self, k: int, columns: set[str], noise: bool = True, instruments: bool = False,
                     errors: np.ndarray | None = None, names: list | None = None) -> pd.DataFrame:
         """One residual data set made by noise alone (``noise``), by the instrument errors the

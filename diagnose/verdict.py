@@ -11,10 +11,6 @@ from diagnose.causes import Cause, along, shape_of
 from diagnose.noise_floor import REACH_SE, RESOLUTION, design_matrix
 from diagnose.stepwise import StepwiseResult, refit
 from identify.lsq import solve_normal
-#: Fresh noise on logs that already hold noise doubles the regressors' noise, which can halve the
-#: errors-in-variables effect the floor simulates (sigma^2/(V+sigma^2) <= 2 sigma^2/(V+2 sigma^2)):
-#: a cause on a noisy variable must clear twice the largest simulated size.
-FLOOR_FACTOR = 2.0
 #: A cause must make residuals this much smaller (RMS ratio) on data it was not fitted on, where it acts.
 MIN_HOLDOUT_GAIN = 1.02
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
@@ -51,7 +47,8 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
     return sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))
 
 
-def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple[float, list[int], dict]:
+def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
+                 strong: bool | None = None) -> tuple[float, list[int], dict]:
     """Leave-one-condition-out check of one cause on every condition flown.
 
     For each flight condition, the coefficient's selected terms are fitted on
@@ -61,8 +58,8 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     acts (where its contribution departs from the model by :data:`ACTING_SHARE` of its
     size): pooled, and per condition. Only conditions the others can predict count: a condition
     whose removal leaves the coefficient's terms not all estimable (the only condition at its
-    flap angle, for a term in flap) cannot test the cause, and says nothing of it. For a cause with
-    an F of :data:`STRONG_F` or more, rows outside the
+    flap angle, for a term in flap) cannot test the cause, and says nothing of it. For a strong
+    cause (``strong``), rows outside the
     range the other conditions span in the cause's variables (:func:`_bracketed`) are predicted by
     extrapolation: they may confirm it, not refute it (a shape the fit has not seen there, a
     step in Mach between the conditions flown, is no evidence against it). The pooled gain is the
@@ -87,6 +84,9 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     cause : Cause
     data : DataFrame
         Residual data of every log, train and held out, with ``condition`` and ``log`` columns.
+    strong : bool, optional
+        Whether extrapolated rows may only confirm the cause (default: an F of :data:`STRONG_F` or
+        more; :func:`judge` also counts a cause :data:`STRONG_OVER_FLOOR` times its floor strong).
 
     Returns
     -------
@@ -113,7 +113,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> tuple
     for out in rows:
         inside[out] = _bracketed(data, out, cause.variables)
     x_own = np.column_stack([t.design(data) for t in own])
-    strong = cause.evidence.get("F", 0.0) >= STRONG_F
+    strong = cause.evidence.get("F", 0.0) >= STRONG_F if strong is None else strong
 
     def against(rest: list) -> tuple[float, dict]:
         x_rest = design_matrix(rest, data)
@@ -221,23 +221,27 @@ def main_effect(cause: Cause, res: StepwiseResult, data: pd.DataFrame) -> tuple[
 
 
 def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
-          floors: list[np.ndarray], noisy: list[bool], reach: list[dict] | None = None,
+          floors: list[np.ndarray], eiv: list[float] | None = None, reach: list[dict] | None = None,
           alpha_in: float = 1e-6, data: pd.DataFrame | None = None) -> None:
     """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
     better on held-out data where it acts: pooled over the conditions, each left out in turn,
     and worse on none of them unless the evidence is strong (a pooled gain of :data:`STRONG_GAIN`
     with :data:`STRONG_OVER_FLOOR` times the floor or an F of :data:`STRONG_F`, or of :data:`CLEAR_GAIN`
     with :data:`CLEAR_OVER_FLOOR` times the floor: one condition's few logs may hold little of an
-    effect the others show whole). A strong cause that acts at a single condition, where
-    no other condition can test it, is ``unconfirmed``: a discrepancy all the same, named with
-    that caution, but not put into the extension. So is a cause :data:`STRONG_OVER_FLOOR` times the
+    effect the others show whole). Rows a held-out fit predicts by extrapolation may confirm a cause
+    with an F of :data:`STRONG_F` or :data:`STRONG_OVER_FLOOR` times its floor, not refute it
+    (:func:`holdout_gain`). A cause that acts at a single condition, where no other condition can
+    test it, is ``unconfirmed`` if it is :data:`STRONG_OVER_FLOOR` times its floor, or
+    :data:`CLEAR_OVER_FLOOR` times with an F of :data:`STRONG_F`: a discrepancy all the same, named
+    with that caution, but not put into the extension. So is a cause :data:`STRONG_OVER_FLOOR` times the
     floor that improves held-out data by :data:`STRONG_GAIN` but that instrument errors within
     the data compatibility's reach could make whole: the data depart from the model, and only
     the cause is in doubt.
 
-    ``floors`` holds each cause's sizes fitted to noise alone; ``noisy`` whether any of
-    its variables carries noise (then errors-in-variables may be underestimated by the
-    simulation, up to a factor :data:`FLOOR_FACTOR`); ``reach`` what the instrument
+    ``floors`` holds each cause's sizes fitted to noise alone; ``eiv`` the factor by which the
+    simulation may underestimate the errors-in-variables of its variables (at most 2: fresh noise on
+    logs that already hold noise; :meth:`diagnose.noise_floor.NoiseFloor.eiv_factors`), its floor
+    being that factor times the largest size; ``reach`` what the instrument
     errors the data compatibility may have left can make of its shape
     (:meth:`diagnose.noise_floor.NoiseFloor.reach`). The part of the cause no plausible
     instrument error makes must be larger than the noise floor.
@@ -248,13 +252,16 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
     cause and its coefficient's fit are replaced by the cut ones (``evidence.cut_from`` says so).
     """
     reach = reach or [{"made": 0.0, "left": c.size, "alternatives": []} for c in causes]
-    for i, (cause, null, eiv, rc) in enumerate(zip(causes, floors, noisy, reach)):
-        floor = max((FLOOR_FACTOR if eiv else 1.0) * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
-        gain, acting, by_condition = holdout_gain(results[cause.coefficient], cause, data_all)
+    eiv = eiv or [1.0] * len(causes)
+    for i, (cause, null, factor, rc) in enumerate(zip(causes, floors, eiv, reach)):
+        floor = max(factor * float(np.max(null)) if len(null) else 0.0, RESOLUTION)
+        beyond = min(cause.size, rc["left"])
+        sure = cause.evidence.get("F", 0.0) >= STRONG_F or beyond >= STRONG_OVER_FLOOR * floor
+        gain, acting, by_condition = holdout_gain(results[cause.coefficient], cause, data_all, sure)
         if data is not None and not gain >= MIN_HOLDOUT_GAIN and len(by_condition) > 1 and cause.kind == "aero":
             cut = main_effect(cause, results[cause.coefficient], data)
             if cut is not None:
-                g2, a2, b2 = holdout_gain(cut[1], cut[0], data_all)
+                g2, a2, b2 = holdout_gain(cut[1], cut[0], data_all, sure)
                 if g2 >= MIN_HOLDOUT_GAIN and min(cut[0].size, rc["left"]) > floor:
                     cause = causes[i] = cut[0]
                     results[cause.coefficient] = cut[1]
@@ -305,10 +312,12 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
             made = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}" for a in alts)
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
                            f"is wrong ({made or 'a combination of those errors'} would make it)")
+        clear = strong or (beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= STRONG_F)
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
-                         "unconfirmed": (alone and strong and len(reasons) == 1) or mimicked,
+                         "unconfirmed": (alone and clear and len(reasons) == 1) or mimicked,
                          "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
-                         "noise_sizes": [float(v) for v in null], "holdout_gain": gain,
+                         "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
+                         "holdout_gain": gain,
                          "holdout_gain_by_condition": by_condition,
                          "holdout_logs": acting, "size_over_floor": beyond / floor}
 

@@ -317,6 +317,37 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
         ev.close()
 
 
+def test_the_errors_in_variables_factor_is_measured_per_variable(tmp_path, small_matrix):
+    """The floor's realizations add fresh noise to regressors that already hold noise, which
+    under-simulates errors-in-variables by (V + 2 s2) / (V + s2): about 1 for the flight-test
+    instruments' alpha, Mach and CL (their noise is small beside what the manoeuvres make them
+    vary), exactly 1 for gear without noise, and near 2 for a Mach whose noise swamps its variation
+    within each log."""
+    from diagnose.evaluate import ModelEvaluator
+    from identify.logs import Log, read_campaign
+    from diagnose.noise_floor import NoiseFloor, channel_noise
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
+                 "--no-identify", "--quiet"]) == 0
+    logs = read_campaign(tmp_path / "c")
+    rng = np.random.default_rng(7)
+    swamped = []
+    for lg in logs:
+        d = lg.data.copy()
+        d["mach"] = d["mach"] + rng.normal(0.0, 0.1, len(d))
+        swamped.append(Log(lg.path, d, lg.meta))
+    ev = ModelEvaluator(DEFAULT_AIRCRAFT)
+    try:
+        variables = ["alpha_deg", "mach", "gear_norm", "CL"]
+        found = NoiseFloor(logs, ev, channel_noise(logs), realizations=1).eiv_factors(variables)
+        assert found["gear_norm"] == 1.0
+        assert all(1.0 < found[v] < 1.05 for v in ("alpha_deg", "mach", "CL")), found
+        worse = NoiseFloor(swamped, ev, channel_noise(swamped), realizations=1).eiv_factors(variables)
+        assert 1.8 < worse["mach"] <= 2.0 and worse["alpha_deg"] < 1.05, worse
+    finally:
+        ev.close()
+
+
 def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path, capsys):
     """``--refine oe`` on data flown through the flight-test instruments in still air: the
     equation-error extension of a hidden gear-drag bump is refined through JSBSim replays of the
