@@ -33,12 +33,14 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff):
     # the replays in the measured wind show the gain where the cause moves them most; a drag at one
     # Mach only moves the trim, and the trimmed start's throttle shows it. An elevator derivative
     # moves the replays by a fifth of a tolerance, less than the wind errors: the truth itself
-    # replays x1.07 better (benchmarks/replay_gain.py), so no x2 is there to show.
+    # replays x1.07 better (benchmarks/replay_gain.py), so no x2 is there to show. x2 is asked of a
+    # cause 20 times its floor: 10 times the floor as it was until the floor of a noisy variable was
+    # no longer doubled (a CL step in alpha 16.6 times its floor now, 8.3 before, replays x1.93).
     g = r["doc"]["gain"]
     most = g["replay_moved_most"]
     if family == "mach":
         assert most == "trim_throttle_norm", g["replay_moved"]
-    if first["verdict"]["size_over_floor"] >= 10 and family != "elevator_derivative":
+    if first["verdict"]["size_over_floor"] >= 20 and family != "elevator_derivative":
         assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
 
