@@ -86,9 +86,21 @@ def _measured_cl(data: pd.DataFrame, meta: dict, evaluator) -> np.ndarray:
     return lift_coefficient(data, meta) * (meta["geometry"]["S_ft2"] / evaluator.S)
 
 
-def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray],
+                                                                            np.ndarray]:
     """d(model CL, CD, Cm)/d(channel) at a subsample of the log (JSBSim finite differences,
-    one noise level ``noise[channel]`` up); channels the model's inputs do not see are left out."""
+    one noise level ``noise[channel]`` up; channels the model's inputs do not see are left out),
+    and the model's CL at every sample (the regressor CL, :func:`diagnose.residuals.variable_arrays`).
+
+    Returns
+    -------
+    t : ndarray
+        The subsample's times [s].
+    sensitivity : dict
+        Channel -> (len(t), 3) derivatives of CL, CD and Cm [1/channel unit].
+    model_cl : ndarray
+        The model's CL at each sample of the log [-].
+    """
     d = log.data
     t = d["t_s"].to_numpy()
     dt = float(np.median(np.diff(t)))
@@ -97,7 +109,8 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     numbers = all(isinstance(k, np.dtype) and k.kind in "fiub" for k in d.dtypes)
     chans = _Channels.of(d) if numbers else d
     inputs = ev.inputs(chans, _measured_cl(chans, log.meta, ev))
-    base = ev.evaluate_array(inputs, rows)
+    whole = ev.evaluate_array(inputs)
+    base = whole[rows]
     out = {}
     for ch, sigma in noise.items():
         if ch not in d:
@@ -112,7 +125,7 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
         if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
             continue
         out[ch] = (ev.evaluate_array(changed, rows) - base) / sigma
-    return t[rows] if dt > 0 else rows.astype(float), out
+    return t[rows] if dt > 0 else rows.astype(float), out, whole[:, 0].copy()
 
 
 def design_matrix(terms, frame: pd.DataFrame) -> np.ndarray:
@@ -320,7 +333,7 @@ class NoiseFloor:
             cols, d = self._numbers[i]
             at = {c: j for j, c in enumerate(cols)}
             t = d[:, at["t_s"]]
-            ts, sens = self._sens[i]
+            ts, sens, _ = self._sens[i]
             model = [np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) for sj in sens.values()]
             noisy = [self._perturbed(i, d, at, t, *spec) for spec in drawn]
             qdot = (pitch_rate_derivative(t, np.column_stack([x[:, at["q_dps"]] for x in noisy]))
@@ -357,10 +370,12 @@ class NoiseFloor:
         frame = _Channels(noisy, at, cols)
         meas = measured_arrays(coefficient_arrays(frame, meta, qdot), meta, self.ref)
         r = np.column_stack([meas[c] for c in COEFFS]) - self._meas[i]
+        model_cl = self._sens[i][2].copy()
         for m, at_samples in enumerate(model):  # the model's answer to the changed channels, linearised
             r = r - at_samples * moved[:, [m]]
+            model_cl += at_samples[:, 0] * moved[:, m]
         out = dict(zip((f"r_{c}" for c in COEFFS), lowpass(r, dt)[keep].T))
-        var = variable_arrays(frame, meta, meas["CL"], sorted(columns))
+        var = variable_arrays(frame, meta, model_cl, sorted(columns))
         sig = [c for c in columns if c.startswith("thrust_")]
         if sig:
             shares = signature_arrays(frame, meta, self.ref)

@@ -11,7 +11,8 @@ import pandas as pd
 from diagnose.residuals import COEFFS, SIGNATURES, VARIABLES
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
 RATES = {"qhat_rad": "velocities/q-aero-rad_sec", "adothat_rad": "aero/alphadot-rad_sec"}
-#: Variables a coefficient's residual may not be regressed on (they contain that residual).
+#: Variables a coefficient's residual may not be regressed on: the CL residual on the model's own CL,
+#: a lift error on the lift it is an error of.
 EXCLUDED = {"CL": ("CL",)}
 #: A variable must vary at least this much (std) to be a candidate.
 MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
@@ -120,7 +121,7 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
     scales: with only their product, a table in alpha growing with Mach was named against one).
 
     Rates normalised by cbar/2V enter linearly only. A coefficient is never
-    regressed on itself (the measured CL holds the CL residual).
+    regressed on itself (:data:`EXCLUDED`).
     """
     banned = EXCLUDED.get(coefficient, ())
     excited = [v for v in VARIABLES if v in data and v not in banned and float(data[v].std()) >= MIN_STD[v]]
