@@ -118,40 +118,9 @@ def test_a_condition_whose_removal_leaves_the_cause_unestimable_cannot_veto_it()
     assert gain > 3
 
 
-def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
-    """CL 0.0135 lower from Mach 0.35 up, flown at Mach 0.3 (twice), 0.4 and 0.5 (the stock A320's
-    four conditions): a line in Mach fitted without Mach 0.5 extrapolates the step to twice its
-    size there, and that condition refuted a cause 15 times its floor (pooled x0.83). It lies
-    outside what the others span and says nothing; Mach 0.4, between them, is predicted (half the
-    step, against a third of it by the mean of the others) and gains x1.33. Only for a cause with F of
-    1,000 or more: a weaker one is refuted by extrapolation as before."""
-    import pandas as pd
-
-    from diagnose.causes import Cause
-    from diagnose.stepwise import StepwiseResult
-    from diagnose.terms import Term
-    from diagnose.verdict import holdout_gain
-    rng = np.random.default_rng(2)
-    conds = [("5000/0.3/0", 0.3), ("5000/0.3/15", 0.3), ("10000/0.4/0", 0.4), ("10000/0.5/0", 0.5)]
-    frames = [pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.002, 400),
-                            "r_CL": -0.0135 * (m > 0.35) + rng.normal(0, 0.0015, 400)})
-              for i, (c, m) in enumerate(conds)]
-    data = pd.concat(frames, ignore_index=True)
-    term = Term("linear", ("mach",), centers=(0.3,), ranges=((0.3, 0.5),))  # zero at its lowest, as a smooth term
-    x = np.column_stack([np.ones(len(data)), term.design(data)])
-    beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
-    res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
-    cause = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 1e4}, 0.01, size=0.0135)
-    gain, acting, by = holdout_gain(res, cause, data)
-    assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
-    assert gain > 1.25
-    weak = Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 100.0}, 0.01, size=0.0135)
-    gain, acting, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
-    assert by["10000/0.5/0"] < 1.0 and gain < 1.02
-
-
 def _mach_step(f_stat: float) -> tuple:
-    """The Mach step above as a cause of F ``f_stat``, its fit and its data."""
+    """CL 0.0135 lower from Mach 0.35 up, flown at Mach 0.3 (twice), 0.4 and 0.5, as a cause of F
+    ``f_stat``: the cause, its fit and its data."""
     import pandas as pd
 
     from diagnose.causes import Cause
@@ -167,6 +136,23 @@ def _mach_step(f_stat: float) -> tuple:
     beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
     return Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": f_stat}, 0.01, size=0.0135), res, data
+
+
+def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
+    """CL 0.0135 lower from Mach 0.35 up, flown at Mach 0.3 (twice), 0.4 and 0.5 (the stock A320's
+    four conditions): a line in Mach fitted without Mach 0.5 extrapolates the step to twice its
+    size there, and that condition refuted a cause 15 times its floor (pooled x0.83). It lies
+    outside what the others span and says nothing; Mach 0.4, between them, is predicted (half the
+    step, against a third of it by the mean of the others) and gains x1.33. Only for a cause with F of
+    1,000 or more: a weaker one is refuted by extrapolation as before."""
+    from diagnose.verdict import holdout_gain
+    cause, res, data = _mach_step(1e4)
+    gain, acting, by = holdout_gain(res, cause, data)
+    assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
+    assert gain > 1.25
+    weak, res, data = _mach_step(100.0)
+    gain, acting, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
+    assert by["10000/0.5/0"] < 1.0 and gain < 1.02
 
 
 def test_extrapolation_cannot_refute_a_cause_ten_times_its_floor():
