@@ -39,7 +39,9 @@ SOURCES = {"gear_norm": ("gear_norm",), "alpha_deg": ("alpha_deg",), "mach": ("m
            "qhat_rad": ("q_dps", "tas_kt"),
            "adothat_rad": ("alpha_deg", "beta_deg", "tas_kt", "ax_fps2", "az_fps2", "p_dps", "q_dps", "r_dps",
                            "theta_deg", "phi_deg"),
-           "CL": ("ax_fps2", "az_fps2", "alpha_deg", "qbar_psf", "thrust_lbf", "mass_slug"),
+           # the model's CL at the measured states, and the measured CL a model that reads CL squared is given
+           "CL": ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "q_dps", "tas_kt", "ax_fps2", "az_fps2",
+                  "qbar_psf", "thrust_lbf", "mass_slug"),
            **{f"thrust_{c}": ("thrust_lbf", "alpha_deg", "qbar_psf") for c in COEFFS}}
 SENSITIVITY_EVERY_S = 0.5
 #: Below this a coefficient change is beyond the evaluation's own resolution (it reproduces
