@@ -294,8 +294,7 @@ class NoiseFloor:
         if not noisy:
             return out
         fresh, base = self.realization_batch(set(noisy), [{"k": 0}, {"k": 0, "noise": False}])
-        starts = np.cumsum([0] + [len(kept(len(d), float(np.median(np.diff(d[:, cols.get_loc("t_s")]))), self.step))
-                                  for cols, d in self._numbers])
+        starts = np.cumsum([0] + [len(k) for k in self._kept()[1]])
         for v in noisy:
             x = base[v].to_numpy(float)
             s2 = float(np.nanvar(fresh[v].to_numpy(float) - x))
@@ -326,8 +325,7 @@ class NoiseFloor:
                     np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
                     if spec.get("instruments") and self.uncertain else np.zeros(len(self.uncertain)))
             drawn.append((spec["k"], spec.get("noise", True), errors, self.uncertain if names is None else names))
-        dts = [float(np.median(np.diff(d[:, cols.get_loc("t_s")]))) for cols, d in self._numbers]
-        steps = [kept(len(d), dt, self.step) for (_, d), dt in zip(self._numbers, dts)]
+        dts, steps = self._kept()
         ends = np.cumsum([len(k) for k in steps])  # where each log's kept samples end in a realization
         # each realization's columns, every log's samples written in place: no per-log pieces to join
         frames: list[dict | None] = [None] * len(specs)
@@ -349,6 +347,11 @@ class NoiseFloor:
                 for c, v in part.items():
                     frames[s][c][lo:ends[i]] = v
         return [pd.DataFrame(f, copy=False) if f is not None else pd.DataFrame() for f in frames]
+
+    def _kept(self) -> tuple[list[float], list[np.ndarray]]:
+        """Each log's time step [s] and the samples a realization keeps of it (:func:`diagnose.residuals.kept`)."""
+        dts = [float(np.median(np.diff(d[:, cols.get_loc("t_s")]))) for cols, d in self._numbers]
+        return dts, [kept(len(d), dt, self.step) for (_, d), dt in zip(self._numbers, dts)]
 
     def _perturbed(self, i: int, d: np.ndarray, at: dict, t: np.ndarray, k: int, noise: bool, errors, names):
         """Log ``i``'s channels with realization ``k``'s noise (if ``noise``) and the instrument errors."""
