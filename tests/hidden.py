@@ -159,18 +159,20 @@ def discrepancies(doc: dict) -> list[dict]:
                   key=lambda c: -c["verdict"].get("size_over_floor", 0.0))
 
 
-def diagnose_overlay(workdir, overlay: str, aircraft, matrix: str, seed: int, sigma_fps: float = 3.0) -> dict:
-    """Fly ``matrix`` on ``aircraft`` with the effects overlay ``tests/data/<overlay>`` hidden, in the
-    flight-test profile with ``sigma_fps`` turbulence, and diagnose it against the bare model: the
-    diagnosis document."""
+def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: int, sigma_fps: float = 3.0,
+                     channels: str = "") -> dict:
+    """Fly ``matrix`` on ``aircraft`` with the effects overlay ``tests/data/<overlay>`` hidden (None: the
+    model as it is), in the flight-test profile with ``sigma_fps`` turbulence and ``channels`` (TOML
+    tables of instrument errors), and diagnose it against the bare model: the diagnosis document."""
     from pathlib import Path
 
     from campaign.diagnose import run_diagnosis
     from tests.support import run_matrix
     workdir = Path(workdir)
-    fx = Path(__file__).parent / "data" / overlay
-    (workdir / "turbulence.toml").write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma_fps}\n')
-    data = run_matrix(workdir, matrix, str(aircraft), str(fx), noise=str(workdir / "turbulence.toml"), seed=seed)
+    fx = str(Path(__file__).parent / "data" / overlay) if overlay else None
+    (workdir / "turbulence.toml").write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma_fps}\n'
+                                             + channels)
+    data = run_matrix(workdir, matrix, str(aircraft), fx, noise=str(workdir / "turbulence.toml"), seed=seed)
     return run_diagnosis(data, Path(aircraft), workdir / "report", plots=False, jobs=2)
 
 

@@ -314,12 +314,8 @@ def test_a_vane_scale_in_turbulence_is_not_named_as_drag_against_lift(tmp_path):
     CL, which carries the lift the turbulence leaves in the residuals, named "CD vs CL" (13.7 times
     its floor, x5.2 held out): a false positive. Against the model's CL at the measured states there
     is no aerodynamic discrepancy, and the vane scale is named."""
-    from campaign.diagnose import run_diagnosis
-    prof = tmp_path / "instruments.toml"
-    prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n[channels.alpha_deg]\n'
-                    'scale = 1.0464977372778514\n')
-    data = run_matrix(tmp_path, CLEAN, str(STOCK / "737"), None, noise=str(prof), seed=3300011)
-    doc = run_diagnosis(data, STOCK / "737", tmp_path / "report", plots=False, jobs=2)
+    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 3300011,
+                           channels="[channels.alpha_deg]\nscale = 1.0464977372778514\n")
     assert not discrepancies(doc), doc["summary"]
     assert any(c["kind"] == "sensor" and (c["channel"], c["error"]) == ("alpha_deg", "scale")
                for c in doc["causes"]), doc["summary"]
