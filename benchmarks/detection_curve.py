@@ -20,12 +20,13 @@ evaluated at the measured states), against the coefficient's floor (tests/shapes
 positive: a null with an aero cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
 (2,000,000 by default: a range no one develops against; the tests use 900-905).
 
-Writes ``detection_curve.csv``, ``detection_curve.md`` (the table) and ``detection_curve.png``
-into ``--out``. Run by hand, outside CI: about 25 s a case on 2 cores.
+Writes ``detection_curve.csv``, ``detection_curve.md`` (the table), ``detection_curve.png`` and
+``cases/<seed>.json`` (every candidate cause and its verdict) into ``--out``. Run by hand, outside CI: about 25 s a case on 2 cores.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from pathlib import Path
@@ -90,9 +91,11 @@ def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float
     return str(path), what
 
 
-def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: float | None = None) -> dict:
+def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: float | None = None,
+         keep: Path | None = None) -> dict:
     """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``: force the aircraft or the
-    turbulence)."""
+    turbulence; ``keep``: a folder to write the case's candidates and their verdicts to, as
+    ``<seed>.json``, for calibrating the verdict on them)."""
     from campaign.diagnose import run_diagnosis
     rng = np.random.default_rng(seed)
     name, folder, matrix = aircraft(rng, only)
@@ -113,6 +116,17 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
     data = run_matrix(work, matrix, folder, str(fx) if fx else None, noise=prof, seed=seed)
     doc = run_diagnosis(data, Path(folder), work / "report", plots=False, jobs=2)
     aero = discrepancies(doc)
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        drop = ("curve",)
+        slim = {k: [{f: v for f, v in c.items() if f not in drop} for c in doc.get(k, [])]
+                for k in ("causes", "unconfirmed", "rejected")}
+        (keep / f"{seed}.json").write_text(json.dumps(
+            {"seed": seed, "aircraft": name, "conditions": what, "sensor": sensor,
+             "effect": None if effect is None else {"coefficient": effect.coefficient,
+                                                    "variables": list(effect.variables),
+                                                    "description": effect.description},
+             **slim}, default=str))
     row = {"seed": seed, "aircraft": name, "conditions": what, "discrepancy": doc["discrepancy"],
            "named": f"{aero[0]['coefficient']} vs {', '.join(aero[0]['variables'])}" if aero else ""}
     missed_big = [c for c in doc["rejected"] if c["kind"] == "aero" and c["evidence"].get("F", 0) >= 1e3
@@ -190,7 +204,7 @@ def main() -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.effects + a.nulls):
-        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps)
+        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps, keep=a.out / "cases")
         rows.append(r)
         print(f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
               f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
