@@ -14,13 +14,15 @@ from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
 from diagnose.stepwise import fit_terms, stepwise
 from diagnose.terms import Term, candidate_terms
-from diagnose.verdict import MIN_HOLDOUT_GAIN
 from identify.compat import APPLY_Z, CompatResult
 #: A corrected instrument error is named when it moves a coefficient at least this much.
 SENSOR_EFFECT = 1e-4
 #: ... and its estimate is this many standard errors from 0 (the kinematics alone say so), or the
 #: aerodynamic residuals chose it (:func:`arbitrate`: two independent lines of evidence).
 SENSOR_Z = APPLY_Z
+#: ... and the held-out residuals get this much smaller (RMS ratio) corrected. Not the aerodynamic
+#: causes' :data:`diagnose.verdict.MIN_HOLDOUT_GAIN`: its calibration on nulls covered those only.
+SENSOR_MIN_GAIN = 1.02
 #: A correction the kinematics leave undecided is applied if the residuals get this much smaller
 #: (RMS ratio) with it, on the fitted and on the held-out logs.
 CORROBORATED_GAIN = 1.1
@@ -300,9 +302,9 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
             reasons.append(f"only {p.z:.1f} standard errors (needs {SENSOR_Z:g}, or the residuals to agree)")
         if effect[c] < SENSOR_EFFECT:
             reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {SENSOR_EFFECT:g})")
-        if not gain >= MIN_HOLDOUT_GAIN:
+        if not gain >= SENSOR_MIN_GAIN:
             reasons.append("no held-out data" if not np.isfinite(gain) else
-                           f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
+                           f"does not improve held-out data (gain x{gain:.3f}, needs x{SENSOR_MIN_GAIN})")
         cause = Cause(c, [p.channel], [], p.error, {"z": p.z, "F": p.z ** 2, "p_value": 0.0, "dof": [1, 0],
                                                   "rss_reduction_pct": float("nan"), "method": "data compatibility",
                                                   "methods": {k: {"estimate": e, "se": se}

@@ -11,31 +11,33 @@ from diagnose.causes import Cause, along, shape_of
 from diagnose.noise_floor import REACH_SE, RESOLUTION, design_matrix
 from diagnose.stepwise import StepwiseResult, refit
 from identify.lsq import solve_normal
-#: A cause must make residuals this much smaller (RMS ratio) on data it was not fitted on, where it acts.
-MIN_HOLDOUT_GAIN = 1.02
+#: A cause must make residuals this much smaller (RMS ratio) on data it was not fitted on, where it
+#: acts, pooled over the conditions left out in turn: the one held-out decision, calibrated on
+#: simulated nulls. On 170 null flights (seeds 3,000,080-099, 3,100,000-029, 3,300,000-029,
+#: 3,400,000-029 and 3,700,000-059: our 737, the stock 737 and the A320, 1.5 and 3 ft/s, sensor errors
+#: in a fifth), 28 candidates were significant and beyond their floor and the instrument errors'
+#: reach; their pooled gains were x1.032 at most, save three that a 7.4 % vane scale the data
+#: compatibility misjudged made (x1.9-5.8). The real effects of 300 development draws
+#: (3,600,000-149 and 3,800,000-149) that passed the same tests gained x1.04 and more, save
+#: six (x1.004-1.031). Hits and false positives are the same from x1.04 to x1.06.
+MIN_HOLDOUT_GAIN = 1.05
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
 #: at its reference, the first knot of a smooth term and the centre of a linear one, the intercept
 #: holding the level there) by this share of the cause's size: a tolerance for "nonzero", small
 #: because a smooth term's reference is its variable's lowest value (at 20 % a quadratic drag rise
 #: with Mach acted at the highest of three Mach values only, and no condition could test it).
 ACTING_SHARE = 0.05
-#: Evidence strong enough that no single condition left out may veto a cause: this many times its
-#: noise floor beyond what instrument errors make ...
+#: A cause this many times its noise floor beyond what instrument errors make is strong: rows a
+#: held-out fit extrapolates may only confirm it, and at one condition only it is a discrepancy the
+#: data cannot confirm ...
 STRONG_OVER_FLOOR = 10.0
-#: ... with this pooled held-out gain. Below it, no condition where the cause acts may get worse when
-#: left out (by more than :data:`MIN_HOLDOUT_GAIN`: a condition that neither gains nor loses holds
-#: little of the cause and says nothing): in turbulence, null flights of the stock 737 gave causes up
-#: to 4.5 times the floor with a pooled gain of 1.4 that one condition refuted (x0.87).
-STRONG_GAIN = 1.5
-#: Nor may one condition veto a cause with this F statistic and a pooled gain of :data:`STRONG_GAIN`.
+#: ... as is one with this F statistic (:func:`holdout_gain`), or this many times its floor with it.
 STRONG_F = 1e3
-#: Nor a cause this many times its floor beyond instrument errors with a pooled gain of
-#: :data:`CLEAR_GAIN`: on 110 development nulls (our 737, the stock 737, the A320; 1.5 and 3 ft/s;
-#: seeds 3,000,080-099, 3,100,000-029, 3,300,000-029, 3,400,000-029) the largest pooled gain of a
-#: candidate the veto stopped was x1.26 (at 3.7 times its floor, made by a 3.5 % vane scale), the
-#: others x1.03; on 150 development effects, real causes it stopped gained x1.07-2.4.
 CLEAR_OVER_FLOOR = 3.0
-CLEAR_GAIN = 1.3
+#: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
+#: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size
+#: instrument errors could make as a discrepancy all the same.
+STRONG_GAIN = 1.5
 #: A cause tested against the terms chosen before it alone must be at least this share of its size
 #: so: one part of a cancelling pair is much larger in the joint fit than alone (a vane scale's
 #: moment against alpha, 466 times its floor beside the moment against CL, on a stock-737 null).
@@ -224,11 +226,11 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
           floors: list[np.ndarray], eiv: list[float] | None = None, reach: list[dict] | None = None,
           alpha_in: float = 1e-6, data: pd.DataFrame | None = None) -> None:
     """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
-    better on held-out data where it acts: pooled over the conditions, each left out in turn,
-    and worse on none of them unless the evidence is strong (a pooled gain of :data:`STRONG_GAIN`
-    with :data:`STRONG_OVER_FLOOR` times the floor or an F of :data:`STRONG_F`, or of :data:`CLEAR_GAIN`
-    with :data:`CLEAR_OVER_FLOOR` times the floor: one condition's few logs may hold little of an
-    effect the others show whole). Rows a held-out fit predicts by extrapolation may confirm a cause
+    better on held-out data where it acts by :data:`MIN_HOLDOUT_GAIN`, pooled over the conditions,
+    each left out in turn (no single condition may veto it: one condition's few logs may hold
+    little of an effect the others show whole, and on 300 development effects the veto stopped
+    real causes of x1.03-1.19 while no null candidate it stopped gained more than x1.03). Rows a
+    held-out fit predicts by extrapolation may confirm a cause
     with an F of :data:`STRONG_F` or :data:`STRONG_OVER_FLOOR` times its floor, not refute it
     (:func:`holdout_gain`). A cause that acts at a single condition, where no other condition can
     test it, is ``unconfirmed`` if it is :data:`STRONG_OVER_FLOOR` times its floor, or
@@ -281,7 +283,6 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         tested = {c: g for c, g in by_condition.items() if np.isfinite(g)}
         alone = len(by_condition) == 1 or (bool(by_condition) and not tested)
         strong = beyond >= STRONG_OVER_FLOOR * floor
-        worst = min(tested.values(), default=float("nan"))
         if len(by_condition) == 1:
             reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
                            f"can confirm it")
@@ -291,14 +292,6 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         elif not gain >= MIN_HOLDOUT_GAIN:
             reasons.append("no held-out data where it acts" if not np.isfinite(gain) else
                            f"does not improve held-out data (gain x{gain:.3f}, needs x{MIN_HOLDOUT_GAIN})")
-        elif (not worst >= 1.0 / MIN_HOLDOUT_GAIN and not (gain >= STRONG_GAIN and (
-                strong or cause.evidence.get("F", 0.0) >= STRONG_F))
-              and not (gain >= CLEAR_GAIN and beyond >= CLEAR_OVER_FLOOR * floor)):
-            c_worst = min(tested, key=tested.get)
-            reasons.append(f"makes a condition it acts on worse when that condition is left out "
-                           f"(x{worst:.3f} at {c_worst}, needs x{1.0 / MIN_HOLDOUT_GAIN:.2f}, or x{CLEAR_GAIN} "
-                           f"pooled with {CLEAR_OVER_FLOOR:g} times the floor, or x{STRONG_GAIN} with "
-                           f"{STRONG_OVER_FLOOR:g} times the floor or F {STRONG_F:g})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
                 and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
                 and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]

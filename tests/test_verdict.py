@@ -198,6 +198,47 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
         assert v["unconfirmed"] is unconfirmed, (f_stat, floor, v)
 
 
+def _slopes(k_others: float, k_last: float, seed: int = 5):
+    """CD = k a over four conditions, the fourth with its own slope, and a linear cause in a fitted to
+    all of them (its floor a third of its size, F 100)."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    rng = np.random.default_rng(seed)
+    data = pd.concat([pd.DataFrame({"condition": f"c{i}", "log": i, "a": a,
+                                    "r_CD": (k_last if i == 3 else k_others) * a + rng.normal(0, 0.001, 400)})
+                      for i, a in enumerate(rng.uniform(0, 4, (4, 400)))], ignore_index=True)
+    term = Term("linear", ("a",), centers=(0.0,), ranges=((0.0, 4.0),))
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CD.to_numpy(),
+                           rcond=None)[0]
+    res = StepwiseResult("CD", [term], beta, {}, [], 0.0, 0.0, len(data))
+    size = float(np.ptp(term.design(data)[:, 0] * beta[1]))
+    return Cause("CD", ["a"], [term], "linear", {"p_value": 0.0, "F": 100.0}, size / 2, size=size), res, data
+
+
+def test_the_held_out_decision_is_the_pooled_gain_calibrated_on_nulls():
+    """One decision on held-out data: the pooled gain where the cause acts, at least
+    MIN_HOLDOUT_GAIN (x1.05, above the x1.032 that the largest of 28 null candidates beyond their
+    floor reached on 170 simulated null flights). A condition that gets worse left out does not
+    veto it: a drag slope three conditions share and the fourth lacks (x0.87 there, x1.08 pooled)
+    is named; until stop 42 it was not, as real causes at x1.03-1.19 pooled on 300 development
+    effects were not. A slope that gains x1.02 pooled, as null candidates do, is not."""
+    from diagnose.verdict import MIN_HOLDOUT_GAIN, judge
+    assert MIN_HOLDOUT_GAIN == 1.05
+    cause, res, data = _slopes(0.0008, 0.0)
+    judge([cause], {"CD": res}, data, [np.array([cause.size / 3])])
+    v = cause.verdict
+    assert v["holdout_gain_by_condition"]["c3"] < 0.9 and v["holdout_gain"] > MIN_HOLDOUT_GAIN, v
+    assert v["accepted"], v["reason"]
+    cause, res, data = _slopes(0.00018, 0.00018)
+    judge([cause], {"CD": res}, data, [np.array([cause.size / 3])])
+    v = cause.verdict
+    assert 1.0 < v["holdout_gain"] < MIN_HOLDOUT_GAIN, v
+    assert not v["accepted"] and f"needs x{MIN_HOLDOUT_GAIN}" in v["reason"], v["reason"]
+
+
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     """A random 8-knot table in Mach (development seed 3,000,041 of the detection curve: CL up to
     0.009, 4.4 times the floor, 3 ft/s turbulence, our 737): Mach 0.2 and 0.5, each flown at one
@@ -288,8 +329,8 @@ def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it
 def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
     """CL changed by +0.0134 times a dip over alpha (development seed 3,000,203 of the detection curve, our 737, 3 ft/s
     turbulence, 9 times the floor): fitted 3.5 times its floor beyond instrument errors, x1.31 on
-    held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. A pooled
-    gain of x1.3 with 3 times the floor is beyond what the veto stopped on 110 development nulls."""
+    held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. No
+    condition vetoes a cause now (stop 42): the pooled gain decides."""
     from campaign.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
