@@ -118,8 +118,7 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
     aero = discrepancies(doc)
     if keep is not None:
         keep.mkdir(parents=True, exist_ok=True)
-        drop = ("curve",)
-        slim = {k: [{f: v for f, v in c.items() if f not in drop} for c in doc.get(k, [])]
+        slim = {k: [{f: v for f, v in c.items() if f != "curve"} for c in doc.get(k, [])]
                 for k in ("causes", "unconfirmed", "rejected")}
         (keep / f"{seed}.json").write_text(json.dumps(
             {"seed": seed, "aircraft": name, "conditions": what, "sensor": sensor,

@@ -32,8 +32,9 @@ ACTING_SHARE = 0.05
 #: held-out fit extrapolates may only confirm it, and at one condition only it is a discrepancy the
 #: data cannot confirm ...
 STRONG_OVER_FLOOR = 10.0
-#: ... as is one with this F statistic (:func:`holdout_gain`), or this many times its floor with it.
+#: ... as is one with this F statistic, for the extrapolated rows (:func:`holdout_gain`) ...
 STRONG_F = 1e3
+#: ... and, at one condition only, one this many times its floor with an F of :data:`STRONG_F`.
 CLEAR_OVER_FLOOR = 3.0
 #: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
 #: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size
