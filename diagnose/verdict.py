@@ -52,7 +52,7 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
 
 
 def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
-                 strong: bool | None = None) -> tuple[float, list[int], dict]:
+                 strong: bool | None = None, group: str = "condition") -> tuple[float, list[int], dict]:
     """Leave-one-condition-out check of one cause on every condition flown.
 
     For each flight condition, the coefficient's selected terms are fitted on
@@ -91,6 +91,10 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
     strong : bool, optional
         Whether extrapolated rows may only confirm the cause (default: an F of :data:`STRONG_F` or
         more; :func:`judge` also counts a cause :data:`STRONG_OVER_FLOOR` times its floor strong).
+    group : str
+        The column whose values are left out in turn: ``"condition"``, or ``"log"`` for each log
+        predicted from every other, its own condition's repeats included (:func:`judge` records it as
+        ``replicate_gain``).
 
     Returns
     -------
@@ -107,7 +111,7 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
     full = contribution(res, cause, data)
     frame = pd.DataFrame({"log": data["log"].to_numpy(), "dev": np.abs(full)})
     acting = [int(i) for i, g in frame.groupby("log") if g["dev"].max() >= ACTING_SHARE * max(cause.size, 1e-300)]
-    code, names = pd.factorize(data["condition"], sort=True)  # hashed: sorting the strings took a third
+    code, names = pd.factorize(data[group], sort=True)  # hashed: sorting the strings took a third
     if not acting or len(names) < 2:
         return float("nan"), acting, {}
     order = np.argsort(code, kind="stable")  # rows by condition: one sort, no string compares
@@ -262,6 +266,7 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         beyond = min(cause.size, rc["left"])
         sure = cause.evidence.get("F", 0.0) >= STRONG_F or beyond >= STRONG_OVER_FLOOR * floor
         gain, acting, by_condition = holdout_gain(results[cause.coefficient], cause, data_all, sure)
+        replicate, _, _ = holdout_gain(results[cause.coefficient], cause, data_all, sure, group="log")
         if data is not None and not gain >= MIN_HOLDOUT_GAIN and len(by_condition) > 1 and cause.kind == "aero":
             cut = main_effect(cause, results[cause.coefficient], data)
             if cut is not None:
@@ -270,6 +275,7 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                     cause = causes[i] = cut[0]
                     results[cause.coefficient] = cut[1]
                     gain, acting, by_condition = g2, a2, b2
+                    replicate, _, _ = holdout_gain(cut[1], cut[0], data_all, sure, group="log")
         beyond = min(cause.size, rc["left"])
         reasons = []
         if not cause.evidence["p_value"] < alpha_in:
@@ -314,7 +320,7 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                          "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
                          "holdout_gain": gain,
                          "holdout_gain_by_condition": by_condition,
-                         "holdout_logs": acting, "size_over_floor": beyond / floor}
+                         "holdout_logs": acting, "size_over_floor": beyond / floor, "replicate_gain": replicate}
 
 
 #: An instrument error that alone explains this share of a cause's variance is named beside it [%].
