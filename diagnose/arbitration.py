@@ -21,7 +21,7 @@ SENSOR_EFFECT = 1e-4
 #: aerodynamic residuals chose it (:func:`arbitrate`: two independent lines of evidence).
 SENSOR_Z = APPLY_Z
 #: ... and the held-out residuals get this much smaller (RMS ratio) corrected. Not the aerodynamic
-#: causes' :data:`diagnose.verdict.MIN_HOLDOUT_GAIN`: its calibration on nulls covered those only.
+#: causes' :data:`diagnose.verdict.REPLICATE_GAIN`: its calibration on nulls covered those only.
 SENSOR_MIN_GAIN = 1.02
 #: A correction the kinematics leave undecided is applied if the residuals get this much smaller
 #: (RMS ratio) with it, on the fitted and on the held-out logs.
