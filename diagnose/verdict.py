@@ -21,9 +21,9 @@ from identify.lsq import solve_normal
 #: 4,100,000-299: our 737, the stock 737 and the A320, 1.5 and 3 ft/s, sensor errors in a fifth),
 #: 52 candidates were significant and beyond their floor and the instrument errors' reach; with
 #: no sensor error their gains were x1.164 at most, and only vane scales the data compatibility
-#: left part of made more (x1.2-4.3). The conditions left out in turn (the decision until stop
-#: 42, x1.05) let 9 of those nulls name a cause and 28 of 36 development effects 3-10 times their
-#: floor (4,200,000-149) be named; this, 3 and 31.
+#: left part of made more (x1.2-4.3). Replayed from the same verdicts, the conditions left out in
+#: turn (the decision of stop 42, x1.05) named a cause on 9 of those nulls and 28 of 36 development
+#: effects 3-10 times their floor (4,200,000-149); this decision, 3 and 31.
 REPLICATE_GAIN = 1.2
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
 #: at its reference, the first knot of a smooth term and the centre of a linear one, the intercept
@@ -56,7 +56,8 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
 
 def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
                  strong: bool | None = None, group: str = "condition") -> tuple[float, list[int], dict]:
-    """Leave-one-condition-out check of one cause on every condition flown.
+    """Leave-one-condition-out (or leave-one-log-out, ``group``) check of one cause on every
+    condition flown.
 
     For each flight condition, the coefficient's selected terms are fitted on
     the others and predict it, and so are its terms without the cause's (refitted: two
