@@ -294,18 +294,20 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         # an effect that departs from the model at one condition alone, or that no condition left out can
         # test, the other conditions cannot confirm or refute; that condition's repeats still can
         tested = {c: g for c, g in by_condition.items() if np.isfinite(g)}
-        alone = len(by_condition) == 1 or (bool(by_condition) and not tested)
+        repeated = replicate >= REPLICATE_GAIN
+        alone = (len(by_condition) == 1 or (bool(by_condition) and not tested)) and not repeated
         strong = beyond >= STRONG_OVER_FLOOR * floor
-        if replicate >= REPLICATE_GAIN:
-            alone = False
-        elif len(by_condition) == 1:
-            reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
-                           f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN})")
-        elif not np.isfinite(replicate):
-            reasons.append("no held-out data where it acts")
-        else:
-            reasons.append(f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
-                           f"x{REPLICATE_GAIN}; x{gain:.3f} with each condition left out)")
+        if not repeated:
+            if len(by_condition) == 1:
+                reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
+                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN})")
+            elif not np.isfinite(replicate):
+                reasons.append("no held-out data where it acts")
+            else:
+                by_conditions = (f"x{gain:.3f} with each condition left out" if np.isfinite(gain) else
+                                 "no condition it acts on can be left out with its terms still estimable")
+                reasons.append(f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
+                               f"x{REPLICATE_GAIN}; {by_conditions})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
                 and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
                 and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]
