@@ -149,3 +149,24 @@ def test_logs_that_all_turn_leave_the_airspeed_error_unmeasured(tmp_path):
     by = {p.name: p for p in res.parameters}
     for name in ("tas_kt.bias", "tas_kt.scale"):
         assert not by[name].identifiable and "straight log" in by[name].reason, (name, by[name].reason)
+
+
+def test_a_correction_chosen_over_its_confounded_partner_keeps_its_uncertainty():
+    """The reach of instrument errors counts every correction applied. A vane scale the kinematics
+    cannot tell from the vane's bias, chosen by the CL residual (the bias held at 0), is applied
+    with the standard error of that reading; the covariance blocks hold only the bias. Left out,
+    a 6.3 % scale corrected as 7.0 +- 0.8 % named "CL vs alpha" with nothing hidden."""
+    from identify.compat.result import CompatResult, Parameter
+    bias = Parameter("alpha_deg", "bias", "deg", 0.61, 0.06, reason="confounded with alpha_deg.scale: the "
+                     "estimate holds both (not applied)", confounded_with="alpha_deg.scale")
+    scale = Parameter("alpha_deg", "scale", "-", 0.070, 0.008, reason="not separable from alpha_deg.bias",
+                      confounded_with="alpha_deg.bias")
+    q = Parameter("q_dps", "bias", "deg/s", 0.05, 0.002)
+    compat = CompatResult([bias, scale, q], covariance=[(["alpha_deg.bias", "q_dps.bias"], np.diag([0.06, 0.002]) ** 2)])
+    names, cov = compat.uncertainty()
+    assert ("alpha_deg", "scale") not in names  # not applied: the reach leaves it to the residuals
+    names, cov = compat.choose("alpha_deg.scale", "the CL residual agrees").uncertainty()
+    assert names[:2] == [("alpha_deg", "bias"), ("q_dps", "bias")]
+    assert ("alpha_deg", "scale") in names
+    np.testing.assert_allclose(np.sqrt(cov[names.index(("alpha_deg", "scale"))].max()), 0.008)
+    np.testing.assert_allclose(np.diag(cov)[:2], [0.06 ** 2, 0.002 ** 2])

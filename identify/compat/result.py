@@ -143,18 +143,20 @@ class CompatResult:
 
     def uncertainty(self) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
-        covariance of their estimates: how wrong the corrected data may still be. An error the
-        aerodynamic residuals timed or refined counts too, with its standard error (alone): an alpha
-        vane's 77-ms delay, timed 5 ms long (2 standard errors) in turbulence, left a "CL vs qhat" that
-        was named on the stock 737 with nothing else hidden; a 4 % vane scale refined to 3.8 % left a
-        "CL vs alpha"."""
+        covariance of their estimates: how wrong the corrected data may still be. Every other error
+        applied counts too, with its standard error (alone): one the aerodynamic residuals timed or
+        refined (an alpha vane's 77-ms delay, timed 5 ms long (2 standard errors) in turbulence, left a
+        "CL vs qhat" that was named on the stock 737 with nothing else hidden; a 4 % vane scale refined
+        to 3.8 % left a "CL vs alpha"), and one the residuals chose over the partner the kinematics
+        cannot tell it from (a 6.3 % vane scale corrected as 7.0 +- 0.8 % left a "CL vs alpha" with
+        nothing hidden, and the reach gave the scale's error no share of it)."""
         names, blocks = [], []
         ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
         for ns, cov in self.covariance:
             keep = [j for j, n in enumerate(ns) if n.split(".")[1] in ("bias", "scale", "delay") and n in ok]
             names += [tuple(ns[j].split(".")) for j in keep]
             blocks.append(cov[np.ix_(keep, keep)])
-        timed = [p for p in self.parameters if p.applied and "residuals" in p.sources and p.se > 0
+        timed = [p for p in self.parameters if p.applied and p.se > 0
                  and p.name.split(".")[1] in ("bias", "scale", "delay") and tuple(p.name.split(".")) not in names]
         total = np.zeros((len(names) + len(timed), len(names) + len(timed)))
         i = 0
