@@ -36,7 +36,7 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.separation import cause_rivals, instrument_preferred, noise_weights
+from diagnose.separation import cause_rivals, instrument_fits_better, instrument_preferred, noise_weights
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
@@ -153,6 +153,9 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         preferred = instrument_preferred(c)
         if preferred and c.verdict["accepted"]:
             c.verdict.update(accepted=False, unconfirmed=True, reason=preferred)
+        within = instrument_fits_better(c)
+        if within and (c.verdict["accepted"] or c.verdict.get("unconfirmed")):
+            c.verdict.update(accepted=False, unconfirmed=False, reason=within)
     aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
