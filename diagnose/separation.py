@@ -366,20 +366,30 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     return out
 
 
+def _better_sensor(cause, measured: bool) -> tuple[dict, dict] | None:
+    """The sensor rival (and its ``sensor_alternatives`` entry) that fits the residuals best, by
+    :data:`SETTLED_SE` or more, among the errors the data compatibility measured (``measured``) or
+    could not measure; None if none does."""
+    alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", [])
+            if bool(a.get("unmeasured")) != measured}
+    better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
+              and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE]
+    if not better:
+        return None
+    r = min(better, key=lambda r: r["separation_se"])
+    return r, alts[(r["channel"], r["error"])]
+
+
 def instrument_fits_better(cause) -> str:
     """Why a cause is not named: an instrument error the data compatibility measured, at a size within
     its reach (``sensor_alternatives``), fits the residuals of CL, CD and Cm and the compatibility's own
     measurement better, by :data:`SETTLED_SE` or more (``""`` if none does). The aerodynamic cause then
     explains nothing the instruments do not: an A320 null with a 7.2 % alpha-vane scale, corrected
     as 5.7 %, left a "CD vs elevator" that the scale's remainder fitted 8.6 standard errors better."""
-    alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", [])
-            if not a.get("unmeasured")}
-    better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
-              and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE]
-    if not better:
+    found = _better_sensor(cause, measured=True)
+    if found is None:
         return ""
-    r = min(better, key=lambda r: r["separation_se"])
-    a = alts[(r["channel"], r["error"])]
+    r, a = found
     return (f"an instrument error within the data compatibility's reach fits the residuals better: "
             f"{r['channel']} {r['error']} {a['needs']:+.3g} ({abs(a['needs_se']):.1f} standard errors; "
             f"{-r['separation_se']:.1f} standard errors better, fitted to CL, CD, Cm and the data compatibility together)")
@@ -389,13 +399,10 @@ def instrument_preferred(cause) -> str:
     """Why a cause is not named: an instrument error the data compatibility could not measure fits
     the residuals better, by :data:`SETTLED_SE` or more (``""`` if none does). The residuals alone
     point to it, and only a measurement of it (`campaign plan`) can confirm either."""
-    alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", []) if a.get("unmeasured")}
-    better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
-              and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE]
-    if not better:
+    found = _better_sensor(cause, measured=False)
+    if found is None:
         return ""
-    r = min(better, key=lambda r: r["separation_se"])
-    a = alts[(r["channel"], r["error"])]
+    r, a = found
     return (f"an instrument error the data compatibility could not measure fits the residuals better: "
             f"{r['channel']} {r['error']} {a['needs']:+.3g} ({-r['separation_se']:.1f} standard errors better, "
             f"fitted to CL, CD and Cm together); `campaign plan` designs the flight that measures it")
