@@ -257,3 +257,30 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert first["kind"] == "sensor" and (first["channel"], first["error"]) == ("tas_kt", "scale"), after["summary"]
     assert abs(first["estimate"] - 0.06) <= max(3 * first["se"], 0.006) and first["estimate"] / first["se"] >= 5
     assert all(c["kind"] == "sensor" for c in after["causes"]) and not after["unconfirmed"], after["summary"]
+
+
+def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_s_coefficient_better():
+    """The sensor rules read the rivals' fits. A measured error within reach that fits the residuals
+    5 standard errors better, its own coefficient's rows included, rejects the cause (an A320 null's
+    "CL vs alpha, mach, flap" beside a vane scale's remainder). Better only through another
+    coefficient (a thrust scale's remainder in CD, against a real Cm bump) it does not. An error the
+    compatibility could not measure goes to the other rule, which leaves the discrepancy unconfirmed."""
+    from types import SimpleNamespace
+
+    def cause(coefficient, by, separation, unmeasured=False):
+        alt = {"channel": "alpha_deg", "error": "scale", "needs": -0.017, "needs_se": 0.8, "se": 0.022,
+               "explains_pct": 95.0, **({"unmeasured": True} if unmeasured else {})}
+        rival = {"rival": "alpha_deg scale", "kind": "sensor", "channel": "alpha_deg", "error": "scale",
+                 "separation_se": separation, "by_coefficient": by}
+        return SimpleNamespace(coefficient=coefficient, evidence={"sensor_alternatives": [alt], "rivals": [rival]})
+
+    lift = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0, "data compatibility": 0.5}, -6.2)
+    assert sep.instrument_fits_better(lift).startswith("an instrument error within the data compatibility's reach")
+    assert "6.2 standard errors better" in sep.instrument_fits_better(lift)
+    assert sep.instrument_preferred(lift) == ""
+    bump = cause("Cm", {"CL": 18858.6, "CD": -58037.5, "Cm": 2103.9, "data compatibility": 10.3}, -192.5)
+    assert sep.instrument_fits_better(bump) == ""
+    close = cause("CL", {"CL": -20.0, "CD": 0.0, "Cm": 0.0, "data compatibility": 0.5}, -4.4)
+    assert sep.instrument_fits_better(close) == ""
+    blind = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0}, -6.2, unmeasured=True)
+    assert sep.instrument_fits_better(blind) == "" and sep.instrument_preferred(blind)
