@@ -369,15 +369,16 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
 def _better_sensor(cause, measured: bool) -> tuple[dict, dict] | None:
     """The sensor rival (and its ``sensor_alternatives`` entry) that fits the residuals best, by
     :data:`SETTLED_SE` or more, among the errors the data compatibility measured (``measured``) or
-    could not measure; None if none does. A measured error must also fit the cause's own coefficient
-    better: its signature in the others may fit what no cause there was named for (a thrust scale's
-    remainder in CD made an alpha scale 190 standard errors better than a Cm bump in alpha that was
-    there, though the bump fitted Cm better)."""
+    could not measure; None if none does. For a measured error, the cause's own coefficient must not
+    settle it the other way (the cause better there by :data:`SETTLED_SE`): the error's signature in the
+    other coefficients may fit what no cause there was named for (a thrust scale's remainder in CD made
+    an alpha scale 190 standard errors better than a Cm bump in alpha that was there, and that fitted
+    Cm 46 standard errors better)."""
     alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", [])
             if bool(a.get("unmeasured")) != measured}
     better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
               and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE
-              and (not measured or r["by_coefficient"].get(cause.coefficient, 0.0) < 0)]
+              and (not measured or r["by_coefficient"].get(cause.coefficient, 0.0) < SETTLED_SE ** 2)]
     if not better:
         return None
     r = min(better, key=lambda r: r["separation_se"])

@@ -261,10 +261,11 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
 
 def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_s_coefficient_better():
     """The sensor rules read the rivals' fits. A measured error within reach that fits the residuals
-    5 standard errors better, its own coefficient's rows included, rejects the cause (an A320 null's
-    "CL vs alpha, mach, flap" beside a vane scale's remainder). Better only through another
-    coefficient (a thrust scale's remainder in CD, against a real Cm bump) it does not. An error the
-    compatibility could not measure goes to the other rule, which leaves the discrepancy unconfirmed."""
+    5 standard errors better rejects the cause (an A320 null's "CL vs alpha, mach, flap" beside a vane
+    scale's remainder; our 737's "CD vs flap, alpha" beside a vane bias's, though CD alone favoured the
+    cause by 2 standard errors). If the cause's own coefficient favours it by 5 standard errors (a real
+    Cm bump, the alpha scale better only through what a thrust scale left in CD) it does not. An error
+    the compatibility could not measure goes to the other rule, which leaves the discrepancy unconfirmed."""
     from types import SimpleNamespace
 
     def cause(coefficient, by, separation, unmeasured=False):
@@ -280,6 +281,8 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     assert sep.instrument_preferred(lift) == ""
     bump = cause("Cm", {"CL": 18858.6, "CD": -58037.5, "Cm": 2103.9, "data compatibility": 10.3}, -192.5)
     assert sep.instrument_fits_better(bump) == ""
+    drag = cause("CD", {"CL": -60.0, "CD": 4.4, "Cm": -48.0, "data compatibility": 0.5}, -10.2)
+    assert sep.instrument_fits_better(drag)
     close = cause("CL", {"CL": -20.0, "CD": 0.0, "Cm": 0.0, "data compatibility": 0.5}, -4.4)
     assert sep.instrument_fits_better(close) == ""
     blind = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0}, -6.2, unmeasured=True)
