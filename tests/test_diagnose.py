@@ -91,6 +91,23 @@ def test_a_vane_scale_the_kinematics_leave_undecided_is_refined_by_the_residuals
     assert not r["aero_named"] and not r["other_sensors"], (r["aero_named"], r["other_sensors"])
 
 
+def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_errors(tmp_path):
+    """Our 737 through a vane reading 0.40 deg high in 3 ft/s turbulence (development null 4,500,069 of
+    the detection curve). The kinematics applied 0.28 +- 0.05 deg; the CL and CD residuals each need
+    0.12 deg more, 2.6 standard errors from the kinematics' estimate. Up to stop 44 agreement ended at
+    2.5, the 95th percentile of the kinematics' own errors on simulated flights, and "CD vs flap,
+    alpha" was named; at their 99th (3.5) the bias is refined to what the residuals need."""
+    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from tests.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
+    doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 4500069,
+                           channels="[channels.alpha_deg]\nbias = 0.40241062049587184\n")
+    assert not discrepancies(doc), doc["summary"]
+    comp = {p["channel"] + "." + p["error"]: p for p in doc["data_compatibility"]["parameters"]}
+    bias = comp["alpha_deg.bias"]
+    assert bias["applied"] and set(bias["methods"]) == {"kinematics", "residuals"}, bias
+    assert abs(bias["estimate"] - 0.402) < 2 * bias["se"] < abs(bias["methods"]["kinematics"]["estimate"] - 0.402), bias
+
+
 def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
     fault = make_sensor("alpha_bias", np.random.default_rng(0), 0.4)
     hidden = make("gear_saturating", np.random.default_rng(7), "CD")
