@@ -366,10 +366,10 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     return out
 
 
-def _better_sensor(cause, measured: bool) -> tuple[dict, dict] | None:
-    """The sensor rival (and its ``sensor_alternatives`` entry) that fits the residuals best, by
-    :data:`SETTLED_SE` or more, among the errors the data compatibility measured (``measured``) or
-    could not measure; None if none does. For a measured error, the cause's own coefficient must not
+def _better_sensor(cause, measured: bool) -> str:
+    """Why a cause is not named (``""`` if nothing says so): the sensor rival that fits the residuals
+    best, by :data:`SETTLED_SE` or more, among the errors the data compatibility measured
+    (``measured``) or could not measure. For a measured error, the cause's own coefficient must not
     settle it the other way (the cause better there by :data:`SETTLED_SE`): the error's signature in the
     other coefficients may fit what no cause there was named for (a thrust scale's remainder in CD made
     an alpha scale 190 standard errors better than a Cm bump in alpha that was there, and that fitted
@@ -380,9 +380,17 @@ def _better_sensor(cause, measured: bool) -> tuple[dict, dict] | None:
               and (r["channel"], r["error"]) in alts and r["separation_se"] <= -SETTLED_SE
               and (not measured or r["by_coefficient"].get(cause.coefficient, 0.0) < SETTLED_SE ** 2)]
     if not better:
-        return None
+        return ""
     r = min(better, key=lambda r: r["separation_se"])
-    return r, alts[(r["channel"], r["error"])]
+    a = alts[(r["channel"], r["error"])]
+    error = f"{r['channel']} {r['error']} {a['needs']:+.3g}"
+    if measured:
+        return (f"an instrument error within the data compatibility's reach fits the residuals better: {error} "
+                f"({abs(a['needs_se']):.1f} standard errors; {-r['separation_se']:.1f} standard errors better, "
+                f"fitted to CL, CD, Cm and the data compatibility together)")
+    return (f"an instrument error the data compatibility could not measure fits the residuals better: {error} "
+            f"({-r['separation_se']:.1f} standard errors better, fitted to CL, CD and Cm together); "
+            f"`campaign plan` designs the flight that measures it")
 
 
 def instrument_fits_better(cause) -> str:
@@ -391,23 +399,11 @@ def instrument_fits_better(cause) -> str:
     measurement better, by :data:`SETTLED_SE` or more (``""`` if none does). The aerodynamic cause then
     explains nothing the instruments do not: an A320 null with a 7.2 % alpha-vane scale, corrected
     as 5.7 %, left a "CD vs elevator" that the scale's remainder fitted 8.6 standard errors better."""
-    found = _better_sensor(cause, measured=True)
-    if found is None:
-        return ""
-    r, a = found
-    return (f"an instrument error within the data compatibility's reach fits the residuals better: "
-            f"{r['channel']} {r['error']} {a['needs']:+.3g} ({abs(a['needs_se']):.1f} standard errors; "
-            f"{-r['separation_se']:.1f} standard errors better, fitted to CL, CD, Cm and the data compatibility together)")
+    return _better_sensor(cause, measured=True)
 
 
 def instrument_preferred(cause) -> str:
     """Why a cause is not named: an instrument error the data compatibility could not measure fits
     the residuals better, by :data:`SETTLED_SE` or more (``""`` if none does). The residuals alone
     point to it, and only a measurement of it (`campaign plan`) can confirm either."""
-    found = _better_sensor(cause, measured=False)
-    if found is None:
-        return ""
-    r, a = found
-    return (f"an instrument error the data compatibility could not measure fits the residuals better: "
-            f"{r['channel']} {r['error']} {a['needs']:+.3g} ({-r['separation_se']:.1f} standard errors better, "
-            f"fitted to CL, CD and Cm together); `campaign plan` designs the flight that measures it")
+    return _better_sensor(cause, measured=False)
