@@ -207,9 +207,9 @@ AGREE_PCT = 80.0
 AGREE_RATIO = 1.5
 #: ... and within this many of the data compatibility's standard errors of its own estimate, is
 #: an instrument error: the residuals refine the correction instead of naming aero causes. The
-#: 99th percentile of the kinematics' own alpha-vane errors in standard errors, on 745 simulated
-#: flights in 1.5 and 3 ft/s (3.3 for the bias, 3.6 for the scale; 2.5 was their 95th). At 2.5
-#: an A320 vane scale of 5.3 %, corrected as 8.6 +- 1.1 %, was not refined to the 5.5 % all three
+#: 99th percentile of the kinematics' own alpha-vane errors in standard errors, on 373 simulated
+#: campaigns in 1.5 and 3 ft/s (3.3 for the bias, 3.6 for the scale; 2.5 was their 95th). At 2.5 an
+#: A320 vane scale of 5.3 %, corrected as 8.6 +- 1.1 %, was not refined to the 5.5 % all three
 #: residuals needed (2.8 standard errors away), and "Cm vs alpha" was named on a null (the reserved
 #: seeds' one false positive, seen there first).
 AGREE_SE = 3.5
