@@ -29,6 +29,8 @@ APPLY_Z = 5.0
 #: clustered standard error itself uncertain: in turbulence it came out 4x too small in 1 null of 6.
 #: At 3, an A320 alpha-vane scale of 7.2 % measured as 5.7 +- 2.2 % in 3 ft/s was not tried, and the
 #: model's own lift table, steep between two breakpoints, hid it from the linearised instrument reach.
+#: About the 95th percentile of the kinematics' own alpha-vane errors on simulated campaigns: an error
+#: that is not there becomes a candidate in about 1 of 20, and the residuals must then corroborate it.
 CANDIDATE_Z = 2.5
 #: Above this variance inflation a parameter is confounded with others (its error is 10x a lone one's).
 MAX_VIF = 100.0
