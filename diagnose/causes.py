@@ -119,7 +119,7 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             variables = []
             for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
                 ordered = t.variables
-                if t.kind == "product":  # the variable that alone explains more of the cause comes first
+                if len(t.variables) > 1:  # the variable that alone explains more of the cause comes first
                     ordered = tuple(sorted(t.variables, key=lambda v: -_share(contrib, data[v].to_numpy())))
                 variables += [v for v in ordered if v not in variables]
             primary = variables[0]

@@ -286,6 +286,40 @@ def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
         assert np.array_equal(hats(x, knots), want, equal_nan=True)
 
 
+@pytest.mark.parametrize("truth, term", [("alpha_deg", ("mach", "alpha_deg")), ("mach", ("alpha_deg", "mach"))])
+def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_that_carries_it(truth, term):
+    """Four conditions, each trimmed at its own alpha (the faster, the lower), with a 2-3-1-1's alpha
+    swing in each: a dead band in alpha, or a step in Mach, fitted by a smooth term in the other
+    variable that varies linearly with the first (development seeds 4,600,055 and 2,000,282 of the
+    detection curve: "Cm vs mach, alpha_deg" for a dead band in alpha, and "Cm vs alpha_deg, mach" for
+    a step in Mach). The variable whose function alone makes the cause comes first."""
+    import pandas as pd
+
+    from diagnose.causes import name_causes
+    from diagnose.stepwise import Lags, StepwiseResult, fit_terms
+    from diagnose.terms import Term
+    rng = np.random.default_rng(4)
+    frames = []
+    for i, (mach, trim) in enumerate([(0.2, 9.0), (0.3, 6.0), (0.4, 4.0), (0.5, 2.5)]):
+        swing = 1.5 * np.sin(np.linspace(0.0, 6 * np.pi, 600))
+        frames.append(pd.DataFrame({"log": i, "alpha_deg": trim + swing + rng.normal(0, 0.05, 600),
+                                    "mach": mach - 0.004 * swing + rng.normal(0, 0.001, 600)}))
+    data = pd.concat(frames, ignore_index=True)
+    a, m = data.alpha_deg.to_numpy(), data.mach.to_numpy()
+    effect = {"alpha_deg": np.sign(a - 5.0) * np.clip(np.abs(a - 5.0) - 1.0, 0.0, None),
+              "mach": 0.02 * (m > 0.33)}[truth]
+    data["r_Cm"] = effect + rng.normal(0, 0.002, len(data))
+    smooth, linear = term
+    knots = tuple(np.quantile(data[smooth], np.linspace(0, 1, 6)))
+    t = Term("smooth_x_linear", term, knots, (0.0, float(data[linear].median())),
+             ((float(data[smooth].min()), float(data[smooth].max())), (float(data[linear].min()),
+                                                                         float(data[linear].max()))))
+    fit = fit_terms(data.r_Cm.to_numpy(), [t.design(data)], [t])
+    res = StepwiseResult("Cm", [t], fit.beta, {t.label: {}}, [], 0.0, 0.0, len(data))
+    cause, = name_causes({"Cm": res}, data, Lags(data["log"].to_numpy()))
+    assert cause.variables == [truth, linear if truth == smooth else smooth]
+
+
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
     a spike: each level within 5 %, and only the channels some log has."""
