@@ -265,7 +265,10 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     scale's remainder; our 737's "CD vs flap, alpha" beside a vane bias's, though CD alone favoured the
     cause by 2 standard errors). If the cause's own coefficient favours it by 5 standard errors (a real
     Cm bump, the alpha scale better only through what a thrust scale left in CD) it does not. An error
-    the compatibility could not measure goes to the other rule, which leaves the discrepancy unconfirmed."""
+    that fits the cause's own coefficient better by 2 standard errors needs only 2 overall (a stock-737
+    null's "CD vs alpha" beside a vane bias's remainder, 3.6 better, 13 in CD); one that does not (a
+    development case's real lift change, 3.7 better overall, 1.3 in CL) needs 5. An error the
+    compatibility could not measure goes to the other rule, which leaves the discrepancy unconfirmed."""
     from types import SimpleNamespace
 
     def cause(coefficient, by, separation, unmeasured=False):
@@ -283,7 +286,13 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     assert sep.instrument_fits_better(bump) == ""
     drag = cause("CD", {"CL": -60.0, "CD": 4.4, "Cm": -48.0, "data compatibility": 0.5}, -10.2)
     assert sep.instrument_fits_better(drag)
-    close = cause("CL", {"CL": -20.0, "CD": 0.0, "Cm": 0.0, "data compatibility": 0.5}, -4.4)
+    own = cause("CD", {"CL": -0.0, "CD": -13.1, "Cm": 0.0, "data compatibility": 1.1}, -3.6)
+    assert "3.6 standard errors better" in sep.instrument_fits_better(own)
+    elsewhere = cause("CL", {"CL": 1.0, "CD": -20.4, "Cm": 0.0, "data compatibility": 0.5}, -4.4)
+    assert sep.instrument_fits_better(elsewhere) == ""
+    slight = cause("CL", {"CL": -1.7, "CD": -4.6, "Cm": -0.2, "data compatibility": -6.9}, -3.7)
+    assert sep.instrument_fits_better(slight) == ""
+    close = cause("CD", {"CL": -0.0, "CD": -5.0, "Cm": 0.0, "data compatibility": 1.5}, -1.9)
     assert sep.instrument_fits_better(close) == ""
     blind = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0}, -6.2, unmeasured=True)
     assert sep.instrument_fits_better(blind) == "" and sep.instrument_preferred(blind)
