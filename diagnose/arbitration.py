@@ -228,6 +228,9 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     the two independent measurements agree: the correction is refined to what the
     residuals need (the median over the coefficients), and the diagnosis runs again
     on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
+    A cause that would need a correction further than :data:`AGREE_SE` from the kinematics'
+    estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 47-standard-error
+    vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
 
     Returns
     -------
@@ -240,7 +243,11 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
                 or not cause.size > cause.verdict["noise_floor"]):
             continue
         for a in rc["alternatives"]:
-            if not a.get("unmeasured") and a["explains_pct"] >= AGREE_PCT:
+            if a.get("unmeasured") or a["explains_pct"] < AGREE_PCT:
+                continue
+            p = compat.get(f"{a['channel']}.{a['error']}")
+            # a cause that would need a correction the kinematics rule out is some other cause's
+            if p.se > 0 and abs((p.estimate if p.applied else 0.0) + a["needs"] - p.estimate) <= AGREE_SE * p.se:
                 needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
     best = None
     for (ch, err), by in needs.items():

@@ -320,6 +320,34 @@ def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_tha
     assert cause.variables == [truth, linear if truth == smooth else smooth]
 
 
+def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_block_a_refinement():
+    """The residuals of CL and Cm each need a vane scale of about 3.7 %, 2 standard errors from the
+    kinematics' 1.1 +- 1.3 % (development null 4,600,183: an A320 with a 3.7 % scale in 3 ft/s). A
+    "CD vs CL" beside them would need -63 %, 48 standard errors the other way: it is some other cause's,
+    and the scale is refined. Had CD needed -2 % (2.4 standard errors), the coefficients would disagree."""
+    from types import SimpleNamespace
+
+    from diagnose.arbitration import residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    scale = Parameter("alpha_deg", "scale", "-", 0.01105, 0.01318)
+    compat = CompatResult([Parameter("alpha_deg", "bias", "deg", 0.1208, 0.0502), scale])
+
+    def cause(coefficient, needs):
+        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
+                            verdict={"noise_floor": 0.001})
+        alt = {"channel": "alpha_deg", "error": "scale", "needs": needs, "needs_se": needs / 0.01318,
+               "se": 0.01318, "explains_pct": 97.0}
+        return c, {"alternatives": [alt]}
+
+    for far, refined in ((-0.6295, True), (-0.02, False)):
+        pairs = [cause("Cm", 0.0357), cause("CD", far), cause("CL", 0.0380)]
+        out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        assert (out is not None) == refined
+        if refined:
+            assert out.get("alpha_deg.scale").estimate == pytest.approx(0.03685)
+            assert out.get("alpha_deg.scale").applied
+
+
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
     a spike: each level within 5 %, and only the channels some log has."""
