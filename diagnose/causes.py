@@ -119,7 +119,9 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             variables = []
             for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
                 ordered = t.variables
-                if len(t.variables) > 1:  # the variable that alone explains more of the cause comes first
+                # the variable that alone explains more of the cause comes first; a smooth gear term that
+                # varies with another variable is a gear effect (the pool holds no smooth term the other way)
+                if t.kind == "product" or (t.kind == "smooth_x_linear" and t.variables[0] != "gear_norm"):
                     ordered = tuple(sorted(t.variables, key=lambda v: -_share(contrib, data[v].to_numpy())))
                 variables += [v for v in ordered if v not in variables]
             primary = variables[0]
