@@ -36,7 +36,8 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.separation import cause_rivals, instrument_fits_better, instrument_preferred, noise_weights
+from diagnose.separation import (cause_rivals, instrument_fits_better, instrument_preferred, noise_weights,
+                                 preferred_aero_rivals)
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
@@ -101,7 +102,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
-    def one_pass(compat):
+    def one_pass(compat, swaps=None):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")
         data = corrected.residuals(compat)
@@ -115,6 +116,9 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         shared = candidate_gram(data, terms)
         results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, **kw) for c in COEFFS}
         del shared
+        for c, swap in (swaps or {}).items():
+            if not set(swap.values()) & set(results[c].terms):
+                results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
         causes = name_causes(results, data, lags)
         stage("noise floor")
         held_data = held_data() if callable(held_data) else held_data
@@ -146,9 +150,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         q = one_pass(better)
         if not any(_rms(q.data, c) > REFINED_WORSE * _rms(p.data, c) for c in COEFFS):
             p = q
+    rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
+    swaps = preferred_aero_rivals(p.causes, p.terms)
+    if swaps:  # the search's term at entry, with the others in, fits worse than a rival: the rival is the cause
+        p = one_pass(p.compat, swaps)
+        rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise
-    lags, terms, results, causes, floor = p.lags, p.terms, p.results, p.causes, p.floor
-    rivals = cause_rivals(causes, results, terms, data, floor, compat, lags) if causes else []
+    results, causes = p.results, p.causes
     for c in causes:
         preferred = instrument_preferred(c)
         if preferred and c.verdict["accepted"]:
