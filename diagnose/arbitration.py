@@ -229,7 +229,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     residuals need (the median over the coefficients), and the diagnosis runs again
     on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
     A cause that would need a correction further than :data:`AGREE_SE` from the kinematics'
-    estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 47-standard-error
+    estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
 
     Returns
