@@ -365,8 +365,10 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
             doc["context"] = {k: [term_to_dict(t) for t in v] for k, v in context.items()}
             out.append(doc)
             swapped = [t.label for t in h.terms if t not in c.terms]
+            replaced = [t.label for t in c.terms if t not in h.terms] if h.kind == "aero" else []
             c.evidence.setdefault("rivals", []).append(
                 {"rival": h.name, "kind": h.kind, "term": swapped[0] if swapped else None,
+                 "replaces": replaced[0] if replaced else None,
                  "channel": h.channel or None, "error": h.error or None, "separation_se": doc["separation_se"],
                  "predicted_se": doc["predicted_se"], "by_coefficient": doc["by_coefficient"]})
     return out
@@ -388,9 +390,8 @@ def preferred_aero_rivals(causes, pools: dict) -> dict[str, dict[Term, Term]]:
             continue
         r = min(better, key=lambda r: r["separation_se"])
         by_label = {t.label: t for t in pools[c.coefficient]}
-        kept = set(r["rival"].split(": ", 1)[1].split(" + "))
-        old = [t for t in c.terms if t.label not in kept]
-        if len(old) == 1 and r["term"] in by_label:
+        old = [t for t in c.terms if t.label == r.get("replaces")]
+        if old and r["term"] in by_label:
             out.setdefault(c.coefficient, {})[old[0]] = by_label[r["term"]]
     return out
 

@@ -308,7 +308,7 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_5_standard_errors_replaces
 
     def cause(separation, kind="aero", accepted=True):
         rival = {"rival": f"Cm: {inter.label} + {gear.label}", "kind": kind, "term": inter.label,
-                 "separation_se": separation}
+                 "replaces": quad.label if kind == "aero" else None, "separation_se": separation}
         return SimpleNamespace(kind="aero", coefficient="Cm", terms=[quad, gear], verdict={"accepted": accepted},
                                evidence={"rivals": [rival]})
 
