@@ -247,7 +247,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
                 continue
             p = compat.get(f"{a['channel']}.{a['error']}")
             # a cause that would need a correction the kinematics rule out is some other cause's
-            if p.se > 0 and abs((p.estimate if p.applied else 0.0) + a["needs"] - p.estimate) <= AGREE_SE * p.se:
+            if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= AGREE_SE:
                 needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
     best = None
     for (ch, err), by in needs.items():
@@ -256,7 +256,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
             continue
         p = compat.get(f"{ch}.{err}")
         total = (p.estimate if p.applied else 0.0) + float(np.median(v))
-        gap = abs(total - p.estimate) / p.se if p.se > 0 else np.inf
+        gap = _gap(p, total) if p.se > 0 else np.inf
         if gap <= AGREE_SE and (best is None or gap < best[0]):
             best = (gap, p, total, by)
     if best is None:
@@ -269,6 +269,29 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
         replace(q, estimate=total, sources={**(q.sources or {"kinematics": (q.estimate, q.se)}),
                                             "residuals": (total, q.se)}, chosen=why)
         if q is p else q for q in compat.parameters])
+
+
+def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) -> CompatResult:
+    """The corrections the residuals chose (:func:`arbitrate`) on a channel whose correction a refinement
+    shrank, chosen again: they were chosen beside the larger one (a vane bias chosen beside a spurious
+    vane scale undid the scale at the trim alphas)."""
+    shrunk = {q.channel for p, q in zip(before.parameters, refined.parameters)
+              if p.applied and abs(q.estimate) < abs(p.estimate) and "residuals" in q.sources}
+    again = [q.name for q in refined.parameters if q.channel in shrunk and q.chosen and "residuals" not in q.sources]
+    if not again:
+        return refined
+    return arbitrate(replace(refined, parameters=[replace(q, chosen="") if q.name in again else q
+                                                  for q in refined.parameters]), data)
+
+
+def _gap(p, total: float) -> float:
+    """How far [standard errors] a correction of ``total`` lies from what the kinematics measured: from
+    their estimate, or, for a correction the data already carry, from anywhere between it and none. The
+    residuals may shrink a correction made toward none, a smaller claim on the instrument (a stock-737 null's
+    +2.9 +- 0.52 % vane scale, 5.6 standard errors on the kinematics' word alone, that all three
+    coefficients needed undone to 2 % or better), but not grow it past the kinematics' estimate."""
+    lo, hi = sorted((0.0, p.estimate)) if p.applied else (p.estimate, p.estimate)
+    return max(lo - total, total - hi, 0.0) / p.se
 
 
 def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame, held_data: pd.DataFrame | None,

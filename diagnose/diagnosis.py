@@ -31,7 +31,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-from diagnose.arbitration import arbitrate, compat_causes, residual_delays, residual_refinement
+from diagnose.arbitration import arbitrate, compat_causes, rearbitrate, residual_delays, residual_refinement
 from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
@@ -147,6 +147,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     p = one_pass(compat)
     better = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
     if better is not None:
+        better = rearbitrate(compat, better, corrected)
         q = one_pass(better)
         if not any(_rms(q.data, c) > REFINED_WORSE * _rms(p.data, c) for c in COEFFS):
             p = q
