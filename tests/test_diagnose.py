@@ -348,6 +348,32 @@ def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_b
             assert out.get("alpha_deg.scale").applied
 
 
+def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not_grow_it_as_far():
+    """A vane scale of +2.9 +- 0.52 % applied on the kinematics' word (5.6 standard errors); CL, CD and Cm
+    need a further -2.8, -1.9 and -2.8 % (development null 4,900,238): refined to +0.1 %, 5.4 standard
+    errors from the kinematics' estimate but between it and none. The same needs with the opposite sign
+    would grow the correction to 5.7 %, 5.4 standard errors past it: not refined."""
+    from types import SimpleNamespace
+
+    from diagnose.arbitration import residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.02897, 0.005212)])
+    assert compat.get("alpha_deg.scale").applied
+
+    def cause(coefficient, needs):
+        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
+                            verdict={"noise_floor": 0.001})
+        return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs,
+                                     "needs_se": needs / 0.005212, "se": 0.005212, "explains_pct": 99.0}]}
+
+    for sign, refined in ((1.0, True), (-1.0, False)):
+        pairs = [cause("CL", -0.02845 * sign), cause("CD", -0.01908 * sign), cause("Cm", -0.02787 * sign)]
+        out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        assert (out is not None) == refined
+        if refined:
+            assert out.get("alpha_deg.scale").estimate == pytest.approx(0.0011, abs=1e-4)
+
+
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
     a spike: each level within 5 %, and only the channels some log has."""
