@@ -213,6 +213,13 @@ AGREE_RATIO = 1.5
 #: residuals needed (2.8 standard errors away), and "Cm vs alpha" was named on a null (the reserved
 #: seeds' one false positive, seen there first).
 AGREE_SE = 3.5
+#: ... or within this many when all three coefficients agree: the 99.9th percentile of those errors. A
+#: jackknife over about a dozen logs makes them t-distributed: the 95th and 99th percentiles (2.5 and
+#: 3.6) fit 9 degrees of freedom, scaled by 1.1. Three aerodynamic errors that each mimic the same
+#: instrument error at the same size are far rarer than two: a 4.2 % A320 vane scale in 3 ft/s, measured
+#: 1.2 +- 0.75 %, that CL, CD and Cm each put at 3.0-4.5 % (3.8 standard errors away, median 4.0 %),
+#: named "Cm vs alpha" on a null (development seed 4,100,188).
+AGREE_ALL_SE = 5.3
 
 
 def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict],
@@ -224,11 +231,12 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     error explains the causes of two coefficients or more (each at least :data:`AGREE_PCT`
     % of its variance; significant and above the noise floor, whether or not the held-out
     checks accepted them), at consistent sizes, and the correction it
-    adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate,
-    the two independent measurements agree: the correction is refined to what the
+    adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate
+    (:data:`AGREE_ALL_SE` when all three coefficients agree; from anywhere between the estimate and
+    none for a correction the data carry, :func:`_gap`), the two independent measurements agree: the correction is refined to what the
     residuals need (the median over the coefficients), and the diagnosis runs again
     on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
-    A cause that would need a correction further than :data:`AGREE_SE` from the kinematics'
+    A cause that would need a correction further than :data:`AGREE_ALL_SE` from the kinematics'
     estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
 
@@ -247,7 +255,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
                 continue
             p = compat.get(f"{a['channel']}.{a['error']}")
             # a cause that would need a correction the kinematics rule out is some other cause's
-            if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= AGREE_SE:
+            if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= AGREE_ALL_SE:
                 needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
     best = None
     for (ch, err), by in needs.items():
@@ -257,7 +265,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
         p = compat.get(f"{ch}.{err}")
         total = (p.estimate if p.applied else 0.0) + float(np.median(v))
         gap = _gap(p, total) if p.se > 0 else np.inf
-        if gap <= AGREE_SE and (best is None or gap < best[0]):
+        if gap <= (AGREE_ALL_SE if len(v) == len(COEFFS) else AGREE_SE) and (best is None or gap < best[0]):
             best = (gap, p, total, by)
     if best is None:
         return None

@@ -374,6 +374,29 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
             assert out.get("alpha_deg.scale").estimate == pytest.approx(0.0011, abs=1e-4)
 
 
+def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two():
+    """A vane scale the kinematics measure at 1.19 +- 0.75 % (not applied); Cm, CL and CD need 4.04, 4.47
+    and 3.04 % (development null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
+    the 5.3 three may refine (:data:`AGREE_ALL_SE`) and past the 3.5 two may (:data:`AGREE_SE`)."""
+    from types import SimpleNamespace
+
+    from diagnose.arbitration import residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.01192, 0.0075)])
+
+    def cause(coefficient, needs):
+        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
+                            verdict={"noise_floor": 0.001})
+        return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs,
+                                     "needs_se": needs / 0.0075, "se": 0.0075, "explains_pct": 95.0}]}
+
+    three = [cause("Cm", 0.04039), cause("CL", 0.04469), cause("CD", 0.03036)]
+    out = residual_refinement(compat, [c for c, _ in three], [r for _, r in three])
+    assert out is not None and out.get("alpha_deg.scale").estimate == pytest.approx(0.04039)
+    two = three[:2]
+    assert residual_refinement(compat, [c for c, _ in two], [r for _, r in two]) is None
+
+
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     """Known sigmas on smooth manoeuvre-like signals at 50 Hz, channels missing from some logs,
     a spike: each level within 5 %, and only the channels some log has."""
