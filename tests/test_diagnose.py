@@ -320,24 +320,28 @@ def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_tha
     assert cause.variables == [truth, linear if truth == smooth else smooth]
 
 
+def _needing_a_vane_scale(coefficient: str, needs: float, se: float, explains_pct: float):
+    """A significant aero cause above its floor, and its reach: an alpha-vane scale of ``needs`` (the
+    kinematics' standard error ``se``) explains ``explains_pct`` % of it."""
+    from types import SimpleNamespace
+    c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
+                        verdict={"noise_floor": 0.001})
+    return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs, "needs_se": needs / se,
+                                 "se": se, "explains_pct": explains_pct}]}
+
+
 def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_block_a_refinement():
     """The residuals of CL and Cm each need a vane scale of about 3.7 %, 2 standard errors from the
     kinematics' 1.1 +- 1.3 % (development null 4,600,183: an A320 with a 3.7 % scale in 3 ft/s). A
     "CD vs CL" beside them would need -63 %, 48 standard errors the other way: it is some other cause's,
     and the scale is refined. Had CD needed -2 % (2.4 standard errors), the coefficients would disagree."""
-    from types import SimpleNamespace
-
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
     scale = Parameter("alpha_deg", "scale", "-", 0.01105, 0.01318)
     compat = CompatResult([Parameter("alpha_deg", "bias", "deg", 0.1208, 0.0502), scale])
 
     def cause(coefficient, needs):
-        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
-                            verdict={"noise_floor": 0.001})
-        alt = {"channel": "alpha_deg", "error": "scale", "needs": needs, "needs_se": needs / 0.01318,
-               "se": 0.01318, "explains_pct": 97.0}
-        return c, {"alternatives": [alt]}
+        return _needing_a_vane_scale(coefficient, needs, 0.01318, 97.0)
 
     for far, refined in ((-0.6295, True), (-0.02, False)):
         pairs = [cause("Cm", 0.0357), cause("CD", far), cause("CL", 0.0380)]
@@ -353,18 +357,13 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
     need a further -2.8, -1.9 and -2.8 % (development null 4,900,238): refined to +0.1 %, 5.4 standard
     errors from the kinematics' estimate but between it and none. The same needs with the opposite sign
     would grow the correction to 5.7 %, 5.4 standard errors past it: not refined."""
-    from types import SimpleNamespace
-
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.02897, 0.005212)])
     assert compat.get("alpha_deg.scale").applied
 
     def cause(coefficient, needs):
-        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
-                            verdict={"noise_floor": 0.001})
-        return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs,
-                                     "needs_se": needs / 0.005212, "se": 0.005212, "explains_pct": 99.0}]}
+        return _needing_a_vane_scale(coefficient, needs, 0.005212, 99.0)
 
     for sign, refined in ((1.0, True), (-1.0, False)):
         pairs = [cause("CL", -0.02845 * sign), cause("CD", -0.01908 * sign), cause("Cm", -0.02787 * sign)]
@@ -378,17 +377,12 @@ def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two(
     """A vane scale the kinematics measure at 1.19 +- 0.75 % (not applied); Cm, CL and CD need 4.04, 4.47
     and 3.04 % (development null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
     the 5.3 three may refine (:data:`AGREE_ALL_SE`) and past the 3.5 two may (:data:`AGREE_SE`)."""
-    from types import SimpleNamespace
-
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.01192, 0.0075)])
 
     def cause(coefficient, needs):
-        c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
-                            verdict={"noise_floor": 0.001})
-        return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs,
-                                     "needs_se": needs / 0.0075, "se": 0.0075, "explains_pct": 95.0}]}
+        return _needing_a_vane_scale(coefficient, needs, 0.0075, 95.0)
 
     three = [cause("Cm", 0.04039), cause("CL", 0.04469), cause("CD", 0.03036)]
     out = residual_refinement(compat, [c for c, _ in three], [r for _, r in three])
