@@ -14,7 +14,7 @@ from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
 from diagnose.stepwise import fit_terms, stepwise
 from diagnose.terms import Term, candidate_terms
-from identify.compat import APPLY_Z, CompatResult
+from identify.compat import APPLY_Z, CompatResult, Parameter
 #: A corrected instrument error is named when it moves a coefficient at least this much.
 SENSOR_EFFECT = 1e-4
 #: ... and its estimate is this many standard errors from 0 (the kinematics alone say so), or the
@@ -232,10 +232,10 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     % of its variance; significant and above the noise floor, whether or not the held-out
     checks accepted them), at consistent sizes, and the correction it
     adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate
-    (:data:`AGREE_ALL_SE` when all three coefficients agree; from anywhere between the estimate and
-    none for a correction the data carry, :func:`_gap`), the two independent measurements agree: the correction is refined to what the
-    residuals need (the median over the coefficients), and the diagnosis runs again
-    on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
+    (:data:`AGREE_ALL_SE` when all three coefficients agree; for a correction the data carry,
+    from anywhere between the estimate and none: :func:`_gap`), the two independent
+    measurements agree: the correction is refined to what the residuals need (the median over
+    the coefficients), and the diagnosis runs again on the refined data. One aerodynamic error alone (one coefficient) never triggers it.
     A cause that would need a correction further than :data:`AGREE_ALL_SE` from the kinematics'
     estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
@@ -292,12 +292,12 @@ def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) ->
                                                   for q in refined.parameters]), data)
 
 
-def _gap(p, total: float) -> float:
+def _gap(p: Parameter, total: float) -> float:
     """How far [standard errors] a correction of ``total`` lies from what the kinematics measured: from
     their estimate, or, for a correction the data already carry, from anywhere between it and none. The
-    residuals may shrink a correction made toward none, a smaller claim on the instrument (a stock-737 null's
-    +2.9 +- 0.52 % vane scale, 5.6 standard errors on the kinematics' word alone, that all three
-    coefficients needed undone to 2 % or better), but not grow it past the kinematics' estimate."""
+    residuals may shrink a correction made toward none, a smaller claim on the instrument (a stock-737
+    null's +2.9 +- 0.52 % vane scale, applied at 5.6 standard errors on the kinematics' word alone, that
+    CL, CD and Cm each needed undone), but not grow it past the kinematics' estimate."""
     lo, hi = sorted((0.0, p.estimate)) if p.applied else (p.estimate, p.estimate)
     return max(lo - total, total - hi, 0.0) / p.se
 
