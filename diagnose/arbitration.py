@@ -27,7 +27,7 @@ SENSOR_MIN_GAIN = 1.02
 #: (RMS ratio) with it, on the fitted and on the held-out logs.
 CORROBORATED_GAIN = 1.1
 
-def arbitrate(compat: CompatResult, data: Corrected) -> CompatResult:
+def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None = None) -> CompatResult:
     """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
 
     Two errors the kinematics cannot tell apart (an accelerometer bias and an attitude
@@ -38,9 +38,12 @@ def arbitrate(compat: CompatResult, data: Corrected) -> CompatResult:
     if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
     on the fitted logs and on the held-out ones, as they are or beside the aerodynamic
     terms the stepwise search fits (:func:`_trial`); the others keep what the residuals said.
+    With ``channels``, only those channels' corrections are decided.
     """
     groups: list[list] = []
     for p in compat.undecided:
+        if channels is not None and p.channel not in channels:
+            continue
         g = next((g for g in groups if p.confounded_with in {q.name for q in g}
                   or p.name in {q.confounded_with for q in g}), None)
         g.append(p) if g is not None else groups.append([p])
@@ -289,7 +292,7 @@ def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) ->
     if not again:
         return refined
     return arbitrate(replace(refined, parameters=[replace(q, chosen="") if q.name in again else q
-                                                  for q in refined.parameters]), data)
+                                                  for q in refined.parameters]), data, shrunk)
 
 
 def _gap(p: Parameter, total: float) -> float:
