@@ -28,10 +28,10 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-import numpy as np
 import pandas as pd
 
-from diagnose.arbitration import arbitrate, compat_causes, rearbitrate, residual_delays, residual_refinement
+from diagnose.arbitration import (arbitrate, compat_causes, rearbitrate, refinement_stands, residual_delays,
+                                  residual_refinement)
 from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
@@ -49,17 +49,6 @@ from identify.logs import Log
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
           "verdict", "extension", "replays", "refine", "bands", "plots")
-
-
-#: An instrument error the residuals refined (:func:`diagnose.arbitration.residual_refinement`) moves every
-#: coefficient along its own derivative: the refinement stands only if no coefficient's residual RMS grows by
-#: more than this factor (a lift change with alpha on a model whose drag follows CL squared looks like a vane
-#: scale in CL and CD; corrected as one, it cut CL's residual 3-fold and grew CD's 6-fold).
-REFINED_WORSE = 1.1
-
-
-def _rms(data: pd.DataFrame, coefficient: str) -> float:
-    return float(np.sqrt(np.mean(data[f"r_{coefficient}"].to_numpy() ** 2)))
 
 
 def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
@@ -145,11 +134,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                                lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
 
     p = one_pass(compat)
-    better = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
-    if better is not None:
-        better = rearbitrate(compat, better, corrected)
-        q = one_pass(better)
-        if not any(_rms(q.data, c) > REFINED_WORSE * _rms(p.data, c) for c in COEFFS):
+    refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
+    if refined is not None:
+        refined = refined._replace(compat=rearbitrate(compat, refined.compat, corrected))
+        q = one_pass(refined.compat)
+        stands = refinement_stands(refined, p.data, q.data)
+        if stands is not None:
+            q.compat = stands
             p = q
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     swaps = preferred_aero_rivals(p.causes, p.terms)

@@ -346,6 +346,7 @@ def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_b
     for far, refined in ((-0.6295, True), (-0.02, False)):
         pairs = [cause("Cm", 0.0357), cause("CD", far), cause("CL", 0.0380)]
         out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        out = out and out.compat
         assert (out is not None) == refined
         if refined:
             assert out.get("alpha_deg.scale").estimate == pytest.approx(0.03685)
@@ -368,6 +369,7 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
     for sign, refined in ((1.0, True), (-1.0, False)):
         pairs = [cause("CL", -0.02845 * sign), cause("CD", -0.01908 * sign), cause("Cm", -0.02787 * sign)]
         out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        out = out and out.compat
         assert (out is not None) == refined
         if refined:
             assert out.get("alpha_deg.scale").estimate == pytest.approx(0.0011, abs=1e-4)
@@ -386,9 +388,43 @@ def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two(
 
     three = [cause("Cm", 0.04039), cause("CL", 0.04469), cause("CD", 0.03036)]
     out = residual_refinement(compat, [c for c, _ in three], [r for _, r in three])
-    assert out is not None and out.get("alpha_deg.scale").estimate == pytest.approx(0.04039)
+    assert out is not None and out.compat.get("alpha_deg.scale").estimate == pytest.approx(0.04039)
     two = three[:2]
     assert residual_refinement(compat, [c for c, _ in two], [r for _, r in two]) is None
+
+
+def test_one_coefficient_adjusts_only_a_correction_the_kinematics_made_and_needs_another_as_witness():
+    """CD alone needs a further +0.075 deg of vane bias (development null 5,000,150: -0.589 +- 0.031 deg
+    applied, the truth -0.51): refined, since the kinematics made that correction. It stands only if
+    another coefficient's whole residual gets 1.1 times smaller with it (CL's offset did, 4.8-fold), and
+    no coefficient's grows by more than 1.1. A correction the kinematics did not make (the vane scale,
+    3.3 standard errors and confounded with the bias) is never added on one coefficient's word."""
+    import pandas as pd
+
+    from diagnose.arbitration import refinement_stands, residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    bias = Parameter("alpha_deg", "bias", "deg", -0.5892, 0.03064)
+    scale = Parameter("alpha_deg", "scale", "-", 0.01977, 0.005911, confounded_with="alpha_deg.bias",
+                      reason="confounded")
+    assert bias.applied and not scale.applied
+    c, r = _needing_a_vane_scale("CD", 0.0746, 0.03064, 100.0)
+    r["alternatives"] = [dict(r["alternatives"][0], error="bias"),
+                         dict(r["alternatives"][0], error="scale", needs=0.006573, se=0.005911)]
+    out = residual_refinement(CompatResult([bias, scale]), [c], [r])
+    assert out.name == "alpha_deg.bias" and out.coefficients == ("CD",)
+    assert out.compat.get("alpha_deg.bias").estimate == pytest.approx(-0.5146)
+    assert out.compat.get("alpha_deg.scale").estimate == scale.estimate
+    assert residual_refinement(CompatResult([bias.__class__("alpha_deg", "bias", "deg", -0.02, 0.03064), scale]),
+                               [c], [r]) is None
+
+    def residuals(cl, cd, cm):
+        return pd.DataFrame({"r_CL": cl, "r_CD": cd, "r_Cm": cm})
+
+    before = residuals([0.006, -0.0061], [5e-4, 6e-4], [8e-4, 9e-4])
+    stands = refinement_stands(out, before, residuals([0.0013, -0.0012], [2e-4, 2e-4], [7e-4, 7e-4]))
+    assert stands is not None and "CL's residual RMS x4.84" in stands.get("alpha_deg.bias").chosen
+    assert refinement_stands(out, before, residuals([0.0058, -0.006], [2e-4, 2e-4], [8e-4, 9e-4])) is None
+    assert refinement_stands(out, before, residuals([0.0013, -0.0012], [2e-4, 2e-4], [1e-3, 1e-3])) is None
 
 
 def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():

@@ -365,6 +365,21 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
     assert abs(alpha["scale"]["estimate"]) < 0.01 and not alpha["bias"]["applied"]
 
 
+def test_a_vane_bias_corrected_too_far_that_only_drag_shows_is_refined_with_lift_as_second_witness(tmp_path):
+    """The stock 737 in 1.5 ft/s with a -0.51 deg alpha-vane bias and nothing else hidden (seed 5,000,150 of
+    the detection curve, a null): the kinematics correct -0.589 +- 0.031 deg, 2.5 standard errors too far.
+    Only CD's causes show the remainder (CL takes it up in its intercept), and "CD vs alpha", 5.7 times its
+    floor, was named. CD alone may adjust the correction the kinematics made; CL's residual RMS, several times
+    smaller with it, is the second witness: the bias is refined to the truth and no aero cause is named."""
+    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 5000150, sigma_fps=1.5,
+                           channels="[channels.alpha_deg]\nbias = -0.5097957664146526\n")
+    assert not discrepancies(doc), doc["summary"]
+    bias, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
+    assert bias["error"] == "bias" and bias["estimate"] == pytest.approx(-0.51, abs=0.03)
+    assert "residuals of CD need it" in bias["evidence"]["chosen_because"]
+    assert "CL's residual RMS" in bias["evidence"]["chosen_because"]
+
+
 def test_a_vane_scale_all_three_coefficients_put_past_the_kinematics_3_5_standard_errors_is_refined(tmp_path):
     """The A320 in 3 ft/s with a 4.2 % alpha-vane scale and nothing else hidden (seed 4,100,188 of the
     detection curve's calibration nulls): the kinematics measure 1.2 +- 0.75 %, too few standard errors to
