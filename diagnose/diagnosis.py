@@ -34,7 +34,7 @@ from diagnose.arbitration import (arbitrate, compat_causes, rearbitrate, refinem
                                   residual_refinement)
 from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
-from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
+from diagnose.noise_floor import REACH_SE, NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
 from diagnose.separation import (cause_rivals, instrument_fits_better, instrument_preferred, noise_weights,
                                  preferred_aero_rivals)
@@ -113,7 +113,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         held_data = held_data() if callable(held_data) else held_data
         sens = early() if early else None  # wanted or not: the workers are then free for what comes next
         floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
-                            uncertain=compat.uncertainty() if compat else None,
+                            uncertain=compat.uncertainty(REACH_SE) if compat else None,
                             unmeasured=compat.unmeasured if compat else (), jobs=jobs,
                             sensitivities=(lambda: sens) if early else None) if causes else None)
         groups = [(c.coefficient, c.terms) for c in causes]

@@ -170,3 +170,20 @@ def test_a_correction_chosen_over_its_confounded_partner_keeps_its_uncertainty()
     assert ("alpha_deg", "scale") in names
     np.testing.assert_allclose(np.sqrt(cov[names.index(("alpha_deg", "scale"))].max()), 0.008)
     np.testing.assert_allclose(np.diag(cov)[:2], [0.06 ** 2, 0.002 ** 2])
+
+
+def test_no_instrument_error_is_taken_as_larger_than_plausible():
+    """A sideslip vane's bias the kinematics hardly measure (+- 10 deg, correlated with an accelerometer
+    bias) counts with the standard error that puts the plausible 5 deg at 2 of them, its correlation kept;
+    a well-measured error keeps its own."""
+    from identify.compat.result import CompatResult, Parameter
+    beta = Parameter("beta_deg", "bias", "deg", 5.4, 10.3)
+    ay = Parameter("ay_fps2", "bias", "ft/s^2", 0.0002, 0.0004)
+    cov = np.array([[10.3 ** 2, 0.5 * 10.3 * 0.0004], [0.5 * 10.3 * 0.0004, 0.0004 ** 2]])
+    compat = CompatResult([beta, ay], covariance=[(["beta_deg.bias", "ay_fps2.bias"], cov)])
+    names, raw = compat.uncertainty()
+    np.testing.assert_allclose(raw, cov)
+    names, capped = compat.uncertainty(plausible_at=2.0)
+    assert names == [("beta_deg", "bias"), ("ay_fps2", "bias")]
+    np.testing.assert_allclose(np.sqrt(np.diag(capped)), [2.5, 0.0004])
+    np.testing.assert_allclose(capped[0, 1] / np.sqrt(capped[0, 0] * capped[1, 1]), 0.5)

@@ -145,9 +145,18 @@ class CompatResult:
     covariance: list = field(default_factory=list)  # [(parameter names, covariance matrix)] per stage
     turbulence_fps: float = float("nan")  # RMS vertical gust the reconstruction needed [ft/s]
 
-    def uncertainty(self) -> tuple[list[tuple[str, str]], np.ndarray]:
+    def uncertainty(self, plausible_at: float | None = None) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
-        covariance of their estimates: how wrong the corrected data may still be. Every other error
+        covariance of their estimates: how wrong the corrected data may still be.
+
+        With ``plausible_at``, no error is taken as larger than plausible (:data:`PLAUSIBLE`): a
+        standard error that would put the plausible bound nearer than ``plausible_at`` standard errors
+        is shrunk to it, its correlations kept. The kinematics hardly measure a sideslip vane's bias in
+        longitudinal manoeuvres (+- 10 deg): within 2 of those, a -19 deg bias, through the wind axes,
+        made all of a 5.9-times-its-floor drag onset with flap, and nothing was named (development seed
+        5,000,001).
+
+        Every other error
         applied counts too, with its standard error (alone): one the aerodynamic residuals timed or
         refined (an alpha vane's 77-ms delay, timed 5 ms long (2 standard errors) in turbulence, left a
         "CL vs qhat" that was named on the stock 737 with nothing else hidden; a 4 % vane scale refined
@@ -170,7 +179,13 @@ class CompatResult:
         for p in timed:
             total[i, i] = p.se ** 2
             i += 1
-        return names + [tuple(p.name.split(".")) for p in timed], total
+        names = names + [tuple(p.name.split(".")) for p in timed]
+        if plausible_at is not None and len(names):
+            se = np.sqrt(np.diag(total))
+            cap = np.array([PLAUSIBLE[self.get(".".join(n)).unit] / plausible_at for n in names])
+            shrink = np.where(se > cap, cap / np.where(se > 0, se, 1.0), 1.0)
+            total = total * np.outer(shrink, shrink)
+        return names, total
 
     def choose(self, name: str, why: str, beside_aero: bool = False) -> "CompatResult":
         """The same result with a confounded parameter applied (its partner held at 0), and why."""
