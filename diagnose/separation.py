@@ -37,6 +37,14 @@ SETTLED_SE = 5.0
 #: error by even 1.5 standard errors; three nulls with a vane bias corrected 1-2.6 standard errors off
 #: were named for "CD vs alpha" or "CD vs CL" that the bias's remainder fitted 2.5-3.6 better (13 in CD).
 PREFERRED_SE = 2.0
+#: An aerodynamic rival the data prefer by this many standard errors replaces the cause's term
+#: (:func:`preferred_aero_rivals`), settled or not: the better-fitting of two explanations is named, the
+#: other stays its rival. Two terms that fit equally well are this far apart by chance about once in
+#: 700 (one-sided normal). At 5, a CD step in gear times Mach on the stock 737, beside a thrust-deck
+#: error, stayed "CD vs gear, CL" though gear x Mach fitted 4.4 standard errors better in its place
+#: (development seed 5,100,139); on 750 case records of the detection curve the most a named cause
+#: that was right had an aerodynamic rival ahead of it was 1.9.
+SWAP_SE = 3.0
 
 
 def term_to_dict(t: Term) -> dict:
@@ -376,7 +384,7 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
 
 def preferred_aero_rivals(causes, pools: dict) -> dict[str, dict[Term, Term]]:
     """The terms to swap: for each named cause, the aerodynamic rival (one of its terms swapped for one
-    nearly as strong when it entered) that the data prefer by :data:`SETTLED_SE` or more, as coefficient ->
+    nearly as strong when it entered) that the data prefer by :data:`SWAP_SE` or more, as coefficient ->
     {the cause's term: the rival's}. The stepwise search takes the strongest term at each step; with the
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
     A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better."""
@@ -385,7 +393,7 @@ def preferred_aero_rivals(causes, pools: dict) -> dict[str, dict[Term, Term]]:
         if c.kind != "aero" or not c.verdict.get("accepted"):
             continue
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
-                  and r["separation_se"] <= -SETTLED_SE]
+                  and r["separation_se"] <= -SWAP_SE]
         if not better:
             continue
         r = min(better, key=lambda r: r["separation_se"])

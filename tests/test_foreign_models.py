@@ -365,6 +365,18 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
     assert abs(alpha["scale"]["estimate"]) < 0.01 and not alpha["bias"]["applied"]
 
 
+def test_a_gear_step_times_mach_is_named_by_both_when_they_fit_3_standard_errors_better(tmp_path):
+    """The stock 737 in 3 ft/s with CD 0.008 lower with the gear down, times (Mach - 0.2) / 0.3, beside an
+    engine deck 7.4 % short (seed 5,100,139 of the detection curve, first flown fresh at stop 47). The
+    search took gear x CL first; gear x Mach fitted 4.4 standard errors better in its place, short of the
+    5 that settle a rival, and "CD vs gear_norm, CL" was named. The better-fitting of the two is named."""
+    doc = diagnose_overlay(tmp_path, "drag_gear_step_mach.xml", STOCK / "737", CLEAN, 5100139, sigma_fps=3.0,
+                           channels="[channels.thrust_lbf]\nscale = 0.9257495745743786\n")
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CD", doc["summary"]
+    assert aero[0]["variables"][0] == "gear_norm" and "mach" in aero[0]["variables"], doc["summary"]
+
+
 def test_a_vane_bias_corrected_too_far_that_only_drag_shows_is_refined_with_lift_as_second_witness(tmp_path):
     """The stock 737 in 1.5 ft/s with a -0.51 deg alpha-vane bias and nothing else hidden (seed 5,000,150 of
     the detection curve, a null): the kinematics correct -0.589 +- 0.031 deg, 2.5 standard errors too far.

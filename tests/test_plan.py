@@ -298,9 +298,9 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     assert sep.instrument_fits_better(blind) == "" and sep.instrument_preferred(blind)
 
 
-def test_only_an_aerodynamic_rival_the_data_prefer_by_5_standard_errors_replaces_a_named_cause_s_term():
+def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces_a_named_cause_s_term():
     """The rival's swapped-in term replaces the one it stood for, in a named cause only; a rival
-    4.9 standard errors better, a sensor rival, or one beside a rejected cause changes nothing."""
+    2.9 standard errors better, a sensor rival, or one beside a rejected cause changes nothing."""
     from types import SimpleNamespace
     quad = Term("quadratic", ("CL",), (), (0.5,), ((0.2, 0.9),))
     inter = Term("product", ("alpha_deg", "mach"), (), (4.0, 0.4), ((1.0, 9.0), (0.3, 0.5)))
@@ -314,6 +314,7 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_5_standard_errors_replaces
 
     pools = {"Cm": [quad, inter, gear]}
     assert sep.preferred_aero_rivals([cause(-9.6)], pools) == {"Cm": {quad: inter}}
-    assert sep.preferred_aero_rivals([cause(-4.9)], pools) == {}
+    assert sep.preferred_aero_rivals([cause(-4.4)], pools) == {"Cm": {quad: inter}}
+    assert sep.preferred_aero_rivals([cause(-2.9)], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, kind="sensor")], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, accepted=False)], pools) == {}
