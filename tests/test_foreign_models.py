@@ -365,6 +365,22 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
     assert abs(alpha["scale"]["estimate"]) < 0.01 and not alpha["bias"]["applied"]
 
 
+def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kinematics(tmp_path):
+    """The stock 737 in 1.5 ft/s with an 82 ms alpha delay and CL up to 0.025 higher as the gear comes
+    down, times (Mach - 0.2) / 0.3 (seed 5,200,118 of the detection curve, first flown fresh at stop 47).
+    The kinematics put the delay at 94 ms, untrusted in turbulence; timed by the residuals from no delay
+    it came out at -371 ms and was not applied, and "CL vs adothat", 68 times its floor, was the first
+    discrepancy. The kinematics' estimate, judged by the residuals, is applied and refined; the delay and
+    the gear effect are named."""
+    doc = diagnose_overlay(tmp_path, "lift_gear_ramp_mach.xml", STOCK / "737", CLEAN, 5200118, sigma_fps=1.5,
+                           channels="[channels.alpha_deg]\ndelay_s = 0.08176788487125207\n")
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CL" and aero[0]["variables"][:2] == ["gear_norm", "mach"], \
+        doc["summary"]
+    delay, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
+    assert delay["error"] == "delay" and delay["estimate"] == pytest.approx(0.082, abs=0.01)
+
+
 def test_a_gear_step_times_mach_is_named_by_both_when_they_fit_3_standard_errors_better(tmp_path):
     """The stock 737 in 3 ft/s with CD 0.008 lower with the gear down, times (Mach - 0.2) / 0.3, beside an
     engine deck 7.4 % short (seed 5,100,139 of the detection curve, first flown fresh at stop 47). The
