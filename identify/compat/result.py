@@ -147,7 +147,13 @@ class CompatResult:
 
     def uncertainty(self, plausible_at: float | None = None) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
-        covariance of their estimates: how wrong the corrected data may still be.
+        covariance of their estimates: how wrong the corrected data may still be. Every other error
+        applied counts too, with its standard error (alone): one the aerodynamic residuals timed or
+        refined (an alpha vane's 77-ms delay, timed 5 ms long (2 standard errors) in turbulence, left a
+        "CL vs qhat" that was named on the stock 737 with nothing else hidden; a 4 % vane scale refined
+        to 3.8 % left a "CL vs alpha"), and one the residuals chose over the partner the kinematics
+        cannot tell it from (a 6.3 % vane scale corrected as 7.0 +- 0.8 % left a "CL vs alpha" with
+        nothing hidden, and the reach gave the scale's error no share of it).
 
         With ``plausible_at``, no error is taken as larger than plausible (:data:`PLAUSIBLE`): a
         standard error that would put the plausible bound nearer than ``plausible_at`` standard errors
@@ -155,14 +161,7 @@ class CompatResult:
         longitudinal manoeuvres (+- 10 deg): within 2 of those, a -19 deg bias, through the wind axes,
         made all of a 5.9-times-its-floor drag onset with flap, and nothing was named (development seed
         5,000,001).
-
-        Every other error
-        applied counts too, with its standard error (alone): one the aerodynamic residuals timed or
-        refined (an alpha vane's 77-ms delay, timed 5 ms long (2 standard errors) in turbulence, left a
-        "CL vs qhat" that was named on the stock 737 with nothing else hidden; a 4 % vane scale refined
-        to 3.8 % left a "CL vs alpha"), and one the residuals chose over the partner the kinematics
-        cannot tell it from (a 6.3 % vane scale corrected as 7.0 +- 0.8 % left a "CL vs alpha" with
-        nothing hidden, and the reach gave the scale's error no share of it)."""
+        """
         names, blocks = [], []
         ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
         for ns, cov in self.covariance:
