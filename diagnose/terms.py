@@ -100,6 +100,9 @@ class Term:
 #: Smooth terms' knots are at least this share of the variable's range apart: a narrow interval
 #: inside a cluster of trimmed values is excited by sensor noise alone (errors-in-variables).
 MIN_KNOT_SPACING = 0.1
+#: Smooth terms' knot candidates: the variable's quantiles at this many levels (0 and 1 included), thinned
+#: to :data:`MIN_KNOT_SPACING`.
+KNOT_QUANTILES = 21
 
 
 def _spread(knots: np.ndarray) -> tuple[float, ...]:
@@ -142,7 +145,7 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
             if v == "flap_deg":
                 knots = tuple(float(x) for x in np.unique(np.round(data[v].to_numpy(), 6)))
             else:
-                knots = _spread(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, 6)), 6)))
+                knots = _spread(np.unique(np.round(np.quantile(data[v], np.linspace(0, 1, KNOT_QUANTILES)), 6)))
             if len(knots) >= 3:
                 terms.append(Term("smooth", (v,), knots))
                 smooth_knots[v] = knots

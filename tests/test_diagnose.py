@@ -286,6 +286,35 @@ def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
         assert np.array_equal(hats(x, knots), want, equal_nan=True)
 
 
+def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are():
+    """Alpha as a matrix flies it: seven conditions trimmed between 0 and 3 deg, two slow ones at 8 and
+    12, a doublet's swing in each. Knots at the quintiles, thinned, were -1.2, 0.65, 2.45, 7.4 and 13 deg:
+    one interval across a third of the range, and a tenth of the grammar's shapes in alpha left more than
+    a quarter of themselves unfitted (an A320 drag step in alpha, 12 times its floor, was named "CD vs CL"
+    at development seed 5,300,054). Every shape of the grammar is fitted to within 8 % at the 90th
+    percentile, and the knots stay 10 % of the range apart."""
+    import pandas as pd
+
+    from diagnose.terms import MIN_KNOT_SPACING, candidate_terms
+    from tests.shapes import SHAPES, shape
+    rng = np.random.default_rng(0)
+    trims = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 8.0, 12.0]
+    alpha = np.concatenate([t + 1.2 * np.sin(np.linspace(0, 6 * np.pi, 600)) * rng.uniform(0.3, 1, 600)
+                            for t in trims])
+    frame = pd.DataFrame({"alpha_deg": alpha})
+    smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(alpha_deg)"]
+    assert np.diff(smooth.knots).min() >= MIN_KNOT_SPACING * np.ptp(alpha) - 1e-9
+    x = np.column_stack([np.ones(len(alpha)), smooth.design(frame)])
+    left = []
+    for i in range(180):
+        y = shape(SHAPES[i % len(SHAPES)], np.clip((alpha - 1.0) / 9.0, 0, 1), rng)[0]
+        y = y - y.mean()
+        if y.std() > 1e-9:
+            beta = np.linalg.lstsq(x, y, rcond=None)[0]
+            left.append(np.sum((y - x @ beta) ** 2) / np.sum(y ** 2))
+    assert np.quantile(left, 0.9) < 0.08, (smooth.knots, np.quantile(left, 0.9))
+
+
 @pytest.mark.parametrize("truth, term", [("alpha_deg", ("mach", "alpha_deg")), ("mach", ("alpha_deg", "mach"))])
 def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_that_carries_it(truth, term):
     """Four conditions, each trimmed at its own alpha (the faster, the lower), with a 2-3-1-1's alpha
