@@ -382,6 +382,26 @@ def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_b
             assert out.get("alpha_deg.scale").applied
 
 
+def test_two_coefficients_that_agree_refine_beside_a_third_that_needs_more_of_the_same():
+    """An A320 null's 7.2 % vane scale, corrected as -5.7 +- 2.2 % (validation seed 4,300,078): CL and Cm
+    each need a further -1.7 %, CD -2.8 % (1.7 times as much: its cause partly a drag change). The two
+    that agree refine it to -7.4 %; the third no longer vetoes. Needing +2.8 %, it still would."""
+    from diagnose.arbitration import residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    compat = CompatResult([Parameter("alpha_deg", "scale", "-", -0.05682, 0.02233,
+                                     chosen="2.5 standard errors from the kinematics; the CL residual agrees")])
+    assert compat.get("alpha_deg.scale").applied
+    for cd, refined in ((-0.02797, True), (0.02797, False)):
+        pairs = [_needing_a_vane_scale("Cm", -0.01658, 0.02233, 100.0),
+                 _needing_a_vane_scale("CL", -0.01727, 0.02233, 97.0),
+                 _needing_a_vane_scale("CD", cd, 0.02233, 89.0)]
+        out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        assert (out is not None) == refined
+        if refined:
+            assert set(out.coefficients) == {"CL", "Cm"}
+            assert out.compat.get("alpha_deg.scale").estimate == pytest.approx(-0.05682 - 0.016925)
+
+
 def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not_grow_it_as_far():
     """A vane scale of +2.9 +- 0.52 % applied on the kinematics' word (5.6 standard errors); CL, CD and Cm
     need a further -2.8, -1.9 and -2.8 % (development null 4,900,238): refined to +0.1 %, 5.4 standard
