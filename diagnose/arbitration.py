@@ -256,16 +256,18 @@ class Refinement(NamedTuple):
 
 
 def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
-    """The coefficients' needs, and, when they all need the same sign, every two or more of them: one
-    coefficient that needs more or less of the same correction than the others (its cause partly
-    another) does not veto what they agree on; one that needs the opposite still does. An A320 null's
-    7.2 % vane scale, corrected as 5.7 +- 2.2 %: CL and Cm each needed 1.7 % more, CD 2.8 % (its cause a
-    drag change with elevator), 1.7 times as much, and no refinement was made (validation seed 4,300,078)."""
+    """The coefficients' needs that may refine together: when they all need the same sign, all of them and
+    every two or more (a lone one: itself); none when their signs differ. One coefficient that needs more
+    or less of the same correction than the others (its cause partly another) does not veto what they
+    agree on; one that needs the opposite still does. An A320 null's 7.2 % vane scale, corrected as
+    5.7 +- 2.2 %: CL and Cm each needed 1.7 % more, CD 2.8 % (its cause a drag change with elevator), 1.7
+    times as much, and no refinement was made (validation seed 4,300,078)."""
     v = np.array(list(by.values()))
-    if len(by) < 2 or not (np.all(v > 0) or np.all(v < 0)):
-        return [by]
+    if not (np.all(v > 0) or np.all(v < 0)):
+        return []
     keys = list(by)
-    return [{k: by[k] for k in ks} for n in range(len(keys), 1, -1) for ks in combinations(keys, n)]
+    sizes = (1,) if len(keys) == 1 else range(len(keys), 1, -1)
+    return [{k: by[k] for k in ks} for n in sizes for ks in combinations(keys, n)]
 
 
 def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict],
@@ -312,8 +314,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
         p = compat.get(f"{ch}.{err}")
         for by in _subsets(every):
             v = np.array(list(by.values()))
-            if ((len(v) < 2 and not p.applied) or not (np.all(v > 0) or np.all(v < 0))
-                    or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v))):
+            if (len(v) < 2 and not p.applied) or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v)):
                 continue
             total = (p.estimate if p.applied else 0.0) + float(np.median(v))
             gap = _gap(p, total) if p.se > 0 else np.inf
