@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from diagnose.terms import Term
+from diagnose.terms import Term, tail_twin
 from identify.lsq import solve_normal
 class Lags:
     """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
@@ -130,6 +130,7 @@ def candidate_gram(data: pd.DataFrame, terms: dict[str, list[Term]]) -> Gram:
     """One :class:`Gram` of the residuals ``r_<coefficient>`` of ``data`` on the union of each
     coefficient's candidate ``terms`` (coefficient -> terms), for :func:`stepwise`'s ``gram``."""
     union = dict.fromkeys(t for ts in terms.values() for t in ts)
+    union.update(dict.fromkeys(filter(None, (tail_twin(t, data) for t in list(union)))))
     return Gram({c: data[f"r_{c}"].to_numpy() for c in terms}, {t: _compact(t.design(data)) for t in union})
 
 
@@ -194,8 +195,9 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         p_now = 1 + sum(t.width for t in chosen)
         rows = []
         for t in terms:
-            if t in chosen or (t.kind in ("linear", "quadratic") and any(
-                    c.kind in ("smooth", "quadratic") and c.variables == t.variables for c in chosen)):
+            if t in chosen or any(c.variables == t.variables and (
+                    c.kind == "smooth" and t.kind in ("linear", "quadratic", "smooth")
+                    or c.kind == "quadratic" and t.kind == "linear") for c in chosen):
                 continue
             big = gram.fit(chosen + [t], coefficient)
             n_eff = lags.n_eff(big.resid)
@@ -219,6 +221,15 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                        best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
                 best = lean
                 break
+        twin = tail_twin(best["term"], data)
+        if twin is not None and twin in gram.index:  # refined with the tails' knots if they fit better
+            big = gram.fit(chosen + [twin], coefficient)
+            n_eff = lags.n_eff(big.resid)
+            big.resid = None
+            if f_test(best["fit"], big, twin.width - best["term"].width, n_eff, p_now + twin.width)[1] < alpha_in:
+                f, p = f_test(current, big, twin.width, n_eff, p_now + twin.width)
+                best = {"term": twin, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
+                        "n_eff": n_eff, "fit": big}
         if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
             break
         mine = set(best["term"].variables)
