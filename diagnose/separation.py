@@ -24,7 +24,7 @@ import pandas as pd
 
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
-from diagnose.terms import Term
+from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
 #: units, scale [-], delay [s]); the signature is linear in it (the model's answer is linearised).
@@ -316,10 +316,14 @@ def signatures(floor, keys) -> dict:
     return {k: np.stack([f[f"r_{c}"].to_numpy(float) for c in COEFFS]) / UNIT[k[1]] for k, f in zip(keys, frames)}
 
 
-def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat) -> list[Hypothesis]:
+def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
+                     data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
-    terms when that entered (the cause with that term swapped)."""
+    terms when that entered (the cause with that term swapped). In place of a smooth term the search
+    refined with the tails' knots (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it
+    can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times its floor, was named "Cm vs
+    CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed 2,000,229)."""
     out = []
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
@@ -330,6 +334,8 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
             r = by_label.get(a["term"])
             if r is None:
                 continue
+            if data is not None and t not in pool and by_label.get(t.label) is not None:
+                r = tail_twin(r, data) or r
             terms = tuple(r if u == t else u for u in cause.terms)
             out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
                                   cause.coefficient, terms))
@@ -356,7 +362,7 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     """
     aero = [c for c in causes if c.kind == "aero" and (c.verdict.get("accepted") or c.verdict.get("unconfirmed"))]
     rivals = {id(c): rival_hypotheses(c, results[c.coefficient], pools[c.coefficient],
-                                      c.evidence.get("sensor_alternatives", []), compat) for c in aero}
+                                      c.evidence.get("sensor_alternatives", []), compat, data) for c in aero}
     if not any(rivals.values()):
         return []
     weights = noise_weights(data, results, lags)

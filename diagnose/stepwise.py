@@ -221,6 +221,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                        best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
                 best = lean
                 break
+        entered = best  # its rivals are those nearly as strong as it, unrefined
         twin = tail_twin(best["term"], data)
         if twin is not None and twin in gram.index:  # refined with the tails' knots if they fit better
             big = gram.fit(chosen + [twin], coefficient)
@@ -234,8 +235,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             break
         mine = set(best["term"].variables)
         close[best["term"].label] = [
-            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / best["F"]} for r in rows
-            if r is not best and r["p_value"] < alpha_in and r["F"] >= 0.5 * best["F"]
+            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]} for r in rows
+            if r is not entered and r["p_value"] < alpha_in and r["F"] >= 0.5 * entered["F"]
             and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
         chosen.append(best["term"])
         current = gram.fit(chosen, coefficient)

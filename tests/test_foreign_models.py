@@ -408,6 +408,18 @@ def test_a_drag_step_in_the_elevator_only_the_fastest_upswings_reach_is_named(tm
     assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "elevator_deg", doc["summary"]
 
 
+def test_a_rival_of_a_term_refined_with_the_tails_knots_is_refined_alike(tmp_path):
+    """The stock 737 in 1.5 ft/s with a Cm table in alpha, 25.8 times its floor, beside a +0.058 ft/s^2 ax
+    bias (reserved seed 2,000,229, lost at stop 49). smooth(CL) enters first (F 1,448 against
+    smooth(alpha)'s 1,382) and is refined with the tails' knots (F 3,404). Its rivals were taken
+    within half of the refined F, so smooth(alpha) was none, and "Cm vs CL" was named. Rivals are those
+    within half of the term as it entered, and refined alike: smooth(alpha) fits better and is named."""
+    doc = diagnose_overlay(tmp_path, "moment_alpha_table_refined.xml", STOCK / "737", CLEAN, 2000229, sigma_fps=1.5,
+                           channels="[channels.ax_fps2]\nbias = 0.05814900987858641\n")
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "Cm" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
+
+
 def test_a_vane_bias_corrected_too_far_that_only_drag_shows_is_refined_with_lift_as_second_witness(tmp_path):
     """The stock 737 in 1.5 ft/s with a -0.51 deg alpha-vane bias and nothing else hidden (seed 5,000,150 of
     the detection curve, a null): the kinematics correct -0.589 +- 0.031 deg, 2.5 standard errors too far.
