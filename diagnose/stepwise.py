@@ -190,8 +190,10 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     current = gram.fit([], coefficient)
     rss0 = current.rss
     rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
-    alternatives = []
-    for _ in range(max_terms):
+
+    def step(chosen: list[Term], current: Fit):
+        """The candidate to enter beside ``chosen`` (leaner if as good, refined with the tails' knots if
+        they fit better), the row it entered as (unrefined), and every candidate's row."""
         p_now = 1 + sum(t.width for t in chosen)
         rows = []
         for t in terms:
@@ -206,11 +208,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
                          "n_eff": n_eff, "fit": big})
         if not rows:
-            break
+            return None, None, rows
         rows.sort(key=lambda r: (r["p_value"], -r["F"]))
-        if not alternatives:
-            alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
-                             "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
         best = rows[0]
         # prefer a leaner term on a subset of the same variables if it does as well
         leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
@@ -231,23 +230,61 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 f, p = f_test(current, big, twin.width, n_eff, p_now + twin.width)
                 best = {"term": twin, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
                         "n_eff": n_eff, "fit": big}
-        if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
-            break
+        return best, entered, rows
+
+    def rivals(best: dict, entered: dict, rows: list[dict]) -> list[dict]:
         mine = set(best["term"].variables)
-        close[best["term"].label] = [
-            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]} for r in rows
-            if r is not entered and r["p_value"] < alpha_in and r["F"] >= 0.5 * entered["F"]
-            and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
-        chosen.append(best["term"])
-        current = gram.fit(chosen, coefficient)
-        for t in list(chosen[:-1]):  # backward step
+        return [{"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]} for r in rows
+                if r is not entered and r["p_value"] < alpha_in and r["F"] >= 0.5 * entered["F"]
+                and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
+
+    def replace() -> bool:
+        """Sequential replacement: each chosen term taken out in turn and the search's choice put in
+        its place, if that fits better with no more columns, or as well with fewer (a term chosen
+        early can stand in for two causes that later terms explain better)."""
+        nonlocal current
+        for t in list(chosen):
             rest = [c for c in chosen if c != t]
-            small = gram.fit(rest, coefficient)
-            f, p = f_test(small, current, t.width, lags.n_eff(current.resid),
-                           1 + sum(c.width for c in chosen))
-            if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
-                chosen.remove(t)
-                current = small
+            best, entered, rows = step(rest, gram.fit(rest, coefficient))
+            if best is None or best["term"] == t or best["p_value"] >= alpha_in:
+                continue
+            u = best["term"]
+            better = best["fit"].rss < current.rss * (1 - 1e-9) and u.width <= t.width
+            leaner = (set(u.variables) <= set(t.variables) and u.width < t.width and f_test(
+                best["fit"], current, t.width - u.width, lags.n_eff(current.resid),
+                1 + sum(c.width for c in chosen))[1] > alpha_in)
+            if better or leaner:
+                chosen[chosen.index(t)] = u
+                close.pop(t.label, None)
+                close[u.label] = rivals(best, entered, rows)
+                current = gram.fit(chosen, coefficient)
+                return True
+        return False
+
+    alternatives = []
+    for _ in range(2 * max_terms):  # forward-backward, then a replacement; again while one is made
+        for _ in range(max_terms - len(chosen)):
+            best, entered, rows = step(chosen, current)
+            if best is None:
+                break
+            if not alternatives:
+                alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
+                                 "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
+            if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
+                break
+            close[best["term"].label] = rivals(best, entered, rows)
+            chosen.append(best["term"])
+            current = gram.fit(chosen, coefficient)
+            for t in list(chosen[:-1]):  # backward step
+                rest = [c for c in chosen if c != t]
+                small = gram.fit(rest, coefficient)
+                f, p = f_test(small, current, t.width, lags.n_eff(current.resid),
+                               1 + sum(c.width for c in chosen))
+                if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
+                    chosen.remove(t)
+                    current = small
+        if len(chosen) < 2 or not replace():
+            break
     evidence = {}
     current = fit_terms(y, [_dense(designs[c]) for c in chosen], chosen)  # the answer itself by a rank-revealing solver
     n_eff = lags.n_eff(current.resid)
