@@ -447,3 +447,19 @@ def test_a_vane_scale_all_three_coefficients_put_past_the_kinematics_3_5_standar
     assert not discrepancies(doc), doc["summary"]
     scale, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
     assert scale["error"] == "scale" and scale["estimate"] == pytest.approx(0.0423, abs=0.005)
+
+
+def test_a_term_standing_in_for_an_instrument_error_and_an_effect_is_replaced_by_the_two(tmp_path):
+    """The A320 in 1.5 ft/s with a CD table in alpha, 5.3 times its floor, beside a thrust reading 4.1 %
+    high (reserved seed 2,000,177). The search took gear x elevator first: it follows both the trim
+    points' thrust and the doublets' alpha, removing 98 % of the residual; smooth(alpha) x Mach came
+    second, and "CD vs gear_norm, elevator" was named. In its place, the thrust signature fits better
+    with fewer columns: the thrust scale and the drag table in alpha are named."""
+    matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
+    doc = diagnose_overlay(tmp_path, "drag_alpha_table_a320.xml", STOCK / "A320", matrix, 2000177, sigma_fps=1.5,
+                           channels="[channels.thrust_lbf]\nscale = 1.0405241539667454\n")
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
+    scale = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "thrust_lbf"]
+    assert scale and scale[0]["error"] == "scale", doc["summary"]
+    assert scale[0]["estimate"] == pytest.approx(0.0405, abs=0.004)
