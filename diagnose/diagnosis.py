@@ -143,7 +143,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             q.compat = stands
             p = q
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
-    swaps = preferred_aero_rivals(p.causes, p.terms)
+    swaps = preferred_aero_rivals(p.causes, p.terms, p.data)
     if swaps:  # the search's term at entry, with the others in, fits worse than a rival: the rival is the cause
         p = one_pass(p.compat, swaps)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []

@@ -316,6 +316,12 @@ def signatures(floor, keys) -> dict:
     return {k: np.stack([f[f"r_{c}"].to_numpy(float) for c in COEFFS]) / UNIT[k[1]] for k, f in zip(keys, frames)}
 
 
+def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame | None) -> Term:
+    """``rival`` refined with the tails' knots on ``data`` if ``term`` was (it is then not in the
+    candidate ``pool``), and if it can be."""
+    return (tail_twin(rival, data) or rival) if data is not None and term not in pool else rival
+
+
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
@@ -334,8 +340,7 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
             r = by_label.get(a["term"])
             if r is None:
                 continue
-            if data is not None and t not in pool and by_label.get(t.label) is not None:
-                r = tail_twin(r, data) or r
+            r = refined_alike(r, t, pool, data)
             terms = tuple(r if u == t else u for u in cause.terms)
             out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
                                   cause.coefficient, terms))
@@ -388,12 +393,14 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     return out
 
 
-def preferred_aero_rivals(causes, pools: dict) -> dict[str, dict[Term, Term]]:
+def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None) -> dict[str, dict[Term, Term]]:
     """The terms to swap: for each named cause, the aerodynamic rival (one of its terms swapped for one
     nearly as strong when it entered) that the data prefer by :data:`SWAP_SE` or more, as coefficient ->
     {the cause's term: the rival's}. The stepwise search takes the strongest term at each step; with the
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
-    A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better."""
+    A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better.
+    In place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
+    was judged (:func:`rival_hypotheses`)."""
     out: dict[str, dict[Term, Term]] = {}
     for c in causes:
         if c.kind != "aero" or not c.verdict.get("accepted"):
@@ -406,7 +413,8 @@ def preferred_aero_rivals(causes, pools: dict) -> dict[str, dict[Term, Term]]:
         by_label = {t.label: t for t in pools[c.coefficient]}
         old = [t for t in c.terms if t.label == r.get("replaces")]
         if old and r["term"] in by_label:
-            out.setdefault(c.coefficient, {})[old[0]] = by_label[r["term"]]
+            out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],
+                                                                      pools[c.coefficient], data)
     return out
 
 

@@ -318,3 +318,28 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces
     assert sep.preferred_aero_rivals([cause(-2.9)], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, kind="sensor")], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, accepted=False)], pools) == {}
+
+
+def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refined_alike():
+    """In place of smooth(CL) refined with the tails' knots, smooth(alpha) goes in with its own tails'
+    knots, as the rivals were judged; in place of an unrefined term, unrefined."""
+    from types import SimpleNamespace
+    from diagnose.terms import candidate_terms, tail_twin
+    rng = np.random.default_rng(7)
+    alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 400)) + 0.05 * rng.standard_normal(400)
+                            for a in (1.0, 2.5, 4.0, 6.0, 8.5)])
+    frame = pd.DataFrame({"alpha_deg": alpha, "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(len(alpha))})
+    pool = candidate_terms(frame, "Cm")
+    by_label = {t.label: t for t in pool}
+    s_cl, s_alpha = by_label["smooth(CL)"], by_label["smooth(alpha_deg)"]
+    twin_cl, twin_alpha = tail_twin(s_cl, frame), tail_twin(s_alpha, frame)
+    assert twin_cl is not None and twin_alpha is not None and twin_alpha not in pool
+
+    def cause(term):
+        rival = {"rival": f"Cm: {s_alpha.label}", "kind": "aero", "term": s_alpha.label, "replaces": term.label,
+                 "separation_se": -6.0}
+        return SimpleNamespace(kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True},
+                               evidence={"rivals": [rival]})
+
+    assert sep.preferred_aero_rivals([cause(twin_cl)], {"Cm": pool}, frame) == {"Cm": {twin_cl: twin_alpha}}
+    assert sep.preferred_aero_rivals([cause(s_cl)], {"Cm": pool}, frame) == {"Cm": {s_cl: s_alpha}}
