@@ -112,8 +112,9 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         stage("noise floor")
         held_data = held_data() if callable(held_data) else held_data
         sens = early() if early else None  # wanted or not: the workers are then free for what comes next
-        floor = (NoiseFloor(logs, evaluator, noise, step, realizations,
-                            uncertain=compat.uncertainty(REACH_SE) if compat else None,
+        uncertain = compat.uncertainty(REACH_SE) if compat else None
+        floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=uncertain,
+                            left=compat.left_in_logs(uncertain[0]) if compat else None,
                             unmeasured=compat.unmeasured if compat else (), jobs=jobs,
                             sensitivities=(lambda: sens) if early else None) if causes else None)
         groups = [(c.coefficient, c.terms) for c in causes]

@@ -230,6 +230,10 @@ class NoiseFloor:
         in the channel's units, delay in s) and the covariance of their estimates:
         a second set of realizations draws them, so the floor also holds what an
         imperfect correction leaves.
+    left : array, optional
+        The error each of ``uncertain`` leaves in the logs as corrected, as measured (0 for one
+        corrected; :meth:`identify.compat.result.CompatResult.left_in_logs`): the centre of the
+        errors :meth:`reach` takes as plausible.
     unmeasured : list of (channel, error)
         Instrument errors the data compatibility could not measure at all: named
         beside a cause they could make (:meth:`reach`), with the size they would need.
@@ -241,7 +245,7 @@ class NoiseFloor:
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
                  realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
-                 sensitivities=None) -> None:
+                 sensitivities=None, left=None) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
         self.ref = evaluator.reference
@@ -249,6 +253,7 @@ class NoiseFloor:
         ok = [j for j, (c, _) in enumerate(names) if cov[j, j] > 0 and any(c in lg.data for lg in logs)]
         self.uncertain = [names[j] for j in ok]
         self.uncertain_cov = cov[np.ix_(ok, ok)]
+        self.uncertain_left = np.zeros(len(ok)) if left is None else np.asarray(left, float)[ok]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations, self.seed = realizations, seed
         pending = sensitivities or model_sensitivities(logs, evaluator, self.noise, jobs)
@@ -445,7 +450,8 @@ class NoiseFloor:
         over ``data``, the residuals the instrument errors make are seen through ``T``
         (projected on its span, as a fit would see them), and the errors within
         ``radius`` standard errors (Mahalanobis, the data compatibility's covariance)
-        that come closest to ``f`` are found (a trust-region least-squares problem). The
+        that come closest to ``f`` are found (a trust-region least-squares problem, centred at the
+        errors the logs still hold as measured, :attr:`uncertain_left`). The
         part of ``f`` left is what no plausible instrument error can make. With ``weights`` (one
         over each coefficient's noise per effective sample, CL, CD, Cm) the errors must also fit
         the other coefficients' residuals, each weighted so: an error that would make the cause
@@ -458,8 +464,8 @@ class NoiseFloor:
         list of dict
             Per cause: ``made`` and ``left`` (ranges of what the plausible instrument
             errors make of it and of the rest), ``alternatives`` (channel, error, the
-            size needed in the channel's units and in standard errors, the share of the
-            cause's variance it explains [%]), best first.
+            size needed in the channel's units and in standard errors from what the logs hold as
+            measured, the share of the cause's variance it explains [%]), best first.
         """
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
@@ -505,11 +511,13 @@ class NoiseFloor:
                             a.append(w[o] * np.where(ok[:, None], cols - cols[ok].mean(axis=0), 0.0))
                             b.append(w[o] * np.where(ok, y - y[ok].mean(), 0.0))
                     a, b = np.vstack(a), np.concatenate(b)
-                made = seen @ _trust_region(a, b, radius)
+                z0 = to_axes @ self.uncertain_left
+                made = seen @ (z0 + _trust_region(a, b - a @ z0, radius))
                 for j, (ch, err) in enumerate(self.uncertain):
                     k, share = alone(seen @ to_axes[:, j] * se[j])  # one standard error of this error alone
-                    alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k, "se": float(se[j]),
-                                 "explains_pct": share})
+                    left = float(self.uncertain_left[j])
+                    alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k - left / se[j],
+                                 "se": float(se[j]), "left": left, "explains_pct": share})
             for ch, err, r in blind:  # errors the data compatibility could not measure: no standard error
                 k, share = alone(through_terms(r[f"r_{c}"].to_numpy()[:, None])[:, 0])
                 alts.append({"channel": ch, "error": err, "needs": k * unit[err], "needs_se": 0.0,

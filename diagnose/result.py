@@ -10,6 +10,14 @@ from diagnose.causes import Cause
 from diagnose.separation import SETTLED_SE
 from diagnose.stepwise import StepwiseResult
 from identify.compat import CompatResult
+def _left(alternative: dict) -> str:
+    """Where the data compatibility puts an instrument error in the logs as corrected."""
+    left = alternative.get("left", 0.0)
+    if left:
+        return f"{left:+.3g} +- {alternative['se']:.2g}, measured and left uncorrected"
+    return f"0 +- {alternative['se']:.2g} after correction"
+
+
 def _where(rival: dict) -> str:
     """Where the data reject a rival most: the coefficients (or the data compatibility) holding most
     of the likelihood ratio."""
@@ -162,7 +170,7 @@ class Diagnosis:
                     continue
                 lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
                              f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
-                             f"0 +- {a['se']:.2g} after correction ({abs(a['needs_se']):.1f} standard errors away)")
+                             f"{_left(a)} ({abs(a['needs_se']):.1f} standard errors away)")
             for r in e.get("rivals", []):
                 if r["separation_se"] < SETTLED_SE:
                     lines.append(f"   rival {r['rival']}: these data separate it from the cause by only "
