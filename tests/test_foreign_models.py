@@ -435,6 +435,23 @@ def test_a_vane_bias_corrected_too_far_that_only_drag_shows_is_refined_with_lift
     assert "CL's residual RMS" in bias["evidence"]["chosen_because"]
 
 
+def test_a_vane_bias_measured_too_few_standard_errors_to_correct_is_what_makes_the_drag_it_leaves(tmp_path):
+    """The stock 737 in 3 ft/s with a +0.265 deg alpha-vane bias and nothing else hidden (seed 5,800,160 of
+    the detection curve, a null). The kinematics measure +0.257 +- 0.10 deg, 2.5 standard errors, too few to
+    correct: the bias stays in the logs, and the CD residual grows with alpha (CL's is an offset, which its
+    intercept takes). The reach took the errors within 2 standard errors of none, so the +0.27 deg the
+    drag needs was 2.6 standard errors away, and "CD vs alpha, mach", 3 times its floor, was named.
+    Centred where the logs hold the error as measured, it is 0.1 standard error away; and an error the
+    kinematics measured, at the size the residual needs, is that error, not a discrepancy of the model."""
+    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 5800160, sigma_fps=3.0,
+                           channels="[channels.alpha_deg]\nbias = 0.2654075794186915\n")
+    assert not discrepancies(doc), doc["summary"]
+    alts = [a for c in doc["rejected"] if c["kind"] == "aero" and c["coefficient"] == "CD"
+            for a in c["evidence"].get("sensor_alternatives", []) if (a["channel"], a["error"]) == ("alpha_deg", "bias")]
+    assert alts and abs(alts[0]["needs_se"]) < 1.0 and alts[0]["left"] == pytest.approx(0.265, abs=0.05), doc["summary"]
+    assert "left it uncorrected" in doc["summary"]
+
+
 def test_a_vane_scale_all_three_coefficients_put_past_the_kinematics_3_5_standard_errors_is_refined(tmp_path):
     """The A320 in 3 ft/s with a 4.2 % alpha-vane scale and nothing else hidden (seed 4,100,188 of the
     detection curve's calibration nulls): the kinematics measure 1.2 +- 0.75 %, too few standard errors to
