@@ -116,7 +116,11 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             k = sum(t.width for t in g)
             f, p = f_test(small, full, k, n_eff, p_all)
             contrib = sum(t.design(data) @ res.term_beta(t) for t in g)
-            variables = []
+            # one-variable terms' variables first, the one whose function alone makes most of the cause
+            # first of them (not the one that entered first: a drag step in alpha on the A320 came in
+            # as smooth(CL), then quadratic(alpha) and alpha x CL, and was named "CD vs CL, alpha")
+            single = list(dict.fromkeys(t.variables[0] for t in g if t.kind in ("smooth", "linear", "quadratic")))
+            variables = sorted(single, key=lambda v: -_share(contrib, data[v].to_numpy())) if len(single) > 1 else single
             for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
                 ordered = t.variables
                 # the variable that alone explains more of the cause comes first; a smooth gear term that

@@ -480,3 +480,14 @@ def test_a_term_standing_in_for_an_instrument_error_and_an_effect_is_replaced_by
     scale = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "thrust_lbf"]
     assert scale and scale[0]["error"] == "scale", doc["summary"]
     assert scale[0]["estimate"] == pytest.approx(0.0405, abs=0.004)
+
+
+def test_a_cause_of_several_one_variable_terms_is_named_by_the_variable_that_alone_makes_most_of_it(tmp_path):
+    """The A320 in 1.5 ft/s with CD 0.010 lower above 6.1 deg of alpha, 10 times its floor (seed 5,900,046
+    of the detection curve, first flown fresh at stop 50). smooth(CL) entered first, then quadratic(alpha)
+    and alpha x CL: one cause, named by the order its one-variable terms entered, "CD vs CL, alpha". The
+    A320's flap setting moves CL at a given alpha, and alpha alone makes more of the step: "CD vs alpha"."""
+    matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
+    doc = diagnose_overlay(tmp_path, "drag_alpha_step_a320.xml", STOCK / "A320", matrix, 5900046, sigma_fps=1.5)
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
