@@ -282,13 +282,14 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                     results[cause.coefficient] = cut[1]
                     gain, acting, by_condition, replicate = g2, a2, b2, r2
         beyond = min(cause.size, rc["left"])
-        reasons = []
+        reasons, made_by = [], None
         if not cause.evidence["p_value"] < alpha_in:
             reasons.append(f"not significant (p = {cause.evidence['p_value']:.2g}, needs < {alpha_in:g})")
         if not cause.size > floor:
             reasons.append(f"no larger than instrument noise makes it (size {cause.size:.3g}, noise floor "
                            f"{floor:.3g})")
         elif not beyond > floor:
+            made_by = len(reasons)  # where the reach's reason stands
             reasons.append(f"instrument errors within {REACH_SE:g} standard errors of the data compatibility "
                            f"make all but {beyond:.3g} of it (size {cause.size:.3g}, noise floor {floor:.3g})")
         # an effect that departs from the model at one condition alone, or that no condition left out can
@@ -316,12 +317,13 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         # a discrepancy many times the noise floor that improves held-out data is there, whatever
         # makes it: when instrument errors could make it all, it is named with them, not dismissed
         # ... unless the data compatibility measured the one error that makes it, at that size, and left it
-        measured = [a for a in alts if a.get("left") and abs(a["left"]) >= REACH_SE * a["se"]
-                    and abs(a["needs_se"]) <= REACH_SE and a["explains_pct"] >= MEASURED_PCT][:1]
+        measured = ([a for a in alts if a.get("left") and abs(a["left"]) >= REACH_SE * a["se"]
+                     and abs(a["needs_se"]) <= REACH_SE and a["explains_pct"] >= MEASURED_PCT][:1]
+                    if made_by is not None else [])
         mimicked = (cause.size >= STRONG_OVER_FLOOR * floor and not beyond > floor and len(reasons) == 1
                     and cause.evidence["p_value"] < alpha_in and gain >= STRONG_GAIN and not alone and not measured)
         for a in measured:
-            reasons[0] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} +- "
+            reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} +- "
                            f"{a['se']:.2g} and left it uncorrected, and that makes it (it needs {a['needs']:+.3g})")
         if mimicked:
             made = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}" for a in alts)

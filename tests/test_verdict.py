@@ -406,3 +406,52 @@ def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_pat
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
         doc["summary"]
+
+
+def _slope(seed: int):
+    """CL growing linearly with Mach over four conditions (three logs each, offsets and noise), and
+    a linear term in Mach fitted to it, as the cause."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.4/0", 0.4),
+                                ("10000/0.5/0", 0.5)]):
+        for k in range(3):
+            mach = m + rng.normal(0, 0.002, 300)
+            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": mach,
+                                        "r_CL": 0.2 * (mach - 0.4) + rng.normal(0, 0.0003) + rng.normal(0, 0.001, 300)}))
+    data = pd.concat(frames, ignore_index=True)
+    term = Term("linear", ("mach",), (), (0.4,), ((0.29, 0.51),))
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(),
+                           rcond=None)[0]
+    res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
+    size = float(np.ptp(term.design(data) @ beta[1:]))
+    return Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 5000.0}, size, size=size), res, data
+
+
+def test_a_cause_an_error_measured_and_left_uncorrected_makes_whole_is_that_error():
+    """A cause 20 times its floor that gains on held-out data, and that instrument errors within reach
+    could make whole, is a discrepancy all the same ("unconfirmed"), unless the data compatibility
+    measured the one error that makes it, 2 standard errors from none or more, left it uncorrected,
+    and the cause needs it within 2 of that measurement: then it is rejected as that error. Beside a
+    cause the errors cannot make, such an error changes nothing (the verdict once failed there)."""
+    from diagnose.verdict import judge
+    vane = {"channel": "alpha_deg", "error": "bias", "needs": 0.271, "needs_se": 0.13, "se": 0.104, "left": 0.257,
+            "explains_pct": 100.0}
+    applied = {**vane, "left": 0.0, "needs_se": 2.6}
+    verdicts = {}
+    for name, alt, made in (("measured", vane, True), ("corrected", applied, True), ("beside", vane, False)):
+        cause, res, data = _slope(3)
+        floor = cause.size / 20
+        reach = {"made": cause.size if made else 0.0, "left": floor / 2 if made else cause.size, "alternatives": [alt]}
+        judge([cause], {"CL": res}, data, [np.array([floor])], reach=[reach])
+        verdicts[name] = cause.verdict
+        assert cause.verdict["holdout_gain"] >= 1.5, cause.verdict
+    assert not verdicts["measured"]["accepted"] and not verdicts["measured"]["unconfirmed"], verdicts["measured"]
+    assert "left it uncorrected" in verdicts["measured"]["reason"]
+    assert verdicts["corrected"]["unconfirmed"] and "a discrepancy all the same" in verdicts["corrected"]["reason"]
+    assert verdicts["beside"]["accepted"], verdicts["beside"]["reason"]
