@@ -253,29 +253,39 @@ def test_the_held_out_decision_is_the_replicate_gain_calibrated_on_nulls():
     assert not v["accepted"] and f"needs x{REPLICATE_GAIN}" in v["reason"], v["reason"]
 
 
-def _repeats(step: float, seed: int):
-    """CL at four conditions (Mach 0.3 twice, 0.4 and 0.5), three logs each with its own offset (the
-    turbulence of one flight) and white noise; ``step`` added at Mach 0.5 alone. A smooth term in
-    Mach fitted to it (knots at the Mach numbers flown), as the cause."""
+def _four_conditions(seed: int, signal, offset: float, noise: float):
+    """Mach 0.3 twice, 0.4 and 0.5, three logs each of 300 samples: ``r_CL`` is ``signal(mach flown,
+    mach)`` plus an offset per log (the turbulence of one flight, std ``offset``) and white noise."""
     import pandas as pd
-
-    from diagnose.causes import Cause
-    from diagnose.stepwise import StepwiseResult
-    from diagnose.terms import Term
     rng = np.random.default_rng(seed)
     frames = []
     for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.4/0", 0.4),
                                 ("10000/0.5/0", 0.5)]):
         for k in range(3):
-            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": m + rng.normal(0, 0.002, 300),
-                                        "r_CL": step * (m == 0.5) + rng.normal(0, 0.0006) + rng.normal(0, 0.002, 300)}))
-    data = pd.concat(frames, ignore_index=True)
-    term = Term("smooth", ("mach",), (0.3, 0.4, 0.5))
+            mach = m + rng.normal(0, 0.002, 300)
+            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": mach,
+                                        "r_CL": signal(m, mach) + rng.normal(0, offset) + rng.normal(0, noise, 300)}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _repeats(step: float, seed: int):
+    """CL at four conditions (Mach 0.3 twice, 0.4 and 0.5), three logs each with its own offset (the
+    turbulence of one flight) and white noise; ``step`` added at Mach 0.5 alone. A smooth term in
+    Mach fitted to it (knots at the Mach numbers flown), as the cause."""
+    from diagnose.terms import Term
+    data = _four_conditions(seed, lambda m, mach: step * (m == 0.5), 0.0006, 0.002)
+    return _mach_cause(data, Term("smooth", ("mach",), (0.3, 0.4, 0.5)), "table", 500.0)
+
+
+def _mach_cause(data, term, shape: str, f: float):
+    """``term`` fitted to ``r_CL`` of ``data``: the cause, its stepwise result, the data."""
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
     beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(),
                            rcond=None)[0]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
     size = float(np.ptp(term.design(data) @ beta[1:]))
-    return Cause("CL", ["mach"], [term], "table", {"p_value": 0.0, "F": 500.0}, size, size=size), res, data
+    return Cause("CL", ["mach"], [term], shape, {"p_value": 0.0, "F": f}, size, size=size), res, data
 
 
 def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
@@ -411,26 +421,9 @@ def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_pat
 def _slope(seed: int):
     """CL growing linearly with Mach over four conditions (three logs each, offsets and noise), and
     a linear term in Mach fitted to it, as the cause."""
-    import pandas as pd
-
-    from diagnose.causes import Cause
-    from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
-    rng = np.random.default_rng(seed)
-    frames = []
-    for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.4/0", 0.4),
-                                ("10000/0.5/0", 0.5)]):
-        for k in range(3):
-            mach = m + rng.normal(0, 0.002, 300)
-            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": mach,
-                                        "r_CL": 0.2 * (mach - 0.4) + rng.normal(0, 0.0003) + rng.normal(0, 0.001, 300)}))
-    data = pd.concat(frames, ignore_index=True)
-    term = Term("linear", ("mach",), (), (0.4,), ((0.29, 0.51),))
-    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(),
-                           rcond=None)[0]
-    res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
-    size = float(np.ptp(term.design(data) @ beta[1:]))
-    return Cause("CL", ["mach"], [term], "linear", {"p_value": 0.0, "F": 5000.0}, size, size=size), res, data
+    data = _four_conditions(seed, lambda m, mach: 0.2 * (mach - 0.4), 0.0003, 0.001)
+    return _mach_cause(data, Term("linear", ("mach",), (), (0.4,), ((0.29, 0.51),)), "linear", 5000.0)
 
 
 def test_a_cause_an_error_measured_and_left_uncorrected_makes_whole_is_that_error():
