@@ -10,6 +10,8 @@ from diagnose.causes import Cause
 from diagnose.separation import SETTLED_SE
 from diagnose.stepwise import StepwiseResult
 from identify.compat import CompatResult
+
+
 def _left(alternative: dict) -> str:
     """Where the data compatibility puts an instrument error in the logs as corrected."""
     left = alternative.get("left", 0.0)
