@@ -323,8 +323,9 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         mimicked = (cause.size >= STRONG_OVER_FLOOR * floor and not beyond > floor and len(reasons) == 1
                     and cause.evidence["p_value"] < alpha_in and gain >= STRONG_GAIN and not alone and not measured)
         for a in measured:
-            reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} +- "
-                           f"{a['se']:.2g} and left it uncorrected, and that makes it (it needs {a['needs']:+.3g})")
+            reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} "
+                                 f"+- {a['se']:.2g} and left it uncorrected, and that makes it (it needs "
+                                 f"{a['needs']:+.3g})")
         if mimicked:
             made = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}" for a in alts)
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
