@@ -41,7 +41,7 @@ from diagnose.separation import (cause_rivals, instrument_fits_better, instrumen
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
-from diagnose.verdict import contribution, judge
+from diagnose.verdict import contribution, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
 
@@ -161,7 +161,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
     # the largest first: an error in lift shows in drag through the polar too, smaller than in lift
-    causes.sort(key=lambda c: -c.verdict.get("size_over_floor", 0.0))
+    causes.sort(key=lambda c: rank(c.verdict))
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
     rejected = [c for c in sensors + causes if not c.verdict["accepted"]]
     for c in COEFFS:

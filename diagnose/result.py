@@ -9,6 +9,7 @@ import pandas as pd
 from diagnose.causes import Cause
 from diagnose.separation import SETTLED_SE
 from diagnose.stepwise import StepwiseResult
+from diagnose.verdict import rank
 from identify.compat import CompatResult
 
 
@@ -119,11 +120,11 @@ class Diagnosis:
             big = self.largest_rejected()
             if big:
                 lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
-        top = max((c.verdict.get("size_over_floor", 0.0) for c in self.aero_causes), default=0.0)
+        top = min((rank(c.verdict) for c in self.aero_causes), default=(True, float("inf")))
         unsure = [f"Discrepancy, cause not confirmed: {c.label}: {c.shape}; peak {c.peak:.4g}; F = {c.evidence['F']:.4g}; "
                   f"size {c.size:.3g} against a noise floor of {c.verdict['noise_floor']:.3g}; {c.verdict['reason']}"
                   for c in self.unconfirmed]
-        larger = [c.verdict.get("size_over_floor", 0.0) > top for c in self.unconfirmed]  # the largest first
+        larger = [rank(c.verdict) < top for c in self.unconfirmed]  # listed in rank order
         lines += [u for u, big in zip(unsure, larger) if big]
         for i, c in enumerate(self.causes, 1):
             e, v = c.evidence, c.verdict

@@ -49,6 +49,15 @@ STRONG_GAIN = 1.5
 ALONE_SHARE = 0.5
 
 
+def rank(verdict: dict) -> tuple[bool, float]:
+    """The order discrepancies are listed in, the first being the diagnosis's answer: those held-out
+    conditions confirmed before those no other condition could test (a term in the one flap setting
+    flown, which repeats of that condition confirm, stands for whatever else sets that condition
+    apart: its Mach, its thrust), then the largest over its noise floor first."""
+    gain = verdict.get("holdout_gain")
+    return (gain is None or not np.isfinite(gain), -verdict.get("size_over_floor", 0.0))
+
+
 def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
     """A cause's fitted contribution at the rows of ``data``."""
     return sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))

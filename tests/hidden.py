@@ -154,9 +154,11 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instrumen
 
 def discrepancies(doc: dict) -> list[dict]:
     """The aerodynamic discrepancies a diagnosis names, causes and those it cannot confirm, the largest
-    (beyond instrument errors, over its floor) first, as its summary lists them."""
+    (beyond instrument errors, over its floor) first, those held-out conditions confirmed before the
+    others, as its summary lists them (:func:`diagnose.verdict.rank`)."""
+    from diagnose.verdict import rank
     return sorted([c for c in doc["causes"] if c["kind"] == "aero"] + doc.get("unconfirmed", []),
-                  key=lambda c: -c["verdict"].get("size_over_floor", 0.0))
+                  key=lambda c: rank(c["verdict"]))
 
 
 def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: int, sigma_fps: float = 3.0,
