@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 
 from diagnose.stepwise import Fit, Lags, StepwiseResult, f_test, fit_terms
-from diagnose.terms import Term, hats, sensor_of
+from diagnose.terms import Term, connected, hats, sensor_of
 @dataclass
 class Cause:
     """One candidate cause: a coefficient, the variables, a shape, the evidence, the verdict.
@@ -100,11 +100,7 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
     """Group selected terms into causes (terms sharing a variable), rank by F."""
     causes = []
     for c, res in results.items():
-        groups: list[list[Term]] = []
-        for t in res.terms:
-            hit = [g for g in groups if set(t.variables) & {v for u in g for v in u.variables}]
-            merged = [t] + [u for g in hit for u in g]
-            groups = [g for g in groups if g not in hit] + [merged]
+        groups = connected(res.terms)
         y = data[f"r_{c}"].to_numpy()
         designs = {t: t.design(data) for t in res.terms}
         full = fit_terms(y, [designs[t] for t in res.terms], res.terms)

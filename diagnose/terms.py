@@ -117,6 +117,15 @@ TAIL_LEVELS = (0.005, 0.01, 0.02, 0.03, 0.97, 0.98, 0.99, 0.995)
 TAIL_SPACING = 0.02
 
 
+def connected(terms: list[Term]) -> list[list[Term]]:
+    """``terms`` grouped as one cause where they share a variable, directly or through others."""
+    groups: list[list[Term]] = []
+    for t in terms:
+        hit = [g for g in groups if set(t.variables) & {v for u in g for v in u.variables}]
+        groups = [g for g in groups if g not in hit] + [[t] + [u for g in hit for u in g]]
+    return groups
+
+
 def _spread(knots: np.ndarray) -> tuple[float, ...]:
     """Quantile knots thinned so that neighbours are at least :data:`MIN_KNOT_SPACING` of the range apart."""
     gap = MIN_KNOT_SPACING * float(knots[-1] - knots[0])
