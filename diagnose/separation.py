@@ -45,6 +45,13 @@ PREFERRED_SE = 2.0
 #: (development seed 5,100,139); on 750 case records of the detection curve the most a named cause
 #: that was right had an aerodynamic rival ahead of it was 1.9.
 SWAP_SE = 3.0
+#: A term in the lift coefficient gives way to the same term in alpha unless the data prefer it by this
+#: many standard errors (:func:`preferred_aero_rivals`). Within one configuration CL follows alpha, and the
+#: two fit alike: a Cm bump in gear times alpha on the stock 737, 24 times its floor, was named "Cm vs
+#: gear_norm, CL" with gear x alpha 0.7 standard errors behind (fresh seed 6,000,109). The model's tables
+#: are written in alpha, its independent variable; CL is its output, computed here from the measured
+#: accelerations. Two terms that fit equally well are 2 apart by chance about once in 40.
+STATE_SE = 2.0
 
 
 def term_to_dict(t: Term) -> dict:
@@ -322,11 +329,23 @@ def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame 
     return (tail_twin(rival, data) or rival) if data is not None and term not in pool else rival
 
 
+def in_alpha(term: Term, pool: list[Term]) -> Term | None:
+    """The candidate of ``pool`` that is ``term`` with CL in place of alpha (None if there is none, or
+    ``term`` is not in CL)."""
+    if "CL" not in term.variables:
+        return None
+    want = tuple("alpha_deg" if v == "CL" else v for v in term.variables)
+    same = [t for t in pool if t.kind == term.kind and t.variables == want]
+    same = same or [t for t in pool if t.kind == term.kind == "product" and sorted(t.variables) == sorted(want)]
+    return same[0] if same else None
+
+
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
-    terms when that entered (the cause with that term swapped). In place of a smooth term the search
+    terms when that entered (the cause with that term swapped), and a term in CL's twin in alpha
+    (:func:`in_alpha`). In place of a smooth term the search
     refined with the tails' knots (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it
     can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times its floor, was named "Cm vs
     CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed 2,000,229)."""
@@ -336,8 +355,9 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
                               prior=compat_prior(compat, a["channel"], a["error"])))
     by_label = {t.label: t for t in pool}
     for t in cause.terms:
-        for a in result.close.get(t.label, []):
-            r = by_label.get(a["term"])
+        close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
+        twin = in_alpha(t, pool)  # always a rival: the two fit alike (:data:`STATE_SE`)
+        for r in close + ([twin] if twin is not None and twin not in close else []):
             if r is None:
                 continue
             r = refined_alike(r, t, pool, data)
@@ -399,18 +419,25 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     {the cause's term: the rival's}. The stepwise search takes the strongest term at each step; with the
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
     A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better.
-    In place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
+    A term in CL gives way to the same term in alpha unless the data prefer CL by :data:`STATE_SE`. In
+    place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`)."""
     out: dict[str, dict[Term, Term]] = {}
     for c in causes:
         if c.kind != "aero" or not c.verdict.get("accepted"):
             continue
+        pool = pools[c.coefficient]
+        twins = {t.label: in_alpha(t, pool) for t in c.terms}
+
+        def state_twin(r: dict) -> bool:
+            return twins.get(r.get("replaces")) is not None and twins[r["replaces"]].label == r["term"]
+
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
-                  and r["separation_se"] <= -SWAP_SE]
+                  and (r["separation_se"] <= -SWAP_SE or state_twin(r) and r["separation_se"] < STATE_SE)]
         if not better:
             continue
         r = min(better, key=lambda r: r["separation_se"])
-        by_label = {t.label: t for t in pools[c.coefficient]}
+        by_label = {t.label: t for t in pool}
         old = [t for t in c.terms if t.label == r.get("replaces")]
         if old and r["term"] in by_label:
             out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],

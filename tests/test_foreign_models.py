@@ -491,3 +491,15 @@ def test_a_cause_of_several_one_variable_terms_is_named_by_the_variable_that_alo
     doc = diagnose_overlay(tmp_path, "drag_alpha_step_a320.xml", STOCK / "A320", matrix, 5900046, sigma_fps=1.5)
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
+
+
+def test_a_term_in_cl_the_data_cannot_tell_from_alpha_is_named_in_alpha(tmp_path):
+    """The stock 737 in 3 ft/s with Cm up to +0.038 in a bump in gear travel times (alpha - 1) / 9, 24 times
+    its floor (seed 6,000,109 of the detection curve, first flown fresh at stop 51). It entered as
+    smooth(gear) x CL, and smooth(gear) x alpha fitted 0.7 standard errors behind it: "Cm vs gear_norm, CL".
+    Within a configuration CL follows alpha; the model's tables are written in alpha. Unless the data
+    prefer CL by 2 standard errors, the term in alpha is named."""
+    doc = diagnose_overlay(tmp_path, "moment_gear_bump_alpha.xml", STOCK / "737", CLEAN, 6000109, sigma_fps=3.0)
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "Cm", doc["summary"]
+    assert aero[0]["variables"] == ["gear_norm", "alpha_deg"], doc["summary"]

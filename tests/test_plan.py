@@ -343,3 +343,30 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
 
     assert sep.preferred_aero_rivals([cause(twin_cl)], {"Cm": pool}, frame) == {"Cm": {twin_cl: twin_alpha}}
     assert sep.preferred_aero_rivals([cause(s_cl)], {"Cm": pool}, frame) == {"Cm": {s_cl: s_alpha}}
+
+
+def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_by_two_standard_errors():
+    """smooth(CL) and its twin smooth(alpha) fitting alike: alpha is named; CL 2 standard errors better or
+    more: CL stays. A term in neither has no twin, and another rival needs 3 standard errors."""
+    from types import SimpleNamespace
+    from diagnose.terms import candidate_terms
+    rng = np.random.default_rng(8)
+    alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
+    frame = pd.DataFrame({"alpha_deg": alpha, "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(len(alpha)),
+                          "mach": np.repeat([0.3, 0.4, 0.5], 300), "gear_norm": np.tile(np.linspace(0, 1, 300), 3)})
+    pool = candidate_terms(frame, "Cm")
+    by_label = {t.label: t for t in pool}
+    assert sep.in_alpha(by_label["smooth(gear_norm) x CL"], pool) == by_label["smooth(gear_norm) x alpha_deg"]
+    assert sep.in_alpha(by_label["smooth(mach)"], pool) is None
+
+    def swaps(term, rival, separation):
+        r = {"rival": f"Cm: {rival.label}", "kind": "aero", "term": rival.label, "replaces": term.label,
+             "separation_se": separation}
+        c = SimpleNamespace(kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True},
+                            evidence={"rivals": [r]})
+        return sep.preferred_aero_rivals([c], {"Cm": pool}, frame)
+
+    s_cl, s_alpha, s_mach = by_label["smooth(CL)"], by_label["smooth(alpha_deg)"], by_label["smooth(mach)"]
+    assert swaps(s_cl, s_alpha, 1.9) == {"Cm": {s_cl: s_alpha}}
+    assert swaps(s_cl, s_alpha, 2.1) == {}
+    assert swaps(s_cl, s_mach, -2.9) == {} and swaps(s_cl, s_mach, -3.1) == {"Cm": {s_cl: s_mach}}
