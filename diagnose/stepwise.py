@@ -290,25 +290,36 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                     current = small
         if len(chosen) < 2 or not replace():
             break
-    evidence = {}
     current = fit_terms(y, [_dense(designs[c]) for c in chosen], chosen)  # the answer itself by a rank-revealing solver
     n_eff = lags.n_eff(current.resid)
-    p_all = 1 + sum(t.width for t in chosen)
-    for t in chosen:
-        rest = [c for c in chosen if c != t]
-        small = gram.fit(rest, coefficient)
-        f, p = f_test(small, current, t.width, n_eff, p_all)
-        evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
-                             "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
+    evidence = _evidence(current, chosen, lambda rest: gram.fit(rest, coefficient), n_eff)
     rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
     return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
                           {t.label: close.get(t.label, []) for t in chosen})
 
+def _evidence(current: Fit, chosen: list[Term], without, n_eff: float, which: list[Term] | None = None) -> dict:
+    """Each term's partial F-test in the fit ``current`` of ``chosen`` (``without(rest)``: the fit of the
+    others; ``n_eff``: the effective sample size of its residual), for the terms ``which`` (all by default)."""
+    p_all = 1 + sum(t.width for t in chosen)
+    evidence = {}
+    for t in chosen if which is None else which:
+        small = without([c for c in chosen if c != t])
+        f, p = f_test(small, current, t.width, n_eff, p_all)
+        evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
+                             "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
+    return evidence
+
+
 def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> StepwiseResult:
-    """The same stepwise result with only ``keep`` terms, refitted."""
+    """The same stepwise result with only ``keep`` terms, refitted; a term it did not have (a rival
+    swapped in) gets its own partial F-test."""
     y = data[f"r_{res.coefficient}"].to_numpy()
     fit = fit_terms(y, [t.design(data) for t in keep], keep)
-    return StepwiseResult(res.coefficient, list(keep), fit.beta, {k: v for k, v in res.evidence.items()
-                                                                    if k in {t.label for t in keep}},
+    new = [t for t in keep if t.label not in res.evidence]
+    evidence = {k: v for k, v in res.evidence.items() if k in {t.label for t in keep}}
+    if new:
+        evidence.update(_evidence(fit, list(keep), lambda rest: fit_terms(y, [t.design(data) for t in rest], rest),
+                                  Lags(data["log"].to_numpy()).n_eff(fit.resid), new))
+    return StepwiseResult(res.coefficient, list(keep), fit.beta, evidence,
                           res.alternatives, res.rms_before, float(np.sqrt(np.mean(fit.resid ** 2))), res.n_eff,
                           {k: v for k, v in res.close.items() if k in {t.label for t in keep}})

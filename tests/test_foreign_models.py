@@ -503,3 +503,5 @@ def test_a_term_in_cl_the_data_cannot_tell_from_alpha_is_named_in_alpha(tmp_path
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "Cm", doc["summary"]
     assert aero[0]["variables"] == ["gear_norm", "alpha_deg"], doc["summary"]
+    own = aero[0]["evidence"]["terms"]  # the term swapped in has its own partial F-test
+    assert all(np.isfinite(v["F"]) and v["F"] > 100 for v in own.values()), own
