@@ -160,7 +160,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])
-    # the largest first: an error in lift shows in drag through the polar too, smaller than in lift
+    # confirmed on held-out conditions first, then the largest: an error in lift shows in drag through
+    # the polar too, smaller than in lift
     causes.sort(key=lambda c: rank(c.verdict))
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
     rejected = [c for c in sensors + causes if not c.verdict["accepted"]]

@@ -330,7 +330,7 @@ def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame 
 
 
 def in_alpha(term: Term, pool: list[Term]) -> Term | None:
-    """The candidate of ``pool`` that is ``term`` with CL in place of alpha (None if there is none, or
+    """The candidate of ``pool`` that is ``term`` with alpha in place of CL (None if there is none, or
     ``term`` is not in CL)."""
     if "CL" not in term.variables:
         return None
@@ -344,9 +344,8 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
-    terms when that entered (the cause with that term swapped), and a term in CL's twin in alpha
-    (:func:`in_alpha`). In place of a smooth term the search
-    refined with the tails' knots (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it
+    terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
+    alpha (:func:`in_alpha`). In place of a smooth term the search refined with the tails' knots (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it
     can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times its floor, was named "Cm vs
     CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed 2,000,229)."""
     out = []

@@ -297,6 +297,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
                           {t.label: close.get(t.label, []) for t in chosen})
 
+
 def _evidence(current: Fit, chosen: list[Term], without, n_eff: float, which: list[Term] | None = None) -> dict:
     """Each term's partial F-test in the fit ``current`` of ``chosen`` (``without(rest)``: the fit of the
     others; ``n_eff``: the effective sample size of its residual), for the terms ``which`` (all by default)."""
