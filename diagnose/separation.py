@@ -345,9 +345,10 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
-    alpha (:func:`in_alpha`). In place of a smooth term the search refined with the tails' knots (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it
-    can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times its floor, was named "Cm vs
-    CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed 2,000,229)."""
+    alpha (:func:`in_alpha`). In place of a smooth term the search refined with the tails' knots
+    (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it can be, on ``data``: a Cm table in
+    alpha on the stock 737, 25.8 times its floor, was named "Cm vs CL" when smooth(CL), refined, met
+    smooth(alpha) unrefined (reserved seed 2,000,229)."""
     out = []
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
