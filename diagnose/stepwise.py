@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from diagnose.terms import Term, connected, tail_twin
+from diagnose.terms import Term, tail_twin
 from identify.lsq import solve_normal
 class Lags:
     """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
@@ -241,19 +241,14 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     def replace() -> bool:
         """Sequential replacement: each chosen term taken out in turn and the search's choice put in
         its place, if that fits better with no more columns, or as well with fewer (a term chosen
-        early can stand in for two causes that later terms explain better), and names no more causes
-        (a Cm table in alpha growing with Mach, smooth(alpha) and alpha x Mach, must not become
-        smooth(alpha) and quadratic(Mach), two causes each smaller than the one)."""
+        early can stand in for two causes that later terms explain better)."""
         nonlocal current
-        causes = len(connected(chosen))
         for t in list(chosen):
             rest = [c for c in chosen if c != t]
             best, entered, rows = step(rest, gram.fit(rest, coefficient))
             if best is None or best["term"] == t or best["p_value"] >= alpha_in:
                 continue
             u = best["term"]
-            if len(connected(rest + [u])) > causes:
-                continue
             better = best["fit"].rss < current.rss * (1 - 1e-9) and u.width <= t.width
             leaner = (set(u.variables) <= set(t.variables) and u.width < t.width and f_test(
                 best["fit"], current, t.width - u.width, lags.n_eff(current.resid),

@@ -505,3 +505,14 @@ def test_a_term_in_cl_the_data_cannot_tell_from_alpha_is_named_in_alpha(tmp_path
     assert aero[0]["variables"] == ["gear_norm", "alpha_deg"], doc["summary"]
     own = aero[0]["evidence"]["terms"]  # the term swapped in has its own partial F-test
     assert all(np.isfinite(v["F"]) and v["F"] > 100 for v in own.values()), own
+
+
+def test_the_replacement_splits_a_term_that_stood_for_two_causes(tmp_path):
+    """The stock 737 in 1.5 ft/s with CL up by a random 4-knot table in Mach, 6 times its floor (seed
+    6,100,145 of the detection curve, first flown fresh at stop 51). The data compatibility corrected a
+    -2.2 % vane scale that is not there, which leaves a line in alpha in CL's residual. The search chose
+    linear(alpha) and smooth(Mach) x alpha; in the product's place, smooth(Mach) fits as well with fewer
+    columns, and the lift table in Mach is named, the largest discrepancy."""
+    doc = diagnose_overlay(tmp_path, "lift_mach_table_stock737.xml", STOCK / "737", CLEAN, 6100145, sigma_fps=1.5)
+    aero = discrepancies(doc)
+    assert aero and (aero[0]["coefficient"], aero[0]["variables"]) == ("CL", ["mach"]), doc["summary"]
