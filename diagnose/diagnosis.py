@@ -59,6 +59,27 @@ def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.Dat
     return frame
 
 
+def _parts(causes, coefficient: str, split: list) -> list:
+    """The aero causes of ``coefficient`` that share a variable with a term a replacement split."""
+    variables = {v for t in split for v in t.variables}
+    return [c for c in causes if c.kind == "aero" and c.coefficient == coefficient and set(c.variables) & variables]
+
+
+def _passes(cause) -> bool:
+    return bool(cause.verdict.get("accepted") or cause.verdict.get("unconfirmed"))
+
+
+def _split_stands(causes, coefficient: str, split: list) -> bool:
+    """A split stands if every part it left is a discrepancy (or it left one cause there after all)."""
+    parts = _parts(causes, coefficient, split)
+    return len(parts) < 2 or all(map(_passes, parts))
+
+
+def _whole_stands(causes, coefficient: str, split: list) -> bool:
+    """The whole reading (no replacement split) stands if it names a discrepancy where the split was."""
+    return any(map(_passes, _parts(causes, coefficient, split)))
+
+
 def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
              compatibility: bool = True, jobs: int = 1, progress=None, **kw) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
@@ -91,7 +112,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
-    def one_pass(compat, swaps=None):
+    def one_pass(compat, swaps=None, whole=frozenset()):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")
         data = corrected.residuals(compat)
@@ -103,7 +124,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         lags = Lags(data["log"].to_numpy())
         terms = {c: candidate_terms(data, c) for c in COEFFS}
         shared = candidate_gram(data, terms)
-        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, **kw) for c in COEFFS}
+        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, split=c not in whole, **kw) for c in COEFFS}
         del shared
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
@@ -131,8 +152,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                              ignore_index=True)
         stage("verdict")
         judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
-        return SimpleNamespace(compat=compat, logs=logs, held=held, data=data, held_data=held_data, noise=noise,
-                               lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
+        return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
+                               noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
 
     p = one_pass(compat)
     refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
@@ -143,10 +164,18 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         if stands is not None:
             q.compat = stands
             p = q
+    split = {c: r.splits for c, r in p.results.items() if r.splits}
+    whole = {c for c in split if not _split_stands(p.causes, c, split[c])}
+    while whole:  # a split is two claims, each to stand on its own; if one falls, the whole reading
+        w = one_pass(p.compat, whole=frozenset(whole))
+        stands = {c for c in whole if _whole_stands(w.causes, c, split[c])}
+        if stands == whole:
+            p = w
+        whole = stands if stands != whole else set()
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     swaps = preferred_aero_rivals(p.causes, p.terms, p.data)
     if swaps:  # the search's term at entry, with the others in, fits worse than a rival: the rival is the cause
-        p = one_pass(p.compat, swaps)
+        p = one_pass(p.compat, swaps, p.whole)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise
     results, causes = p.results, p.causes

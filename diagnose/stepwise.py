@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from diagnose.terms import Term, tail_twin
+from diagnose.terms import Term, connected, tail_twin
 from identify.lsq import solve_normal
 class Lags:
     """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
@@ -153,6 +153,7 @@ class StepwiseResult:
     rms_after: float
     n_eff: float
     close: dict = field(default_factory=dict)  # term label -> rivals nearly as strong when it entered
+    splits: list = field(default_factory=list)  # terms a replacement split into causes of their own
 
     def term_beta(self, term: Term) -> np.ndarray:
         i = 1
@@ -171,7 +172,7 @@ class StepwiseResult:
 
 def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float = 1e-6,
              min_reduction: float = 0.01, max_terms: int = 6, lags: Lags | None = None,
-             gram: Gram | None = None) -> StepwiseResult:
+             gram: Gram | None = None, split: bool = True) -> StepwiseResult:
     """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
 
     A term enters if its partial F-test (on the effective sample size of the
@@ -179,6 +180,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     ``min_reduction`` of the initial residual sum of squares (about its mean);
     a term leaves when its removal test no longer passes. ``gram`` (:func:`candidate_gram`),
     if given, holds ``terms`` and this coefficient's residual, and may be shared with the others.
+    With ``split`` false, no replacement may name more causes than it replaces (the whole reading,
+    :func:`diagnose.diagnosis.diagnose` asks for it when a split's parts do not all pass).
     """
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or Lags(data["log"].to_numpy())
@@ -187,6 +190,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     designs = gram.designs
     chosen: list[Term] = []
     close: dict[str, list] = {}
+    splits: list[Term] = []
     current = gram.fit([], coefficient)
     rss0 = current.rss
     rms_before = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
@@ -243,6 +247,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         its place, if that fits better with no more columns, or as well with fewer (a term chosen
         early can stand in for two causes that later terms explain better)."""
         nonlocal current
+        causes = len(connected(chosen))
         for t in list(chosen):
             rest = [c for c in chosen if c != t]
             best, entered, rows = step(rest, gram.fit(rest, coefficient))
@@ -253,7 +258,10 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             leaner = (set(u.variables) <= set(t.variables) and u.width < t.width and f_test(
                 best["fit"], current, t.width - u.width, lags.n_eff(current.resid),
                 1 + sum(c.width for c in chosen))[1] > alpha_in)
-            if better or leaner:
+            parts = len(connected(rest + [u])) > causes
+            if (better or leaner) and (split or not parts):
+                if parts:
+                    splits.append(t)
                 chosen[chosen.index(t)] = u
                 close.pop(t.label, None)
                 close[u.label] = rivals(best, entered, rows)
@@ -290,7 +298,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     evidence = _evidence(current, chosen, lambda rest: gram.fit(rest, coefficient), n_eff)
     rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
     return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
-                          {t.label: close.get(t.label, []) for t in chosen})
+                          {t.label: close.get(t.label, []) for t in chosen}, splits)
 
 
 def _evidence(current: Fit, chosen: list[Term], without, n_eff: float, which: list[Term] | None = None) -> dict:
@@ -318,4 +326,4 @@ def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> Stepwise
                                   Lags(data["log"].to_numpy()).n_eff(fit.resid), new))
     return StepwiseResult(res.coefficient, list(keep), fit.beta, evidence,
                           res.alternatives, res.rms_before, float(np.sqrt(np.mean(fit.resid ** 2))), res.n_eff,
-                          {k: v for k, v in res.close.items() if k in {t.label for t in keep}})
+                          {k: v for k, v in res.close.items() if k in {t.label for t in keep}}, res.splits)

@@ -512,7 +512,8 @@ def test_the_replacement_splits_a_term_that_stood_for_two_causes(tmp_path):
     6,100,145 of the detection curve, first flown fresh at stop 51). The data compatibility corrected a
     -2.2 % vane scale that is not there, which leaves a line in alpha in CL's residual. The search chose
     linear(alpha) and smooth(Mach) x alpha; in the product's place, smooth(Mach) fits as well with fewer
-    columns, and the lift table in Mach is named, the largest discrepancy."""
+    columns, and the lift table in Mach is named, the largest discrepancy. Both parts stand as
+    discrepancies, so the split is kept (forbidding every split named "CD vs CL" first here)."""
     doc = diagnose_overlay(tmp_path, "lift_mach_table_stock737.xml", STOCK / "737", CLEAN, 6100145, sigma_fps=1.5)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"]) == ("CL", ["mach"]), doc["summary"]

@@ -434,17 +434,15 @@ def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition
     assert discrepancies(doc)[0] is aero[0]
 
 
-@pytest.mark.xfail(strict=True, reason="a known miss since stop 50: the replacement splits the cause in two")
 def test_a_cause_the_replacement_splits_in_two_is_named(tmp_path):
     """A monotone 7-knot table in alpha times (Mach - 0.2) / 0.3 in Cm, down to -0.013, in our 737's data
     in 3 ft/s (reserved seed 2,000,126, 3.5 times its floor). The search chose smooth(alpha) and
     alpha x Mach: one cause. The sequential replacement put quadratic(Mach) in alpha x Mach's place,
     a closer fit with fewer columns, and the one cause became two, each too small to gain on held-out
-    logs (x1.10 and x1.20, needing x1.2): nothing is named. Forbidding a replacement that splits a
-    cause named this one (stop 51), and lost a lift table in Mach on the stock 737 beside a false vane
-    scale, where smooth(Mach) x alpha stood for both and the split named "CL vs mach" (fresh seed
-    6,100,145, 6.0 times its floor): the replacement is there to split such stand-ins. Which split
-    is right, the structure cannot tell; only the parts' verdicts could."""
+    logs (x1.10 and x1.20, needing x1.2): nothing was named. A split is two claims, each to stand on
+    its own; when a part falls, the search runs again without splitting, and the whole reading is
+    kept if it names a discrepancy there. (Forbidding every split lost a lift table in Mach on the
+    stock 737 whose parts both stand: ``test_the_replacement_splits_a_term_that_stood_for_two_causes``.)"""
     from campaign.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "moment_alpha_mach_monotone.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000126)
     aero = discrepancies(doc)
