@@ -166,11 +166,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             p = q
     split = {c: r.splits for c, r in p.results.items() if r.splits}
     whole = {c for c in split if not _split_stands(p.causes, c, split[c])}
+    kept_whole = {}
     while whole:  # a split is two claims, each to stand on its own; if one falls, the whole reading
         w = one_pass(p.compat, whole=frozenset(whole))
         stands = {c for c in whole if _whole_stands(w.causes, c, split[c])}
         if stands == whole:
             p = w
+            kept_whole = {c: [t.label for t in split[c]] for c in sorted(whole)}
         whole = stands if stands != whole else set()
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     swaps = preferred_aero_rivals(p.causes, p.terms, p.data)
@@ -201,4 +203,4 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
     corrected.forget()
     return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
-                     logs, held, rivals)
+                     logs, held, rivals, kept_whole)

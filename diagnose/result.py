@@ -56,6 +56,9 @@ class Diagnosis:
         The logs fitted on and held out, as corrected.
     rivals : list of dict
         Each named aero cause against each rival explanation (:func:`diagnose.separation.pair`).
+    whole_readings : dict
+        Coefficient -> the terms a replacement split into causes that did not all stand, for the
+        coefficients searched again without splitting and read whole.
     """
 
     data: pd.DataFrame
@@ -70,6 +73,7 @@ class Diagnosis:
     logs: list = field(default_factory=list)
     held_logs: list = field(default_factory=list)
     rivals: list = field(default_factory=list)
+    whole_readings: dict = field(default_factory=dict)
 
     @property
     def discrepancy(self) -> bool:
@@ -188,4 +192,7 @@ class Diagnosis:
                          f"{', '.join(t.label for t in res.terms) or 'no term'} (N_eff {res.n_eff:.0f})")
             lines.append("   alternatives at the first step: " + "; ".join(
                 f"{a['term']} F={a['F']:.3g}" for a in res.alternatives[:5]))
+            if c in self.whole_readings:
+                lines.append(f"   read whole: the search's replacement split {', '.join(self.whole_readings[c])} into "
+                             f"causes that did not all stand")
         return "\n".join(lines)

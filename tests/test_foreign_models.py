@@ -517,3 +517,4 @@ def test_the_replacement_splits_a_term_that_stood_for_two_causes(tmp_path):
     doc = diagnose_overlay(tmp_path, "lift_mach_table_stock737.xml", STOCK / "737", CLEAN, 6100145, sigma_fps=1.5)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"]) == ("CL", ["mach"]), doc["summary"]
+    assert "CL" not in doc["whole_readings"]
