@@ -14,7 +14,9 @@
    independent samples (residuals are autocorrelated), and only if it
    removes a meaningful share of the residual; a term leaves when it no
    longer passes (SIDPAC's stepwise regression, with those two corrections;
-   :mod:`diagnose.terms`, :mod:`diagnose.stepwise`).
+   :mod:`diagnose.terms`, :mod:`diagnose.stepwise`). Where the sequential replacement split one
+   cause in two, each part must pass the verdict (stage 4); if one falls, the coefficient is searched
+   again without splitting and read whole, if that names a discrepancy there.
 3. Causes. Selected terms that share a variable form one cause (a gear effect
    and its gear x alpha interaction: one gear effect that depends on alpha).
    Causes are ranked by the F statistic of removing them (:mod:`diagnose.causes`).
@@ -153,7 +155,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         stage("verdict")
         judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
-                               noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor, reach=reach)
+                               noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
+                               reach=reach)
 
     p = one_pass(compat)
     refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
