@@ -109,7 +109,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     evaluator.jobs = jobs
     corrected = Corrected(logs, held, evaluator, step)
     stage("data compatibility")
-    compat = estimate(corrected.train) if compatibility else None
+    compat = estimate(corrected.train, jobs=jobs) if compatibility else None
     if compat is not None:
         compat = arbitrate(compat, corrected)
         stage("instrument delays")

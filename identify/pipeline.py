@@ -108,7 +108,7 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
-    compat = estimate(logs) if compatibility else None
+    compat = estimate(logs, jobs=jobs) if compatibility else None
     correct = compat.correct if compat is not None else None
     order = reference_order(logs)
     refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))

@@ -18,7 +18,11 @@ with its own initial state:
    head ahead of the CG is estimated too (a boom's vane sees alpha - q x / V).
 
 Standard errors are a delete-one-log jackknife, the logs as clusters: turbulence
-is in the air data and not in the kinematics, and it wanders for seconds. A
+is in the air data and not in the kinematics, and it wanders for seconds. Its
+replicates are one Gauss-Newton step each; a correction about to be applied on
+the kinematics' word alone gets the larger of that and the spread of the whole
+estimate made again with each log left out (which errors the logs excite and
+which two are confounded move with a log in turbulence). A
 parameter the logs do not excite is reported as not identifiable; two the data
 cannot tell apart are each estimated with the other held at 0. Corrections larger than a channel's
 resolution are applied at 5 standard errors; from 3, or when the kinematics

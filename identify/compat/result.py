@@ -78,6 +78,7 @@ class Parameter:
     confounded_with: str = ""  # the parameter the kinematics cannot tell it from (held at 0)
     chosen: str = ""  # why it is applied although confounded (the aerodynamic residuals chose it)
     beside_aero: bool = False  # the residuals agreed only beside the aerodynamic terms fitted to them
+    se_one_step: float = float("nan")  # the one-step jackknife's, where the whole estimate's is larger
 
     @property
     def name(self) -> str:
@@ -107,6 +108,7 @@ class Parameter:
                 "se": float(self.se) if ok else None, "z": float(self.z) if ok else None,
                 "identifiable": ok, "reason": self.reason, "applied": bool(self.applied),
                 "confounded_with": self.confounded_with or None, "chosen_because": self.chosen or None,
+                "se_one_step": float(self.se_one_step) if ok and np.isfinite(self.se_one_step) else None,
                 "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()}}
 
 
@@ -272,8 +274,10 @@ class CompatResult:
                     f"  {p.reason}" if p.reason else
                     "  implausible, not applied" if abs(p.estimate) > PLAUSIBLE[p.unit] else "")
             how = "; ".join(f"{k} {e:+.4g} +- {se:.2g}" for k, (e, se) in p.sources.items())
+            whole = (f"  [each log left out, the whole estimate again; one-step jackknife +- {p.se_one_step:.2g}]"
+                     if np.isfinite(p.se_one_step) else "")
             lines.append(f"  {p.name:<22} {p.estimate:+11.5g} +- {p.se:.3g} {p.unit:<7} (z {p.z:5.1f}){mark}"
-                         + (f"  [{how}]" if how else ""))
+                         + (f"  [{how}]" if how else "") + whole)
         for ch, v in self.residual_rms.items():
             lines.append(f"  residual RMS {ch}: {v['before']:.4g} -> {v['after']:.4g}")
         if np.isfinite(self.turbulence_fps):
