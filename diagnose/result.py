@@ -154,7 +154,9 @@ class Diagnosis:
                          f"F = {e['F']:.4g} on {e['dof'][0]} and {e['dof'][1]:.0f} dof, {p}, "
                          f"removes {e['rss_reduction_pct']:.1f} % of the residual; size {c.size:.3g} against a "
                          f"noise floor of {v['noise_floor']:.3g}{made}; held-out gain x{v['holdout_gain']:.2f}"
-                         + (f", x{v['replicate_gain']:.2f} with each log left out" if "replicate_gain" in v else ""))
+                         + (f", x{v['replicate_gain']:.2f} with each log left out" if "replicate_gain" in v else "")
+                         + (f" (x{v['replicate_gain_where_departs']:.2f} where it departs from the model)"
+                            if np.isfinite(v.get("replicate_gain_where_departs", np.nan)) else ""))
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
             settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):

@@ -25,6 +25,13 @@ from identify.lsq import solve_normal
 #: turn (the decision of stop 42, x1.05) named a cause on 9 of those nulls and 28 of 36 development
 #: effects 3-10 times their floor (4,200,000-149); this decision, 3 and 31.
 REPLICATE_GAIN = 1.2
+#: ... or the same gain this large counted only on the rows where the cause's contribution departs from
+#: the model by :data:`DEPARTS_SHARE` of its size: a cause that acts in a few seconds of a log (a lift
+#: bump during the gear's travel, a drag ramp above an elevator angle the doublet reaches at its peaks)
+#: is diluted by the rest of the log ...
+DEPARTS_GAIN = 1.5
+#: ... [-]
+DEPARTS_SHARE = 0.2
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
 #: at its reference, the first knot of a smooth term and the centre of a linear one, the intercept
 #: holding the level there) by this share of the cause's size: a tolerance for "nonzero", small
@@ -64,7 +71,8 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
 
 
 def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
-                 strong: bool | None = None, group: str = "condition") -> tuple[float, list[int], dict]:
+                 strong: bool | None = None, group: str = "condition",
+                 where: float | None = None) -> tuple[float, list[int], dict]:
     """Leave-one-condition-out (or leave-one-log-out, ``group``) check of one cause on every
     condition flown.
 
@@ -108,6 +116,9 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
         The column whose values are left out in turn: ``"condition"``, or ``"log"`` for each log
         predicted from every other, its own condition's repeats included, on its rows within the
         others' range only (:func:`judge` records it as ``replicate_gain``).
+    where : float, optional
+        Count only the rows where the cause's contribution departs from the model by this share of
+        its size, not every row of the logs where it acts.
 
     Returns
     -------
@@ -130,6 +141,8 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
     order = np.argsort(code, kind="stable")  # rows by condition: one sort, no string compares
     rows = np.split(order, np.flatnonzero(np.diff(code[order])) + 1)
     acts = np.isin(data["log"].to_numpy(), acting)
+    if where is not None:
+        acts &= frame["dev"].to_numpy() >= where * max(cause.size, 1e-300)
     inside = np.zeros(len(y), bool)
     for out in rows:
         inside[out] = _bracketed(data, out, cause.variables)
@@ -190,6 +203,14 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
         if g >= STRONG_GAIN:
             gain, by = g, b
     return gain, acting, by
+
+
+def _repeats(res: StepwiseResult, cause: Cause, data: pd.DataFrame, strong: bool) -> tuple[float, float]:
+    """The held-out decision's two gains, each log left out in turn and predicted from every other
+    (:func:`holdout_gain` by log): over the logs where the cause acts, and over their rows where it
+    departs from the model by :data:`DEPARTS_SHARE` of its size."""
+    return (holdout_gain(res, cause, data, strong, group="log")[0],
+            holdout_gain(res, cause, data, strong, group="log", where=DEPARTS_SHARE)[0])
 
 
 def _alone(y: np.ndarray, x_rest: np.ndarray, x_own: np.ndarray) -> float:
@@ -280,16 +301,17 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         beyond = min(cause.size, rc["left"])
         sure = cause.evidence.get("F", 0.0) >= STRONG_F or beyond >= STRONG_OVER_FLOOR * floor
         gain, acting, by_condition = holdout_gain(results[cause.coefficient], cause, data_all, sure)
-        replicate, _, _ = holdout_gain(results[cause.coefficient], cause, data_all, sure, group="log")
-        if data is not None and not replicate >= REPLICATE_GAIN and len(by_condition) > 1 and cause.kind == "aero":
+        replicate, departs = _repeats(results[cause.coefficient], cause, data_all, sure)
+        repeated = replicate >= REPLICATE_GAIN or departs >= DEPARTS_GAIN
+        if data is not None and not repeated and len(by_condition) > 1 and cause.kind == "aero":
             cut = main_effect(cause, results[cause.coefficient], data)
             if cut is not None:
                 g2, a2, b2 = holdout_gain(cut[1], cut[0], data_all, sure)
-                r2, _, _ = holdout_gain(cut[1], cut[0], data_all, sure, group="log")
-                if r2 >= REPLICATE_GAIN and min(cut[0].size, rc["left"]) > floor:
+                r2, d2 = _repeats(cut[1], cut[0], data_all, sure)
+                if (r2 >= REPLICATE_GAIN or d2 >= DEPARTS_GAIN) and min(cut[0].size, rc["left"]) > floor:
                     cause = causes[i] = cut[0]
                     results[cause.coefficient] = cut[1]
-                    gain, acting, by_condition, replicate = g2, a2, b2, r2
+                    gain, acting, by_condition, replicate, departs, repeated = g2, a2, b2, r2, d2, True
         beyond = min(cause.size, rc["left"])
         reasons, made_by = [], None
         if not cause.evidence["p_value"] < alpha_in:
@@ -304,20 +326,21 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         # an effect that departs from the model at one condition alone, or that no condition left out can
         # test, the other conditions cannot confirm or refute; that condition's repeats still can
         tested = {c: g for c, g in by_condition.items() if np.isfinite(g)}
-        repeated = replicate >= REPLICATE_GAIN
         alone = (len(by_condition) == 1 or (bool(by_condition) and not tested)) and not repeated
         strong = beyond >= STRONG_OVER_FLOOR * floor
         if not repeated:
             if len(by_condition) == 1:
                 reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
-                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN})")
+                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN}; "
+                               f"x{departs:.3f} where it departs, needs x{DEPARTS_GAIN})")
             elif not np.isfinite(replicate):
                 reasons.append("no held-out data where it acts")
             else:
                 by_conditions = (f"x{gain:.3f} with each condition left out" if np.isfinite(gain) else
                                  "no condition it acts on can be left out with its terms still estimable")
                 reasons.append(f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
-                               f"x{REPLICATE_GAIN}; {by_conditions})")
+                               f"x{REPLICATE_GAIN}, x{departs:.3f} where it departs, needs x{DEPARTS_GAIN}; "
+                               f"{by_conditions})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
                 and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
                 and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]
@@ -346,7 +369,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                          "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
                          "holdout_gain": gain,
                          "holdout_gain_by_condition": by_condition,
-                         "holdout_logs": acting, "size_over_floor": beyond / floor, "replicate_gain": replicate}
+                         "holdout_logs": acting, "size_over_floor": beyond / floor, "replicate_gain": replicate,
+                         "replicate_gain_where_departs": departs}
 
 
 #: A cause that an instrument error the data compatibility measured, at least :data:`REACH_SE` standard
