@@ -269,7 +269,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
           alpha_in: float = 1e-6, data: pd.DataFrame | None = None) -> None:
     """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
     better on held-out logs where it acts by :data:`REPLICATE_GAIN`, each log left out in turn and
-    predicted from the others, its own condition's repeats among them. The conditions left out in
+    predicted from the others, its own condition's repeats among them (or by :data:`DEPARTS_GAIN`
+    on their rows where it departs from the model, ``replicate_gain_where_departs``). The conditions left out in
     turn (``holdout_gain``, ``holdout_gain_by_condition``) are reported beside it and no longer
     decide (until stop 43 they did, at x1.05: a shape in Mach between the Mach numbers flown could
     not be predicted, and a term fitted to a few flights' turbulence could gain x1.05-1.15 by
