@@ -28,9 +28,13 @@ REPLICATE_GAIN = 1.2
 #: ... or the same gain this large counted only on the rows where the cause's contribution departs from
 #: the model by :data:`DEPARTS_SHARE` of its size: a cause that acts in a few seconds of a log (a lift
 #: bump during the gear's travel, a drag ramp above an elevator angle the doublet reaches at its peaks)
-#: is diluted by the rest of the log ...
+#: is diluted by the rest of the log (fresh seed 6,200,038: a Cm bump in the gear's travel, x1.16 over
+#: its gear extensions, x2.58 where it departs). Calibrated on simulated nulls (stop 53): of the
+#: candidates otherwise passing on 367 development null flights (4,100,000-366) the largest gained
+#: x1.33 there, and x1.36 on 155 more; counted there alone, in place of the whole logs (stop 47), it
+#: would have needed about x1.35 and lost causes the whole logs confirm at x1.2-1.35.
 DEPARTS_GAIN = 1.5
-#: ... [-]
+#: ... the share of the cause's size that marks those rows [-].
 DEPARTS_SHARE = 0.2
 #: A log "sees" a cause where its contribution departs from the model (from zero: each term is zero
 #: at its reference, the first knot of a smooth term and the centre of a linear one, the intercept
