@@ -334,18 +334,19 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         alone = (len(by_condition) == 1 or (bool(by_condition) and not tested)) and not repeated
         strong = beyond >= STRONG_OVER_FLOOR * floor
         if not repeated:
+            where_departs = (f", x{departs:.3f} where it departs, needs x{DEPARTS_GAIN}" if np.isfinite(departs)
+                             else "")
             if len(by_condition) == 1:
                 reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
-                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN}; "
-                               f"x{departs:.3f} where it departs, needs x{DEPARTS_GAIN})")
+                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{REPLICATE_GAIN}"
+                               f"{where_departs})")
             elif not np.isfinite(replicate):
                 reasons.append("no held-out data where it acts")
             else:
                 by_conditions = (f"x{gain:.3f} with each condition left out" if np.isfinite(gain) else
                                  "no condition it acts on can be left out with its terms still estimable")
                 reasons.append(f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
-                               f"x{REPLICATE_GAIN}, x{departs:.3f} where it departs, needs x{DEPARTS_GAIN}; "
-                               f"{by_conditions})")
+                               f"x{REPLICATE_GAIN}{where_departs}; {by_conditions})")
         alts = [a for a in rc["alternatives"] if a["explains_pct"] >= SENSOR_ALTERNATIVE_PCT
                 and abs(a["needs_se"]) <= SENSOR_ALTERNATIVE_SE
                 and (not a.get("unmeasured") or abs(a["needs"]) <= UNMEASURED_PLAUSIBLE[a["error"]])][:3]

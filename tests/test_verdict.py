@@ -527,3 +527,4 @@ def test_a_cause_that_acts_during_the_gear_travel_alone_is_judged_where_it_depar
         judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
         v = cause.verdict
         assert v["replicate_gain_where_departs"] < DEPARTS_GAIN and not v["accepted"], (seed, v)
+        assert f"where it departs, needs x{DEPARTS_GAIN}" in v["reason"], v["reason"]
