@@ -45,12 +45,19 @@ PREFERRED_SE = 2.0
 #: (development seed 5,100,139); on 750 case records of the detection curve the most a named cause
 #: that was right had an aerodynamic rival ahead of it was 1.9.
 SWAP_SE = 3.0
-#: A term in the lift coefficient gives way to the same term in alpha unless the data prefer it by this
-#: many standard errors (:func:`preferred_aero_rivals`). Within one configuration CL follows alpha, and the
-#: two fit alike: a Cm bump in gear times alpha on the stock 737, 24 times its floor, was named "Cm vs
-#: gear_norm, CL" with gear x alpha 0.7 standard errors behind (fresh seed 6,000,109). The model's tables
-#: are written in alpha, its independent variable; CL is its output, computed here from the measured
-#: accelerations. Two terms that fit equally well are 2 apart by chance about once in 40.
+#: A term in the lift coefficient gives way to the same term in alpha, or to a rival that keeps the term's
+#: other variables and puts the model's own in place of CL, unless the data prefer CL by this many
+#: standard errors (:func:`preferred_aero_rivals`). Within one configuration CL follows alpha, and across
+#: the conditions it follows Mach (trimmed lift is the weight over the dynamic pressure), so the terms fit
+#: alike: a Cm bump in gear times alpha on the stock 737, 24 times its floor, was named "Cm vs gear_norm,
+#: CL" with gear x alpha 0.7 standard errors behind (fresh seed 6,000,109); an A320 Cm dip in gear times
+#: Mach, 17 times its floor, was named "Cm vs mach" and "Cm vs gear_norm, CL" with gear x Mach 1.8
+#: behind (fresh seed 6,500,129). The model's tables are written in alpha and Mach, its independent
+#: variables; CL is its output, computed here from the measured accelerations. Two terms that fit equally
+#: well are 2 apart by chance about once in 40. On the detection curve's case records (about 4,000, many
+#: code versions), eleven named terms in CL had such a rival within 2 standard errors: seven hid an effect
+#: in gear x Mach or alpha x Mach that the rival names and the term does not, four one the term and the
+#: rival name alike; none was a null.
 STATE_SE = 2.0
 
 
@@ -419,7 +426,8 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     {the cause's term: the rival's}. The stepwise search takes the strongest term at each step; with the
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
     A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better.
-    A term in CL gives way to the same term in alpha unless the data prefer CL by :data:`STATE_SE`. In
+    A term in CL gives way to the same term in alpha, or in the model's own variables in place of CL (its
+    other variables kept), unless the data prefer CL by :data:`STATE_SE`. In
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`)."""
     out: dict[str, dict[Term, Term]] = {}
@@ -429,15 +437,21 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         pool = pools[c.coefficient]
         twins = {t.label: in_alpha(t, pool) for t in c.terms}
 
-        def state_twin(r: dict) -> bool:
-            return twins.get(r.get("replaces")) is not None and twins[r["replaces"]].label == r["term"]
+        by_label = {t.label: t for t in pool}
+        own = {t.label: t for t in c.terms}
+
+        def in_states(r: dict) -> bool:
+            if twins.get(r.get("replaces")) is not None and twins[r["replaces"]].label == r["term"]:
+                return True
+            old, new = own.get(r.get("replaces")), by_label.get(r["term"])
+            return (old is not None and new is not None and "CL" in old.variables and "CL" not in new.variables
+                    and set(old.variables) - {"CL"} <= set(new.variables))
 
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
-                  and (r["separation_se"] <= -SWAP_SE or state_twin(r) and r["separation_se"] < STATE_SE)]
+                  and (r["separation_se"] <= -SWAP_SE or in_states(r) and r["separation_se"] < STATE_SE)]
         if not better:
             continue
         r = min(better, key=lambda r: r["separation_se"])
-        by_label = {t.label: t for t in pool}
         old = [t for t in c.terms if t.label == r.get("replaces")]
         if old and r["term"] in by_label:
             out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],

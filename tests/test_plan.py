@@ -315,6 +315,10 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces
     pools = {"Cm": [quad, inter, gear]}
     assert sep.preferred_aero_rivals([cause(-9.6)], pools) == {"Cm": {quad: inter}}
     assert sep.preferred_aero_rivals([cause(-4.4)], pools) == {"Cm": {quad: inter}}
+    assert sep.preferred_aero_rivals([cause(-2.9)], pools) == {"Cm": {quad: inter}}  # CL gives way at 2
+    quad = Term("quadratic", ("elevator_deg",), (), (0.5,), ((-3.0, 3.0),))
+    pools = {"Cm": [quad, inter, gear]}
+    assert sep.preferred_aero_rivals([cause(-3.1)], pools) == {"Cm": {quad: inter}}
     assert sep.preferred_aero_rivals([cause(-2.9)], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, kind="sensor")], pools) == {}
     assert sep.preferred_aero_rivals([cause(-9.6, accepted=False)], pools) == {}
@@ -347,7 +351,9 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
 
 def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_by_two_standard_errors():
     """smooth(CL) and its twin smooth(alpha) fitting alike: alpha is named; CL 2 standard errors better or
-    more: CL stays. A term in neither has no twin, and another rival needs 3 standard errors."""
+    more: CL stays. So for the same term with Mach in place of CL (gear x CL gives way to gear x Mach, not
+    to Mach alone, which drops the gear). A term in neither has no twin, and a rival to it, or one in CL
+    itself, needs 3 standard errors."""
     from types import SimpleNamespace
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(8)
@@ -369,4 +375,9 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
     s_cl, s_alpha, s_mach = by_label["smooth(CL)"], by_label["smooth(alpha_deg)"], by_label["smooth(mach)"]
     assert swaps(s_cl, s_alpha, 1.9) == {"Cm": {s_cl: s_alpha}}
     assert swaps(s_cl, s_alpha, 2.1) == {}
-    assert swaps(s_cl, s_mach, -2.9) == {} and swaps(s_cl, s_mach, -3.1) == {"Cm": {s_cl: s_mach}}
+    assert swaps(s_cl, s_mach, 1.9) == {"Cm": {s_cl: s_mach}} and swaps(s_cl, s_mach, 2.1) == {}
+    g_cl, g_mach = by_label["smooth(gear_norm) x CL"], by_label["smooth(gear_norm) x mach"]
+    assert swaps(g_cl, g_mach, 1.8) == {"Cm": {g_cl: g_mach}} and swaps(g_cl, g_mach, 2.1) == {}
+    assert swaps(g_cl, s_mach, 1.8) == {} and swaps(g_cl, s_mach, -3.1) == {"Cm": {g_cl: s_mach}}
+    assert swaps(s_cl, g_cl, -2.9) == {}
+    assert swaps(s_mach, s_alpha, -2.9) == {} and swaps(s_mach, s_alpha, -3.1) == {"Cm": {s_mach: s_alpha}}
