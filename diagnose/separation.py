@@ -55,9 +55,9 @@ SWAP_SE = 3.0
 #: behind (fresh seed 6,500,129). The model's tables are written in alpha and Mach, its independent
 #: variables; CL is its output, computed here from the measured accelerations. Two terms that fit equally
 #: well are 2 apart by chance about once in 40. On the detection curve's case records (about 4,000, many
-#: code versions), eleven named terms in CL had such a rival within 2 standard errors: seven hid an effect
-#: in gear x Mach or alpha x Mach that the rival names and the term does not, four one the term and the
-#: rival name alike; none was a null.
+#: code versions), eleven named terms in CL had such a rival within 2 standard errors: nine hid an effect
+#: with a variable the rival names and the term does not (seven in gear x Mach or alpha x Mach), two one
+#: they name alike; none was a null.
 STATE_SE = 2.0
 
 
