@@ -342,10 +342,10 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
 #: CL's residual 3-fold and grew CD's 6-fold. About its mean: a constant the stepwise search's intercept
 #: takes up names nothing, and a wrong correction can mask one. A stock-737 lift offset of +0.033 with a
 #: notch during the gear's travel, 21.7 times its floor, had the residuals choose a -4.95 +- 1.27 % vane
-#: scale (the truth: none; :func:`arbitrate`); CL, CD and Cm each needed it undone (to -0.07 %), and undone, CL's residual RMS
-#: grew 1.7-fold with its mean (the offset, unmasked) and shrank 2.6-fold about it, CD's and Cm's shrank
-#: 6.6- and 1.9-fold. Refused, "Cm vs alpha", "CL vs alpha" and "CD vs CL" were named for the scale's
-#: remainder (fresh seed 6,700,032; 6,700,079 alike, 10.1 times its floor).
+#: scale (the truth: none; :func:`arbitrate`). CL, CD and Cm each needed it undone (to -0.07 %); undone,
+#: CL's residual RMS grew 1.7-fold with its mean (the offset, unmasked) and shrank 2.6-fold about it,
+#: CD's and Cm's shrank 6.6- and 1.9-fold. Refused, "Cm vs alpha", "CL vs alpha" and "CD vs CL" were
+#: named for the scale's remainder (fresh seed 6,700,032; 6,700,079 alike, 10.1 times its floor).
 REFINED_WORSE = 1.1
 
 
@@ -354,8 +354,8 @@ def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.Da
 
     No coefficient's residual RMS may grow by more than :data:`REFINED_WORSE`: about its mean when two
     coefficients or more needed the refinement, its mean included when one did (its offset is then
-    evidence: below). A refinement only one coefficient's causes needed also needs a second witness: another
-    coefficient's residual RMS at least :data:`CORROBORATED_GAIN` times smaller. A vane bias moves
+    evidence: below). A refinement only one coefficient's causes needed also needs a second witness:
+    another coefficient's residual RMS at least :data:`CORROBORATED_GAIN` times smaller. A vane bias moves
     CL by its slope, an offset the stepwise search takes up in its intercept and names nothing for:
     a stock-737 null's vane bias, corrected 0.079 deg too far (2.5 standard errors), left a "CD vs
     alpha" 5.7 times its floor that only CD's causes showed, and CL's residual RMS 4.8 times larger

@@ -435,14 +435,10 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         if c.kind != "aero" or not c.verdict.get("accepted"):
             continue
         pool = pools[c.coefficient]
-        twins = {t.label: in_alpha(t, pool) for t in c.terms}
-
         by_label = {t.label: t for t in pool}
         own = {t.label: t for t in c.terms}
 
-        def in_states(r: dict) -> bool:
-            if twins.get(r.get("replaces")) is not None and twins[r["replaces"]].label == r["term"]:
-                return True
+        def in_states(r: dict) -> bool:  # the term in CL, the rival the same in the model's own variables
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return (old is not None and new is not None and "CL" in old.variables and "CL" not in new.variables
                     and set(old.variables) - {"CL"} <= set(new.variables))
