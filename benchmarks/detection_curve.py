@@ -1,7 +1,7 @@
 """The detection curve: hit rate against size / noise floor, false positives, invented causes.
 
     python benchmarks/detection_curve.py [--effects N] [--nulls N] [--seed-base S] [--out DIR]
-                                         [--aircraft "stock 737"] [--sigma-fps 3]
+                                         [--aircraft "stock 737"] [--sigma-fps 3] [--sensor alpha_scale]
 
 Random effects from the shape grammar (tests/shapes.py: every candidate variable and pairs of
 them, late onset, early saturation, bump, dip, step, ramp above a threshold, dead band, random
@@ -76,14 +76,16 @@ def realized_size(data: Path, folder: str, fx: Path, coefficient: str, work: Pat
     return float(np.ptp(d)), float(np.subtract(*np.percentile(d, [99, 1])))
 
 
-def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None) -> tuple[str, str]:
+def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None,
+            family: str | None = None) -> tuple[str, str]:
     """An instrument profile (a file) and its description: 1.5 or 3 ft/s (or ``sigma_fps``), a sensor
-    error or none."""
+    error or none (``family``: an error of that family)."""
     sigma = float(rng.choice([1.5, 3.0]))
     sigma = sigma if sigma_fps is None else float(sigma_fps)
     text, what = f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma}\n', f"{sigma:g} ft/s"
     if sensor:
-        fault = make_sensor(str(rng.choice(SENSOR_FAMILIES)), rng)
+        drawn = str(rng.choice(SENSOR_FAMILIES))
+        fault = make_sensor(family or drawn, rng)
         text = fault.profile.replace('extends = "flight-test"\n', text)
         what += f", {fault.description}"
     path = work / "instruments.toml"
@@ -92,10 +94,10 @@ def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float
 
 
 def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: float | None = None,
-         keep: Path | None = None) -> dict:
-    """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``: force the aircraft or the
-    turbulence; ``keep``: a folder to write the case's candidates and their verdicts to, as
-    ``<seed>.json``, for calibrating the verdict on them)."""
+         keep: Path | None = None, sensor_family: str | None = None) -> dict:
+    """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``, ``sensor_family``: force the
+    aircraft, the turbulence or a sensor error of that family; ``keep``: a folder to write the case's
+    candidates and their verdicts to, as ``<seed>.json``, for calibrating the verdict on them)."""
     from campaign.diagnose import run_diagnosis
     rng = np.random.default_rng(seed)
     name, folder, matrix = aircraft(rng, only)
@@ -107,8 +109,8 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
         if not set(pick) <= set(allowed):
             pick = (pick[0],)
         effect = draw(rng, variables=pick)
-    sensor = rng.uniform() < 0.2
-    prof, what = profile(rng, work, sensor, sigma_fps)
+    sensor = rng.uniform() < 0.2 or sensor_family is not None
+    prof, what = profile(rng, work, sensor, sigma_fps, sensor_family)
     fx = None
     if effect is not None:
         fx = work / "hidden.xml"
@@ -199,11 +201,13 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "detection-curve")
     ap.add_argument("--aircraft", choices=AIRCRAFT, help="fly every case on this aircraft")
     ap.add_argument("--sigma-fps", type=float, help="every case in this turbulence [ft/s]")
+    ap.add_argument("--sensor", choices=SENSOR_FAMILIES, help="a sensor error of this family in every case")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.effects + a.nulls):
-        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps, keep=a.out / "cases")
+        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps, keep=a.out / "cases",
+                 sensor_family=a.sensor)
         rows.append(r)
         print(f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
               f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
