@@ -16,6 +16,7 @@ from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
 from diagnose.stepwise import fit_terms, stepwise
 from diagnose.terms import Term, candidate_terms
+from diagnose.verdict import DEPARTS_GAIN, REPLICATE_GAIN
 from identify.compat import APPLY_Z, CompatResult, Parameter
 #: A corrected instrument error is named when it moves a coefficient at least this much.
 SENSOR_EFFECT = 1e-4
@@ -255,6 +256,14 @@ class Refinement(NamedTuple):
     coefficients: tuple[str, ...]  # those whose causes needed it
 
 
+def _held_out_refutes(cause: Cause) -> bool:
+    """The cause's own held-out logs refute it: tested there, it gained less than the verdict needs
+    (:func:`diagnose.verdict.judge`: neither ``replicate_gain`` nor ``replicate_gain_where_departs``)."""
+    v = cause.verdict
+    return bool(np.isfinite(v.get("replicate_gain", np.nan)) and not v["replicate_gain"] >= REPLICATE_GAIN
+                and not v.get("replicate_gain_where_departs", np.nan) >= DEPARTS_GAIN)
+
+
 def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
     """The coefficients' needs that may refine together: when they all need the same sign, all of them and
     every two or more (a lone one: itself); none when their signs differ. One coefficient that needs more
@@ -290,6 +299,10 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     A cause that would need a correction further than :data:`AGREE_ALL_SE` from the kinematics'
     estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
+    Nor does a cause its own held-out logs refute veto what the others agree on (:func:`_held_out_refutes`;
+    it may still support them, as before): on our 737's null 6,700,233, a "CD vs qhat" 3 times its floor,
+    x1.012 on held-out logs, needed -1.75 % of vane scale, and kept CL's and Cm's +4.9 and +4.5 % (the truth
+    +4.8 %) from refining it; "CL vs alpha" and "Cm vs alpha" were named.
 
     Returns
     -------
@@ -298,6 +311,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
         None if no instrument error qualifies.
     """
     needs: dict[tuple[str, str], dict[str, float]] = {}
+    refuted: dict[tuple[str, str], set[str]] = {}
     for cause, rc in zip(causes, reach):
         if (cause.kind != "aero" or not cause.evidence["p_value"] < alpha_in
                 or not cause.size > cause.verdict["noise_floor"]):
@@ -308,10 +322,17 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
             p = compat.get(f"{a['channel']}.{a['error']}")
             # a cause that would need a correction the kinematics rule out is some other cause's
             if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= AGREE_ALL_SE:
-                needs.setdefault((a["channel"], a["error"]), {}).setdefault(cause.coefficient, a["needs"])
+                key = (a["channel"], a["error"])
+                if cause.coefficient not in needs.setdefault(key, {}):
+                    needs[key][cause.coefficient] = a["needs"]
+                    if _held_out_refutes(cause):
+                        refuted.setdefault(key, set()).add(cause.coefficient)
     best = None
     for (ch, err), every in needs.items():
         p = compat.get(f"{ch}.{err}")
+        firm = np.sign([v for c, v in every.items() if c not in refuted.get((ch, err), ())])
+        if len(firm) and np.all(firm == firm[0]):  # a cause its held-out logs refute does not veto the others
+            every = {c: v for c, v in every.items() if c not in refuted.get((ch, err), ()) or np.sign(v) == firm[0]}
         for by in _subsets(every):
             v = np.array(list(by.values()))
             if (len(v) < 2 and not p.applied) or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v)):
@@ -383,15 +404,18 @@ def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.Da
 
 def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) -> CompatResult:
     """The corrections the residuals chose (:func:`arbitrate`) on a channel whose correction a refinement
-    shrank, chosen again: they were chosen beside the larger one (a vane bias chosen beside a spurious
-    vane scale undid the scale at the trim alphas)."""
-    shrunk = {q.channel for p, q in zip(before.parameters, refined.parameters)
-              if p.applied and abs(q.estimate) < abs(p.estimate) and "residuals" in q.sources}
-    again = [q.name for q in refined.parameters if q.channel in shrunk and q.chosen and "residuals" not in q.sources]
+    changed, chosen again: they were chosen beside another one. A vane bias chosen beside a spurious vane
+    scale undid the scale at the trim alphas; a +0.21 deg vane bias, chosen by the CL residual where a
+    +4.8 % scale was measured at -0.16 +- 2.7 %, stood in for the scale at the trim alphas, and beside the
+    scale refined to +4.7 % doubled it there (CD's residual RMS grew 1.5-fold about its mean, and "CL vs
+    alpha" and "Cm vs alpha" were named on our 737's null 6,700,233). Chosen again, it is not."""
+    changed = {q.channel for p, q in zip(before.parameters, refined.parameters)
+               if (p.applied != q.applied or q.estimate != p.estimate) and "residuals" in q.sources}
+    again = [q.name for q in refined.parameters if q.channel in changed and q.chosen and "residuals" not in q.sources]
     if not again:
         return refined
     return arbitrate(replace(refined, parameters=[replace(q, chosen="") if q.name in again else q
-                                                  for q in refined.parameters]), data, shrunk)
+                                                  for q in refined.parameters]), data, changed)
 
 
 def _gap(p: Parameter, total: float) -> float:

@@ -507,6 +507,27 @@ def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two(
     assert residual_refinement(compat, [c for c, _ in two], [r for _, r in two]) is None
 
 
+def test_a_cause_its_own_held_out_logs_refute_does_not_veto_what_two_others_agree_on():
+    """Our 737 in 3 ft/s with a +4.8 % vane scale and nothing else hidden (fresh null 6,700,233). The kinematics
+    put the scale at -0.16 +- 2.7 %; CL and Cm each need +4.9 and +4.5 %. A "CD vs qhat" 3 times its floor,
+    which its held-out logs refute (x1.012 with each left out), would need -1.75 %, and its opposite sign
+    vetoed the scale: "CL vs alpha" and "Cm vs alpha" were named on a null. Refuted, it does not veto; held
+    out with a gain, it still does."""
+    from diagnose.arbitration import residual_refinement
+    from identify.compat.result import CompatResult, Parameter
+    compat = CompatResult([Parameter("alpha_deg", "bias", "deg", 0.2123, 0.06395, chosen="the CL residual agrees"),
+                           Parameter("alpha_deg", "scale", "-", -0.001627, 0.02729)])
+    for replicate, refined in ((1.012, True), (1.3, False)):
+        pairs = [_needing_a_vane_scale("CL", 0.04863, 0.02729, 100.0), _needing_a_vane_scale("Cm", 0.04541, 0.02729, 100.0),
+                 _needing_a_vane_scale("CD", -0.01754, 0.02729, 100.0)]
+        pairs[2][0].verdict.update(replicate_gain=replicate, replicate_gain_where_departs=1.038)
+        out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
+        assert (out is not None) == refined
+        if refined:
+            assert out.name == "alpha_deg.scale" and set(out.coefficients) == {"CL", "Cm"}
+            assert out.compat.get("alpha_deg.scale").estimate == pytest.approx(0.04702, abs=1e-5)
+
+
 def test_a_refinement_several_coefficients_need_is_vetoed_by_a_residual_growing_about_its_mean_only():
     """A -4.95 +- 1.27 % vane scale chosen where there is none, beside a lift offset it masked (fresh seed
     6,700,032): CL, CD and Cm each need it undone. Undone, CL's residual grows 1.7-fold with its mean (the

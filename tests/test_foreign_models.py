@@ -22,7 +22,7 @@ from identify.coefficients import coefficients
 from diagnose.diagnosis import diagnose
 from diagnose.residuals import residual_data
 from diagnose.evaluate import ModelEvaluator, moment_transfer
-from tests.hidden import CLEAN, OWN_TERMS, diagnose_overlay, discrepancies
+from tests.hidden import CLEAN, DIAG_MATRIX, OWN_TERMS, diagnose_overlay, discrepancies
 from tests.support import matrix_toml, pairs, run_matrix, scaled_copy
 
 STOCK = Path(jsbsim.get_default_root_dir()) / "aircraft"
@@ -365,6 +365,20 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
     alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
     assert "residuals of CL, CD, Cm" in (alpha["scale"]["chosen_because"] or ""), alpha["scale"]
     assert abs(alpha["scale"]["estimate"]) < 0.01 and not alpha["bias"]["applied"]
+
+
+def test_a_vane_scale_refined_beside_a_bias_the_residuals_chose_chooses_the_bias_again(tmp_path):
+    """Our 737 in 3 ft/s with a +4.8 % alpha-vane scale and nothing else hidden (fresh null 6,700,233 of the
+    detection curve). The kinematics put the bias at +0.21 +- 0.064 deg and the scale at -0.16 +- 2.7 %;
+    the CL residual chose the bias, which at the trim alphas stands in for the scale. CL and Cm each needed
+    +4.7 % more scale, and "CL vs alpha" and "Cm vs alpha" were named. The scale is refined, the bias chosen
+    beside it again (and is not), and nothing is named."""
+    doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 6700233, sigma_fps=3.0,
+                           channels="[channels.alpha_deg]\nscale = 1.0483436456550328\n")
+    assert not discrepancies(doc), doc["summary"]
+    alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
+    assert alpha["scale"]["applied"] and alpha["scale"]["estimate"] == pytest.approx(0.048, abs=0.005), alpha
+    assert not alpha["bias"]["applied"], alpha
 
 
 def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kinematics(tmp_path):
