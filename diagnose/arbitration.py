@@ -40,7 +40,9 @@ def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None =
     Each candidate is tried: the one that brings the model closest to the data is applied
     if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
     on the fitted logs and on the held-out ones, as they are or beside the aerodynamic
-    terms the stepwise search fits (:func:`_trial`); the others keep what the residuals said.
+    terms the stepwise search fits (:func:`_trial`), and no other coefficient's residual grows
+    about its mean by more than :data:`REFINED_WORSE` (:func:`_agrees`); the others keep what
+    the residuals said.
     With ``channels``, only those channels' corrections are decided.
     """
     groups: list[list] = []
@@ -75,7 +77,8 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
     predicted by the terms fitted on the others). An aerodynamic error in the same residual (a drag rise with Mach
     beside an accelerometer bias) hides a real correction's gain in the first but not in
     the second; an aerodynamic term that mimics the correction (a pitch-rate term for a
-    late vane) hides it in the second but not in the first.
+    late vane) hides it in the second but not in the first. A third entry, ``the others about their
+    means``, is the smallest of the other coefficients' fitted-log RMS ratios, each about its mean.
     """
     before = data.residuals(compat)
     after = data.residuals(trial)
@@ -92,23 +95,39 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
 
     (lb, lbh), (la, lah) = left(before, held[0] if held else None), left(after, held[1] if held else None)
     nan = float("nan")
+
+    def about_mean(k: str) -> float:
+        b, a = before[f"r_{k}"].to_numpy(), after[f"r_{k}"].to_numpy()
+        return ratio(b - b.mean(), a - a.mean())
+
     return c, {"as is": (ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
                          ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan),
-               "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan)}
+               "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan),
+               "the others about their means": (min(about_mean(k) for k in COEFFS if k != c), nan)}
 
 
 def _agrees(gains: dict[str, tuple[float, float]]) -> str:
     """The way the residuals agree with a correction ("" if neither). As is: at least
     :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out ones. Beside aero
     terms the fitted logs say little (the terms were fitted to them, and can mimic the correction
-    there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the fitted ones not lose."""
+    there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the fitted ones not lose.
+    Neither if another coefficient's residual grows about its mean by more than :data:`REFINED_WORSE`
+    with it: an instrument error moves every coefficient along its own derivative, and its correction
+    shrinks each one's shape or leaves it (an offset the stepwise search's intercept takes up says
+    nothing). An A320 lift change in alpha times Mach, with no instrument error, had the CL residual
+    take a -1.8 % vane scale beside the aerodynamic terms (x1.48, x1.92 held out) while Cm's residual
+    grew 2.1-fold about its mean with it, and "Cm vs alpha" was named first (fresh seed 7,100,074)."""
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
+    if gains["the others about their means"][0] < 1.0 / REFINED_WORSE:
+        return ""
     return ("as is" if g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN else
             "beside aero terms" if gb >= 1.0 and hb >= CORROBORATED_GAIN else "")
 
 
 def _score(gains: dict[str, tuple[float, float]]) -> float:
+    if gains["the others about their means"][0] < 1.0 / REFINED_WORSE:
+        return 0.0
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
     return max(min(g, h) if np.isfinite(h) else g, min(gb, hb) if np.isfinite(hb) and gb >= 1.0 else 0.0)
@@ -116,7 +135,8 @@ def _score(gains: dict[str, tuple[float, float]]) -> float:
 
 def _said(gains: dict[str, tuple[float, float]]) -> str:
     return "; ".join(f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h)
-                                                                else "") for k, (g, h) in gains.items())
+                                                                else "") for k, (g, h) in gains.items()
+                     if k != "the others about their means" or g < 1.0 / REFINED_WORSE)
 
 
 #: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).

@@ -381,6 +381,21 @@ def test_a_vane_scale_refined_beside_a_bias_the_residuals_chose_chooses_the_bias
     assert not alpha["bias"]["applied"], alpha
 
 
+def test_a_vane_correction_that_grows_another_coefficients_residual_about_its_mean_is_not_chosen(tmp_path):
+    """The A320 in 1.5 ft/s with CL down to -0.023 over a table in alpha, times (Mach - 0.2) / 0.3, and no
+    instrument error (fresh seed 7,100,074). The kinematics put the vane scale at -1.8 +- 0.54 % (3.4
+    standard errors); beside the aerodynamic terms the CL residual took it (x1.48, x1.92 held out), while
+    Cm's residual grew 2.1-fold about its mean with it. Chosen, "Cm vs alpha" was named first, 12 times its
+    floor. A correction no other coefficient's residual agrees with is not chosen: the lift change is named."""
+    matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
+    doc = diagnose_overlay(tmp_path, "lift_alpha_table_mach.xml", STOCK / "A320", matrix, 7100074, sigma_fps=1.5)
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CL" and set(aero[0]["variables"][:2]) == {"alpha_deg", "mach"}, \
+        doc["summary"]
+    alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
+    assert not alpha["scale"]["applied"], alpha
+
+
 def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kinematics(tmp_path):
     """The stock 737 in 1.5 ft/s with an 82 ms alpha delay and CL up to 0.025 higher as the gear comes
     down, times (Mach - 0.2) / 0.3 (seed 5,200,118 of the detection curve, first flown fresh at stop 47).
