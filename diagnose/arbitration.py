@@ -67,6 +67,10 @@ def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None =
     return compat
 
 
+#: :func:`_trial`'s entry for the other coefficients' residuals about their means.
+OTHERS = "the others about their means"
+
+
 def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[str, dict[str, tuple[float, float]]]:
     """How much closer a trial correction brings the model to the data.
 
@@ -103,7 +107,7 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
     return c, {"as is": (ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
                          ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan),
                "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan),
-               "the others about their means": (min(about_mean(k) for k in COEFFS if k != c), nan)}
+               OTHERS: (min(about_mean(k) for k in COEFFS if k != c), nan)}
 
 
 def _agrees(gains: dict[str, tuple[float, float]]) -> str:
@@ -117,16 +121,16 @@ def _agrees(gains: dict[str, tuple[float, float]]) -> str:
     nothing). An A320 lift change in alpha times Mach, with no instrument error, had the CL residual
     take a -1.8 % vane scale beside the aerodynamic terms (x1.48, x1.92 held out) while Cm's residual
     grew 2.1-fold about its mean with it, and "Cm vs alpha" was named first (fresh seed 7,100,074)."""
+    if _others_worse(gains):
+        return ""
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
-    if gains["the others about their means"][0] < 1.0 / REFINED_WORSE:
-        return ""
     return ("as is" if g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN else
             "beside aero terms" if gb >= 1.0 and hb >= CORROBORATED_GAIN else "")
 
 
 def _score(gains: dict[str, tuple[float, float]]) -> float:
-    if gains["the others about their means"][0] < 1.0 / REFINED_WORSE:
+    if _others_worse(gains):
         return 0.0
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
@@ -136,7 +140,12 @@ def _score(gains: dict[str, tuple[float, float]]) -> float:
 def _said(gains: dict[str, tuple[float, float]]) -> str:
     return "; ".join(f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h)
                                                                 else "") for k, (g, h) in gains.items()
-                     if k != "the others about their means" or g < 1.0 / REFINED_WORSE)
+                     if k != OTHERS or _others_worse(gains))
+
+
+def _others_worse(gains: dict[str, tuple[float, float]]) -> bool:
+    """Another coefficient's residual grows about its mean by more than :data:`REFINED_WORSE` with the correction."""
+    return gains[OTHERS][0] < 1.0 / REFINED_WORSE
 
 
 #: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).
