@@ -97,11 +97,17 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
          keep: Path | None = None, sensor_family: str | None = None) -> dict:
     """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``, ``sensor_family``: force the
     aircraft, the turbulence or a sensor error of that family; ``keep``: a folder to write the case's
-    candidates and their verdicts to, as ``<seed>.json``, for calibrating the verdict on them)."""
+    candidates and their verdicts to, as ``<seed>.json``, for calibrating the verdict on them). The case's
+    logs and report are flown in a temporary folder, removed when it is scored."""
+    with tempfile.TemporaryDirectory(prefix="curve-") as tmp:
+        return _case(Path(tmp), seed, null, only, sigma_fps, keep, sensor_family)
+
+
+def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float | None, keep: Path | None,
+          sensor_family: str | None) -> dict:
     from campaign.diagnose import run_diagnosis
     rng = np.random.default_rng(seed)
     name, folder, matrix = aircraft(rng, only)
-    work = Path(tempfile.mkdtemp(prefix="curve-"))
     effect = None
     if not null:
         allowed = [v for v in VARIABLES if not (v == "flap_deg" and name == "stock 737")]
