@@ -143,7 +143,8 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     ref, killed = tmp_path / "ref", tmp_path / "killed"
     assert main(["run", "--matrix", str(m), "--out", str(ref), "--no-identify"]) == 0
     proc = subprocess.Popen([sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--out",
-                             str(killed), "--quiet", "--no-identify"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             str(killed), "--quiet", "--no-identify"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "TMPDIR": str(tmp_path)})  # a killed run leaves its aircraft copy
     deadline = time.time() + 60
     n_done = 0
     while time.time() < deadline and proc.poll() is None:

@@ -124,7 +124,7 @@ def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tm
     for what, reached in MOMENTS:
         t0 = time.time()
         proc = subprocess.Popen(argv + [str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                process_group=0)
+                                process_group=0, env={**os.environ, "TMPDIR": str(tmp)})  # killed: copies stay
         deadline = t0 + 120
         while proc.poll() is None and time.time() < deadline and not reached(out, t0):
             time.sleep(0.002)
