@@ -427,10 +427,16 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
     A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better.
     A term in CL gives way to the same term in alpha, or in the model's own variables in place of CL (its
-    other variables kept), unless the data prefer CL by :data:`STATE_SE`. In
+    other variables kept), unless the data prefer CL by :data:`STATE_SE`; every term of the cause in CL that
+    has such a rival gives way with the first (a stock-737 drag dip in gear times alpha, 14 times its floor,
+    entered as linear(CL) and smooth(gear) x CL; only the first gave way, to quadratic(alpha), and the cause
+    fell apart into "CD vs alpha" and "CD vs gear_norm, CL", with gear x alpha 0.3 standard errors behind
+    the second: fresh seed 7,100,139), to the variable the first took in place of CL where it has such a
+    rival (one lift stood for one state: gear x elevator fitted 0.95 better than gear x CL there). In
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`)."""
     out: dict[str, dict[Term, Term]] = {}
+    taken: dict[str, set[str]] = {}  # each rival goes in once
     for c in causes:
         if c.kind != "aero" or not c.verdict.get("accepted"):
             continue
@@ -448,10 +454,22 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         if not better:
             continue
         r = min(better, key=lambda r: r["separation_se"])
-        old = [t for t in c.terms if t.label == r.get("replaces")]
-        if old and r["term"] in by_label:
-            out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],
-                                                                      pools[c.coefficient], data)
+        chosen = [r]
+
+        def put(x: dict) -> set[str]:  # the variables a rival puts in place of the term's
+            return set(by_label[x["term"]].variables) - set(own[x["replaces"]].variables) if x["term"] in by_label \
+                and x.get("replaces") in own else set()
+
+        for label in own:  # the cause's other terms in CL give way alike: to the same state as the first if they can
+            alike = [x for x in better if x.get("replaces") == label != r.get("replaces") and in_states(x)]
+            if alike:
+                chosen.append(min(alike, key=lambda x: (not put(x) & put(r), x["separation_se"])))
+        for r in chosen:
+            old = [t for t in c.terms if t.label == r.get("replaces")]
+            if old and r["term"] in by_label and r["term"] not in taken.setdefault(c.coefficient, set()) | set(own):
+                taken[c.coefficient].add(r["term"])
+                out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],
+                                                                          pools[c.coefficient], data)
     return out
 
 

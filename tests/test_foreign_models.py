@@ -396,6 +396,19 @@ def test_a_vane_correction_that_grows_another_coefficients_residual_about_its_me
     assert not alpha["scale"]["applied"], alpha
 
 
+def test_a_cause_whose_terms_in_cl_give_way_gives_way_whole_to_one_state(tmp_path):
+    """The stock 737 in 3 ft/s with CD up to 0.014 higher in alpha, times a dip in gear (fresh seed
+    7,100,139). The drag entered as linear(CL) and smooth(gear) x CL, one cause. Only the first term gave
+    way to the states (quadratic(alpha)), and the cause fell apart: "CD vs alpha", 110 times its floor, and
+    "CD vs gear_norm, CL", with gear x alpha 0.3 standard errors behind it. Both terms give way, in the same
+    state: the drag is named in alpha and gear."""
+    doc = diagnose_overlay(tmp_path, "drag_dip_gear_alpha.xml", STOCK / "737", CLEAN, 7100139, sigma_fps=3.0)
+    aero = discrepancies(doc)
+    assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][:2] == ["alpha_deg", "gear_norm"], \
+        doc["summary"]
+    assert not [c for c in aero[1:] if c["coefficient"] == "CD"], doc["summary"]
+
+
 def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kinematics(tmp_path):
     """The stock 737 in 1.5 ft/s with an 82 ms alpha delay and CL up to 0.025 higher as the gear comes
     down, times (Mach - 0.2) / 0.3 (seed 5,200,118 of the detection curve, first flown fresh at stop 47).
