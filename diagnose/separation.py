@@ -464,11 +464,11 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
             alike = [x for x in better if x.get("replaces") == label != r.get("replaces") and in_states(x)]
             if alike:
                 chosen.append(min(alike, key=lambda x: (not put(x) & put(r), x["separation_se"])))
-        for r in chosen:
-            old = [t for t in c.terms if t.label == r.get("replaces")]
-            if old and r["term"] in by_label and r["term"] not in taken.setdefault(c.coefficient, set()) | set(own):
-                taken[c.coefficient].add(r["term"])
-                out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[r["term"]], old[0],
+        for x in chosen:
+            old = [t for t in c.terms if t.label == x.get("replaces")]
+            if old and x["term"] in by_label and x["term"] not in taken.setdefault(c.coefficient, set()) | set(own):
+                taken[c.coefficient].add(x["term"])
+                out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[x["term"]], old[0],
                                                                           pools[c.coefficient], data)
     return out
 
