@@ -72,9 +72,15 @@ def one_blas_thread() -> None:
 
 
 def executor(jobs: int) -> ProcessPoolExecutor:
-    """This process's pool of ``jobs`` workers (made on first use, or again if the number changed)."""
+    """This process's pool of ``jobs`` workers (made on first use, or again if the number changed).
+
+    This process keeps working beside its busy workers, so from the first pool on its own linear
+    algebra runs on one BLAS thread too (:func:`one_blas_thread`), as the command line's does: a
+    library caller's second thread made the data compatibility's fits twice as slow beside them.
+    """
     pool = _POOL.get(jobs)
     if pool is None:
+        one_blas_thread()
         for old in _POOL.values():
             old.shutdown(wait=False, cancel_futures=True)
         _POOL.clear()

@@ -180,6 +180,9 @@ if __name__ == "__main__":
         print(threads())
     elif sys.argv[1] == "workers":  # a pool without warm(): the workers import numpy and scipy themselves
         print(pmap(threads, [()] * 2, 2)[0])
+    elif sys.argv[1] == "caller":  # a library caller beside its pool: one thread once the pool is made
+        pmap(threads, [()] * 2, 2)
+        print(threads())
     else:
         from campaign.cli import main
         main(["points"])
@@ -187,11 +190,11 @@ if __name__ == "__main__":
 """
 
 
-@pytest.mark.parametrize("where", ["workers", "cli"])
+@pytest.mark.parametrize("where", ["workers", "cli", "caller"])
 def test_linear_algebra_runs_on_one_blas_thread_in_workers_and_the_command(tmp_path, where):
     """numpy's and scipy's OpenBLAS, both loaded after the limit was set (scipy's on the first
-    scipy.linalg import), each run one thread: beside busy workers a second one makes the fits
-    several times slower."""
+    scipy.linalg import), each run one thread, in the workers, the command line and a library
+    caller that made a pool: beside busy workers a second one makes the fits several times slower."""
     script = tmp_path / "blas.py"
     script.write_text(BLAS)
     env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
