@@ -11,6 +11,8 @@ import hashlib
 import math
 import os
 import shutil
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from functools import lru_cache
 from multiprocessing.util import Finalize
@@ -84,20 +86,34 @@ def derived_seed(seed: int, *names: str) -> int:
     return int.from_bytes(h[:4], "little") & 0x7FFFFFFF
 
 
-@lru_cache(maxsize=8)
-def _prepared_root(source: AircraftSource) -> str:
-    root = str(prepare(source))
-    # removed as this process ends; a worker too runs multiprocessing's finalizers before it exits
-    Finalize(None, shutil.rmtree, args=(root,), kwargs={"ignore_errors": True}, exitpriority=0)
-    return root
+#: The merged aircraft roots a process keeps on disk, the most recently loaded: a long-lived process
+#: (a worker, a benchmark) flies one overlay after another.
+ROOTS_KEPT = 8
+_ROOTS: OrderedDict[AircraftSource, tuple[str, Finalize]] = OrderedDict()
+_ROOTS_LOCK = threading.Lock()  # a Dask worker loads in several threads
 
 
 def new_fdm(source: AircraftSource):
-    """Load the aircraft (with its overlay merged) into a fresh FGFDMExec."""
-    try:
-        return load_fdm(Path(_prepared_root(source)), source.name)
-    except ValueError:
-        raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}") from None
+    """Load the aircraft (with its overlay merged) into a fresh FGFDMExec.
+
+    The merged root (:func:`campaign.aircraft.prepare`) is written once per source and kept for the
+    next load; the oldest of more than :data:`ROOTS_KEPT` is removed (a loaded model no longer reads
+    its files), and the rest as the process ends (a worker too runs multiprocessing's finalizers
+    before it exits).
+    """
+    with _ROOTS_LOCK:
+        held = _ROOTS.get(source)
+        if held is None:
+            root = str(prepare(source))
+            held = _ROOTS[source] = (root, Finalize(None, shutil.rmtree, args=(root,),
+                                                    kwargs={"ignore_errors": True}, exitpriority=0))
+            while len(_ROOTS) > ROOTS_KEPT:
+                _ROOTS.popitem(last=False)[1][1]()  # removes the folder, and its exit finalizer with it
+        _ROOTS.move_to_end(source)
+        try:
+            return load_fdm(Path(held[0]), source.name)
+        except ValueError:
+            raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}") from None
 
 
 def engine_count(names: set[str]) -> int:

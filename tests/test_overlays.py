@@ -113,3 +113,28 @@ def test_stock_737_loses_its_network_ports():
     assert "<input port" not in text and "port=" not in text and "QTJSBSIM" not in text
     fdm = new_fdm(AircraftSource(stock, load_effects(None)))
     assert np.isfinite(fdm["aero/qbar-psf"])
+
+
+def test_a_long_lived_process_keeps_only_its_latest_merged_roots(tmp_path, monkeypatch):
+    """A worker or a benchmark flies one overlay after another: each source's merged root is written
+    once and reused, and beyond the latest ROOTS_KEPT the oldest goes (it had piled up in the
+    temporary folder until the process ended, or for good if it was killed)."""
+    import tempfile
+
+    from campaign import engine
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    roots = lambda: sorted(p.name for p in (tmp_path / "tmp").iterdir())  # noqa: E731
+    sources = []
+    for i in range(engine.ROOTS_KEPT + 3):
+        fx = tmp_path / f"fx{i}.xml"
+        fx.write_text(OVERLAY.replace("0.0125", f"{0.001 * i:.4f}"))
+        sources.append(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(fx)))
+        first = new_fdm(sources[-1])
+        assert roots() and new_fdm(sources[-1]) is not first and len(roots()) == min(i + 1, engine.ROOTS_KEPT)
+        assert np.isfinite(first["aero/qbar-psf"])
+    kept = roots()
+    new_fdm(sources[-engine.ROOTS_KEPT])  # one still kept: loaded from its root again, nothing written
+    assert roots() == kept
+    new_fdm(sources[0])  # one removed: written again, the least recently loaded goes
+    assert len(roots()) == engine.ROOTS_KEPT and roots() != kept
