@@ -179,8 +179,9 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
 
 
 def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
-          matrix: str = DIAG_MATRIX) -> dict:
-    """Fly, diagnose against the bare model, and score the answer against the hidden truth."""
+          matrix: str = DIAG_MATRIX, shape: bool = True) -> dict:
+    """Fly, diagnose against the bare model, and score the answer against the hidden truth (with
+    ``shape``, also the extension's shape error and residual gain: three more model evaluations)."""
     from pathlib import Path
 
     from campaign.aircraft import DEFAULT_AIRCRAFT
@@ -199,7 +200,7 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
     out["coefficient_ok"] = first["coefficient"] == hidden.coefficient
     out["variable_ok"] = first["variables"][0] == hidden.variables[0] and set(hidden.variables) <= set(first["variables"])
     out["confirmed"] = not first["verdict"].get("unconfirmed")
-    if not doc["extension"]:
+    if not doc["extension"] or not shape:
         return out
     train, _ = split(load_data(data))
     truth_ac = merge_into_aircraft(DEFAULT_AIRCRAFT, fx, workdir / "truth", replace_gear=False)

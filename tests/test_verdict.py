@@ -25,7 +25,7 @@ def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path)
     gear down): the gear-up condition, left out, must not veto it."""
     matrix = DIAG_MATRIX + matrix_toml([("up", 0, 0.4, 5000)]).split("\n", 1)[1]
     effect = draw(np.random.default_rng(11), 50, 50, "CD", ("gear_norm",), "late_onset")
-    r = score(tmp_path, effect, seed=11, matrix=matrix)
+    r = score(tmp_path, effect, seed=11, matrix=matrix, shape=False)
     assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
     first = r["doc"]["causes"][0]
     gear_up_logs = [i for i, p in enumerate(r["doc"]["data"]["train"] + r["doc"]["data"]["held_out"])
@@ -44,7 +44,7 @@ SHAPE_SEEDS = list(range(900, 906))
 @pytest.mark.parametrize("seed", SHAPE_SEEDS)
 def test_a_random_shape_ten_times_its_floor_is_named_first(tmp_path, seed):
     effect = draw(np.random.default_rng(seed), 10, 30)
-    r = score(tmp_path, effect, seed=seed)
+    r = score(tmp_path, effect, seed=seed, shape=False)
     assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
 
 
