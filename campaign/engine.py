@@ -93,6 +93,10 @@ _ROOTS: OrderedDict[AircraftSource, tuple[str, Finalize]] = OrderedDict()
 _ROOTS_LOCK = threading.Lock()  # a Dask worker loads in several threads
 
 
+#: A point's weight that an aircraft without a point mass already has, within this share of it [-].
+WEIGHT_TOLERANCE = 1e-4
+
+
 def new_fdm(source: AircraftSource):
     """Load the aircraft (with its overlay merged) into a fresh FGFDMExec.
 
@@ -246,13 +250,16 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
     _set(fdm, names, cat.CONTROLS["alpha_max"], np.radians(alpha_max_deg))
     _set(fdm, names, cat.CONTROLS["alpha_min"], np.radians(-20.0))
     if point.weight_lb is not None:
-        if cat.POINTMASS_WEIGHT not in names:
-            raise TrimError("aircraft has no point mass to set the weight with")
         fdm.run_ic()  # sums the mass items into inertia/weight-lbs
-        pm = fdm[cat.POINTMASS_WEIGHT] + point.weight_lb - fdm["inertia/weight-lbs"]
-        if pm < 0:
-            raise TrimError(f"weight {point.weight_lb:.0f} lb is below the aircraft's empty weight and fuel")
-        fdm[cat.POINTMASS_WEIGHT] = pm
+        own = fdm["inertia/weight-lbs"]
+        if cat.POINTMASS_WEIGHT in names:
+            pm = fdm[cat.POINTMASS_WEIGHT] + point.weight_lb - own
+            if pm < 0:
+                raise TrimError(f"weight {point.weight_lb:.0f} lb is below the aircraft's empty weight and fuel")
+            fdm[cat.POINTMASS_WEIGHT] = pm
+        elif abs(own - point.weight_lb) > WEIGHT_TOLERANCE * own:  # a log flown as loaded replays as it was
+            raise TrimError(f"aircraft has no point mass to set the weight with (it weighs {own:.0f} lb, "
+                            f"the point {point.weight_lb:.0f} lb)")
     fdm.run_ic()
     _set(fdm, names, cat.CONTROLS["set_running"], -1)
     cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])

@@ -560,3 +560,21 @@ def test_the_replacement_splits_a_term_that_stood_for_two_causes(tmp_path):
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"]) == ("CL", ["mach"]), doc["summary"]
     assert "CL" not in doc["whole_readings"]
+
+
+def test_a_stock_aircraft_without_a_point_mass_replays_its_own_logs(tmp_path):
+    """The stock A320 has no point mass to set a weight with, and flies as loaded. A replay starts at
+    the weight its log records, which is the aircraft's own: it trims and flies the log again (it was
+    refused, and every held-out replay of an A320 diagnosis was NaN)."""
+    from campaign.diagnose import replay
+    from campaign.engine import TrimError, trimmed_fdm
+    from diagnose.gain import replay_errors
+    text = matrix_toml([("up", 0, 0.3, 5000)], "a320", '[maneuvers.doublet]\ntail_s = 2.0\n')
+    source = AircraftSource(str(STOCK / "A320"), load_effects(None))
+    log = next(lg for lg in load_data(run_matrix(tmp_path, text, source.folder)) if lg.maneuver == "doublet")
+    flown = replay(log, source)
+    assert flown is not None
+    err = replay_errors(log.data, flown)  # its elevator actuator lags the positions replayed (0.6 deg at a step)
+    assert err["theta_deg"] < 1.0 and err["alt_ft"] < 30.0 and err["trim_elevator_deg"] < 1e-3, err
+    with pytest.raises(TrimError, match="no point mass"):  # another weight it still cannot take
+        trimmed_fdm(source, StatusPoint(5000, 0.3, 0.0, False, 120_000.0), 0.0)
