@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from diagnose.causes import Cause, along, shape_of
+from diagnose.causes import Cause, along, held_constant, shape_of
 from diagnose.noise_floor import REACH_SE, RESOLUTION, design_matrix
 from diagnose.stepwise import StepwiseResult, refit
 from identify.lsq import solve_normal
@@ -70,8 +70,10 @@ def rank(verdict: dict) -> tuple[bool, float]:
 
 
 def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
-    """A cause's fitted contribution at the rows of ``data``."""
-    return sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))
+    """A cause's fitted contribution at the rows of ``data``, less a constant the intercept takes back
+    (:func:`diagnose.causes.held_constant`): it departs from the model where it departs from zero."""
+    c = sum((t.design(data) @ res.term_beta(t) for t in res.terms if t in cause.terms), np.zeros(len(data)))
+    return c - held_constant(c)
 
 
 def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
@@ -260,6 +262,8 @@ def main_effect(cause: Cause, res: StepwiseResult, data: pd.DataFrame) -> tuple[
     fit = refit(res, [t for t in res.terms if t not in cause.terms or t in own], data)
     part = sum(t.design(data) @ fit.term_beta(t) for t in own)
     cx, cy = along(own, fit, data, v)
+    held = held_constant(part)
+    part, cy = part - held, cy - held
     cut = replace(cause, variables=[v], terms=own, shape=shape_of(cx, cy), peak=float(np.max(np.abs(part))),
                   size=float(np.ptp(part)), curve={v: cx.tolist(), f"d{cause.coefficient}": np.asarray(cy).tolist(),
                                                    "others_at_median": {}},

@@ -528,3 +528,29 @@ def test_a_cause_that_acts_during_the_gear_travel_alone_is_judged_where_it_depar
         v = cause.verdict
         assert v["replicate_gain_where_departs"] < DEPARTS_GAIN and not v["accepted"], (seed, v)
         assert f"where it departs, needs x{DEPARTS_GAIN}" in v["reason"], v["reason"]
+
+
+def test_a_constant_the_intercept_takes_back_is_not_a_cause_s_peak():
+    """A term whose column nearly holds a constant over the data (Mach about 0 where the data sit at
+    0.5; elevator x Mach where each condition trims at its own elevator) carries a constant that the
+    intercept takes back ("CL vs elevator_deg, mach" was reported with a peak of 83,000): the cause's
+    peak, curve and contribution are its departure over the data, without that constant."""
+    import pandas as pd
+
+    from diagnose.causes import name_causes
+    from diagnose.stepwise import Lags, StepwiseResult
+    from diagnose.terms import Term
+    from diagnose.verdict import contribution
+    rng = np.random.default_rng(3)
+    mach = 0.5 + 0.003 * np.sin(np.linspace(0, 12, 800))
+    data = pd.DataFrame({"condition": "10000/0.5/0", "log": np.repeat([0, 1], 400), "mach": mach,
+                         "r_CL": 10.0 * (mach - 0.5) + rng.normal(0, 0.001, 800)})
+    term = Term("linear", ("mach",), centers=(0.0,), ranges=((0.0, 1.0),))
+    x = np.column_stack([np.ones(len(data)), term.design(data)])
+    res = StepwiseResult("CL", [term], np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0], {}, [], 0.0, 0.0,
+                         len(data))
+    assert abs(res.beta[1] * 0.5) > 4  # the term holds about 5, the intercept about -5
+    cause, = name_causes({"CL": res}, data, Lags(data["log"].to_numpy()))
+    assert 0.05 < cause.size < 0.07 and cause.peak <= cause.size, (cause.peak, cause.size)
+    assert np.max(np.abs(cause.curve["dCL"])) <= cause.size
+    assert np.max(np.abs(contribution(res, cause, data))) <= cause.size
