@@ -38,8 +38,8 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import REACH_SE, NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.separation import (cause_rivals, instrument_fits_better, instrument_preferred, noise_weights,
-                                 preferred_aero_rivals)
+from diagnose.separation import (SWAP_ROUNDS, cause_rivals, compose_swaps, instrument_fits_better,
+                                 instrument_preferred, noise_weights, preferred_aero_rivals)
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
@@ -178,8 +178,12 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             kept_whole = {c: [t.label for t in split[c]] for c in sorted(whole)}
         whole = stands if stands != whole else set()
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
-    swaps = preferred_aero_rivals(p.causes, p.terms, p.data)
-    if swaps:  # the search's term at entry, with the others in, fits worse than a rival: the rival is the cause
+    swaps, rounds = {}, []
+    for _ in range(SWAP_ROUNDS):  # the search's term at entry, with the others in, fits worse than a rival:
+        rounds.append(preferred_aero_rivals(p.causes, p.terms, p.data))  # the rival is the cause
+        if compose_swaps(rounds) == swaps:
+            break
+        swaps = compose_swaps(rounds)
         p = one_pass(p.compat, swaps, p.whole)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise

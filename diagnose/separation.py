@@ -347,12 +347,24 @@ def in_alpha(term: Term, pool: list[Term]) -> Term | None:
     return same[0] if same else None
 
 
+def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
+    """The candidates of ``pool`` in alpha and Mach together, for a term in CL alone (none otherwise).
+    Trimmed lift is the weight over the dynamic pressure: across the conditions CL follows Mach as
+    well as alpha, and a shape in alpha that Mach scales fits as one in CL (:data:`STATE_SE`)."""
+    if term.variables != ("CL",):
+        return []
+    return [t for t in pool if set(t.variables) == {"alpha_deg", "mach"}]
+
+
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
-    alpha (:func:`in_alpha`). In place of a smooth term the search refined with the tails' knots
+    alpha (:func:`in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
+    (:func:`in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
+    named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival: fresh seed
+    7,500,265). In place of a smooth term the search refined with the tails' knots
     (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it can be, on ``data``: a Cm table in
     alpha on the stock 737, 25.8 times its floor, was named "Cm vs CL" when smooth(CL), refined, met
     smooth(alpha) unrefined (reserved seed 2,000,229)."""
@@ -363,8 +375,9 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     by_label = {t.label: t for t in pool}
     for t in cause.terms:
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
-        twin = in_alpha(t, pool)  # always a rival: the two fit alike (:data:`STATE_SE`)
-        for r in close + ([twin] if twin is not None and twin not in close else []):
+        twin = in_alpha(t, pool)  # always rivals: they fit alike (:data:`STATE_SE`)
+        states = ([twin] if twin is not None else []) + in_alpha_and_mach(t, pool)
+        for r in close + [u for u in states if u not in close]:
             if r is None:
                 continue
             r = refined_alike(r, t, pool, data)
@@ -434,7 +447,9 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     the second: fresh seed 7,100,139), to the variable the first took in place of CL where it has such a
     rival (one lift stood for one state: gear x elevator fitted 0.95 better than gear x CL there). In
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
-    was judged (:func:`rival_hypotheses`)."""
+    was judged (:func:`rival_hypotheses`). A term in CL alone gives way to one in alpha and Mach together
+    only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
+    times a dip in gear was named in Mach too (fresh seed 7,100,139)."""
     out: dict[str, dict[Term, Term]] = {}
     taken: dict[str, set[str]] = {}  # each rival goes in once
     for c in causes:
@@ -449,8 +464,14 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
             return (old is not None and new is not None and "CL" in old.variables and "CL" not in new.variables
                     and set(old.variables) - {"CL"} <= set(new.variables))
 
+        def and_mach(r: dict) -> bool:  # a rival in alpha and Mach together for a term in CL alone
+            old, new = own.get(r.get("replaces")), by_label.get(r["term"])
+            return old is not None and new is not None and new in in_alpha_and_mach(old, pool)
+
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
                   and (r["separation_se"] <= -SWAP_SE or in_states(r) and r["separation_se"] < STATE_SE)]
+        plain = {r.get("replaces") for r in better if not and_mach(r)}
+        better = [r for r in better if not and_mach(r) or r.get("replaces") not in plain]  # Mach if alpha will not do
         if not better:
             continue
         r = min(better, key=lambda r: r["separation_se"])
@@ -471,6 +492,32 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
                 out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[x["term"]], old[0],
                                                                           pools[c.coefficient], data)
     return out
+
+
+#: Rounds of :func:`preferred_aero_rivals` at most: a term that gave way is judged again against its own
+#: rivals, which its predecessor did not have (an A320 Cm table in alpha growing with Mach entered as
+#: linear(mach), gave way to quadratic(CL) 8.0 standard errors better, and alpha x Mach then fitted
+#: 6.4 better than that: fresh seed 7,500,299).
+SWAP_ROUNDS = 3
+
+
+def compose_swaps(rounds: list[dict[str, dict[Term, Term]]]) -> dict[str, dict[Term, Term]]:
+    """The swaps of successive rounds of :func:`preferred_aero_rivals` as one (coefficient -> {the
+    search's term: the term in its place}): a later swap of a term that is itself in the place of one
+    of the search's replaces that one. A term that gave way in an earlier round never comes back."""
+    out: dict[str, dict[Term, Term]] = {}
+    gone: dict[str, set[Term]] = {}
+    for new in rounds:
+        for c, m in new.items():
+            cur, away = out.setdefault(c, {}), gone.setdefault(c, set())
+            for a, b in m.items():
+                if b in away or b in cur:
+                    continue
+                firsts = [k for k, v in cur.items() if v == a]
+                for k in firsts or [a]:
+                    cur[k] = b
+                away.add(a)
+    return {c: m for c, m in out.items() if m}
 
 
 def _better_sensor(cause, measured: bool) -> str:

@@ -381,3 +381,63 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
     assert swaps(g_cl, s_mach, 1.8) == {} and swaps(g_cl, s_mach, -3.1) == {"Cm": {g_cl: s_mach}}
     assert swaps(s_cl, g_cl, -2.9) == {}
     assert swaps(s_mach, s_alpha, -2.9) == {} and swaps(s_mach, s_alpha, -3.1) == {"Cm": {s_mach: s_alpha}}
+
+
+def test_a_term_in_cl_alone_has_every_candidate_in_alpha_and_mach_together_as_a_rival():
+    """Trimmed lift follows Mach as well as alpha: quadratic(CL) has its twin in alpha and each term in
+    alpha and Mach together as rivals (an A320 Cm table in alpha growing with Mach, named "Cm vs CL" with
+    only quadratic(alpha) beside it); a term in CL and another variable keeps its own rivals only."""
+    from types import SimpleNamespace
+    from diagnose.terms import candidate_terms
+    rng = np.random.default_rng(9)
+    alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
+    mach = np.repeat([0.5, 0.4, 0.3], 300) + 0.002 * rng.standard_normal(900)
+    frame = pd.DataFrame({"alpha_deg": alpha, "mach": mach, "gear_norm": np.tile(np.r_[np.zeros(150), np.ones(150)], 3),
+                          "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(900)})
+    pool = candidate_terms(frame, "Cm")
+    by_label = {t.label: t for t in pool}
+    both = {t.label for t in pool if set(t.variables) == {"alpha_deg", "mach"}}
+    assert len(both) >= 2
+
+    def rivals(term):
+        cause = SimpleNamespace(coefficient="Cm", terms=[term])
+        result = SimpleNamespace(close={})
+        return {h.terms[0].label for h in sep.rival_hypotheses(cause, result, pool, [], None)}
+    assert rivals(by_label["quadratic(CL)"]) == {"quadratic(alpha_deg)"} | both
+    assert not rivals(by_label["gear_norm x CL"]) & both
+
+
+def test_swaps_of_later_rounds_replace_the_search_s_term_and_never_bring_one_back():
+    """Round one put quadratic(CL) in place of linear(mach); round two puts alpha x Mach in place of
+    quadratic(CL): the search's linear(mach) is then replaced by alpha x Mach. A swap back to a term that
+    gave way is not made, and a round that adds nothing leaves the swaps as they were."""
+    lin = Term("linear", ("mach",), (), (0.4,), ((0.3, 0.5),))
+    quad = Term("quadratic", ("CL",), (), (0.5,), ((0.2, 0.9),))
+    inter = Term("product", ("alpha_deg", "mach"), (), (4.0, 0.4), ((1.0, 9.0), (0.3, 0.5)))
+    gear = Term("smooth", ("gear_norm",), (0.0, 0.5, 1.0))
+    rounds = [{"Cm": {lin: quad}}]
+    assert sep.compose_swaps(rounds) == {"Cm": {lin: quad}}
+    rounds.append({"Cm": {quad: inter}, "CD": {gear: inter}})
+    two = sep.compose_swaps(rounds)
+    assert two == {"Cm": {lin: inter}, "CD": {gear: inter}}
+    assert sep.compose_swaps(rounds + [{"Cm": {inter: quad}}]) == two
+    assert sep.compose_swaps(rounds + [{"Cm": {inter: lin}}]) == two
+    assert sep.compose_swaps(rounds + [{}]) == two
+
+
+def test_a_term_in_cl_alone_gives_way_to_alpha_and_mach_only_if_alpha_alone_will_not_do():
+    """quadratic(CL) with quadratic(alpha) 1 standard error behind and alpha x Mach 6 ahead: alpha is
+    named (alpha x Mach has the more columns); with quadratic(alpha) 12.5 behind, alpha x Mach."""
+    from types import SimpleNamespace
+    quad = Term("quadratic", ("CL",), (), (0.5,), ((0.2, 0.9),))
+    twin = Term("quadratic", ("alpha_deg",), (), (4.0,), ((1.0, 9.0),))
+    inter = Term("product", ("alpha_deg", "mach"), (), (4.0, 0.4), ((1.0, 9.0), (0.3, 0.5)))
+
+    def cause(twin_se):
+        rivals = [{"rival": f"Cm: {t.label}", "kind": "aero", "term": t.label, "replaces": quad.label,
+                   "separation_se": se} for t, se in ((twin, twin_se), (inter, -6.0))]
+        return SimpleNamespace(kind="aero", coefficient="Cm", terms=[quad], verdict={"accepted": True},
+                               evidence={"rivals": rivals})
+    pools = {"Cm": [quad, twin, inter]}
+    assert sep.preferred_aero_rivals([cause(1.0)], pools) == {"Cm": {quad: twin}}
+    assert sep.preferred_aero_rivals([cause(12.5)], pools) == {"Cm": {quad: inter}}
