@@ -101,7 +101,7 @@ def held_constant(contrib: np.ndarray) -> float:
     is larger than the contribution's whole range over the data, else 0. Terms whose columns nearly hold
     a constant between them (smooth(elevator) beside elevator x Mach, where each condition trims at its
     own elevator) split it with the intercept arbitrarily: "CL vs elevator_deg, mach" was reported with a
-    peak of 83,000 (development seed 7,500,038), five of 806 causes so on the detection curve's records."""
+    peak of 83,000 (seed 7,500,038 of the detection curve), five of 806 causes so in the detection curve's records."""
     contrib = np.asarray(contrib, dtype=float)
     med = float(np.median(contrib)) if contrib.size else 0.0
     return med if abs(med) > float(np.ptp(contrib)) else 0.0
