@@ -136,8 +136,9 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
              **slim}, default=str))
     row = {"seed": seed, "aircraft": name, "conditions": what, "discrepancy": doc["discrepancy"],
            "named": f"{aero[0]['coefficient']} vs {', '.join(aero[0]['variables'])}" if aero else ""}
+    # an unconfirmed discrepancy is reported as one ("a discrepancy all the same"): not rejected
     missed_big = [c for c in doc["rejected"] if c["kind"] == "aero" and c["evidence"].get("F", 0) >= 1e3
-                  and c["verdict"].get("holdout_gain", 0) >= 1.5]
+                  and c["verdict"].get("holdout_gain", 0) >= 1.5 and not c["verdict"].get("unconfirmed")]
     row["rejected_strong"] = "; ".join(f"{c['coefficient']} vs {', '.join(c['variables'])}: {c['verdict']['reason']}"
                                        for c in missed_big)
     if effect is None:
