@@ -52,3 +52,17 @@ def small_matrix(tmp_path):
     p = tmp_path / "small.toml"
     p.write_text(SMALL_MATRIX)
     return p
+
+
+@pytest.fixture
+def short_tmp():
+    """A temporary folder with a short path, removed afterwards, for a ``TMPDIR`` of processes the test
+    kills (their aircraft copies stay there): the fork server's Unix socket goes in it, and a socket
+    path longer than 107 bytes is refused (``tmp_path`` under a longer base temporary folder was)."""
+    import shutil
+    import tempfile
+    from pathlib import Path
+    d = Path(tempfile.mkdtemp(prefix="gt-"))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)
+

@@ -137,14 +137,14 @@ alt_ft = [2000, 3000, 4000, 5000, 6000, 7000, 8000, 9000, 10000]
 """.replace("flap_deg = [0]", "flap_deg = 0")
 
 
-def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
+def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path, short_tmp):
     m = tmp_path / "slow.toml"
     m.write_text(SLOW_MATRIX)
     ref, killed = tmp_path / "ref", tmp_path / "killed"
     assert main(["run", "--matrix", str(m), "--out", str(ref), "--no-identify"]) == 0
     proc = subprocess.Popen([sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--out",
                              str(killed), "--quiet", "--no-identify"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "TMPDIR": str(tmp_path)})  # a killed run leaves its aircraft copy
+                            env={**os.environ, "TMPDIR": str(short_tmp)})  # a killed run leaves its aircraft copy
     deadline = time.time() + 60
     n_done = 0
     while time.time() < deadline and proc.poll() is None:

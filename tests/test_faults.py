@@ -111,13 +111,12 @@ def _tree(folder: Path) -> dict[str, bytes]:
             if p.is_file() and p.name != LOCK}
 
 
-def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tmp_path):
+def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tmp_path, short_tmp):
     m = tmp_path / "kill.toml"
     m.write_text(KILL_MATRIX)
     argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--jobs", "2", "--quiet", "--out"]
     ref, out = tmp_path / "ref", tmp_path / "killed"
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
+    tmp = short_tmp
     subprocess.run(argv + [str(ref)], check=True, capture_output=True, env={**os.environ, "TMPDIR": str(tmp)})
     assert sorted(p.name for p in tmp.iterdir()) == []  # the run and its workers leave no aircraft copies behind
     killed_at = []
