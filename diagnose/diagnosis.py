@@ -181,9 +181,10 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     swaps, rounds = {}, []
     for _ in range(SWAP_ROUNDS):  # the search's term at entry, with the others in, fits worse than a rival:
         rounds.append(preferred_aero_rivals(p.causes, p.terms, p.data))  # the rival is the cause
-        if compose_swaps(rounds) == swaps:
+        more = compose_swaps(rounds)
+        if more == swaps:
             break
-        swaps = compose_swaps(rounds)
+        swaps = more
         p = one_pass(p.compat, swaps, p.whole)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise
