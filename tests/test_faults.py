@@ -1,4 +1,4 @@
-"""Faults: a local worker that dies fails only its point; ``kill -9`` of a whole run at many moments,
+"""Faults: a local worker that dies fails only its point; ``kill -9`` of a whole run at eight moments,
 then a resume, gives the uninterrupted folder; malformed input is one line, exit code 2, and changes
 nothing on disk."""
 import json
@@ -94,15 +94,11 @@ MOMENTS = [
     ("flying: manifest written, nothing flown", lambda o, t0: (o / "manifest.json").exists()),
     ("flying: a first log written", lambda o, t0: _newer(o, "*.parquet", t0)),
     ("flying: a point in the manifest", lambda o, t0: _points(o) >= 1 and _newer(o, "manifest.json", t0)),
-    ("flying: three points in the manifest", lambda o, t0: _points(o) >= 3),
     ("identify: staging folder made", lambda o, t0: _newer(o, ".identification.partial", t0)),
-    ("identify: tables written", lambda o, t0: _newer(o, ".identification.partial/summary.txt", t0)),
     ("identify: model copies written", lambda o, t0: _newer(o, ".identification.partial/aircraft_linear", t0)),
     ("identify: swapped in", lambda o, t0: _newer(o, "identification/identification.json", t0)),
     ("replay: a first replay log", lambda o, t0: _newer(o, "replays/*.parquet", t0)),
-    ("replay: twelve replay logs", lambda o, t0: _newer(o, "replays/*.parquet", t0, 12)),
     ("replay: a first plot", lambda o, t0: _newer(o, "replays/plots/*.png", t0)),
-    ("replay: six plots", lambda o, t0: _newer(o, "replays/plots/*.png", t0, 6)),
 ]
 
 
@@ -111,7 +107,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
             if p.is_file() and p.name != LOCK}
 
 
-def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tmp_path, short_tmp):
+def test_kill_9_at_eight_moments_then_resume_gives_the_uninterrupted_folder(tmp_path, short_tmp):
     m = tmp_path / "kill.toml"
     m.write_text(KILL_MATRIX)
     argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--jobs", "2", "--quiet", "--out"]
@@ -133,7 +129,7 @@ def test_kill_9_at_a_dozen_moments_then_resume_gives_the_uninterrupted_folder(tm
         proc.wait()
         # what a kill leaves is never a corrupt log: every log on disk reads, every manifest entry has its logs
         assert all(readable_log(p) for p in out.rglob("*.parquet"))
-    assert len(killed_at) >= 10, killed_at
+    assert len(killed_at) >= 6, killed_at
     assert {"flying", "identify", "replay"} == {w.split(":")[0] for w in killed_at}
     res = subprocess.run(argv + [str(out)], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
