@@ -57,7 +57,8 @@ SWAP_SE = 3.0
 #: well are 2 apart by chance about once in 40. On the detection curve's case records (about 4,000, many
 #: code versions), eleven named terms in CL had such a rival within 2 standard errors: nine hid an effect
 #: with a variable the rival names and the term does not (seven in gear x Mach or alpha x Mach), two one
-#: they name alike; none was a null.
+#: they name alike; none was a null. A term in a control the trim sets times another variable gives way
+#: alike to the same term in alpha or Mach (:func:`in_flow_states`).
 STATE_SE = 2.0
 
 
@@ -356,6 +357,36 @@ def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
     return [t for t in pool if set(t.variables) == {"alpha_deg", "mach"}]
 
 
+#: Controls the trim sets: across trimmed conditions, and through a gear transit under the autopilot's hold,
+#: each follows the flow states that set it.
+TRIM_SET = ("elevator_deg", "stabilizer_deg")
+#: The model's own flow states, which its tables are written in.
+FLOW_STATES = ("alpha_deg", "mach")
+
+
+def in_flow_states(term: Term, pool: list[Term]) -> list[Term]:
+    """The candidates of ``pool`` that are ``term`` with alpha, or with Mach, in place of a control the trim
+    sets (:data:`TRIM_SET`), for a term in such a control and another variable (none otherwise: a control
+    alone is a control derivative). An effect of the gear that grows with alpha acts only while the gear
+    moves, when the hold moves the elevator with alpha: an A320 Cm bump in gear times alpha, 17 times its
+    floor, was named "Cm vs gear_norm, elevator_deg", gear x alpha 0.8 standard errors behind (fresh seed
+    7,600,328; a drag in gear times alpha alike, 1.7 behind, 7,100,107). On 1,130 case records of the
+    detection curve, every term in the elevator times another variable with such a rival within 3
+    standard errors hid an effect in the rival's variables (three), none a null."""
+    controls = [v for v in term.variables if v in TRIM_SET]
+    if not controls or len(term.variables) < 2:
+        return []
+    out = []
+    for state in FLOW_STATES:
+        if state in term.variables:
+            continue
+        want = tuple(state if v == controls[0] else v for v in term.variables)
+        same = [t for t in pool if t.kind == term.kind and t.variables == want]
+        same = same or [t for t in pool if t.kind == term.kind == "product" and sorted(t.variables) == sorted(want)]
+        out += same[:1]
+    return out
+
+
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
@@ -376,7 +407,7 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     for t in cause.terms:
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
         twin = in_alpha(t, pool)  # always rivals: they fit alike (:data:`STATE_SE`)
-        states = ([twin] if twin is not None else []) + in_alpha_and_mach(t, pool)
+        states = ([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
         for r in close + [u for u in states if u not in close]:
             if r is None:
                 continue
@@ -449,7 +480,9 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`). A term in CL alone gives way to one in alpha and Mach together
     only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
-    times a dip in gear was named in Mach too (fresh seed 7,100,139)."""
+    times a dip in gear was named in Mach too (fresh seed 7,100,139). A term in the elevator (or the
+    stabilizer) times another variable gives way to the same term in alpha or Mach as a term in CL does
+    (:func:`in_flow_states`)."""
     out: dict[str, dict[Term, Term]] = {}
     taken: dict[str, set[str]] = {}  # each rival goes in once
     for c in causes:
@@ -459,10 +492,11 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         by_label = {t.label: t for t in pool}
         own = {t.label: t for t in c.terms}
 
-        def in_states(r: dict) -> bool:  # the term in CL, the rival the same in the model's own variables
+        def in_states(r: dict) -> bool:  # the term in CL or a trimmed control, the rival in the model's own states
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
-            return (old is not None and new is not None and "CL" in old.variables and "CL" not in new.variables
-                    and set(old.variables) - {"CL"} <= set(new.variables))
+            return (old is not None and new is not None and ("CL" in old.variables and "CL" not in new.variables
+                                                             and set(old.variables) - {"CL"} <= set(new.variables)
+                                                             or new in in_flow_states(old, pool)))
 
         def and_mach(r: dict) -> bool:  # a rival in alpha and Mach together for a term in CL alone
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])

@@ -441,3 +441,39 @@ def test_a_term_in_cl_alone_gives_way_to_alpha_and_mach_only_if_alpha_alone_will
     pools = {"Cm": [quad, twin, inter]}
     assert sep.preferred_aero_rivals([cause(1.0)], pools) == {"Cm": {quad: twin}}
     assert sep.preferred_aero_rivals([cause(12.5)], pools) == {"Cm": {quad: inter}}
+
+
+def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flow_state():
+    """Through a gear transit the hold moves the elevator with alpha: smooth(gear) x elevator has the
+    same term in alpha and in Mach as rivals, and gives way to one unless the data prefer the elevator by
+    2 standard errors. The elevator alone (a control derivative) has no such rival."""
+    from types import SimpleNamespace
+    from diagnose.terms import candidate_terms
+    rng = np.random.default_rng(4)
+    n = 900
+    frame = pd.DataFrame({"alpha_deg": np.repeat([2.0, 4.0, 7.0], 300) + rng.standard_normal(n),
+                          "mach": np.repeat([0.5, 0.4, 0.3], 300) + 0.002 * rng.standard_normal(n),
+                          "elevator_deg": np.repeat([-1.0, -2.5, -4.0], 300) + rng.standard_normal(n),
+                          "gear_norm": np.tile(np.r_[np.zeros(100), np.linspace(0, 1, 100), np.ones(100)], 3),
+                          "CL": 0.5 + 0.01 * rng.standard_normal(n)})
+    pool = candidate_terms(frame, "Cm")
+    by_label = {t.label: t for t in pool}
+    gear_elev = by_label["smooth(gear_norm) x elevator_deg"]
+    gear_alpha, gear_mach = by_label["smooth(gear_norm) x alpha_deg"], by_label["smooth(gear_norm) x mach"]
+    assert sep.in_flow_states(gear_elev, pool) == [gear_alpha, gear_mach]
+    assert sep.in_flow_states(by_label["linear(elevator_deg)"], pool) == []
+    assert sep.in_flow_states(gear_alpha, pool) == []
+    cause = SimpleNamespace(coefficient="Cm", terms=[gear_elev])
+    rivals = {h.terms[0].label for h in sep.rival_hypotheses(cause, SimpleNamespace(close={}), pool, [], None)}
+    assert {gear_alpha.label, gear_mach.label} <= rivals
+
+    def swap(alpha_se, mach_se=4.4):
+        rivals = [{"rival": f"Cm: {t.label}", "kind": "aero", "term": t.label, "replaces": gear_elev.label,
+                   "separation_se": se} for t, se in ((gear_alpha, alpha_se), (gear_mach, mach_se))]
+        c = SimpleNamespace(kind="aero", coefficient="Cm", terms=[gear_elev], verdict={"accepted": True},
+                            evidence={"rivals": rivals})
+        return sep.preferred_aero_rivals([c], {"Cm": pool})
+    assert swap(0.8) == {"Cm": {gear_elev: gear_alpha}}
+    assert swap(-1.0) == {"Cm": {gear_elev: gear_alpha}}
+    assert swap(2.2) == {}
+    assert swap(2.2, 1.5) == {"Cm": {gear_elev: gear_mach}}
