@@ -340,9 +340,12 @@ def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame 
 def in_alpha(term: Term, pool: list[Term]) -> Term | None:
     """The candidate of ``pool`` that is ``term`` with alpha in place of CL (None if there is none, or
     ``term`` is not in CL)."""
-    if "CL" not in term.variables:
-        return None
-    want = tuple("alpha_deg" if v == "CL" else v for v in term.variables)
+    return _replaced(term, "CL", "alpha_deg", pool) if "CL" in term.variables else None
+
+
+def _replaced(term: Term, old: str, new: str, pool: list[Term]) -> Term | None:
+    """The candidate of ``pool`` that is ``term`` with variable ``new`` in place of ``old`` (None if none)."""
+    want = tuple(new if v == old else v for v in term.variables)
     same = [t for t in pool if t.kind == term.kind and t.variables == want]
     same = same or [t for t in pool if t.kind == term.kind == "product" and sorted(t.variables) == sorted(want)]
     return same[0] if same else None
@@ -376,15 +379,8 @@ def in_flow_states(term: Term, pool: list[Term]) -> list[Term]:
     controls = [v for v in term.variables if v in TRIM_SET]
     if not controls or len(term.variables) < 2:
         return []
-    out = []
-    for state in FLOW_STATES:
-        if state in term.variables:
-            continue
-        want = tuple(state if v == controls[0] else v for v in term.variables)
-        same = [t for t in pool if t.kind == term.kind and t.variables == want]
-        same = same or [t for t in pool if t.kind == term.kind == "product" and sorted(t.variables) == sorted(want)]
-        out += same[:1]
-    return out
+    found = (_replaced(term, controls[0], state, pool) for state in FLOW_STATES if state not in term.variables)
+    return [t for t in found if t is not None]
 
 
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
