@@ -24,6 +24,7 @@ import pandas as pd
 
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
+from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_flow_states
 from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
@@ -58,7 +59,7 @@ SWAP_SE = 3.0
 #: code versions), eleven named terms in CL had such a rival within 2 standard errors: nine hid an effect
 #: with a variable the rival names and the term does not (seven in gear x Mach or alpha x Mach), two one
 #: they name alike; none was a null. A term in a control the trim sets times another variable gives way
-#: alike to the same term in alpha or Mach (:func:`in_flow_states`).
+#: alike to the same term in alpha or Mach (:func:`diagnose.state_twins.in_flow_states`).
 STATE_SE = 2.0
 
 
@@ -337,59 +338,13 @@ def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame 
     return (tail_twin(rival, data) or rival) if data is not None and term not in pool else rival
 
 
-def in_alpha(term: Term, pool: list[Term]) -> Term | None:
-    """The candidate of ``pool`` that is ``term`` with alpha in place of CL (None if there is none, or
-    ``term`` is not in CL)."""
-    return _replaced(term, "CL", "alpha_deg", pool) if "CL" in term.variables else None
-
-
-def _replaced(term: Term, old: str, new: str, pool: list[Term]) -> Term | None:
-    """The candidate of ``pool`` that is ``term`` with variable ``new`` in place of ``old`` (None if none)."""
-    want = tuple(new if v == old else v for v in term.variables)
-    same = [t for t in pool if t.kind == term.kind and t.variables == want]
-    same = same or [t for t in pool if t.kind == term.kind == "product" and sorted(t.variables) == sorted(want)]
-    return same[0] if same else None
-
-
-def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
-    """The candidates of ``pool`` in alpha and Mach together, for a term in CL alone (none otherwise).
-    Trimmed lift is the weight over the dynamic pressure: across the conditions CL follows Mach as
-    well as alpha, and a shape in alpha that Mach scales fits as one in CL (:data:`STATE_SE`)."""
-    if term.variables != ("CL",):
-        return []
-    return [t for t in pool if set(t.variables) == {"alpha_deg", "mach"}]
-
-
-#: Controls the trim sets: across trimmed conditions, and through a gear transit under the autopilot's hold,
-#: each follows the flow states that set it.
-TRIM_SET = ("elevator_deg", "stabilizer_deg")
-#: The model's own flow states, which its tables are written in.
-FLOW_STATES = ("alpha_deg", "mach")
-
-
-def in_flow_states(term: Term, pool: list[Term]) -> list[Term]:
-    """The candidates of ``pool`` that are ``term`` with alpha, or with Mach, in place of a control the trim
-    sets (:data:`TRIM_SET`), for a term in such a control and another variable (none otherwise: a control
-    alone is a control derivative). An effect of the gear that grows with alpha acts only while the gear
-    moves, when the hold moves the elevator with alpha: an A320 Cm bump in gear times alpha, 17 times its
-    floor, was named "Cm vs gear_norm, elevator_deg", gear x alpha 0.8 standard errors behind (fresh seed
-    7,600,328; a drag in gear times alpha alike, 1.7 behind, 7,100,107). On 1,130 case records of the
-    detection curve, every term in the elevator times another variable with such a rival within 3
-    standard errors hid an effect in the rival's variables (three), none a null."""
-    controls = [v for v in term.variables if v in TRIM_SET]
-    if not controls or len(term.variables) < 2:
-        return []
-    found = (_replaced(term, controls[0], state, pool) for state in FLOW_STATES if state not in term.variables)
-    return [t for t in found if t is not None]
-
-
 def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
                      data: pd.DataFrame | None = None) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
-    alpha (:func:`in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
-    (:func:`in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
+    alpha (:func:`diagnose.state_twins.in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
+    (:func:`diagnose.state_twins.in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
     named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival: fresh seed
     7,500,265). In place of a smooth term the search refined with the tails' knots
     (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it can be, on ``data``: a Cm table in
@@ -478,7 +433,7 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
     times a dip in gear was named in Mach too (fresh seed 7,100,139). A term in the elevator (or the
     stabilizer) times another variable gives way to the same term in alpha or Mach as a term in CL does
-    (:func:`in_flow_states`)."""
+    (:func:`diagnose.state_twins.in_flow_states`)."""
     out: dict[str, dict[Term, Term]] = {}
     taken: dict[str, set[str]] = {}  # each rival goes in once
     for c in causes:

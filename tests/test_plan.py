@@ -16,6 +16,7 @@ from campaign.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from campaign.plan import PLAN_SE
 from diagnose import separation as sep
+from diagnose import state_twins
 from diagnose.terms import Term
 from tests.hidden import Hidden, _wrap, fly_data, make
 from tests.support import matrix_toml, pairs
@@ -362,8 +363,8 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
                           "mach": np.repeat([0.3, 0.4, 0.5], 300), "gear_norm": np.tile(np.linspace(0, 1, 300), 3)})
     pool = candidate_terms(frame, "Cm")
     by_label = {t.label: t for t in pool}
-    assert sep.in_alpha(by_label["smooth(gear_norm) x CL"], pool) == by_label["smooth(gear_norm) x alpha_deg"]
-    assert sep.in_alpha(by_label["smooth(mach)"], pool) is None
+    assert state_twins.in_alpha(by_label["smooth(gear_norm) x CL"], pool) == by_label["smooth(gear_norm) x alpha_deg"]
+    assert state_twins.in_alpha(by_label["smooth(mach)"], pool) is None
 
     def swaps(term, rival, separation):
         r = {"rival": f"Cm: {rival.label}", "kind": "aero", "term": rival.label, "replaces": term.label,
@@ -460,9 +461,9 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     by_label = {t.label: t for t in pool}
     gear_elev = by_label["smooth(gear_norm) x elevator_deg"]
     gear_alpha, gear_mach = by_label["smooth(gear_norm) x alpha_deg"], by_label["smooth(gear_norm) x mach"]
-    assert sep.in_flow_states(gear_elev, pool) == [gear_alpha, gear_mach]
-    assert sep.in_flow_states(by_label["linear(elevator_deg)"], pool) == []
-    assert sep.in_flow_states(gear_alpha, pool) == []
+    assert state_twins.in_flow_states(gear_elev, pool) == [gear_alpha, gear_mach]
+    assert state_twins.in_flow_states(by_label["linear(elevator_deg)"], pool) == []
+    assert state_twins.in_flow_states(gear_alpha, pool) == []
     cause = SimpleNamespace(coefficient="Cm", terms=[gear_elev])
     rivals = {h.terms[0].label for h in sep.rival_hypotheses(cause, SimpleNamespace(close={}), pool, [], None)}
     assert {gear_alpha.label, gear_mach.label} <= rivals
