@@ -65,4 +65,3 @@ def short_tmp():
     d = Path(tempfile.mkdtemp(prefix="gt-"))
     yield d
     shutil.rmtree(d, ignore_errors=True)
-

@@ -112,14 +112,14 @@ def test_kill_9_at_eight_moments_then_resume_gives_the_uninterrupted_folder(tmp_
     m.write_text(KILL_MATRIX)
     argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--jobs", "2", "--quiet", "--out"]
     ref, out = tmp_path / "ref", tmp_path / "killed"
-    tmp = short_tmp
-    subprocess.run(argv + [str(ref)], check=True, capture_output=True, env={**os.environ, "TMPDIR": str(tmp)})
-    assert sorted(p.name for p in tmp.iterdir()) == []  # the run and its workers leave no aircraft copies behind
+    env = {**os.environ, "TMPDIR": str(short_tmp)}
+    subprocess.run(argv + [str(ref)], check=True, capture_output=True, env=env)
+    assert sorted(p.name for p in short_tmp.iterdir()) == []  # the run and its workers leave no aircraft copies behind
     killed_at = []
     for what, reached in MOMENTS:
         t0 = time.time()
         proc = subprocess.Popen(argv + [str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                process_group=0, env={**os.environ, "TMPDIR": str(tmp)})  # killed: copies stay
+                                process_group=0, env=env)  # killed: copies stay
         deadline = t0 + 120
         while proc.poll() is None and time.time() < deadline and not reached(out, t0):
             time.sleep(0.002)
