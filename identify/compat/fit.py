@@ -108,6 +108,8 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
     q_c, r_c = rates[1], rates[2]
 
     gust = _gust_basis(data)
+    minus_gust = -gust
+    minus_gust_valid = minus_gust.reshape(-1, gust.shape[2])[valid]
     k_gust = gust.shape[2]
     n_wind = 2 if ins else 0  # a steady horizontal wind per log, where the INS tells air from ground
     g0 = 4 + n_wind
@@ -188,7 +190,9 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         # d vel / d per-log parameters: Phi for the initial velocity, -basis for the gust coefficients,
         # minus the north and east directions for the wind
         n_valid = int(valid.sum())
-        out = np.zeros((len(outs2) * n_valid, n_per))
+        n_out = len(outs2) * n_valid
+        out = np.zeros((n_out + (L * 3 * k_gust if prior["fps"] else 0), n_per))  # the gusts' prior rows last
+        d = None  # one buffer for every air-data output: all its columns but the altitude's are written
         for b, c in enumerate(outs2):
             block = out[b * n_valid:(b + 1) * n_valid]
             if c == "alt_ft":
@@ -198,19 +202,29 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
                 block[:, :3] = ins_phi[..., INS.index(c) - 1, :].reshape(-1, 3)[valid]
             else:
                 dc = d_out[c]
-                d = np.zeros((L, vel.shape[1], n_per))
-                d[..., :3] = np.einsum("lnc,lncj->lnj", dc, Phi, optimize=True)
-                if n_wind:
-                    d[..., 4:6] = -np.einsum("lnc,lncw->lnw", dc, wind_dirs, optimize=True)
-                for j in range(3):
-                    d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust] = dc[..., j, None] * -gust
-                block[:] = _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per)[valid]
+                by_v0 = np.einsum("lnc,lncj->lnj", dc, Phi, optimize=True)
+                by_wind = -np.einsum("lnc,lncw->lnw", dc, wind_dirs, optimize=True) if n_wind else None
+                if v[f"{c}.delay"] == 0.0:  # the valid rows alone, as they are
+                    block[:, :3] = by_v0.reshape(-1, 3)[valid]
+                    if n_wind:
+                        block[:, 4:6] = by_wind.reshape(-1, 2)[valid]
+                    dv = dc.reshape(-1, 3)[valid]
+                    for j in range(3):
+                        np.multiply(dv[:, j, None], minus_gust_valid,
+                                    out=block[:, g0 + j * k_gust:g0 + (j + 1) * k_gust])
+                else:  # shifted in time: each row reads its neighbours
+                    d = np.zeros((L, vel.shape[1], n_per)) if d is None else d
+                    d[..., :3] = by_v0
+                    if n_wind:
+                        d[..., 4:6] = by_wind
+                    for j in range(3):
+                        np.multiply(dc[..., j, None], minus_gust, out=d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust])
+                    np.compress(valid, _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per), axis=0,
+                                out=block)
                 block *= 1 + v[f"{c}.scale"]
             block /= -sig[c]
         if prior["fps"]:
-            gusts = np.zeros((L, 3 * k_gust, n_per))
-            gusts[:, :, g0:] = np.eye(3 * k_gust) / prior["fps"]
-            out = np.vstack([out, gusts.reshape(-1, n_per)])
+            out[n_out:].reshape(L, 3 * k_gust, n_per)[:, :, g0:] = np.eye(3 * k_gust) / prior["fps"]
             steady = np.zeros((len(out), 3))  # d(residual)/d(a steady gust along each body axis)
             for b, c in enumerate(outs2):
                 if c in d_out:
