@@ -97,7 +97,9 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
         return (frame[f"r_{c}"].to_numpy() - res.predict(frame),
                 None if other is None else other[f"r_{c}"].to_numpy() - res.predict(other))
 
-    (lb, lbh), (la, lah) = left(before, held[0] if held else None), left(after, held[1] if held else None)
+    lb, lbh = data.once(("left beside aero terms", compat.correction_key(), c),
+                        lambda: left(before, held[0] if held else None))  # every trial of one correction
+    la, lah = left(after, held[1] if held else None)
     nan = float("nan")
 
     def about_mean(k: str) -> float:

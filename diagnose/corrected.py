@@ -34,6 +34,7 @@ class Corrected:
         self.train, self.held = list(train), list(held)
         self.evaluator, self.step = evaluator, step
         self._memo: dict[tuple, dict[tuple, pd.DataFrame]] = {}
+        self._once: dict[tuple, object] = {}
 
     def raw(self, held: bool = False) -> list[Log]:
         """The logs as measured."""
@@ -66,6 +67,14 @@ class Corrected:
             return done[tuple(delays)].copy()
         return finished() if wait else finished
 
+    def once(self, key: tuple, compute: Callable[[], object]) -> object:
+        """``compute()``, computed once per ``key`` (hashable, naming the correction it depends on)
+        while the diagnosis lasts: what several trials ask of the same corrected data."""
+        if key not in self._once:
+            self._once[key] = compute()
+        return self._once[key]
+
     def forget(self) -> None:
-        """Drop the residual frames kept (the diagnosis is over)."""
+        """Drop the residual frames and results kept (the diagnosis is over)."""
         self._memo.clear()
+        self._once.clear()
