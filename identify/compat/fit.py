@@ -68,17 +68,21 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
           "phi_deg.delay"]
     outs1 = [c for c in ("theta_deg", "phi_deg", "psi_deg") if c in data.present]
 
-    last_rotations: dict = {}  # the gyro biases of the last evaluation -> its rotations
+    # the gyro biases (and initial angles) of the last few evaluations -> their rotations (attitude): a
+    # Jacobian's differences in a scale or a delay keep both, one in an initial angle the rotations
+    rotations, attitudes = {}, {}
 
     def model1(x):
         v = dict(zip(s1, x[:len(s1)]))
         per = x[len(s1):].reshape(L, 3)
         biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
         key = np.array(biases).tobytes()  # bit for bit
-        if key not in last_rotations:  # a difference in an initial angle, a scale or a delay keeps them
-            last_rotations.clear()
-            last_rotations[key] = _rotations(data, *biases)
-        th, ph, ps = _attitude(data, *biases, per[:, 0], per[:, 1], per[:, 2], steps=last_rotations[key])
+        if key + per.tobytes() not in attitudes:
+            if key not in rotations:
+                _keep(rotations, key, _rotations(data, *biases))
+            _keep(attitudes, key + per.tobytes(),
+                  _attitude(data, *biases, per[:, 0], per[:, 1], per[:, 2], steps=rotations[key]))
+        th, ph, ps = attitudes[key + per.tobytes()]
         return {"theta_deg": (1 + v["theta_deg.scale"]) * _shift(th, data.t, v["theta_deg.delay"]),
                 "phi_deg": (1 + v["phi_deg.scale"]) * _shift(ph, data.t, v["phi_deg.delay"]),
                 "psi_deg": ps}, (th, ph, ps)
@@ -143,22 +147,30 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
             last_state[key] = per, vel, h, ned
         return (v, *last_state[key])
 
-    def model2(x):
+    def model2(x, only: str | None = None):
+        """The outputs at ``x`` (only the air-data channel ``only``, if given)."""
         v, _, vel, h, ned = state(x)
         u, vv, w = vel[..., 0], vel[..., 1], vel[..., 2]
         xh = v["alpha_deg.position"] if x_doc is None else x_doc
         xb = xh if xb_doc is None else xb_doc
-        vt = np.sqrt(u ** 2 + vv ** 2 + w ** 2)
-        alpha_v = np.arctan2(w - q_c * xh, u)
-        beta_v = np.arcsin(np.clip((vv + r_c * xb) / vt, -1, 1))
-        return {"alpha_deg": (1 + v["alpha_deg.scale"]) * _shift(alpha_v, data.t, v["alpha_deg.delay"])
-                + v["alpha_deg.bias"] * D2R,
-                "beta_deg": (1 + v["beta_deg.scale"]) * _shift(beta_v, data.t, v["beta_deg.delay"])
-                + v["beta_deg.bias"] * D2R,
-                "tas_kt": (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"])
-                + v["tas_kt.bias"] * FT_PER_KT,
-                "alt_ft": h,
-                **(dict(zip(INS[1:], ned)) if ins else {})}
+        out = {}
+        if only in (None, "beta_deg", "tas_kt"):
+            vt = np.sqrt(u ** 2 + vv ** 2 + w ** 2)
+        if only in (None, "alpha_deg"):
+            alpha_v = np.arctan2(w - q_c * xh, u)
+            out["alpha_deg"] = (1 + v["alpha_deg.scale"]) * _shift(alpha_v, data.t, v["alpha_deg.delay"]) \
+                + v["alpha_deg.bias"] * D2R
+        if only in (None, "beta_deg"):
+            beta_v = np.arcsin(np.clip((vv + r_c * xb) / vt, -1, 1))
+            out["beta_deg"] = (1 + v["beta_deg.scale"]) * _shift(beta_v, data.t, v["beta_deg.delay"]) \
+                + v["beta_deg.bias"] * D2R
+        if only in (None, "tas_kt"):
+            out["tas_kt"] = (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"]) \
+                + v["tas_kt.bias"] * FT_PER_KT
+        if only is None:
+            out["alt_ft"] = h
+            out.update(dict(zip(INS[1:], ned)) if ins else {})
+        return out
 
     prior = {"fps": 0.0}  # the gusts' prior standard deviation [ft/s]; 0: none
 
@@ -168,6 +180,15 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         if not prior["fps"]:
             return e
         return np.concatenate([e, x[len(s2):].reshape(L, n_per)[:, g0:].ravel() / prior["fps"]])
+
+    def column2(x, i: int):
+        """A Jacobian column's residual rows at ``x``, where the shared parameter ``i`` (just moved) is
+        an air-data channel's bias, scale or delay: that channel's rows alone move (None: all may)."""
+        c, _, e = s2[i].partition(".")
+        if c not in ("alpha_deg", "beta_deg", "tas_kt") or e == "position" or c not in outs2:
+            return None
+        b, n_valid = outs2.index(c), int(valid.sum())
+        return slice(b * n_valid, (b + 1) * n_valid), ((data.ch[c] - model2(x, c)[c]) / sig[c]).ravel()[valid]
 
     def perlog2(x):
         """d(residual)/d(each log's initial velocity, altitude and gust coefficients), by the chain rule."""
@@ -262,7 +283,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         speed = np.array([np.median(data.ch["tas_kt"][i][mask[i]]) for i in range(L)])
         prior["offset_sd"] = prior["fps"] * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / span)
     x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
-                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None)
+                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None, column2)
     per = x2[len(s2):].reshape(L, n_per)
     w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
     turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
@@ -282,6 +303,17 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
     if not replicate and L >= 3 and result.applied:
         _whole_jackknife(result, chosen, jobs)
     return result
+
+
+#: Evaluations :func:`estimate` keeps (a Jacobian's differences return to the point they start from).
+KEPT_EVALUATIONS = 4
+
+
+def _keep(cache: dict, key: bytes, value) -> None:
+    """``cache[key] = value``, the oldest entry dropped past :data:`KEPT_EVALUATIONS`."""
+    cache[key] = value
+    while len(cache) > KEPT_EVALUATIONS:
+        del cache[next(iter(cache))]
 
 
 def _replicate(logs: list[Log]) -> CompatResult:
@@ -321,14 +353,15 @@ def _covariance(blk, blocks: tuple | None) -> np.ndarray:
 
 
 def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,
-                 perlog=None, covs: list | None = None, blocks: tuple | None = None) -> np.ndarray:
+                 perlog=None, covs: list | None = None, blocks: tuple | None = None, column=None) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
     errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0.
-    ``blocks``: for the standard errors when a log turns (:func:`_covariance`)."""
+    ``blocks``: for the standard errors when a log turns (:func:`_covariance`); ``column``: see
+    :func:`identify.compat.reconstruction._gauss_newton`."""
     ns = len(names)
     free = np.zeros(ns, bool)
     rows = [np.flatnonzero(rows == i) for i in range(L)]  # residual rows of each log
-    x, _, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog)
+    x, _, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, column=column)
     n = int(valid.sum())
     for i, c in enumerate(outs):
         rms[c] = {"before": float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))}
@@ -339,7 +372,7 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
     free[:] = [by[s].identifiable for s in names]
     pairs = []  # (pruned, kept) indices into names
     while True:
-        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, robust=blocks)
+        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, robust=blocks, column=column)
         cov = _covariance(blk, blocks)
         idx = np.flatnonzero(free)
         sd = np.sqrt(np.abs(np.diag(cov)))
@@ -374,7 +407,8 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
         alt_free[pruned], alt_free[kept] = True, False
         x_alt = x.copy()
         x_alt[kept] = 0.0
-        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks)
+        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks,
+                                           column=column)
         j = int(np.flatnonzero(np.flatnonzero(alt_free) == pruned)[0])
         p = by[names[pruned]]
         p.estimate, p.se = float(x_alt[pruned]), float(np.sqrt(abs(_covariance(blk_alt, blocks)[j, j])))

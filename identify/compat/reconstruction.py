@@ -437,7 +437,7 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
 
 def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, per: int,
                   rows: list[np.ndarray], perlog=None, max_iter: int = 40,
-                  robust: tuple | None = None):
+                  robust: tuple | None = None, column=None):
     """Damped Gauss-Newton: x = [shared (ns), per log (L x per)]; ``free`` masks the shared ones
     (each log's own parameters are always free).
 
@@ -445,7 +445,10 @@ def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, pe
     too (one evaluation per slot: each log's rows depend on its own only), unless
     ``perlog(x)`` gives them: an array (residual rows, per). ``robust``: (each row's time block,
     a callable giving the steady gusts' residual columns at the last ``perlog``, their standard
-    deviations per log) for :meth:`_Blocks.block_cov` and :meth:`_Blocks.offset_cov`.
+    deviations per log) for :meth:`_Blocks.block_cov` and :meth:`_Blocks.offset_cov`. ``column(x, i)``,
+    if given, computes a shared column's difference on the rows it moves alone: (those rows as a
+    slice, the residual there at ``x``), or None for all of them (the rest of the column is 0, as the
+    whole residual's difference gives it).
 
     Returns
     -------
@@ -463,7 +466,12 @@ def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, pe
         for j, i in enumerate(idx):
             xp = x0.copy()
             xp[i] += steps[i]
-            Js[:, j] = (residual(xp) - e0) / steps[i]
+            part = None if column is None else column(xp, i)
+            if part is None:
+                Js[:, j] = (residual(xp) - e0) / steps[i]
+            else:
+                Js[:, j] = 0.0
+                Js[part[0], j] = (part[1] - e0[part[0]]) / steps[i]
         if perlog is not None:
             Jp = perlog(x0)
         else:
