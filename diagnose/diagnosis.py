@@ -28,6 +28,7 @@
 """
 from __future__ import annotations
 
+from functools import cache
 from types import SimpleNamespace
 
 import pandas as pd
@@ -121,7 +122,9 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         held_data = corrected.residuals(compat, held=True, wait=jobs <= 1) if held else None
         noise = channel_noise(logs + held)
         # the workers compute the held-out residuals and then the sensitivities beside the stepwise search
-        early = model_sensitivities(logs, evaluator, noise, jobs) if jobs > 1 else None
+        # (once per correction: a later pass of the same one reads them)
+        sensitivities = corrected.once(("model sensitivities", compat.correction_key() if compat else None),
+                                       lambda: cache(model_sensitivities(logs, evaluator, noise, jobs)))
         stage("stepwise")
         lags = Lags(data["log"].to_numpy())
         terms = {c: candidate_terms(data, c) for c in COEFFS}
@@ -134,12 +137,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         causes = name_causes(results, data, lags)
         stage("noise floor")
         held_data = held_data() if callable(held_data) else held_data
-        sens = early() if early else None  # wanted or not: the workers are then free for what comes next
+        if jobs > 1:
+            sensitivities()  # wanted or not: the workers are then free for what comes next
         uncertain = compat.uncertainty(REACH_SE) if compat else None
         floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=uncertain,
                             left=compat.left_in_logs(uncertain[0]) if compat else None,
                             unmeasured=compat.unmeasured if compat else (), jobs=jobs,
-                            sensitivities=(lambda: sens) if early else None) if causes else None)
+                            sensitivities=sensitivities) if causes else None)
         groups = [(c.coefficient, c.terms) for c in causes]
         floors = floor.sizes(groups) if causes else []
         stage("instrument reach")
