@@ -77,12 +77,9 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         per = x[len(s1):].reshape(L, 3)
         biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
         key = np.array(biases).tobytes()  # bit for bit
-        if key + per.tobytes() not in attitudes:
-            if key not in rotations:
-                _keep(rotations, key, _rotations(data, *biases))
-            _keep(attitudes, key + per.tobytes(),
-                  _attitude(data, *biases, per[:, 0], per[:, 1], per[:, 2], steps=rotations[key]))
-        th, ph, ps = attitudes[key + per.tobytes()]
+        th, ph, ps = attitudes.get(key + per.tobytes()) or _keep(attitudes, key + per.tobytes(), _attitude(
+            data, *biases, per[:, 0], per[:, 1], per[:, 2],
+            steps=rotations[key] if key in rotations else _keep(rotations, key, _rotations(data, *biases))))
         return {"theta_deg": (1 + v["theta_deg.scale"]) * _shift(th, data.t, v["theta_deg.delay"]),
                 "phi_deg": (1 + v["phi_deg.scale"]) * _shift(ph, data.t, v["phi_deg.delay"]),
                 "psi_deg": ps}, (th, ph, ps)
@@ -309,11 +306,12 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
 KEPT_EVALUATIONS = 4
 
 
-def _keep(cache: dict, key: bytes, value) -> None:
-    """``cache[key] = value``, the oldest entry dropped past :data:`KEPT_EVALUATIONS`."""
-    cache[key] = value
-    while len(cache) > KEPT_EVALUATIONS:
-        del cache[next(iter(cache))]
+def _keep(kept: dict, key: bytes, value):
+    """``value``, kept as ``kept[key]``, the oldest entry dropped past :data:`KEPT_EVALUATIONS`."""
+    kept[key] = value
+    while len(kept) > KEPT_EVALUATIONS:
+        del kept[next(iter(kept))]
+    return value
 
 
 def _replicate(logs: list[Log]) -> CompatResult:
