@@ -22,6 +22,7 @@ import hashlib
 import multiprocessing as mp
 import os
 import signal
+import sys
 import tempfile
 import threading
 from collections import deque
@@ -34,6 +35,7 @@ from pathlib import Path
 
 _POOL: dict[int, ProcessPoolExecutor] = {}  # at most one pool: {jobs: pool}
 _CLUSTER: list = []  # the Dask client of the innermost on_cluster, if any
+_WARMED: list = []  # not empty once :func:`warm` has started the fork server
 
 
 def _context():
@@ -44,12 +46,26 @@ def warm(modules: Iterable[str]) -> None:
     """Start the fork server now, importing ``modules`` once (in the background: this returns at
     once). Only the first call of a process chooses the modules; later workers import the rest
     themselves on first use."""
+    _WARMED.append(True)
     ctx = _context()
     if ctx.get_start_method() != "forkserver":
         return
     from multiprocessing import forkserver
     ctx.set_forkserver_preload(sorted(set(modules)))
     forkserver.ensure_running()
+
+
+#: The packages whose modules a library caller has imported are what its worker processes need.
+PACKAGES = ("campaign", "identify", "diagnose", "maneuvers")
+
+
+def _warm_as_imported() -> None:
+    """:func:`warm` with this package's modules the caller has imported, unless the fork server is
+    warm already (the command line warms it with what a command needs). A library caller (a script,
+    the tests) otherwise started it cold, and every process forked from it imported numpy, scipy,
+    pandas and JSBSim again: 2 s of CPU for each diagnosis's replays ahead."""
+    if not _WARMED:
+        warm([m for m in list(sys.modules) if m.split(".")[0] in PACKAGES])
 
 
 #: The variables OpenBLAS, OpenMP and MKL read for their thread count when they are loaded.
@@ -81,6 +97,7 @@ def executor(jobs: int) -> ProcessPoolExecutor:
     pool = _POOL.get(jobs)
     if pool is None:
         one_blas_thread()
+        _warm_as_imported()
         for old in _POOL.values():
             old.shutdown(wait=False, cancel_futures=True)
         _POOL.clear()
@@ -205,6 +222,7 @@ class Ahead:
         ctx = _context()
         self._stopped = ctx.Event() if jobs > 1 and calls else threading.Event()
         if jobs > 1 and calls:  # a thread starts the process: that waits for the warm server's imports
+            _warm_as_imported()
             self._thread = threading.Thread(target=self._collect, args=(ctx, func, calls), daemon=True)
             self._thread.start()
 
@@ -262,6 +280,7 @@ def alone(func: Callable, args: tuple):
     WorkerDied
         If the worker dies first, with its exit code (a signal by name: ``SIGABRT(-6)``).
     """
+    _warm_as_imported()
     ctx = _context()
     recv, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_alone, args=(send, os.getcwd(), func, args))

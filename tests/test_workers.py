@@ -136,6 +136,34 @@ def test_a_worker_is_a_fork_of_the_warm_server_with_the_modules_imported(tmp_pat
     assert float(delay) < 0.5 * float(t_import.stdout), (delay, t_import.stdout)
 
 
+LIBRARY = """
+import sys, time
+from identify.workers import Ahead, alone, pmap
+
+def probe():
+    return [m in sys.modules for m in ("identify.pipeline", "pandas", "campaign.plan")]
+
+if __name__ == "__main__":
+    import identify.pipeline  # what the caller uses; campaign.plan it does not
+    ahead = Ahead(probe, [()], 2)
+    while not ahead._done and ahead._thread.is_alive():
+        time.sleep(0.01)
+    print([ahead.finished()[0], pmap(probe, [()] * 2, 2)[0], alone(probe, ())])
+"""
+
+
+def test_a_library_callers_workers_are_forks_of_a_server_with_its_modules_imported(tmp_path):
+    """A script that imports the package and then fans out (a pool, work ahead, a process alone), with no
+    command to warm the server: each worker starts with the modules of the package the caller has
+    imported (and what they import), not those it has not."""
+    script = tmp_path / "library.py"
+    script.write_text(LIBRARY)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1].lower()) == [[True, True, False]] * 3
+
+
 def test_one_job_runs_here():
     assert {p for p, _ in pmap(_square, [(1,), (2,)], 1)} == {os.getpid()}
     assert len(submit(_square, [(1,), (2,)], 2)) == 2
