@@ -15,14 +15,15 @@ import pytest
 from campaign.cli import main
 from tests.hidden import make, make_sensor, score, score_sensor
 
-CASES = [("gear_saturating", "CL"), ("gear_saturating", "CD"), ("gear_saturating", "Cm"),
-         ("gear_bump", "CL"), ("gear_bump", "CD"), ("gear_bump", "Cm"),
-         ("alpha", None), ("mach", None), ("gear_x_alpha", None), ("elevator_derivative", None)]
+#: (family, coefficient, seed): each family once, and each coefficient in a gear family (the random
+#: shapes of tests/test_verdict.py and the detection curve's hundreds cover the rest)
+CASES = [("gear_saturating", "CD", 1001), ("gear_saturating", "Cm", 1002), ("gear_bump", "CL", 1003),
+         ("alpha", None, 1006), ("mach", None, 1007), ("gear_x_alpha", None, 1008),
+         ("elevator_derivative", None, 1009)]
 
 
-@pytest.mark.parametrize("family, coeff", CASES, ids=[f"{f}-{c or 'any'}" for f, c in CASES])
-def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff):
-    seed = 1000 + CASES.index((family, coeff))
+@pytest.mark.parametrize("family, coeff, seed", CASES, ids=[f"{f}-{c or 'any'}" for f, c, _ in CASES])
+def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, seed):
     hidden = make(family, np.random.default_rng(seed), coeff)
     r = score(tmp_path, hidden, seed=seed)
     first = r["doc"]["causes"][0] if r["doc"]["causes"] else None
