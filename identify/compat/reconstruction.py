@@ -439,8 +439,8 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
 #: of the normal matrix's diagonal) makes the cost smaller by at most this share of it. Each residual
 #: is in its channel's noise, so the cost is about the number of rows (1e4-1e5) and this is a chi-square
 #: of 0.01-0.1: the next step would move no estimate by as much as a thousandth of its standard
-#: error (an alpha bias of 0.42454 deg, +- 0.033, moved by 3e-6 deg against 1e-10, one fit in four the
-#: fewer) ...
+#: error (an alpha bias of 0.42454 deg, +- 0.033, moved by 3e-6 deg against 1e-10, with a sixth fewer
+#: Jacobians) ...
 CONVERGED = 1e-6
 #: ... the damping [-] below which a step is undamped (a step a large damping shortened is no sign
 #: of convergence).
