@@ -140,14 +140,20 @@ LIBRARY = """
 import sys, time
 from identify.workers import Ahead, alone, pmap
 
-def probe():
-    return [m in sys.modules for m in ("identify.pipeline", "pandas", "campaign.plan")]
+def probe(marker=None):
+    seen = [m in sys.modules for m in ("identify.pipeline", "pandas", "campaign.plan")]
+    if marker:
+        open(marker, "w").close()
+    return seen
 
 if __name__ == "__main__":
+    import os
     import identify.pipeline  # what the caller uses; campaign.plan it does not
-    ahead = Ahead(probe, [()], 2)
-    while not ahead._done and ahead._thread.is_alive():
-        time.sleep(0.01)
+    ahead = Ahead(probe, [("probed",)], 2)
+    for _ in range(2400):
+        if os.path.exists("probed"):
+            break
+        time.sleep(0.05)
     print([ahead.finished()[0], pmap(probe, [()] * 2, 2)[0], alone(probe, ())])
 """
 
@@ -159,7 +165,8 @@ def test_a_library_callers_workers_are_forks_of_a_server_with_its_modules_import
     script = tmp_path / "library.py"
     script.write_text(LIBRARY)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=150,
+                         cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1].lower()) == [[True, True, False]] * 3
 
