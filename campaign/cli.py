@@ -227,8 +227,8 @@ def _html_report(folder: Path) -> None:
 
 
 def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
-            cluster: str | None = None, bands: int | None = None) -> int:
-    from campaign.replay import load_cases, run_replays, select
+            cluster: str | None = None, bands: int | None = None, resume: bool = False) -> int:
+    from campaign.replay import LOOPS, MODELS, load_cases, replayed_already, run_replays, select
     from campaign.replay_bands import check_draws, load_surfaces, replay_bands
     from campaign.replay_report import drop_bands, write_report
     if not (results / "manifest.json").exists():
@@ -237,8 +237,12 @@ def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs
     if bands is not None:
         check_draws(bands)
         load_surfaces(results)
-    drop_bands(results, [c.name for c in cases])  # drawn about the replays about to be replaced
-    failures = run_replays(results, cases, jobs, cases_file, cluster)
+    kept = replayed_already(results, cases) if resume else set()
+    # bands were drawn about the replays about to be replaced
+    drop_bands(results, [c.name for c in cases if not all((c.name, m, lp) in kept for m in MODELS for lp in LOOPS)])
+    if kept:
+        print(f"replays: {len(kept)} flights kept, flown already about this identification")
+    failures = run_replays(results, cases, jobs, cases_file, cluster, kept)
     for why in failures:
         print(f"replay failed: {why}")
     if bands is not None and failures:
@@ -385,7 +389,12 @@ def _run(args, matrix, config, out: Path) -> int:
     if args.no_identify:
         _html_report(out)
         return 0
-    _identify(out, None, None, "paper", args.jobs)
+    from identify.pipeline import up_to_date
+    kept = up_to_date(out)
+    if kept:
+        print(f"identification in {kept}: made from these logs already, kept")
+    else:
+        _identify(out, None, None, "paper", args.jobs)
     if args.no_replay:
         _html_report(out)
         return 0
@@ -394,7 +403,7 @@ def _run(args, matrix, config, out: Path) -> int:
               "gear up and gear down, with a gear extension)")
         _html_report(out)
         return 0
-    return _replay(out, None, None, args.jobs, args.cluster)
+    return _replay(out, None, None, args.jobs, args.cluster, resume=True)
 
 
 if __name__ == "__main__":

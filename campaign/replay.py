@@ -16,7 +16,7 @@ from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effect
 from campaign.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
 from campaign.errors import UserError
 from campaign.matrix import StatusPoint
-from campaign.store import atomic_write, clean_temporaries, write_log
+from campaign.store import atomic_write, clean_temporaries, read_meta, write_log
 from identify import workers
 
 DEFAULT_CASES = Path(__file__).resolve().parent / "cases" / "replays.toml"
@@ -149,13 +149,40 @@ def _fly_shipped(case: ReplayCase, model: str, shipment, effects, loop: str):
     return _fly_one(case, model, unpack_source(shipment, effects), loop)
 
 
+def _log_name(case: ReplayCase, model: str, loop: str) -> str:
+    return f"{case.name}__{model}__{loop}.parquet"
+
+
+def _stamps(sources: dict[str, AircraftSource]) -> dict[str, dict]:
+    """Per model, what its replays depend on besides the case and the loop: the aircraft's bytes."""
+    return {m: {"aircraft_sha256": s.sha256, "effects_sha256": s.effects.sha256} for m, s in sources.items()}
+
+
+def _stamp(case: ReplayCase, model: str, loop: str, stamps: dict[str, dict]) -> dict:
+    """What one replay log was flown from, as its metadata records it (``replay_of``)."""
+    return {"case": vars(case), "model": model, "loop": loop, **stamps[model]}
+
+
+def replayed_already(results: Path, cases: list[ReplayCase]) -> set[tuple[str, str, str]]:
+    """The (case, model, loop) flights of ``cases`` whose logs in ``results/replays`` are complete and
+    were flown from this case on these aircraft as they are now (each log's ``replay_of``): a resumed
+    run need not fly them again."""
+    rep = Path(results) / "replays"
+    if not rep.is_dir():
+        return set()
+    stamps = _stamps(aircraft_for(Path(results)))
+    return {(c.name, m, lp) for c in cases for m in MODELS for lp in LOOPS
+            if (read_meta(rep / _log_name(c, m, lp)) or {}).get("replay_of") == _stamp(c, m, lp, stamps)}
+
+
 def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_file: str | Path | None = None,
-                cluster: str | None = None) -> list[str]:
+                cluster: str | None = None, kept: set[tuple[str, str, str]] = frozenset()) -> list[str]:
     """Fly every case x model x loop into ``results/replays``; return failures.
 
     ``jobs`` local processes, or the Dask cluster whose scheduler is at ``cluster``
     (the aircraft travel as data; the logs come back and are written here).
-    ``cases_file`` names the cases in error messages.
+    ``cases_file`` names the cases in error messages. The flights in ``kept``, (case name, model,
+    loop), are not flown again (:func:`replayed_already`).
     """
     results = Path(results)
     sources = aircraft_for(results)
@@ -170,7 +197,8 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
     clean_temporaries(out)
     text = json.dumps([vars(c) for c in cases], indent=1) + "\n"
     atomic_write(out / "cases.json", lambda tmp: Path(tmp).write_text(text))
-    flights = [(c, m, lp) for c in cases for m in MODELS for lp in LOOPS]
+    flights = [(c, m, lp) for c in cases for m in MODELS for lp in LOOPS if (c.name, m, lp) not in kept]
+    stamps = _stamps(sources)
     if client is None:
         calls = [(c, m, sources[m], lp) for c, m, lp in flights]
         res = workers.results(workers.submit(_fly_one, calls, jobs)) if jobs > 1 else (_fly_one(*a) for a in calls)
@@ -181,7 +209,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
         if why:
             failures.append(why)
         else:
-            write_log(out / f"{c.name}__{m}__{lp}.parquet", log, meta)
+            write_log(out / _log_name(c, m, lp), log, {**meta, "replay_of": _stamp(c, m, lp, stamps)})
     return failures
 
 

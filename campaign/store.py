@@ -69,6 +69,14 @@ def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
     return table.to_pandas(), meta
 
 
+def read_meta(path: Path) -> dict | None:
+    """A log's metadata alone (its footer), or None if the file is missing or not a complete log."""
+    try:
+        return json.loads(pq.read_schema(path).metadata[META_KEY])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def write_json(path: Path, obj: dict) -> None:
     """Write JSON atomically."""
     text = json.dumps(obj, indent=2, sort_keys=False) + "\n"

@@ -1,6 +1,7 @@
 """``campaign identify``: every step from logs to tables, JSON, XML and plots."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import pickle
@@ -347,11 +348,55 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
+    stamp = source_stamp(results, model_dir, plots, method)
     ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS), method=method)
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
+    (stage / SOURCE).write_text(json.dumps(stamp, indent=1) + "\n")
     _swap(stage, final)
     return {k: str(final / Path(v).relative_to(stage)) for k, v in files.items()}
+
+
+#: What an identification was made from (:func:`source_stamp`), in its folder.
+SOURCE = "source.json"
+
+
+def source_stamp(results: Path, model_dir: str | Path | None, plots: str, method: str) -> dict:
+    """What an identification of ``results`` depends on: the SHA-256 of the campaign's manifest and of
+    every log file beside it (names and bytes), of the model folder merged into, and the options.
+    Paths are left out: a copy of the folder has the same stamp."""
+    h = hashlib.sha256()
+    for f in sorted(p for p in Path(results).iterdir() if p.is_file() and (p.name == "manifest.json"
+                                                                            or p.suffix in LOG_SUFFIXES)):
+        h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    model = None
+    if model_dir is not None and Path(model_dir).is_dir():
+        m = hashlib.sha256()
+        for f in sorted(p for p in Path(model_dir).rglob("*") if p.is_file() and "__pycache__" not in p.parts):
+            m.update(f.relative_to(model_dir).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+        model = m.hexdigest()
+    return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method}
+
+
+#: The files of a campaign folder an identification reads.
+LOG_SUFFIXES = (".parquet", ".csv", ".json")
+
+
+def up_to_date(results: Path, plots: str = "paper", method: str = "ee") -> Path | None:
+    """``results/identification`` if it was made, complete, from the logs and options that are there now
+    (:func:`source_stamp`, the manifest's aircraft as the model); else None. A killed identification is
+    undone first (:func:`recover`)."""
+    results = Path(results)
+    final = results / "identification"
+    recover(final)
+    try:
+        kept = json.loads((final / SOURCE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not (final / "identification.json").is_file():
+        return None
+    model = json.loads((results / "manifest.json").read_text()).get("settings", {}).get("aircraft")
+    return final if kept == source_stamp(results, model, plots, method) else None
 
 
 def _sibling(folder: Path, what: str) -> Path:

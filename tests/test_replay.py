@@ -71,6 +71,57 @@ def test_replay_command_reflies_selected_cases(replayed, capsys):
     assert (replayed / "replays" / "takeoff-145kt__linear__open.parquet").read_bytes() == before  # deterministic
 
 
+def test_a_run_resumed_on_a_finished_folder_keeps_what_its_inputs_have_not_changed(replayed, tmp_path, capsys):
+    """``campaign run`` again on a finished campaign flies nothing, keeps the identification made from
+    these logs, and keeps each replay log flown from its case on the aircraft as they are. A log cut
+    short is flown again, to the same bytes; the nonlinear model's folder changed (a comment), its
+    replays are flown again and the rest stay as they were."""
+    import shutil
+
+    from campaign.store import read_meta
+    c = tmp_path / "c"
+    shutil.copytree(replayed, c)  # the copy keeps its identification's stamp: paths are not in it
+    rep = c / "replays"
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in rep.glob("*.parquet")}
+    ident = (c / "identification" / "identification.json").stat().st_mtime_ns
+    argv = ["run", "--matrix", str(replayed.parent / "m.toml"), "--out", str(c), "--jobs", "2", "--quiet"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "made from these logs already, kept" in out and "30 flights kept" in out, out
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in rep.glob("*.parquet")} == before
+    cut = rep / "landing-135kt__reference__open.parquet"
+    cut.write_bytes(cut.read_bytes()[:-100])
+    xml = next((c / "identification" / "aircraft_nonlinear").glob("*/*.xml"))
+    xml.write_text(xml.read_text() + "<!-- edited -->\n")
+    assert main(argv) == 0
+    assert "19 flights kept" in capsys.readouterr().out
+    assert (c / "identification" / "identification.json").stat().st_mtime_ns == ident
+    for p in rep.glob("*.parquet"):
+        again = p.stat().st_mtime_ns != before[p.name][1]
+        assert again == (p == cut or "__nonlinear__" in p.name), p.name
+        assert (p.read_bytes() == before[p.name][0]) == (not "__nonlinear__" in p.name), p.name
+    assert read_meta(rep / "landing-135kt__nonlinear__open.parquet")["replay_of"]["model"] == "nonlinear"
+
+
+def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_options_not_the_paths(tmp_path):
+    from identify.pipeline import source_stamp
+    a = tmp_path / "a"
+    a.mkdir()
+    (a / "manifest.json").write_text("{}")
+    (a / "p__doublet.parquet").write_bytes(b"12345")
+    (a / "notes.txt").write_text("not read by the identification")
+    stamp = source_stamp(a, None, "paper", "ee")
+    import shutil
+    shutil.copytree(a, tmp_path / "b")
+    assert source_stamp(tmp_path / "b", None, "paper", "ee") == stamp
+    (tmp_path / "b" / "notes.txt").write_text("changed")
+    assert source_stamp(tmp_path / "b", None, "paper", "ee") == stamp
+    (tmp_path / "b" / "p__doublet.parquet").write_bytes(b"12346")
+    assert source_stamp(tmp_path / "b", None, "paper", "ee") != stamp
+    assert source_stamp(a, None, "all", "ee") != stamp and source_stamp(a, None, "paper", "oe") != stamp
+    assert source_stamp(a, a, "paper", "ee") != stamp
+
+
 def test_open_loop_freezes_controls_and_closed_loop_holds(replayed):
     from campaign.store import read_log
     open_, _ = read_log(replayed / "replays" / "landing-135kt__reference__open.parquet")
