@@ -242,11 +242,19 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert airspeed and airspeed[0]["separation_se"] <= -sep.SETTLED_SE, [(r["rival"], r["separation_se"])
                                                                            for r in doc["rivals"]]
     capsys.readouterr()
-    assert main(["plan", "--diagnosis", str(tmp_path / "d1"), "--out", str(tmp_path / "plan"), "--jobs", "2",
-                 "--quiet"]) == 0
+    # the conditions flown, where a multisine or a level turn could fly next (the default candidates,
+    # six times as many, are the gear rival's test's)
+    where = tmp_path / "where.toml"
+    where.write_text(DIAG_MATRIX.replace('name = "diagnosis"\n', 'name = "next"\n[defaults]\n'
+                                         'maneuvers_gear_up = ["multisine", "level_turn"]\n'
+                                         'maneuvers_gear_down = ["multisine", "gear_extension", "gear_retraction"]\n'))
+    assert main(["plan", "--diagnosis", str(tmp_path / "d1"), "--matrix", str(where), "--out", str(tmp_path / "plan"),
+                 "--jobs", "2", "--quiet"]) == 0
     result = json.loads((tmp_path / "plan" / "plan.json").read_text())
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
+    assert result["candidates"] >= 2 * len([f for f in result["flights"] if f["maneuver"] == "level_turn"])
     assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
+    assert not any(f["maneuver"] == "multisine" for f in result["flights"]), result["flights"]
     measured = [r for r in result["rivals"] if r["rival"] == "tas_kt scale"][0]
     assert measured["to_measure"] and measured["planned_se"] >= PLAN_SE, measured
     assert main(["run", "--matrix", str(tmp_path / "plan" / "plan.toml"), *truth, "--seed", "22",
