@@ -554,3 +554,41 @@ def test_a_constant_the_intercept_takes_back_is_not_a_cause_s_peak():
     assert 0.05 < cause.size < 0.07 and cause.peak <= cause.size, (cause.peak, cause.size)
     assert np.max(np.abs(cause.curve["dCL"])) <= cause.size
     assert np.max(np.abs(contribution(res, cause, data))) <= cause.size
+
+
+def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
+    """The kinematics' vane bias and scale trade at the trim alphas (correlation -0.95). When the CL
+    and Cm residuals refine the scale to none, the bias estimated with it follows to its value given
+    that scale, and at 0.75 standard errors it is no longer applied. Left where it was, -0.09 deg of
+    bias made a "CD vs flap, alpha" 3.4 times its floor on our 737's null 7,900,339 (x0.20 on held-out
+    logs with the bias); an error the scale hardly correlates with (0.05) moves by a quarter of its
+    standard error and stays applied."""
+    from types import SimpleNamespace
+
+    from diagnose.arbitration import residual_refinement
+    from identify.compat import CompatResult, Parameter
+    bias = Parameter("alpha_deg", "bias", "deg", -0.0905, 0.015)
+    scale = Parameter("alpha_deg", "scale", "-", 0.02996, 0.0054)
+    az = Parameter("az_fps2", "bias", "ft/s^2", 0.05, 0.005)
+    sd = np.array([0.015, 0.0054, 0.005])
+    corr = np.array([[1.0, -0.95, 0.0], [-0.95, 1.0, 0.05], [0.0, 0.05, 1.0]])
+    compat = CompatResult([bias, scale, az], covariance=[(["alpha_deg.bias", "alpha_deg.scale", "az_fps2.bias"],
+                                                          corr * np.outer(sd, sd))])
+    assert bias.applied and scale.applied and az.applied
+
+    def cause(coefficient, needs):
+        return SimpleNamespace(kind="aero", coefficient=coefficient, size=0.01, evidence={"p_value": 1e-30},
+                               verdict={"noise_floor": 0.001, "replicate_gain": 2.0})
+
+    causes = [cause("CL", -0.031), cause("Cm", -0.029)]
+    reach = [{"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": n, "explains_pct": 95.0}]}
+             for n in (-0.031, -0.029)]
+    refined = residual_refinement(compat, causes, reach)
+    assert refined is not None and refined.name == "alpha_deg.scale"
+    got = {p.name: p for p in refined.compat.parameters}
+    moved = -0.0905 + (-0.95 * 0.015 / 0.0054) * (got["alpha_deg.scale"].estimate - 0.02996)
+    assert got["alpha_deg.bias"].estimate == pytest.approx(moved) and abs(moved) < 0.015
+    assert not got["alpha_deg.bias"].applied and got["alpha_deg.bias"].se == 0.015
+    az_moved = 0.05 + (0.05 * 0.005 / 0.0054) * (got["alpha_deg.scale"].estimate - 0.02996)
+    assert got["az_fps2.bias"].applied and got["az_fps2.bias"].estimate == pytest.approx(az_moved)
+    assert abs(az_moved - 0.05) < 0.3 * 0.005
