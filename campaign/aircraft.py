@@ -16,7 +16,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from campaign.errors import UserError
-from identify.model import unsafe_folder, unsafe_xml
+from identify.model import folder_hash, unsafe_folder, unsafe_xml
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_AIRCRAFT = REPO_ROOT / "aircraft" / "737"
@@ -27,20 +27,6 @@ AXES = ("LIFT", "DRAG", "SIDE", "ROLL", "PITCH", "YAW")
 def file_hash(path: Path) -> str:
     """SHA-256 of a file's bytes [hex]."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def folder_files(path: Path) -> list[tuple[str, Path]]:
-    """Every file of a folder, sorted, as (POSIX path relative to it, path); caches left out."""
-    files = sorted(p for p in Path(path).rglob("*") if p.is_file())
-    return [(rel, f) for f in files if "__pycache__" not in (rel := f.relative_to(path).as_posix())]
-
-
-def folder_hash(path: Path) -> str:
-    """SHA-256 over the relative names and bytes of every file in a folder [hex]."""
-    h = hashlib.sha256()
-    for rel, f in folder_files(path):
-        h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()
 
 
 @dataclass(frozen=True)

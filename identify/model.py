@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import hashlib
 import os
 import re
 import sys
@@ -41,6 +42,20 @@ LONGITUDINAL_AXES = ("DRAG", "LIFT", "PITCH", "X", "Z", "AXIAL", "NORMAL")
 _ENTITY = re.compile(rb"<!ENTITY", re.I)
 _EXTERNAL_DTD = re.compile(rb"<!DOCTYPE[^>\[]*\b(?:SYSTEM|PUBLIC)\b", re.I)
 _XINCLUDE = re.compile(rb"w3\.org/2001/XInclude|<[\w.-]+:include\b")
+
+
+def folder_files(path: Path) -> list[tuple[str, Path]]:
+    """Every file of a folder, sorted, as (POSIX path relative to it, path); caches left out."""
+    files = sorted(p for p in Path(path).rglob("*") if p.is_file())
+    return [(rel, f) for f in files if "__pycache__" not in (rel := f.relative_to(path).as_posix())]
+
+
+def folder_hash(path: Path) -> str:
+    """SHA-256 over the relative names and bytes of every file in a folder [hex]."""
+    h = hashlib.sha256()
+    for rel, f in folder_files(path):
+        h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
 
 
 def unsafe_xml(path: Path) -> str | None:

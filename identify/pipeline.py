@@ -18,6 +18,7 @@ import pandas as pd
 from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
 from identify.logs import Log, LogError, LogHead, read_heads
+from identify.model import folder_hash
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
@@ -369,12 +370,7 @@ def source_stamp(results: Path, model_dir: str | Path | None, plots: str, method
     for f in sorted(p for p in Path(results).iterdir() if p.is_file() and (p.name == "manifest.json"
                                                                             or p.suffix in LOG_SUFFIXES)):
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
-    model = None
-    if model_dir is not None and Path(model_dir).is_dir():
-        m = hashlib.sha256()
-        for f in sorted(p for p in Path(model_dir).rglob("*") if p.is_file() and "__pycache__" not in p.parts):
-            m.update(f.relative_to(model_dir).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-        model = m.hexdigest()
+    model = folder_hash(Path(model_dir)) if model_dir is not None and Path(model_dir).is_dir() else None
     return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method}
 
 
