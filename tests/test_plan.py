@@ -252,7 +252,6 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
                  "--jobs", "2", "--quiet"]) == 0
     result = json.loads((tmp_path / "plan" / "plan.json").read_text())
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
-    assert result["candidates"] >= 2 * len([f for f in result["flights"] if f["maneuver"] == "level_turn"])
     assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
     assert not any(f["maneuver"] == "multisine" for f in result["flights"]), result["flights"]
     measured = [r for r in result["rivals"] if r["rival"] == "tas_kt scale"][0]

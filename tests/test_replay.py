@@ -99,11 +99,13 @@ def test_a_run_resumed_on_a_finished_folder_keeps_what_its_inputs_have_not_chang
     for p in rep.glob("*.parquet"):
         again = p.stat().st_mtime_ns != before[p.name][1]
         assert again == (p == cut or "__nonlinear__" in p.name), p.name
-        assert (p.read_bytes() == before[p.name][0]) == (not "__nonlinear__" in p.name), p.name
+        assert (p.read_bytes() == before[p.name][0]) == ("__nonlinear__" not in p.name), p.name
     assert read_meta(rep / "landing-135kt__nonlinear__open.parquet")["replay_of"]["model"] == "nonlinear"
 
 
 def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_options_not_the_paths(tmp_path):
+    import shutil
+
     from identify.pipeline import source_stamp
     a = tmp_path / "a"
     a.mkdir()
@@ -111,7 +113,6 @@ def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_optio
     (a / "p__doublet.parquet").write_bytes(b"12345")
     (a / "notes.txt").write_text("not read by the identification")
     stamp = source_stamp(a, None, "paper", "ee")
-    import shutil
     shutil.copytree(a, tmp_path / "b")
     assert source_stamp(tmp_path / "b", None, "paper", "ee") == stamp
     (tmp_path / "b" / "notes.txt").write_text("changed")

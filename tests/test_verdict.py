@@ -576,11 +576,11 @@ def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
                                                           corr * np.outer(sd, sd))])
     assert bias.applied and scale.applied and az.applied
 
-    def cause(coefficient, needs):
+    def cause(coefficient):
         return SimpleNamespace(kind="aero", coefficient=coefficient, size=0.01, evidence={"p_value": 1e-30},
                                verdict={"noise_floor": 0.001, "replicate_gain": 2.0})
 
-    causes = [cause("CL", -0.031), cause("Cm", -0.029)]
+    causes = [cause("CL"), cause("Cm")]
     reach = [{"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": n, "explains_pct": 95.0}]}
              for n in (-0.031, -0.029)]
     refined = residual_refinement(compat, causes, reach)
