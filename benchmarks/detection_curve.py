@@ -14,7 +14,11 @@ is diagnosed against the bare model. Nulls: the same without an effect.
 A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
 size beyond instrument errors over its floor; the summary lists them so), is the effect's
 coefficient, holds the effect's variables, and leads with one of them. Invented: another such
-discrepancy named beside it, on another coefficient or none of its variables.
+discrepancy named beside it, on another coefficient or none of its variables. Shape error: the
+extension's largest error in the effect's coefficient over every sample flown (the extended model
+less the model, against the effect: the model with it less the model, JSBSim evaluating each at the
+measured states), over the effect's largest; 0 is the effect, 1 what the bare model leaves; the
+table gives its median and 90th percentile over the hits.
 The size is the effect's range over the data flown (the model and the model with the effect
 evaluated at the measured states), against the coefficient's floor (tests/shapes.py). A false
 positive: a null with an aero cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
@@ -34,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import CLEAN, DIAG_MATRIX, SENSOR_FAMILIES, discrepancies, make_sensor  # noqa: E402
+from tests.hidden import (CLEAN, DIAG_MATRIX, SENSOR_FAMILIES, differences, discrepancies,  # noqa: E402
+                          make_sensor, shape_error)
 from tests.shapes import FLOOR, PAIRS, VARIABLES, draw  # noqa: E402
 from tests.support import matrix_toml, pairs, run_matrix  # noqa: E402
 
@@ -61,19 +66,20 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     return every[AIRCRAFT.index(only)] if only else drawn
 
 
-def realized_size(data: Path, folder: str, fx: Path, coefficient: str, work: Path) -> tuple[float, float]:
-    """The effect's range over the logs flown: the residuals of the model less those of the model
-    with the effect, JSBSim evaluating both at the measured states; and the range of its middle 98 %
-    (an effect the data reach in a few samples only is large by the first, small by the second)."""
+def realized(data: Path, folder: str, fx: Path, coefficient: str, work: Path,
+             extension: str | None) -> tuple[float, float, float]:
+    """The effect's range over the logs flown: the model with the effect less the model, JSBSim
+    evaluating both at the measured states; the range of its middle 98 % (an effect the data reach in
+    a few samples only is large by the first, small by the second); and the extension's shape error
+    there (:func:`tests.hidden.shape_error`: its largest error against the effect's largest; nan
+    without an extension). Over every log flown, held-out ones included."""
     from campaign.diagnose import load_data
-    from diagnose.evaluate import ModelEvaluator
-    from diagnose.residuals import residual_data
     from identify.export import merge_into_aircraft
-    logs = load_data(data)
     truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
-    r = [residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in (Path(folder), truth)]
-    d = r[0] - r[1]
-    return float(np.ptp(d)), float(np.subtract(*np.percentile(d, [99, 1])))
+    models = [truth] + ([extension] if extension else [])
+    true, *fitted = differences(load_data(data), Path(folder), models, coefficient)
+    shape = shape_error(fitted[0], true) if fitted else np.nan
+    return float(np.ptp(true)), float(np.subtract(*np.percentile(true, [99, 1]))), shape
 
 
 def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None,
@@ -149,24 +155,32 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
            and first["variables"][0] in effect.variables)
     invented = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in aero[1:]
                 if c["coefficient"] != effect.coefficient or not set(effect.variables) & set(c["variables"])]
-    size, middle = realized_size(data, folder, fx, effect.coefficient, work)
+    size, middle, shape = realized(data, folder, fx, effect.coefficient, work, doc.get("extension"))
     return {**row, "effect": effect.description, "size_over_floor": size / FLOOR[effect.coefficient],
-            "middle_98_over_floor": middle / FLOOR[effect.coefficient], "hit": hit,
+            "middle_98_over_floor": middle / FLOOR[effect.coefficient], "hit": hit, "shape_error": shape,
             "invented": "; ".join(invented), "false_positive": False,
             "nominal_over_floor": effect.size_over_floor}
+
+
+def _said(text) -> bool:
+    """A text column holds something (a CSV read back holds NaN where it was empty)."""
+    return isinstance(text, str) and bool(text)
 
 
 def table(rows: list[dict]) -> str:
     effects = [r for r in rows if r["effect"]]
     nulls = [r for r in rows if not r["effect"]]
-    lines = ["| size / floor | effects | hits | hit rate | invented causes | strong candidates rejected |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| size / floor | effects | hits | hit rate | shape error of the hits (median, 90th percentile) "
+             "| invented causes | strong candidates rejected |", "|---|---|---|---|---|---|---|"]
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         hits = sum(r["hit"] for r in b)
         rate = f"{100 * hits / len(b):.0f} %" if b else "-"
-        lines.append(f"| {lo:g}-{hi:g} | {len(b)} | {hits} | {rate} | {sum(bool(r['invented']) for r in b)} | "
-                     f"{sum(bool(r['rejected_strong']) for r in b)} |")
+        shapes = [r["shape_error"] for r in b if r["hit"] and np.isfinite(r.get("shape_error", np.nan))]
+        shape = f"{np.median(shapes):.2f}, {np.percentile(shapes, 90):.2f}" if shapes else "-"
+        label = f"{lo:g} and more" if hi == BINS[-1] else f"{lo:g}-{hi:g}"
+        lines.append(f"| {label} | {len(b)} | {hits} | {rate} | {shape} | {sum(_said(r['invented']) for r in b)} | "
+                     f"{sum(_said(r['rejected_strong']) for r in b)} |")
     fp = sum(r["false_positive"] for r in nulls)
     below = [r for r in effects if r["size_over_floor"] < BINS[0]]
     lines.append(f"\nBelow {BINS[0]:g} times the floor over the data flown: {len(below)} effects, "
@@ -218,6 +232,7 @@ def main() -> int:
         rows.append(r)
         print(f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
               f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
+              f"shape error {r.get('shape_error', np.nan):.2f} "
               f"{'invented: ' + r['invented'] if r['invented'] else ''}"
               f"{' REJECTED STRONG: ' + r['rejected_strong'] if r['rejected_strong'] else ''}", flush=True)
         pd.DataFrame(rows).to_csv(a.out / "detection_curve.csv", index=False)

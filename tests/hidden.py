@@ -178,6 +178,22 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
     return run_diagnosis(data, Path(aircraft), workdir / "report", plots=False, jobs=2)
 
 
+def differences(logs, model, others, coefficient: str) -> list[np.ndarray]:
+    """Each model of ``others`` less ``model`` in ``coefficient`` at every sample of ``logs``, JSBSim
+    evaluating each at the measured states: a hidden effect's truth (the model with the effect), or
+    what an extension fitted (the extended model) [-]."""
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.residuals import residual_data
+    base = residual_data(logs, ModelEvaluator(model))[f"r_{coefficient}"].to_numpy()
+    return [base - residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in others]
+
+
+def shape_error(fitted: np.ndarray, true: np.ndarray) -> float:
+    """The largest error of a fitted effect over the samples, against the largest of the true effect [-]:
+    0 is the effect itself, 1 what the bare model leaves (no fit at all)."""
+    return float(np.max(np.abs(fitted - true)) / np.max(np.abs(true)))
+
+
 def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
           matrix: str = DIAG_MATRIX, shape: bool = True) -> dict:
     """Fly, diagnose against the bare model, and score the answer against the hidden truth (with
@@ -186,8 +202,6 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
 
     from campaign.aircraft import DEFAULT_AIRCRAFT
     from campaign.diagnose import load_data, run_diagnosis, split
-    from diagnose.residuals import residual_data
-    from diagnose.evaluate import ModelEvaluator
     from identify.export import merge_into_aircraft
     workdir = Path(workdir)
     data, fx = fly_data(workdir, hidden, seed, jobs, instruments, matrix)
@@ -204,15 +218,9 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
         return out
     train, _ = split(load_data(data))
     truth_ac = merge_into_aircraft(DEFAULT_AIRCRAFT, fx, workdir / "truth", replace_gear=False)
-    r_model = residual_data(train, ModelEvaluator(DEFAULT_AIRCRAFT))
-    r_truth = residual_data(train, ModelEvaluator(truth_ac))
-    c = hidden.coefficient
-    true = (r_model[f"r_{c}"] - r_truth[f"r_{c}"]).to_numpy()
-    # the fitted discrepancy, as the extension flies it: the extended model's prediction minus the model's
-    r_ext = residual_data(train, ModelEvaluator(doc["extension"]))
-    fitted = (r_model[f"r_{c}"] - r_ext[f"r_{c}"]).to_numpy()
-    out["shape_error"] = float(np.max(np.abs(fitted - true)) / np.max(np.abs(true)))
-    out["gain"] = doc["gain"]["residual_gain"] if doc["gain"]["coefficient"] == c else float("nan")
+    true, fitted = differences(train, DEFAULT_AIRCRAFT, [truth_ac, doc["extension"]], hidden.coefficient)
+    out["shape_error"] = shape_error(fitted, true)
+    out["gain"] = doc["gain"]["residual_gain"] if doc["gain"]["coefficient"] == hidden.coefficient else float("nan")
     return out
 
 
