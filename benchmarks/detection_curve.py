@@ -2,6 +2,7 @@
 
     python benchmarks/detection_curve.py [--effects N] [--nulls N] [--seed-base S] [--out DIR]
                                          [--aircraft "stock 737"] [--sigma-fps 3] [--sensor alpha_scale]
+    python benchmarks/detection_curve.py --merge DIR [DIR ...] --out DIR
 
 Random effects from the shape grammar (tests/shapes.py: every candidate variable and pairs of
 them, late onset, early saturation, bump, dip, step, ramp above a threshold, dead band, random
@@ -25,7 +26,8 @@ positive: a null with an aero cause named, or a sensor cause when no sensor erro
 (2,000,000 by default: a range no one develops against; the tests use 900-905).
 
 Writes ``detection_curve.csv``, ``detection_curve.md`` (the table), ``detection_curve.png`` and
-``cases/<seed>.json`` (every candidate cause and its verdict) into ``--out``. Run by hand, outside CI: about 25 s a case on 2 cores.
+``cases/<seed>.json`` (every candidate cause and its verdict) into ``--out``; ``--merge`` writes
+the first three for the cases of several such folders (ranges flown by processes side by side). Run by hand, outside CI: about 25 s a case on 2 cores.
 """
 from __future__ import annotations
 
@@ -168,8 +170,8 @@ def _said(text) -> bool:
 
 
 def table(rows: list[dict]) -> str:
-    effects = [r for r in rows if r["effect"]]
-    nulls = [r for r in rows if not r["effect"]]
+    effects = [r for r in rows if _said(r["effect"])]
+    nulls = [r for r in rows if not _said(r["effect"])]
     lines = ["| size / floor | effects | hits | hit rate | shape error of the hits (median, 90th percentile) "
              "| invented causes | strong candidates rejected |", "|---|---|---|---|---|---|---|"]
     for lo, hi in zip(BINS[:-1], BINS[1:]):
@@ -192,7 +194,7 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    effects = [r for r in rows if r["effect"]]
+    effects = [r for r in rows if _said(r["effect"])]
     centres, rates, counts = [], [], []
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
@@ -223,8 +225,14 @@ def main() -> int:
     ap.add_argument("--aircraft", choices=AIRCRAFT, help="fly every case on this aircraft")
     ap.add_argument("--sigma-fps", type=float, help="every case in this turbulence [ft/s]")
     ap.add_argument("--sensor", choices=SENSOR_FAMILIES, help="a sensor error of this family in every case")
+    ap.add_argument("--merge", type=Path, nargs="+", metavar="DIR",
+                    help="fly nothing: the table and plot of the cases in these --out folders together")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
+    if a.merge:
+        if any(d.resolve() == a.out.resolve() for d in a.merge):
+            ap.error(f"--out {a.out}: one of the folders merged; its cases would be overwritten (choose another)")
+        return report(pd.concat([pd.read_csv(d / "detection_curve.csv") for d in a.merge]).to_dict("records"), a.out)
     rows = []
     for i in range(a.effects + a.nulls):
         r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps, keep=a.out / "cases",
@@ -236,9 +244,16 @@ def main() -> int:
               f"{'invented: ' + r['invented'] if r['invented'] else ''}"
               f"{' REJECTED STRONG: ' + r['rejected_strong'] if r['rejected_strong'] else ''}", flush=True)
         pd.DataFrame(rows).to_csv(a.out / "detection_curve.csv", index=False)
+    return report(rows, a.out)
+
+
+def report(rows: list[dict], out: Path) -> int:
+    """Write the table, the plot and (merged) the cases' CSV into ``out``, and print the table."""
+    import pandas as pd
+    pd.DataFrame(rows).to_csv(out / "detection_curve.csv", index=False)
     text = table(rows)
-    (a.out / "detection_curve.md").write_text(text + "\n")
-    plot(rows, a.out / "detection_curve.png")
+    (out / "detection_curve.md").write_text(text + "\n")
+    plot(rows, out / "detection_curve.png")
     print(text)
     return 0
 
