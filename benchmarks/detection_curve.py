@@ -15,7 +15,11 @@ is diagnosed against the bare model. Nulls: the same without an effect.
 A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
 size beyond instrument errors over its floor; the summary lists them so), is the effect's
 coefficient, holds the effect's variables, and leads with one of them. Invented: another such
-discrepancy named beside it, on another coefficient or none of its variables. Shape error: the
+discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a hit, or the first
+cause is the effect's coefficient, leads with one of its variables and holds no other of them, and the
+effect leaves less than the floor beyond a function of that variable alone over the data flown
+(:func:`left_beyond`; alpha x Mach where one Mach number alone reaches the alpha it acts at: the
+data cannot show the Mach part). Reported beside the hits, which do not count it. Shape error: the
 extension's largest error in the effect's coefficient over every sample flown (the extended model
 less the model, against the effect: the model with it less the model, JSBSim evaluating each at the
 measured states), over the effect's largest; 0 is the effect, 1 what the bare model leaves; the
@@ -68,20 +72,42 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     return every[AIRCRAFT.index(only)] if only else drawn
 
 
-def realized(data: Path, folder: str, fx: Path, coefficient: str, work: Path,
-             extension: str | None) -> tuple[float, float, float]:
-    """The effect's range over the logs flown: the model with the effect less the model, JSBSim
-    evaluating both at the measured states; the range of its middle 98 % (an effect the data reach in
-    a few samples only is large by the first, small by the second); and the extension's shape error
-    there (:func:`tests.hidden.shape_error`: its largest error against the effect's largest; nan
-    without an extension). Over every log flown, held-out ones included."""
+def realized(data: Path, folder: str, fx: Path, effect, work: Path, extension: str | None) -> dict:
+    """The effect over the logs flown (the model with the effect less the model, JSBSim evaluating both
+    at the measured states, every log flown, held-out ones included): its range ``size``; the range of
+    its middle 98 % ``middle`` (an effect the data reach in a few samples only is large by the first,
+    small by the second); the extension's ``shape_error`` there (:func:`tests.hidden.shape_error`; nan
+    without an extension); and ``left``: for each of its variables, the middle 98 % range of what the
+    effect leaves beyond a function of that variable alone (:func:`left_beyond`)."""
     from campaign.diagnose import load_data
     from identify.export import merge_into_aircraft
     truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
     models = [truth] + ([extension] if extension else [])
-    true, *fitted = differences(load_data(data), Path(folder), models, coefficient)
-    shape = shape_error(fitted[0], true) if fitted else np.nan
-    return float(np.ptp(true)), float(np.subtract(*np.percentile(true, [99, 1]))), shape
+    frame = []
+    true, *fitted = differences(load_data(data), Path(folder), models, effect.coefficient, frame)
+    return {"size": float(np.ptp(true)), "middle": _middle(true),
+            "shape_error": shape_error(fitted[0], true) if fitted else np.nan,
+            "left": {v: left_beyond(true, frame[0][v].to_numpy()) for v in effect.variables}}
+
+
+def _middle(x: np.ndarray) -> float:
+    return float(np.subtract(*np.percentile(x, [99, 1])))
+
+
+#: Neighbours in one variable's order over which :func:`left_beyond` averages the effect.
+NEIGHBOURS = 15
+
+
+def left_beyond(true: np.ndarray, x: np.ndarray) -> float:
+    """The middle 98 % range of what an effect leaves beyond a function of ``x`` alone [-]: the effect
+    less its mean over the :data:`NEIGHBOURS` samples nearest in ``x`` (those of one value, in a random
+    order). An effect of two variables whose
+    second is the same wherever it acts (alpha x Mach where only one Mach number reaches the alpha it
+    acts at) leaves nothing: over the data flown it is an effect of the first alone."""
+    shuffled = np.random.default_rng(0).permutation(len(x))  # samples of one value (gear down) from every log
+    order = shuffled[np.argsort(x[shuffled], kind="stable")]
+    near = np.convolve(np.pad(true[order], NEIGHBOURS // 2, mode="edge"), np.ones(NEIGHBOURS) / NEIGHBOURS, "valid")
+    return _middle(true[order] - near)
 
 
 def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None,
@@ -157,10 +183,16 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
            and first["variables"][0] in effect.variables)
     invented = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in aero[1:]
                 if c["coefficient"] != effect.coefficient or not set(effect.variables) & set(c["variables"])]
-    size, middle, shape = realized(data, folder, fx, effect.coefficient, work, doc.get("extension"))
-    return {**row, "effect": effect.description, "size_over_floor": size / FLOOR[effect.coefficient],
-            "middle_98_over_floor": middle / FLOOR[effect.coefficient], "hit": hit, "shape_error": shape,
-            "invented": "; ".join(invented), "false_positive": False,
+    got = realized(data, folder, fx, effect, work, doc.get("extension"))
+    floor = FLOOR[effect.coefficient]
+    # as flown: the variables named, of the effect's, leave less than the floor of it unexplained
+    named = [v for v in first.get("variables", []) if v in effect.variables]
+    as_flown = hit or (first.get("coefficient") == effect.coefficient and first["variables"][0] in effect.variables
+                       and len(named) == 1 and got["left"][named[0]] < floor)
+    return {**row, "effect": effect.description, "size_over_floor": got["size"] / floor,
+            "middle_98_over_floor": got["middle"] / floor, "hit": hit, "hit_as_flown": as_flown,
+            "left_over_floor": "; ".join(f"{v} {x / floor:.2f}" for v, x in got["left"].items()),
+            "shape_error": got["shape_error"], "invented": "; ".join(invented), "false_positive": False,
             "nominal_over_floor": effect.size_over_floor}
 
 
@@ -172,16 +204,18 @@ def _said(text) -> bool:
 def table(rows: list[dict]) -> str:
     effects = [r for r in rows if _said(r["effect"])]
     nulls = [r for r in rows if not _said(r["effect"])]
-    lines = ["| size / floor | effects | hits | hit rate | shape error of the hits (median, 90th percentile) "
-             "| invented causes | strong candidates rejected |", "|---|---|---|---|---|---|---|"]
+    lines = ["| size / floor | effects | hits | hit rate | hits as flown | shape error of the hits (median, 90th "
+             "percentile) | invented causes | strong candidates rejected |", "|---|---|---|---|---|---|---|---|"]
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         hits = sum(r["hit"] for r in b)
         rate = f"{100 * hits / len(b):.0f} %" if b else "-"
+        flown = sum(bool(r.get("hit_as_flown", r["hit"])) for r in b)
+        flown = f"{flown} ({100 * flown / len(b):.0f} %)" if b else "-"
         shapes = [r["shape_error"] for r in b if r["hit"] and np.isfinite(r.get("shape_error", np.nan))]
         shape = f"{np.median(shapes):.2f}, {np.percentile(shapes, 90):.2f}" if shapes else "-"
         label = f"{lo:g} and more" if hi == BINS[-1] else f"{lo:g}-{hi:g}"
-        lines.append(f"| {label} | {len(b)} | {hits} | {rate} | {shape} | {sum(_said(r['invented']) for r in b)} | "
+        lines.append(f"| {label} | {len(b)} | {hits} | {rate} | {flown} | {shape} | {sum(_said(r['invented']) for r in b)} | "
                      f"{sum(_said(r['rejected_strong']) for r in b)} |")
     fp = sum(r["false_positive"] for r in nulls)
     below = [r for r in effects if r["size_over_floor"] < BINS[0]]

@@ -178,13 +178,17 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
     return run_diagnosis(data, Path(aircraft), workdir / "report", plots=False, jobs=2)
 
 
-def differences(logs, model, others, coefficient: str) -> list[np.ndarray]:
+def differences(logs, model, others, coefficient: str, frame: list | None = None) -> list[np.ndarray]:
     """Each model of ``others`` less ``model`` in ``coefficient`` at every sample of ``logs``, JSBSim
     evaluating each at the measured states: a hidden effect's truth (the model with the effect), or
-    what an extension fitted (the extended model) [-]."""
+    what an extension fitted (the extended model) [-]. ``frame``, a list, receives the model's residual
+    data (:func:`diagnose.residuals.residual_data`: the variables at the same samples)."""
     from diagnose.evaluate import ModelEvaluator
     from diagnose.residuals import residual_data
-    base = residual_data(logs, ModelEvaluator(model))[f"r_{coefficient}"].to_numpy()
+    data = residual_data(logs, ModelEvaluator(model))
+    if frame is not None:
+        frame.append(data)
+    base = data[f"r_{coefficient}"].to_numpy()
     return [base - residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in others]
 
 

@@ -592,3 +592,24 @@ def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
     az_moved = 0.05 + (0.05 * 0.005 / 0.0054) * (got["alpha_deg.scale"].estimate - 0.02996)
     assert got["az_fps2.bias"].applied and got["az_fps2.bias"].estimate == pytest.approx(az_moved)
     assert abs(az_moved - 0.05) < 0.3 * 0.005
+
+
+def test_what_an_effect_leaves_beyond_one_variable_shows_a_second_only_where_the_data_vary_it():
+    """The benchmark's "hit as flown" (benchmarks/detection_curve.py): a function of one variable leaves
+    nothing beyond it; a second variable that changes the effect where the first overlaps across logs
+    leaves its part, even where the first is one value (gear down) in every log."""
+    from benchmarks.detection_curve import left_beyond
+    rng = np.random.default_rng(3)
+    logs = [(m, rng.uniform(lo, lo + 5, 2000)) for m, lo in ((0.3, 5.0), (0.4, 2.0), (0.5, 0.0))]
+    mach = np.concatenate([np.full(len(a), m) for m, a in logs])
+    alpha = np.concatenate([a for _, a in logs])
+    ramp = np.clip(alpha - 4.0, 0.0, None)
+    assert left_beyond(0.01 * ramp, alpha) < 0.01 * np.ptp(0.01 * ramp)
+    # the same ramp times a Mach factor: the logs overlap in alpha from 5 to 7 deg at two Mach numbers
+    assert left_beyond(0.01 * ramp * mach / 0.3, alpha) > 0.2 * np.ptp(0.01 * ramp * mach / 0.3 * (alpha < 7))
+    # ... but where only one Mach number reaches the ramp, a function of alpha is all the data show
+    high = np.clip(alpha - 7.0, 0.0, None) * (mach == 0.3)
+    assert left_beyond(high * mach, alpha) < 0.01 * np.ptp(high * mach)
+    gear = np.concatenate([np.repeat([0.0, 1.0], len(a) // 2) for _, a in logs])  # up, then down, in each log
+    assert left_beyond(0.01 * gear * mach, gear) > 0.5 * 0.01 * (0.5 - 0.3)
+    assert left_beyond(0.01 * gear, gear) < 1e-9
