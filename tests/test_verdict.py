@@ -613,3 +613,16 @@ def test_what_an_effect_leaves_beyond_one_variable_shows_a_second_only_where_the
     gear = np.concatenate([np.repeat([0.0, 1.0], len(a) // 2) for _, a in logs])  # up, then down, in each log
     assert left_beyond(0.01 * gear * mach, gear) > 0.5 * 0.01 * (0.5 - 0.3)
     assert left_beyond(0.01 * gear, gear) < 1e-9
+
+
+def test_a_cause_held_out_conditions_refute_is_listed_after_those_they_confirm_or_cannot_test():
+    """Seed 8,200,248 of the detection curve: a stock-737 drag table in the elevator, x6.25 on held-out
+    conditions, was listed after a smooth(mach) term 184 times its floor that made them worse (x0.94;
+    each condition trims at its own elevator). Confirmed first, then untestable, then refuted."""
+    from diagnose.verdict import rank
+    refuted = {"holdout_gain": 0.94, "size_over_floor": 183.9}
+    confirmed = {"holdout_gain": 6.25, "size_over_floor": 156.5}
+    untested = {"holdout_gain": float("nan"), "size_over_floor": 20.0}
+    small = {"holdout_gain": 1.3, "size_over_floor": 4.0}
+    order = sorted([refuted, untested, small, confirmed], key=rank)
+    assert order == [confirmed, small, untested, refuted]
