@@ -65,10 +65,10 @@ def rank(verdict: dict) -> tuple[int, float]:
     conditions confirmed (each left out, predicted better with the cause) before those no other
     condition could test (a term in the one flap setting flown, which repeats of that condition
     confirm, stands for whatever else sets that condition apart: its Mach, its thrust), and those
-    before the ones held-out conditions refute (predicted worse; the repeats passed them: a term that
-    follows the trim beside the cause, a smooth(mach) 184 times its floor at x0.94 beside a stock-737
-    drag table in the elevator at x6.25, seed 8,200,248); in each group the largest over its noise
-    floor first."""
+    before the ones held-out conditions predict worse (the repeats passed them; a true effect in Mach
+    can be so, its held-out Mach extrapolated, and so can a term that follows the trim beside the cause:
+    a smooth(mach) 184 times its floor at x0.94 came before a stock-737 drag table in the elevator at
+    x6.25, seed 8,200,248); in each group the largest over its noise floor first."""
     gain = verdict.get("holdout_gain")
     tested = gain is not None and np.isfinite(gain)
     return (0 if tested and gain > 1.0 else 2 if tested else 1, -verdict.get("size_over_floor", 0.0))
