@@ -262,10 +262,14 @@ def main() -> int:
     ap.add_argument("--merge", type=Path, nargs="+", metavar="DIR",
                     help="fly nothing: the table and plot of the cases in these --out folders together")
     a = ap.parse_args()
-    a.out.mkdir(parents=True, exist_ok=True)
     if a.merge:
         if any(d.resolve() == a.out.resolve() for d in a.merge):
             ap.error(f"--out {a.out}: one of the folders merged; its cases would be overwritten (choose another)")
+        for d in a.merge:
+            if not (d / "detection_curve.csv").is_file():
+                ap.error(f"--merge {d}: no detection_curve.csv there (a folder a run wrote with --out)")
+    a.out.mkdir(parents=True, exist_ok=True)
+    if a.merge:
         return report(pd.concat([pd.read_csv(d / "detection_curve.csv") for d in a.merge]).to_dict("records"), a.out)
     rows = []
     for i in range(a.effects + a.nulls):
