@@ -15,11 +15,12 @@ is diagnosed against the bare model. Nulls: the same without an effect.
 A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
 size beyond instrument errors over its floor; the summary lists them so), is the effect's
 coefficient, holds the effect's variables, and leads with one of them. Invented: another such
-discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a hit, or the first
-cause is the effect's coefficient, leads with one of its variables and holds no other of them, and the
-effect leaves less than the floor beyond a function of that variable alone over the data flown
-(:func:`left_beyond`; alpha x Mach where one Mach number alone reaches the alpha it acts at: the
-data cannot show the Mach part). Reported beside the hits, which do not count it. Shape error: the
+discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a
+hit, or the first cause is the effect's coefficient, leads with one of its variables and holds no
+other of them, and the effect leaves less than the floor beyond a function of that variable alone
+over the data flown (:func:`left_beyond`; alpha x Mach where one Mach number alone reaches the
+alpha it acts at: the data cannot show the Mach part). Reported beside the hits, which do not
+count it. Shape error: the
 extension's largest error in the effect's coefficient over every sample flown (the extended model
 less the model, against the effect: the model with it less the model, JSBSim evaluating each at the
 measured states), over the effect's largest; 0 is the effect, 1 what the bare model leaves; the
@@ -46,7 +47,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.hidden import (CLEAN, DIAG_MATRIX, SENSOR_FAMILIES, differences, discrepancies,  # noqa: E402
                           make_sensor, shape_error)
-from tests.shapes import FLOOR, PAIRS, VARIABLES, draw  # noqa: E402
+from tests.shapes import FLOOR, PAIRS, VARIABLES, Effect, draw  # noqa: E402
 from tests.support import matrix_toml, pairs, run_matrix  # noqa: E402
 
 BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
@@ -72,7 +73,7 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     return every[AIRCRAFT.index(only)] if only else drawn
 
 
-def realized(data: Path, folder: str, fx: Path, effect, work: Path, extension: str | None) -> dict:
+def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, extension: str | None) -> dict:
     """The effect over the logs flown (the model with the effect less the model, JSBSim evaluating both
     at the measured states, every log flown, held-out ones included): its range ``size``; the range of
     its middle 98 % ``middle`` (an effect the data reach in a few samples only is large by the first,
@@ -101,9 +102,9 @@ NEIGHBOURS = 15
 def left_beyond(true: np.ndarray, x: np.ndarray) -> float:
     """The middle 98 % range of what an effect leaves beyond a function of ``x`` alone [-]: the effect
     less its mean over the :data:`NEIGHBOURS` samples nearest in ``x`` (those of one value, in a random
-    order). An effect of two variables whose
-    second is the same wherever it acts (alpha x Mach where only one Mach number reaches the alpha it
-    acts at) leaves nothing: over the data flown it is an effect of the first alone."""
+    order). An effect of two variables whose second is the same wherever it acts (alpha x Mach where
+    only one Mach number reaches the alpha it acts at) leaves nothing: over the data flown it is an
+    effect of the first alone."""
     shuffled = np.random.default_rng(0).permutation(len(x))  # samples of one value (gear down) from every log
     order = shuffled[np.argsort(x[shuffled], kind="stable")]
     near = np.convolve(np.pad(true[order], NEIGHBOURS // 2, mode="edge"), np.ones(NEIGHBOURS) / NEIGHBOURS, "valid")
