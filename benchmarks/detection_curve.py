@@ -84,11 +84,10 @@ def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, exte
     from identify.export import merge_into_aircraft
     truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
     models = [truth] + ([extension] if extension else [])
-    frame = []
-    true, *fitted = differences(load_data(data), Path(folder), models, effect.coefficient, frame)
+    frame, (true, *fitted) = differences(load_data(data), Path(folder), models, effect.coefficient)
     return {"size": float(np.ptp(true)), "middle": _middle(true),
             "shape_error": shape_error(fitted[0], true) if fitted else np.nan,
-            "left": {v: left_beyond(true, frame[0][v].to_numpy()) for v in effect.variables}}
+            "left": {v: left_beyond(true, frame[v].to_numpy()) for v in effect.variables}}
 
 
 def _middle(x: np.ndarray) -> float:

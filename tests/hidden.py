@@ -178,18 +178,16 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
     return run_diagnosis(data, Path(aircraft), workdir / "report", plots=False, jobs=2)
 
 
-def differences(logs, model, others, coefficient: str, frame: list | None = None) -> list[np.ndarray]:
-    """Each model of ``others`` less ``model`` in ``coefficient`` at every sample of ``logs``, JSBSim
-    evaluating each at the measured states: a hidden effect's truth (the model with the effect), or
-    what an extension fitted (the extended model) [-]. ``frame``, a list, receives the model's residual
-    data (:func:`diagnose.residuals.residual_data`: the variables at the same samples)."""
+def differences(logs, model, others, coefficient: str) -> tuple:
+    """The model's residual data at every sample of ``logs`` (:func:`diagnose.residuals.residual_data`: the
+    variables there too), and each model of ``others`` less ``model`` in ``coefficient`` at those samples,
+    JSBSim evaluating each at the measured states: a hidden effect's truth (the model with the effect), or
+    what an extension fitted (the extended model) [-]."""
     from diagnose.evaluate import ModelEvaluator
     from diagnose.residuals import residual_data
     data = residual_data(logs, ModelEvaluator(model))
-    if frame is not None:
-        frame.append(data)
     base = data[f"r_{coefficient}"].to_numpy()
-    return [base - residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in others]
+    return data, [base - residual_data(logs, ModelEvaluator(m))[f"r_{coefficient}"].to_numpy() for m in others]
 
 
 def shape_error(fitted: np.ndarray, true: np.ndarray) -> float:
@@ -222,7 +220,7 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
         return out
     train, _ = split(load_data(data))
     truth_ac = merge_into_aircraft(DEFAULT_AIRCRAFT, fx, workdir / "truth", replace_gear=False)
-    true, fitted = differences(train, DEFAULT_AIRCRAFT, [truth_ac, doc["extension"]], hidden.coefficient)
+    _, (true, fitted) = differences(train, DEFAULT_AIRCRAFT, [truth_ac, doc["extension"]], hidden.coefficient)
     out["shape_error"] = shape_error(fitted, true)
     out["gain"] = doc["gain"]["residual_gain"] if doc["gain"]["coefficient"] == hidden.coefficient else float("nan")
     return out

@@ -615,14 +615,14 @@ def test_what_an_effect_leaves_beyond_one_variable_shows_a_second_only_where_the
     assert left_beyond(0.01 * gear, gear) < 1e-9
 
 
-def test_a_cause_held_out_conditions_refute_is_listed_after_those_they_confirm_or_cannot_test():
+def test_a_cause_held_out_conditions_predict_worse_is_listed_after_those_they_confirm_or_cannot_test():
     """Seed 8,200,248 of the detection curve: a stock-737 drag table in the elevator, x6.25 on held-out
     conditions, was listed after a smooth(mach) term 184 times its floor that made them worse (x0.94;
-    each condition trims at its own elevator). Confirmed first, then untestable, then refuted."""
+    each condition trims at its own elevator). Confirmed first, then untestable, then predicted worse."""
     from diagnose.verdict import rank
-    refuted = {"holdout_gain": 0.94, "size_over_floor": 183.9}
+    worse = {"holdout_gain": 0.94, "size_over_floor": 183.9}
     confirmed = {"holdout_gain": 6.25, "size_over_floor": 156.5}
     untested = {"holdout_gain": float("nan"), "size_over_floor": 20.0}
     small = {"holdout_gain": 1.3, "size_over_floor": 4.0}
-    order = sorted([refuted, untested, small, confirmed], key=rank)
-    assert order == [confirmed, small, untested, refuted]
+    order = sorted([worse, untested, small, confirmed], key=rank)
+    assert order == [confirmed, small, untested, worse]
