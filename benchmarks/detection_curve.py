@@ -219,8 +219,10 @@ def table(rows: list[dict]) -> str:
                      f"{sum(_said(r['rejected_strong']) for r in b)} |")
     fp = sum(r["false_positive"] for r in nulls)
     below = [r for r in effects if r["size_over_floor"] < BINS[0]]
+    wrong = sum(_said(r["named"]) and not r["hit"] for r in below)
     lines.append(f"\nBelow {BINS[0]:g} times the floor over the data flown: {len(below)} effects, "
-                 f"{sum(r['hit'] for r in below)} named. Nulls: {len(nulls)}, false positives: {fp}.")
+                 f"{sum(r['hit'] for r in below)} named, {wrong} with another aerodynamic cause named (as good as "
+                 f"nulls: a cause named there is a false discovery). Nulls: {len(nulls)}, false positives: {fp}.")
     return "\n".join(lines)
 
 
