@@ -635,18 +635,17 @@ def _row(seed, size, hit, named, effect="dCD = +0.001 * step(mach; at 0.5)", sha
             "false_positive": False, "shape_error": shape if hit else np.nan, "discrepancy": bool(named)}
 
 
-def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect_out_of_reach_as_false(tmp_path):
+def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect_out_of_reach_as_false(
+        tmp_path, monkeypatch, capsys):
     """The benchmark's table, and its merge of two runs: an effect the data hold less than 0.3 of the
     floor of is as good as a null, and another cause named there is counted (seed 8,250,020, a
     development seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs alpha, mach" named beside an
     elevator step the manoeuvres never reached)."""
-    import subprocess
     import sys
-    from pathlib import Path
 
     import pandas as pd
 
-    from benchmarks.detection_curve import table
+    from benchmarks.detection_curve import main, table
     a = [_row(1, 0.1, False, "CD vs alpha_deg, mach"), _row(2, 0.2, False, ""), _row(3, 5.0, True, "CD vs mach"),
          _row(4, 12.0, True, "CD vs mach", shape=0.3), _row(5, 40.0, False, "CL vs alpha_deg")]
     b = [_row(6, 15.0, True, "CD vs mach", shape=0.1), _row(7, np.nan, False, "", effect="")]
@@ -656,13 +655,16 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
     for name, rows in (("a", a), ("b", b)):
         (tmp_path / name).mkdir()
         pd.DataFrame(rows).to_csv(tmp_path / name / "detection_curve.csv", index=False)
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "detection_curve.py"
-    run = [sys.executable, str(script), "--merge", str(tmp_path / "a"),
-           str(tmp_path / "b")]
-    res = subprocess.run(run + ["--out", str(tmp_path / "ab")], capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
+    merge = ["detection_curve.py", "--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--out"]
+    monkeypatch.setattr(sys, "argv", merge + [str(tmp_path / "ab")])
+    assert main() == 0
     assert (tmp_path / "ab" / "detection_curve.md").read_text().strip() == text  # the CSV read back: the same table
     assert (tmp_path / "ab" / "detection_curve.png").stat().st_size > 10_000
-    res = subprocess.run(run + ["--out", str(tmp_path / "a")], capture_output=True, text=True)
-    assert res.returncode == 2 and len(res.stderr.strip().splitlines()[-1:]) == 1 and "Traceback" not in res.stderr
-    assert "one of the folders merged" in res.stderr and len(pd.read_csv(tmp_path / "a" / "detection_curve.csv")) == 5
+    before = (tmp_path / "a" / "detection_curve.csv").read_bytes()
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "argv", merge + [str(tmp_path / "a")])
+    with pytest.raises(SystemExit) as stop:
+        main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and "--out" in err[-1] and "one of the folders merged" in err[-1]
+    assert (tmp_path / "a" / "detection_curve.csv").read_bytes() == before
