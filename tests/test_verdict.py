@@ -639,8 +639,8 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
         tmp_path, monkeypatch, capsys):
     """The benchmark's table, and its merge of two runs: an effect the data hold less than 0.3 of the
     floor of is as good as a null, and another cause named there is counted (seed 8,250,020, a
-    development seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs alpha, mach" named beside an
-    elevator step the manoeuvres never reached)."""
+    development seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs flap, gear" and "CL vs mach,
+    alpha" named beside an elevator step the manoeuvres never reached)."""
     import sys
 
     import pandas as pd
