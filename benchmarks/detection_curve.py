@@ -15,20 +15,20 @@ is diagnosed against the bare model. Nulls: the same without an effect.
 A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
 size beyond instrument errors over its floor; the summary lists them so), is the effect's
 coefficient, holds the effect's variables, and leads with one of them. Invented: another such
-discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a
-hit, or the first cause is the effect's coefficient, leads with one of its variables and holds no
-other of them, and the effect leaves less than the floor beyond a function of that variable alone
-over the data flown (:func:`left_beyond`; alpha x Mach where one Mach number alone reaches the
-alpha it acts at: the data cannot show the Mach part). Reported beside the hits, which do not
-count it. Shape error: the
-extension's largest error in the effect's coefficient over every sample flown (the extended model
-less the model, against the effect: the model with it less the model, JSBSim evaluating each at the
-measured states), over the effect's largest; 0 is the effect, 1 what the bare model leaves; the
-table gives its median and 90th percentile over the hits.
-The size is the effect's range over the data flown (the model and the model with the effect
-evaluated at the measured states), against the coefficient's floor (tests/shapes.py). A false
-positive: a null with an aero cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
-(2,000,000 by default: a range no one develops against; the tests use 900-905).
+discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a hit,
+or the first cause is the effect's coefficient, leads with one of its variables and holds no other
+of them, and the effect leaves less than the floor beyond a function of that variable alone over the
+data flown (:func:`left_beyond`; alpha x Mach where one Mach number alone reaches the alpha it acts
+at: the data cannot show the Mach part). Reported beside the hits, which do not count it. Shape
+error: the extension's largest error in the effect's coefficient over every sample flown (the
+extended model less the model, against the effect: the model with it less the model, JSBSim
+evaluating each at the measured states), over the effect's largest; 0 is the effect, 1 what the bare
+model leaves; the table gives its median and 90th percentile over the hits. The size is the effect's
+range over the data flown (the model and the model with the effect evaluated at the measured
+states), against the coefficient's floor (tests/shapes.py). A false positive: a null with an aero
+cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
+(2,000,000 by default, the first reserved range, reported long since: a fresh measurement takes a
+range no one has developed against, recorded in the README; the tests use 900-905).
 
 Writes ``detection_curve.csv``, ``detection_curve.md`` (the table), ``detection_curve.png`` and
 ``cases/<seed>.json`` (every candidate cause and its verdict) into ``--out``; ``--merge`` writes

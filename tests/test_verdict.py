@@ -668,3 +668,10 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
     err = capsys.readouterr().err.strip().splitlines()
     assert stop.value.code == 2 and "--out" in err[-1] and "one of the folders merged" in err[-1]
     assert (tmp_path / "a" / "detection_curve.csv").read_bytes() == before
+    (tmp_path / "empty").mkdir()
+    monkeypatch.setattr(sys, "argv", merge[:2] + [str(tmp_path / "a"), str(tmp_path / "empty"), "--out",
+                                                  str(tmp_path / "new")])
+    with pytest.raises(SystemExit) as stop:
+        main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and "no detection_curve.csv there" in err[-1] and not (tmp_path / "new").exists()
