@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import lru_cache
@@ -17,6 +16,7 @@ from pathlib import Path
 
 from campaign.errors import UserError
 from identify.model import folder_hash, unsafe_folder, unsafe_xml
+from identify.workers import owned_tmpdir
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_AIRCRAFT = REPO_ROOT / "aircraft" / "737"
@@ -168,7 +168,7 @@ def prepare(source: AircraftSource, root: Path | None = None) -> Path:
     Path
         The JSBSim root: ``root/aircraft/<name>/<name>.xml``.
     """
-    root = Path(root) if root else Path(tempfile.mkdtemp(prefix="gearid-"))
+    root = Path(root) if root else owned_tmpdir()
     dest = root / "aircraft" / source.name
     if dest.exists():
         shutil.rmtree(dest)

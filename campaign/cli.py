@@ -261,8 +261,9 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
-    from identify.workers import one_blas_thread
+    from identify.workers import one_blas_thread, sweep
     one_blas_thread()  # the matrices are small: a second BLAS thread costs 10x
+    sweep()  # what killed runs left in the temporary folder
     return _main(args)
 
 

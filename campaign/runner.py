@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import platform
 import shutil
-import tempfile
 import time
 from concurrent.futures import BrokenExecutor, as_completed
 from dataclasses import dataclass
@@ -141,8 +140,8 @@ def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: 
         for p in points:
             yield fly_point(p, config, out, True, flyer)
         return
-    from identify.workers import WorkerDied, alone, submit
-    marks = Path(tempfile.mkdtemp(prefix="gearid-started-"))
+    from identify.workers import WorkerDied, alone, owned_tmpdir, submit
+    marks = owned_tmpdir("started")
     blob = cloudpickle.dumps(flyer) if flyer is not None else None
     futures: dict = {}
     try:

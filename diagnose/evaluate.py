@@ -31,7 +31,6 @@ from __future__ import annotations
 import array
 import hashlib
 import shutil
-import tempfile
 import threading
 import weakref
 import xml.etree.ElementTree as ET
@@ -46,6 +45,7 @@ from identify.kinematics import angle_rates
 from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
                             control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs,
                             mentioned, reads)
+from identify.workers import owned_tmpdir
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -244,7 +244,7 @@ class ModelEvaluator:
         self.model_dir = Path(model_dir)
         self.jobs = jobs
         name = self.model_dir.name
-        self._tmp = Path(tempfile.mkdtemp(prefix="gearid-eval-"))
+        self._tmp = owned_tmpdir("eval")
         # removed by close(), or when the evaluator is collected or the process ends, whichever is first
         self._remove = weakref.finalize(self, shutil.rmtree, self._tmp, ignore_errors=True)
         try:

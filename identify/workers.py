@@ -21,6 +21,8 @@ from __future__ import annotations
 import hashlib
 import multiprocessing as mp
 import os
+import re
+import shutil
 import signal
 import sys
 import tempfile
@@ -351,3 +353,48 @@ def landed(shipment: Shipment) -> Path:
         except OSError:  # another worker on this machine got there first
             pass
     return home
+
+
+#: The temporary folders :func:`owned_tmpdir` makes: ``gearid-[<kind>-]<pid>-<random>``.
+OWNED = re.compile(r"gearid-(?:[a-z]+-)?(\d+)-[^/]+")
+_SWEPT: list = []  # not empty once this process has swept the temporary folder
+
+
+def owned_tmpdir(kind: str = "") -> Path:
+    """A new temporary folder, named for this process (``gearid-[<kind>-]<pid>-...``); the first
+    call in a process sweeps the temporary folder first (:func:`sweep`)."""
+    sweep()
+    return Path(tempfile.mkdtemp(prefix=f"gearid-{kind + '-' if kind else ''}{os.getpid()}-"))
+
+
+def sweep() -> None:
+    """Remove the folders of :func:`owned_tmpdir` whose process no longer exists, among this user's in
+    the temporary folder (once per process: later calls do nothing).
+
+    A process removes its folders itself (finalizers), but a process killed (``kill -9``, a Dask
+    worker its nanny ends, a pytest-xdist worker leaving by ``os._exit``) runs none.
+    """
+    if _SWEPT:
+        return
+    _SWEPT.append(True)
+    for d in Path(tempfile.gettempdir()).glob("gearid-*"):
+        m = OWNED.fullmatch(d.name)
+        try:
+            if m and d.stat().st_uid == os.getuid() and not _alive(int(m.group(1))):
+                shutil.rmtree(d, ignore_errors=True)
+        except OSError:  # removed meanwhile by another process's sweep
+            pass
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, killed and not yet reaped, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (OSError, IndexError):  # no /proc (macOS), or it ended meanwhile
+        return True

@@ -131,8 +131,10 @@ def test_kill_9_at_eight_moments_then_resume_gives_the_uninterrupted_folder(tmp_
         assert all(readable_log(p) for p in out.rglob("*.parquet"))
     assert len(killed_at) >= 6, killed_at
     assert {"flying", "identify", "replay"} == {w.split(":")[0] for w in killed_at}
-    res = subprocess.run(argv + [str(out)], capture_output=True, text=True)
+    assert list(short_tmp.glob("gearid-*"))  # the killed runs' aircraft copies
+    res = subprocess.run(argv + [str(out)], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
+    assert sorted(p.name for p in short_tmp.glob("gearid-*")) == []  # ... removed by the next run
     assert not [p for p in out.rglob("*") if p.name.startswith(".") and p.name != LOCK]  # no strays
     got, want = _tree(out), _tree(ref)
     assert sorted(got) == sorted(want)

@@ -245,3 +245,28 @@ def test_linear_algebra_runs_on_one_blas_thread_in_workers_and_the_command(tmp_p
         pytest.skip("BLAS starts one thread here without any limit (one core)")
     assert len(alone) == 2
     assert threads(where) == [1, 1]
+
+
+def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_path, monkeypatch):
+    import tempfile
+    import time
+
+    import identify.workers as w
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()  # reaped: its pid names no process (unless reused meanwhile, a chance of one in tens of thousands)
+    zombie = subprocess.Popen([sys.executable, "-c", "pass"])
+    while not Path(f"/proc/{zombie.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+        time.sleep(0.001)  # until it has ended, not yet reaped: the state of workers just killed with their run
+    names = [f"gearid-{dead.pid}-abc", f"gearid-eval-{dead.pid}-x_1", f"gearid-started-{zombie.pid}-q",
+             f"gearid-{os.getpid()}-mine", "gearid-cluster", "gearid-k2j4l5m6", "pymp-123-x", f"other-{dead.pid}-a"]
+    for n in names:
+        (tmp_path / n / "aircraft").mkdir(parents=True)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(w, "_SWEPT", [])
+    made = w.owned_tmpdir("eval")
+    zombie.wait()
+    assert made.parent == tmp_path and made.name.startswith(f"gearid-eval-{os.getpid()}-")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names[3:] + [made.name])
+    (tmp_path / f"gearid-{dead.pid}-abc").mkdir()
+    w.owned_tmpdir()  # once per process
+    assert (tmp_path / f"gearid-{dead.pid}-abc").exists()
