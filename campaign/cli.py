@@ -69,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
     run.add_argument("--no-replay", action="store_true", help="fly and identify, but no replays")
+    run.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
 
     ident = sub.add_parser("identify", help="identify the aerodynamic models from a campaign's logs",
                            description="Eq. (1) coefficients, eq. (3) fits per 2-3-1-1, linear (eq. 4) and "
@@ -379,6 +380,9 @@ def _main(args) -> int:
 def _run(args, matrix, config, out: Path) -> int:
     """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
     from campaign.runner import run_campaign
+    if args.cases and not (args.no_identify or args.no_replay):
+        from campaign.replay import load_cases
+        load_cases(args.cases)  # a bad cases file is refused before anything is flown
     summary = run_campaign(matrix, config, out, jobs=args.jobs,
                            progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
     print(summary.text())
@@ -404,7 +408,7 @@ def _run(args, matrix, config, out: Path) -> int:
               "gear up and gear down, with a gear extension)")
         _html_report(out)
         return 0
-    return _replay(out, None, None, args.jobs, args.cluster, resume=True)
+    return _replay(out, None, args.cases, args.jobs, args.cluster, resume=True)
 
 
 if __name__ == "__main__":

@@ -68,6 +68,10 @@ post_s = 5.0
 """ + "".join(f'[[points]]\ngear = "{g}"\nflap_deg = 5\nmach = {m}\nalt_ft = 2000\n'
               for m in (0.3, 0.35) for g in ("up", "down"))
 
+#: One replay case of the shipped five: the replays' moments come as they do with all of them, six flights
+#: instead of thirty.
+KILL_CASE = '[[case]]\nname = "takeoff-145kt"\nalt_ft = 2000\nias_kt = 145\nflap_deg = 5\ngear = "retract"\n'
+
 
 def _newer(folder: Path, pattern: str, t0: float, n: int = 1) -> bool:
     """At least ``n`` files matching ``pattern`` written since ``t0`` (a staging folder the run
@@ -108,9 +112,11 @@ def _tree(folder: Path) -> dict[str, bytes]:
 
 
 def test_kill_9_at_eight_moments_then_resume_gives_the_uninterrupted_folder(tmp_path, short_tmp):
-    m = tmp_path / "kill.toml"
+    m, cases = tmp_path / "kill.toml", tmp_path / "cases.toml"
     m.write_text(KILL_MATRIX)
-    argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--jobs", "2", "--quiet", "--out"]
+    cases.write_text(KILL_CASE)
+    argv = [sys.executable, "-m", "campaign.cli", "run", "--matrix", str(m), "--cases", str(cases), "--jobs", "2",
+            "--quiet", "--out"]
     ref, out = tmp_path / "ref", tmp_path / "killed"
     env = {**os.environ, "TMPDIR": str(short_tmp)}
     subprocess.run(argv + [str(ref)], check=True, capture_output=True, env=env)
@@ -138,6 +144,8 @@ def test_kill_9_at_eight_moments_then_resume_gives_the_uninterrupted_folder(tmp_
     assert not [p for p in out.rglob("*") if p.name.startswith(".") and p.name != LOCK]  # no strays
     got, want = _tree(out), _tree(ref)
     assert sorted(got) == sorted(want)
+    assert json.loads((out / "replays" / "cases.json").read_text())[0]["name"] == "takeoff-145kt"
+    assert len(list((out / "replays").glob("*.parquet"))) == 6  # the one case given, three models, two loops
     # every result is the uninterrupted run's to the byte; the report differs by its date and folder name
     assert [k for k in want if got[k] != want[k]] == ["report.html"]
 
@@ -283,6 +291,8 @@ def _cases(t: Path, c: Path, m: Path) -> dict:
         "cases: a flap the aircraft lacks": lambda: (cases("g.c.toml", case.replace("flap_deg = 5", "flap_deg = 45")),
                                                      ["g.c.toml", "flap_deg"]),
         "cases: no case matches": lambda: (["replay", str(c), "--case", "zzz"], ["--case", "zzz"]),
+        "cases: given to run": lambda: (run + ["--cases", _write(t, "h.c.toml", case + "colour = 1\n")],
+                                        ["h.c.toml", "colour"]),
         # measured CSVs and sidecars
         "csv: a column missing": lambda: (ident_csv + [_csv_folder(t / "a", c, lambda s: s.replace("alpha_deg", "aoa", 1))],
                                   ["a.csv", "alpha_deg"]),
@@ -339,3 +349,11 @@ def test_bad_input_is_one_line_and_changes_nothing(what, existing, tmp_path, cap
     one_line_error(capsys, argv, *needles)
     assert _snapshot(c) == before
     assert not list(tmp_path.glob("**/.campaign.lock")), "a refused command left a lock behind"
+
+
+def test_run_refuses_a_bad_cases_file_before_it_flies(tmp_path, capsys):
+    m = Path(_write(tmp_path, "m.toml", SWEEP_MATRIX))
+    bad = _write(tmp_path, "bad.c.toml", KILL_CASE.replace("ias_kt = 145", "ias_kt = 0"))
+    one_line_error(capsys, ["run", "--matrix", str(m), "--out", str(tmp_path / "c"), "--cases", bad, "--quiet"],
+                   "bad.c.toml", "ias_kt")
+    assert not list(tmp_path.glob("c/*.parquet")) and not (tmp_path / "c" / "manifest.json").exists()
