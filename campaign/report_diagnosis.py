@@ -53,7 +53,7 @@ def diagnosis_report(folder: Path) -> str:
         verdict += f": {label(causes[0])} ({causes[0].get('shape', '')})"
     elif doc.get("largest_rejected"):
         lr = doc["largest_rejected"]
-        verdict += f" (largest candidate: {lr.get('label', lr) if isinstance(lr, dict) else lr})"
+        verdict += f" (largest candidate: {lr['candidate']}: {lr['reason']})"
     header = ["cause", "kind", "shape", "size", "F", "noise floor", "size / floor", "instrument errors make",
               "held-out gain", "sensor alternatives"]
     sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>'

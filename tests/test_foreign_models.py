@@ -165,6 +165,8 @@ def test_missing_gear_drag_does_not_leak_into_pitch_about_a_high_aerorp(stock_73
 
 
 def test_diagnosis_json_says_no_discrepancy_with_the_largest_candidate(stock_737_noisy, tmp_path):
+    from html import escape
+
     from campaign.cli import main
     assert main(["diagnose", "--data", str(stock_737_noisy), "--model", str(STOCK / "737"), "--out",
                  str(tmp_path / "r"), "--no-plots"]) == 0
@@ -174,6 +176,9 @@ def test_diagnosis_json_says_no_discrepancy_with_the_largest_candidate(stock_737
     assert {u["property"] for u in doc["unset_inputs"]} == {"fcs/speedbrake-pos-norm", "fcs/spoiler-pos-norm"}
     text = (tmp_path / "r" / "diagnosis.txt").read_text()
     assert "No significant discrepancy" in text and "fcs/speedbrake-pos-norm" in text
+    page = (tmp_path / "r" / "report.html").read_text()  # the verdict names the candidate and why, not a dict
+    lr = doc["largest_rejected"]
+    assert escape(f"no significant discrepancy (largest candidate: {lr['candidate']}: {lr['reason']})") in page
     assert abs(doc["noise_estimated"]["alpha_deg"] - 0.05) < 0.005  # estimated from the logs alone
 
 
