@@ -82,8 +82,8 @@ class Diagnosis:
 
     @property
     def unconfirmed(self) -> list[Cause]:
-        """Aero candidates significant and beyond what instrument noise and errors make, that act at a
-        single condition: no held-out condition can confirm them."""
+        """Aero candidates significant and beyond what instrument noise and errors make that held-out data
+        cannot confirm (they act at a single condition) or do not, strong ones (:data:`diagnose.verdict.HELD_OUT_F`)."""
         return [c for c in self.rejected if c.verdict.get("unconfirmed")]
 
     @property
