@@ -380,9 +380,11 @@ def _main(args) -> int:
 def _run(args, matrix, config, out: Path) -> int:
     """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
     from campaign.runner import run_campaign
-    if args.cases and not (args.no_identify or args.no_replay):
+    if args.cases and not (args.no_identify or args.no_replay):  # a bad cases file is refused before anything flies
+        from campaign.engine import check_flaps
         from campaign.replay import load_cases
-        load_cases(args.cases)  # a bad cases file is refused before anything is flown
+        check_flaps(config.aircraft, [(f"{args.cases}: case {c.name}.flap_deg", c.flap_deg)
+                                      for c in load_cases(args.cases)])
     summary = run_campaign(matrix, config, out, jobs=args.jobs,
                            progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
     print(summary.text())
