@@ -258,14 +258,17 @@ def test_a_strong_candidate_only_held_out_data_reject_is_a_discrepancy_whose_cau
     74 % of the Cm residual (F 482, 10.6 times its floor beyond instrument errors), but its shape did not
     predict the logs left out (x0.98), and the answer was "No significant discrepancy". A candidate
     that held-out data alone reject, with an F of HELD_OUT_F (300; the nulls' largest such was 73) and
-    10 times its floor, is a discrepancy, its cause not confirmed: named so, kept out of the extension.
+    3 times its floor (10 until stop 65), is a discrepancy, its cause not confirmed: named so, kept out
+    of the extension (fresh seed 8,400,252, a CL table in the elevator at F 358 and 5.8 times its floor,
+    was a miss at 10).
     Below either bound it is rejected as before, and so is an instrument error's signature (fresh seed
     8,400,184 named one so, and the benchmark took it for an aerodynamic discrepancy)."""
     from diagnose.verdict import HELD_OUT_F
-    v = _offsets(11, f=HELD_OUT_F, over_floor=12.0)
-    assert v["replicate_gain"] < 1.05 and not v["accepted"] and v["unconfirmed"], v
-    assert "a discrepancy all the same (F = 300, " in v["reason"], v["reason"]
-    for f, over, kind in ((0.9 * HELD_OUT_F, 12.0, "aero"), (HELD_OUT_F, 8.0, "aero"), (HELD_OUT_F, 12.0, "sensor")):
+    for over in (12.0, 3.5):
+        v = _offsets(11, f=HELD_OUT_F, over_floor=over)
+        assert v["replicate_gain"] < 1.05 and not v["accepted"] and v["unconfirmed"], (over, v)
+        assert "a discrepancy all the same (F = 300, " in v["reason"], v["reason"]
+    for f, over, kind in ((0.9 * HELD_OUT_F, 12.0, "aero"), (HELD_OUT_F, 2.5, "aero"), (HELD_OUT_F, 12.0, "sensor")):
         v = _offsets(11, f=f, over_floor=over, kind=kind)
         assert not v["accepted"] and not v["unconfirmed"] and "all the same" not in v["reason"], (f, over, kind, v)
 
