@@ -24,7 +24,7 @@ import pandas as pd
 
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
-from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_flow_states
+from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_alpha_for_mach, in_flow_states
 from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
@@ -346,10 +346,11 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     alpha (:func:`diagnose.state_twins.in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
     (:func:`diagnose.state_twins.in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
     named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival: fresh seed
-    7,500,265). In place of a smooth term the search refined with the tails' knots
-    (:func:`diagnose.terms.tail_twin`), a rival is refined alike if it can be, on ``data``: a Cm table in
-    alpha on the stock 737, 25.8 times its floor, was named "Cm vs CL" when smooth(CL), refined, met
-    smooth(alpha) unrefined (reserved seed 2,000,229)."""
+    7,500,265), and for a term in Mach, the same in alpha (:func:`diagnose.state_twins.in_alpha_for_mach`).
+    In place of a smooth term the search refined with the tails' knots (:func:`diagnose.terms.tail_twin`),
+    a rival is refined alike if it can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times
+    its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed
+    2,000,229)."""
     out = []
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
@@ -358,7 +359,8 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     for t in cause.terms:
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
         twin = in_alpha(t, pool)  # always rivals: they fit alike (:data:`STATE_SE`)
-        states = ([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
+        states = (([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
+                  + in_alpha_for_mach(t, pool))
         for r in close + [u for u in states if u not in close]:
             if r is None:
                 continue

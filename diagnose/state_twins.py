@@ -21,6 +21,23 @@ def _replaced(term: Term, old: str, new: str, pool: list[Term]) -> Term | None:
     return same[0] if same else None
 
 
+def in_alpha_for_mach(term: Term, pool: list[Term]) -> list[Term]:
+    """The candidates of ``pool`` in alpha in place of Mach, for a term in Mach and not alpha (none
+    otherwise): for a term in Mach alone every candidate in alpha alone, else the same term with alpha in
+    place of Mach. Across trimmed conditions alpha falls as Mach rises, and a shape in alpha whose
+    variation lies mostly between the conditions fits nearly as well in Mach with fewer columns, so the
+    search enters it in Mach; only the variation within each manoeuvre, where alpha moves and Mach does
+    not, tells them apart (:func:`diagnose.separation.pair`). An A320 CL step in alpha, 17 times its
+    floor, was named "CL vs mach" (fresh seed 8,300,204), and so were tables in alpha on our 737
+    (8,300,097, 13.5 times) and the A320 (8,400,045)."""
+    if "mach" not in term.variables or "alpha_deg" in term.variables:
+        return []
+    if term.variables == ("mach",):
+        return [t for t in pool if t.variables == ("alpha_deg",)]
+    twin = _replaced(term, "mach", "alpha_deg", pool)
+    return [twin] if twin is not None else []
+
+
 def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
     """The candidates of ``pool`` in alpha and Mach together, for a term in CL alone (none otherwise).
     Trimmed lift is the weight over the dynamic pressure: across the conditions CL follows Mach as

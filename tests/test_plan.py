@@ -485,3 +485,53 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     assert swap(-1.0) == {"Cm": {gear_elev: gear_alpha}}
     assert swap(2.2) == {}
     assert swap(2.2, 1.5) == {"Cm": {gear_elev: gear_mach}}
+
+
+def _alpha_and_mach(seed: int, effect) -> pd.DataFrame:
+    """Four trimmed conditions, alpha falling as Mach rises, each a manoeuvre in alpha at nearly constant
+    Mach; ``r_CL`` is ``effect(alpha, mach)`` plus white noise, ``r_CD`` and ``r_Cm`` noise."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for m, a in ((0.3, 7.0), (0.4, 4.5), (0.5, 3.0), (0.6, 2.0)):
+        alpha = a + 1.5 * np.sin(np.linspace(0, 12, 400))
+        mach = m + 0.002 * rng.standard_normal(400)
+        frames.append(pd.DataFrame({"alpha_deg": alpha, "mach": mach, "gear_norm": 0.0}))
+    f = pd.concat(frames, ignore_index=True)
+    f["r_CL"] = effect(f["alpha_deg"].to_numpy(), f["mach"].to_numpy()) + 0.002 * rng.standard_normal(len(f))
+    f["r_CD"], f["r_Cm"] = 0.0002 * rng.standard_normal(len(f)), 0.001 * rng.standard_normal(len(f))
+    return f
+
+
+def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condition_tell_them_apart():
+    """Across trimmed conditions alpha falls as Mach rises, and a lift step in alpha entered the search as
+    linear(mach) (fresh seed 8,400,045: "CL vs mach" for a CL table in alpha, 18.7 times its floor). A term
+    in Mach alone has every candidate in alpha alone as a rival, a term in Mach and another variable the
+    same term in alpha: the step in alpha, which the manoeuvres cross, is then named in alpha. A ramp in
+    Mach keeps its name: no candidate in alpha fits it 3 standard errors better."""
+    from types import SimpleNamespace
+    from diagnose.terms import candidate_terms
+    step = _alpha_and_mach(5, lambda a, m: 0.02 * (a > 4.0))
+    ramp = _alpha_and_mach(6, lambda a, m: 0.05 * np.clip(m - 0.35, 0.0, None))
+    pool = candidate_terms(step, "CL")
+    by_label = {t.label: t for t in pool}
+    in_alpha = {t for t in pool if t.variables == ("alpha_deg",)}
+    assert len(in_alpha) >= 2 and set(state_twins.in_alpha_for_mach(by_label["linear(mach)"], pool)) == in_alpha
+    assert state_twins.in_alpha_for_mach(by_label["smooth(alpha_deg)"], pool) == []
+    gear_mach = [t for t in pool if t.variables == ("gear_norm", "mach")]
+    for t in gear_mach:
+        assert [u.variables for u in state_twins.in_alpha_for_mach(t, pool)] in ([("gear_norm", "alpha_deg")], [])
+
+    def named(frame) -> str:
+        mach = by_label["linear(mach)"]
+        cause = SimpleNamespace(kind="aero", coefficient="CL", terms=[mach], verdict={"accepted": True},
+                                evidence={"rivals": []})
+        stack = sep.Stack(frame, [1 / 0.002, 1 / 0.0002, 1 / 0.001], {}, {})
+        mine = sep.Hypothesis("CL vs mach", "aero", "CL", (mach,))
+        for h in sep.rival_hypotheses(cause, SimpleNamespace(close={}), pool, [], None):
+            cause.evidence["rivals"].append({"rival": h.name, "kind": "aero", "term": h.terms[0].label,
+                                             "replaces": mach.label,
+                                             "separation_se": sep.pair(stack, mine, h)["separation_se"]})
+        swap = sep.preferred_aero_rivals([cause], {"CL": pool}, frame).get("CL", {})
+        return swap[mach].label if swap else mach.label
+    assert named(step).endswith("(alpha_deg)"), named(step)
+    assert named(ramp) == "linear(mach)"
