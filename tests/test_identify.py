@@ -1,7 +1,9 @@
 """Identification against known truths: the model's XML, JSBSim's own forces,
 the stock 737, the reference overlay (read here, never by identify/)."""
+import fcntl
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -111,6 +113,23 @@ def _reference_truth(alpha_deg, gear, mach, fdm_cache={}):
     return reference_gear_truth(fdm_cache["fdm"], alpha_deg, gear, mach, ARM)
 
 
+def _flown_once(tmp_path_factory, name: str, fly):
+    """A campaign folder ``fly(folder)`` writes, flown once per test run: pytest-xdist's workers share
+    it, the first flying it under a lock while the others wait, then read it (the workers' temporary
+    folders sit in one per run); without xdist, in this process's own."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    folder, done = root / name, root / f"{name}.done"
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            fly(folder)
+            done.touch()
+    return folder
+
+
 @pytest.fixture(scope="module")
 def reference_gear_down(tmp_path_factory):
     """Every gear-down point of the default matrix (and its gear-up twin) on the reference aircraft."""
@@ -118,10 +137,10 @@ def reference_gear_down(tmp_path_factory):
     down = [p for p in m.points if p.gear_down]
     conds = {(p.alt_ft, p.mach, p.flap_deg) for p in down}
     pts = down + [p for p in m.points if not p.gear_down and (p.alt_ft, p.mach, p.flap_deg) in conds]
-    folder = tmp_path_factory.mktemp("ref") / "out"
     cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)), 0, "none",
                        m.maneuver_params, m.clmax_by_flap)
-    run_campaign(m, cfg, folder, jobs=2, progress=False, points=pts)
+    folder = _flown_once(tmp_path_factory, "reference_gear_down",
+                         lambda out: run_campaign(m, cfg, out, jobs=2, progress=False, points=pts))
     logs = read_campaign(folder)
     return folder, logs, identify_logs(logs)
 
@@ -195,10 +214,10 @@ def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tm
             assert (m1 - m0) / (qs * 155.81 / 12) == pytest.approx(want["Cm"], abs=1e-9)
 
 
-def test_identify_cli_writes_tables_json_xml_plots(reference_gear_down, capsys):
+def test_identify_cli_writes_tables_json_xml_plots(reference_gear_down, capsys, tmp_path):
     folder, _, _ = reference_gear_down
-    assert main(["identify", str(folder), "--out", str(folder / "id")]) == 0
-    out = folder / "id"
+    out = tmp_path / "id"
+    assert main(["identify", str(folder), "--out", str(out)]) == 0
     for name in ("baseline_parameters.csv", "baseline_fit_statistics.csv", "linear_gear_model.csv",
                  "gear_increments.csv", "summary.txt", "gear_linear.xml", "gear_nonlinear.xml",
                  "plots/gear_increments.png", "plots/alpha_during_gear_transitions.png",
