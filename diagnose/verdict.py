@@ -393,8 +393,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
                            f"is wrong ({made or 'a combination of those errors'} would make it)")
         clear = strong or (beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= STRONG_F)
-        unseen = (cause.kind == "aero" and beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= HELD_OUT_F
-                  and not repeated)
+        unseen = (cause.kind == "aero" and beyond >= CLEAR_OVER_FLOOR * floor
+                  and cause.evidence.get("F", 0.0) >= HELD_OUT_F and not repeated)
         if unseen and len(reasons) == 1:
             reasons[0] += (f"; a discrepancy all the same (F = {cause.evidence['F']:.4g}, {beyond / floor:.1f} times its "
                            f"noise floor beyond instrument errors), in a shape these data do not confirm")
