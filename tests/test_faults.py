@@ -351,10 +351,12 @@ def test_bad_input_is_one_line_and_changes_nothing(what, existing, tmp_path, cap
     assert not list(tmp_path.glob("**/.campaign.lock")), "a refused command left a lock behind"
 
 
-@pytest.mark.parametrize("edit, field", [("ias_kt = 0", "ias_kt"), ("flap_deg = 45", "flap_deg")])
-def test_run_refuses_a_bad_cases_file_before_it_flies(tmp_path, capsys, edit, field):
+@pytest.mark.parametrize("good, bad, field", [("ias_kt = 145", "ias_kt = 0", "ias_kt"),
+                                              ("flap_deg = 5", "flap_deg = 45", "flap_deg")])
+def test_run_refuses_a_bad_cases_file_before_it_flies(tmp_path, capsys, good, bad, field):
     m = Path(_write(tmp_path, "m.toml", SWEEP_MATRIX))
-    bad = _write(tmp_path, "bad.c.toml", KILL_CASE.replace(f"{field} = {145 if field == 'ias_kt' else 5}", edit))
+    assert good in KILL_CASE
+    bad = _write(tmp_path, "bad.c.toml", KILL_CASE.replace(good, bad))
     one_line_error(capsys, ["run", "--matrix", str(m), "--out", str(tmp_path / "c"), "--cases", bad, "--quiet"],
                    "bad.c.toml", field)
     assert not list(tmp_path.glob("c/*.parquet")) and not (tmp_path / "c" / "manifest.json").exists()
