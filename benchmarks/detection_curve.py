@@ -56,10 +56,9 @@ BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
 
 def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     """The altitude [ft] at which ``to_mach`` flies at the dynamic pressure ``mach`` has at ``alt_ft``
-    (the ISA troposphere), rounded to 500 ft: at one weight the same lift coefficient, so about the
-    same alpha at another Mach number."""
-    ratio = (1.0 - 6.8756e-6 * alt_ft) ** 5.2559 * (mach / to_mach) ** 2
-    return float(round((1.0 - ratio ** (1.0 / 5.2559)) / 6.8756e-6 / 500.0) * 500.0)
+    (:func:`campaign.plan.same_lift_alt_ft`, the plan's candidate), rounded to 500 ft."""
+    from campaign.plan import same_lift_alt_ft
+    return float(round(same_lift_alt_ft(alt_ft, mach, to_mach) / 500.0) * 500.0)
 
 
 #: Each aircraft's matrix: conditions at two altitudes and three Mach numbers, a flap setting (not the stock

@@ -11,7 +11,9 @@ are chosen greedily by separation gained per flight minute until every pair is p
 
 Candidates: the ``--matrix`` given (its points, each with its own manoeuvres), or,
 by default, one factor at a time away from every condition of the old data: 6,000 ft above and below,
-Mach 0.1 either side, and the aircraft's lowest, middle and highest flap angle; each gear up (2-3-1-1,
+Mach 0.1 either side, Mach 0.1 either side at the same dynamic pressure (:func:`same_lift_alt_ft`: about the
+same alpha, which tells a term in Mach, or in alpha and Mach, from one in alpha alone), and the aircraft's
+lowest, middle and highest flap angle; each gear up (2-3-1-1,
 multisine) and gear down (2-3-1-1, multisine, gear extension, gear retraction); and, when a rival
 is an airspeed error the data compatibility could not measure (it needs a heading change) and the
 logs hold an inertial velocity, a full-circle level turn gear up at each condition. A flight already
@@ -136,6 +138,30 @@ def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
     return float(min(max(round(flap_deg, 1), lo), hi))
 
 
+#: ISA: the troposphere's lapse rate over its base temperature [1/ft], its pressure exponent, the
+#: tropopause [ft], the pressure ratio there, and the stratosphere's pressure scale height [ft].
+_LAPSE, _EXPONENT, _TROPOPAUSE_FT, _TROPOPAUSE_RATIO, _SCALE_FT = 6.8756e-6, 5.2559, 36089.0, 0.22336, 20806.0
+
+
+def _pressure_ratio(alt_ft: float) -> float:
+    """ISA static pressure over that at sea level, at a pressure altitude [ft]."""
+    if alt_ft <= _TROPOPAUSE_FT:
+        return (1.0 - _LAPSE * alt_ft) ** _EXPONENT
+    return _TROPOPAUSE_RATIO * float(np.exp(-(alt_ft - _TROPOPAUSE_FT) / _SCALE_FT))
+
+
+def same_lift_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
+    """The pressure altitude [ft] at which ``to_mach`` has the dynamic pressure ``mach`` has at ``alt_ft``
+    (ISA; ``q = 0.7 p M^2``), rounded to 100 ft: at one weight the same lift coefficient, so about the
+    same alpha at another Mach number (compressibility moves it a little). Below sea level it is negative."""
+    ratio = _pressure_ratio(alt_ft) * (mach / to_mach) ** 2
+    if ratio >= _TROPOPAUSE_RATIO:
+        alt = (1.0 - ratio ** (1.0 / _EXPONENT)) / _LAPSE
+    else:
+        alt = _TROPOPAUSE_FT - _SCALE_FT * float(np.log(ratio / _TROPOPAUSE_RATIO))
+    return float(round(alt / 100.0) * 100.0)
+
+
 def _condition(alt: float, mach: float, flap: float) -> tuple:
     return round(alt, 1), round(mach, 4), round(flap, 1)
 
@@ -159,6 +185,8 @@ def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, giv
         weight, flap = weights[(alt, mach, measured_flap)], _flyable_flap(source, measured_flap)
         variants = [(alt, mach, flap), (alt + 6000.0, mach, flap), (max(alt - 6000.0, 1500.0), mach, flap),
                     (alt, round(mach - 0.1, 4), flap), (alt, round(mach + 0.1, 4), flap)]
+        variants += [(a, m, flap) for m in (round(mach - 0.1, 4), round(mach + 0.1, 4)) if m > 0
+                     for a in [same_lift_alt_ft(alt, mach, m)] if a >= 1500.0]
         variants += [(alt, mach, f) for f in flaps]
         for a, m, f in variants:
             if not (0.15 <= m <= 0.85 and a <= MAX_ALT_FT) or _condition(a, m, f) in held:

@@ -118,6 +118,26 @@ def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
     assert {lg.condition for lg in split(old + new)[1]} != {(5000.0, 0.35, 5.0)}  # what it guards against
 
 
+def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_side():
+    """Beside Mach 0.1 either side at the same altitude (another alpha too), the plan offers Mach 0.1 either
+    side at the dynamic pressure of the condition: at one weight the same lift coefficient, so about the same
+    alpha. Two Mach numbers at one alpha tell a term in Mach, or in alpha and Mach, from one in alpha alone. One
+    below 1,500 ft is not offered."""
+    from types import SimpleNamespace
+
+    from campaign.aircraft import AircraftSource, load_effects
+    from campaign.importer import _isa
+    from campaign.plan import candidates
+    logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
+    points = candidates(logs, AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None)), None, None)
+    away = {(p.alt_ft, p.mach, p.gear_down) for p in points if p.flap_deg == 0.0 and p.alt_ft not in (2000.0, 8000.0)
+            and p.mach != 0.3}
+    assert {(a, m) for a, m, _ in away} == {(16900.0, 0.4)}, away  # Mach 0.2 would be below sea level
+    assert {d for *_, d in away} == {False, True}
+    q = [_isa(a)[0][()] * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
+    assert q[1] == pytest.approx(q[0], rel=5e-3)
+
+
 @pytest.fixture(scope="module")
 def narrow(tmp_path_factory):
     """A gear x alpha effect on Cm in a campaign that cannot tell alpha from CL, diagnosed."""
