@@ -61,12 +61,13 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     return float(round(same_lift_alt_ft(alt_ft, mach, to_mach) / 500.0) * 500.0)
 
 
-#: Each aircraft's matrix: conditions at two altitudes and three Mach numbers, a flap setting (not the stock
-#: 737's: it has no flap angle), and Mach 0.4 at the alpha of its lowest Mach 0.3 condition. Without that
-#: point no two Mach numbers met at one alpha (the 2-3-1-1s of Mach 0.3 and 0.5 overlapped by a degree),
-#: and an effect in alpha x Mach read as a finer shape in alpha alone. The A320 does not trim at Mach 0.3
-#: and 10,000 ft; its first matrix had three conditions: any one held out took a Mach number, an altitude or
-#: the flap setting from the fit, and Mach effects were seen in held-out data only.
+#: Each aircraft's matrix: two altitudes and three Mach numbers, a flap setting (not the stock 737's: it has
+#: no flap angle), and Mach 0.4 at the alpha of the lowest Mach 0.3 condition (a third altitude). Without
+#: that point two Mach numbers met at one alpha only at the edges of the 2-3-1-1s (Mach 0.3 and 0.5, by about
+#: a degree) or at another flap angle (our 737's Mach 0.2 at flap 30), and an effect in alpha x Mach read as
+#: a finer shape in alpha alone. The A320 does not trim at Mach 0.3 and 10,000 ft; its first matrix had three
+#: conditions: any one held out took a Mach number, an altitude or the flap setting from the fit, and Mach
+#: effects were seen in held-out data only.
 OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000),
                             (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
 STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),

@@ -140,13 +140,13 @@ def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
 
 #: ISA: the troposphere's lapse rate over its base temperature [1/ft], its pressure exponent, the
 #: tropopause [ft], the pressure ratio there, and the stratosphere's pressure scale height [ft].
-_LAPSE, _EXPONENT, _TROPOPAUSE_FT, _TROPOPAUSE_RATIO, _SCALE_FT = 6.8756e-6, 5.2559, 36089.0, 0.22336, 20806.0
+_LAPSE_PER_FT, _EXPONENT, _TROPOPAUSE_FT, _TROPOPAUSE_RATIO, _SCALE_FT = 6.8756e-6, 5.2559, 36089.0, 0.22336, 20806.0
 
 
 def _pressure_ratio(alt_ft: float) -> float:
     """ISA static pressure over that at sea level, at a pressure altitude [ft]."""
     if alt_ft <= _TROPOPAUSE_FT:
-        return (1.0 - _LAPSE * alt_ft) ** _EXPONENT
+        return (1.0 - _LAPSE_PER_FT * alt_ft) ** _EXPONENT
     return _TROPOPAUSE_RATIO * float(np.exp(-(alt_ft - _TROPOPAUSE_FT) / _SCALE_FT))
 
 
@@ -156,10 +156,22 @@ def same_lift_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     same alpha at another Mach number (compressibility moves it a little). Below sea level it is negative."""
     ratio = _pressure_ratio(alt_ft) * (mach / to_mach) ** 2
     if ratio >= _TROPOPAUSE_RATIO:
-        alt = (1.0 - ratio ** (1.0 / _EXPONENT)) / _LAPSE
+        alt = (1.0 - ratio ** (1.0 / _EXPONENT)) / _LAPSE_PER_FT
     else:
         alt = _TROPOPAUSE_FT - _SCALE_FT * float(np.log(ratio / _TROPOPAUSE_RATIO))
     return float(round(alt / 100.0) * 100.0)
+
+
+#: A candidate at the dynamic pressure of another condition this close to a condition of the data at its Mach
+#: number and flap angle is that condition [ft] (there and back, the 100 ft rounding can miss it by 100 ft).
+SNAP_FT = 250.0
+
+
+def _snapped(alt_ft: float, mach: float, flap_deg: float, known: set[tuple]) -> float:
+    """``alt_ft``, or the altitude [ft] of a condition in ``known`` (alt, Mach, flap) at this Mach number
+    and flap angle within :data:`SNAP_FT` of it."""
+    near = [a for a, m, f in known if round(m, 4) == round(mach, 4) and f == flap_deg and abs(a - alt_ft) <= SNAP_FT]
+    return min(near, key=lambda a: abs(a - alt_ft)) if near else alt_ft
 
 
 def _condition(alt: float, mach: float, flap: float) -> tuple:
@@ -180,13 +192,14 @@ def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, giv
         weights.setdefault(lg.condition, lg.meta["status_point"].get("weight_lb"))
     conditions = sorted(weights)
     flaps = other_flaps(source, like, {_flyable_flap(source, f) for _, _, f in conditions})
+    known = {(a, m, _flyable_flap(source, f)) for a, m, f in conditions}
     seen, out = set(), []
     for alt, mach, measured_flap in conditions:
         weight, flap = weights[(alt, mach, measured_flap)], _flyable_flap(source, measured_flap)
         variants = [(alt, mach, flap), (alt + 6000.0, mach, flap), (max(alt - 6000.0, 1500.0), mach, flap),
                     (alt, round(mach - 0.1, 4), flap), (alt, round(mach + 0.1, 4), flap)]
         variants += [(a, m, flap) for m in (round(mach - 0.1, 4), round(mach + 0.1, 4)) if m > 0
-                     for a in [same_lift_alt_ft(alt, mach, m)] if a >= 1500.0]
+                     for a in [_snapped(same_lift_alt_ft(alt, mach, m), m, flap, known)] if a >= 1500.0]
         variants += [(alt, mach, f) for f in flaps]
         for a, m, f in variants:
             if not (0.15 <= m <= 0.85 and a <= MAX_ALT_FT) or _condition(a, m, f) in held:

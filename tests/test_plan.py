@@ -122,20 +122,28 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
     """Beside Mach 0.1 either side at the same altitude (another alpha too), the plan offers Mach 0.1 either
     side at the dynamic pressure of the condition: at one weight the same lift coefficient, so about the same
     alpha. Two Mach numbers at one alpha tell a term in Mach, or in alpha and Mach, from one in alpha alone. One
-    below 1,500 ft is not offered."""
+    below 1,500 ft is not offered, and one within 250 ft of a condition flown at its Mach number is that one."""
     from types import SimpleNamespace
 
     from campaign.aircraft import AircraftSource, load_effects
     from campaign.importer import _isa
     from campaign.plan import candidates
     logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
-    points = candidates(logs, AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None)), None, None)
+    source = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
+    points = candidates(logs, source, None, None)
     away = {(p.alt_ft, p.mach, p.gear_down) for p in points if p.flap_deg == 0.0 and p.alt_ft not in (2000.0, 8000.0)
             and p.mach != 0.3}
     assert {(a, m) for a, m, _ in away} == {(16900.0, 0.4)}, away  # Mach 0.2 would be below sea level
     assert {d for *_, d in away} == {False, True}
-    q = [_isa(a)[0][()] * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
+    q = [_isa(a)[0].item() * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
     assert q[1] == pytest.approx(q[0], rel=5e-3)
+    # Mach 0.2 at the dynamic pressure of Mach 0.3 at 21,500 ft is at 800 ft: not offered
+    high = [SimpleNamespace(condition=(21500.0, 0.3, 0.0), meta=logs[0].meta)]
+    assert not any(p.mach == 0.2 and p.alt_ft != 21500.0 for p in candidates(high, source, None, None))
+    # there and back misses 2,000 ft by 100: with both conditions flown, each one's partner is the other
+    both = logs + [SimpleNamespace(condition=(17000.0, 0.4, 0.0), meta=logs[0].meta)]
+    alts = {(p.alt_ft, p.mach) for p in candidates(both, source, None, None)}
+    assert (16900.0, 0.4) not in alts and (2100.0, 0.3) not in alts, sorted(alts)
 
 
 @pytest.fixture(scope="module")
