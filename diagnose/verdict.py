@@ -64,6 +64,12 @@ CLEAR_OVER_FLOOR = 3.0
 #: elevator at F 358 and 5.8 times its floor among them) and one that was not (Cm in CL for a Cm dead
 #: band in alpha, at 9.6 times), and on the nulls none.
 HELD_OUT_F = 300.0
+#: ... but not a cause at one condition only that its own repeats refute: each log of that condition left out
+#: in turn is predicted worse with it than without (a gain below this, and below it where it departs). On
+#: about 3,000 case records of the detection curve (stop 66; 7,800,000-8,700,000) one such candidate, from 3
+#: times its floor, was named unconfirmed on a null: an A320 drag in gear x flap at its flap-15 condition in
+#: 3 ft/s, 18 times its floor, x0.876 (fresh 8,700,158). The 13 that were the effect gained x1.04-1.18.
+REFUTED_GAIN = 1.0
 #: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
 #: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size
 #: instrument errors could make as a discrepancy all the same.
@@ -302,7 +308,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
     decide (until stop 43 they did, at x1.05: a shape in Mach between the Mach numbers flown could
     not be predicted, and a term fitted to a few flights' turbulence could gain x1.05-1.15 by
     chance over four conditions). A cause that acts at a single condition, or at none that can be
-    left out, and that its repeats do not confirm either, is ``unconfirmed`` if it is
+    left out, and that its repeats do not confirm either (nor refute: :data:`REFUTED_GAIN`), is ``unconfirmed``
+    if it is
     :data:`STRONG_OVER_FLOOR` times its floor, or :data:`CLEAR_OVER_FLOOR` times with an F of
     :data:`STRONG_F`: a discrepancy all the same, named with that caution, but not put into the
     extension; so is one :data:`CLEAR_OVER_FLOOR` times its floor with an F of :data:`HELD_OUT_F`
@@ -393,13 +400,15 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
                            f"is wrong ({made or 'a combination of those errors'} would make it)")
         clear = strong or (beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= STRONG_F)
+        refuted = (bool(np.isfinite(replicate))
+                   and max(replicate, departs if np.isfinite(departs) else -np.inf) < REFUTED_GAIN)
         unseen = (cause.kind == "aero" and beyond >= CLEAR_OVER_FLOOR * floor
                   and cause.evidence.get("F", 0.0) >= HELD_OUT_F and not repeated)
         if unseen and len(reasons) == 1:
             reasons[0] += (f"; a discrepancy all the same (F = {cause.evidence['F']:.4g}, {beyond / floor:.1f} times its "
                            f"noise floor beyond instrument errors), in a shape these data do not confirm")
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
-                         "unconfirmed": ((alone and clear) or unseen) and len(reasons) == 1 or mimicked,
+                         "unconfirmed": ((alone and clear and not refuted) or unseen) and len(reasons) == 1 or mimicked,
                          "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
                          "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
                          "holdout_gain": gain,

@@ -213,6 +213,39 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
         assert v["unconfirmed"] is unconfirmed, (f_stat, floor, v)
 
 
+def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_discrepancy():
+    """The lift step of the test above, 18 times its floor at an F of 100 (the held-out rule's F of 300 not
+    reached), its one condition above the step flown three times. When the
+    three logs agree, each one left out is predicted by the other two: the cause is named. When the step
+    is one log's alone (one flight's turbulence: fresh null 8,700,158, an A320 drag in gear x flap at its
+    flap-15 condition, 18 times its floor, x0.876 with each log left out), each log left out is predicted
+    worse with it than without: its repeats refute it, and it is not a discrepancy whose cause the data
+    cannot confirm."""
+    import pandas as pd
+
+    from diagnose.causes import Cause
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    from diagnose.verdict import REFUTED_GAIN, judge
+    rng = np.random.default_rng(4)
+    conds = [("2000/0.2/30", 0.2, 0.0), ("2000/0.3/0", 0.3, 0.0), ("10000/0.3/0", 0.3, 0.0)]
+    for offsets, accepted, unconfirmed in (((0.0127,) * 3, True, False), ((0.0381, 0.0, 0.0), False, False)):
+        logs = conds + [("10000/0.5/0", 0.5, o) for o in offsets]
+        data = pd.concat([pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.001, 400),
+                                        "r_CL": o + rng.normal(0, 0.0015, 400)})
+                          for i, (c, m, o) in enumerate(logs)], ignore_index=True)
+        term = Term("smooth", ("mach",), (0.2, 0.3, 0.5))
+        x = np.column_stack([np.ones(len(data)), term.design(data)])
+        beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
+        res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
+        cause = Cause("CL", ["mach"], [term], "step", {"p_value": 0.0, "F": 100.0}, 0.0127, size=0.0127)
+        judge([cause], {"CL": res}, data, [np.array([0.0127 / 18])])
+        v = cause.verdict
+        assert v["accepted"] is accepted and v["unconfirmed"] is unconfirmed, (offsets, v)
+        if not accepted:
+            assert "one condition only (10000/0.5/0)" in v["reason"] and v["replicate_gain"] < REFUTED_GAIN, v
+
+
 def _offsets(seed: int, f: float = 50.0, over_floor: float = 4.0, kind: str = "aero") -> dict:
     """A null: CD at four conditions (Mach 0.3 twice, 0.4, 0.5), three logs each with its own offset
     (one flight's turbulence) and white noise, and a line in Mach fitted to it as a cause (F ``f``, its
