@@ -215,8 +215,8 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
 
 def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_discrepancy():
     """The lift step of the test above, 18 times its floor at an F of 100 (the held-out rule's F of 300 not
-    reached), its one condition above the step flown three times. When the
-    three logs agree, each one left out is predicted by the other two: the cause is named. When the step
+    reached), its one condition above the step flown three times. When the three logs agree, each one left
+    out is predicted by the other two: the cause is named. When the step
     is one log's alone (one flight's turbulence: fresh null 8,700,158, an A320 drag in gear x flap at its
     flap-15 condition, 18 times its floor, x0.876 with each log left out), each log left out is predicted
     worse with it than without: its repeats refute it, and it is not a discrepancy whose cause the data
