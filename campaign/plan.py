@@ -138,27 +138,19 @@ def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
     return float(min(max(round(flap_deg, 1), lo), hi))
 
 
-#: ISA: the troposphere's lapse rate over its base temperature [1/ft], its pressure exponent, the
-#: tropopause [ft], the pressure ratio there, and the stratosphere's pressure scale height [ft].
-_LAPSE_PER_FT, _EXPONENT, _TROPOPAUSE_FT, _TROPOPAUSE_RATIO, _SCALE_FT = 6.8756e-6, 5.2559, 36089.0, 0.22336, 20806.0
-
-
-def _pressure_ratio(alt_ft: float) -> float:
-    """ISA static pressure over that at sea level, at a pressure altitude [ft]."""
-    if alt_ft <= _TROPOPAUSE_FT:
-        return (1.0 - _LAPSE_PER_FT * alt_ft) ** _EXPONENT
-    return _TROPOPAUSE_RATIO * float(np.exp(-(alt_ft - _TROPOPAUSE_FT) / _SCALE_FT))
-
-
 def same_lift_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     """The pressure altitude [ft] at which ``to_mach`` has the dynamic pressure ``mach`` has at ``alt_ft``
-    (ISA; ``q = 0.7 p M^2``), rounded to 100 ft: at one weight the same lift coefficient, so about the
-    same alpha at another Mach number (compressibility moves it a little). Below sea level it is negative."""
-    ratio = _pressure_ratio(alt_ft) * (mach / to_mach) ** 2
-    if ratio >= _TROPOPAUSE_RATIO:
-        alt = (1.0 - ratio ** (1.0 / _EXPONENT)) / _LAPSE_PER_FT
-    else:
-        alt = _TROPOPAUSE_FT - _SCALE_FT * float(np.log(ratio / _TROPOPAUSE_RATIO))
+    (the standard atmosphere of :func:`campaign.importer._isa`; ``q = 0.7 p M^2``), rounded to 100 ft: at
+    one weight the same lift coefficient, so about the same alpha at another Mach number (compressibility
+    moves it a little). NaN outside 0-80,000 ft."""
+    from scipy.optimize import brentq
+
+    from campaign.importer import _isa
+    target = float(_isa(alt_ft)[0][0]) * (mach / to_mach) ** 2
+    lo, hi = 0.0, 80000.0
+    if not float(_isa(hi)[0][0]) <= target <= float(_isa(lo)[0][0]):
+        return float("nan")
+    alt = brentq(lambda h: float(_isa(h)[0][0]) - target, lo, hi, xtol=1.0)
     return float(round(alt / 100.0) * 100.0)
 
 
