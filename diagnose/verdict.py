@@ -71,6 +71,14 @@ HELD_OUT_F = 300.0
 #: flap-15 condition in 3 ft/s, 18 times its floor, x0.876 (fresh 8,700,158). The 12 that were the effect gained
 #: x1.04-1.18. The held-out rule (:data:`HELD_OUT_F`) does not ask this: one of its calibrated hits gained x0.98.
 REFUTED_GAIN = 1.0
+#: ... nor one whose F statistic is below this: the noise floor holds instrument noise, not one flight's turbulence,
+#: and a term in the one flap setting of a condition fits what that condition's turbulence leaves in the residual
+#: as a level (stop 67). On the same records (3,466 cases, 680 of them nulls) the single-condition candidates
+#: :data:`STRONG_OVER_FLOOR` times their floor that were not the effect were four drags in flap or gear x flap in
+#: 3 ft/s at an F of 29-46 (one a null: 8,700,158), 11-26 times their floor; the 12 that were the effect (Cm in
+#: flap or gear x flap) had an F of 80-498. A cause :data:`CLEAR_OVER_FLOOR` times its floor at an F of
+#: :data:`STRONG_F` is above it anyway.
+ONE_CONDITION_F = 60.0
 #: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
 #: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size
 #: instrument errors could make as a discrepancy all the same.
@@ -309,7 +317,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
     decide (until stop 43 they did, at x1.05: a shape in Mach between the Mach numbers flown could
     not be predicted, and a term fitted to a few flights' turbulence could gain x1.05-1.15 by
     chance over four conditions). A cause that acts at a single condition, or at none that can be
-    left out, and that its repeats do not confirm either (nor refute: :data:`REFUTED_GAIN`), is
+    left out, and that its repeats do not confirm either (nor refute: :data:`REFUTED_GAIN`; its F at least
+    :data:`ONE_CONDITION_F`), is
     ``unconfirmed`` if it is :data:`STRONG_OVER_FLOOR` times its floor, or :data:`CLEAR_OVER_FLOOR` times with an F of
     :data:`STRONG_F`: a discrepancy all the same, named with that caution, but not put into the
     extension; so is one :data:`CLEAR_OVER_FLOOR` times its floor with an F of :data:`HELD_OUT_F`
@@ -400,8 +409,9 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
                            f"is wrong ({made or 'a combination of those errors'} would make it)")
         clear = strong or (beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= STRONG_F)
-        refuted = (bool(np.isfinite(replicate))
-                   and max(replicate, departs if np.isfinite(departs) else -np.inf) < REFUTED_GAIN)
+        refuted = ((bool(np.isfinite(replicate))
+                    and max(replicate, departs if np.isfinite(departs) else -np.inf) < REFUTED_GAIN)
+                   or cause.evidence.get("F", 0.0) < ONE_CONDITION_F)
         unseen = (cause.kind == "aero" and beyond >= CLEAR_OVER_FLOOR * floor
                   and cause.evidence.get("F", 0.0) >= HELD_OUT_F and not repeated)
         if unseen and len(reasons) == 1:

@@ -188,7 +188,9 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
     """A lift step in Mach that only the one condition flown above it sees (development seed
     3,600,045: CL +0.0127 from Mach 0.32, flown at 0.2, 0.3 and 0.5; F 6,500, 7.5 times its floor)
     is a discrepancy no other condition can confirm: named unconfirmed, not dismissed, when it is 3
-    times its floor with an F of 1,000. A weak one (F 100) or a small one (twice the floor) is not."""
+    times its floor with an F of 1,000, or 10 times with an F of 60. A weak one (F 100 at 7.5 times, F 40
+    at 18 times: what one condition's turbulence left as a level, fresh null 8,700,158's F was 38) or a
+    small one (twice the floor) is not."""
     import pandas as pd
 
     from diagnose.causes import Cause
@@ -205,7 +207,8 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
     beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
     for f_stat, floor, unconfirmed in ((6500.0, 0.0127 / 7.5, True), (100.0, 0.0127 / 7.5, False),
-                                       (6500.0, 0.0127 / 2, False)):
+                                       (6500.0, 0.0127 / 2, False), (100.0, 0.0127 / 18, True),
+                                       (40.0, 0.0127 / 18, False)):
         cause = Cause("CL", ["mach"], [term], "step", {"p_value": 0.0, "F": f_stat}, 0.0127, size=0.0127)
         judge([cause], {"CL": res}, data, [np.array([floor])])
         v = cause.verdict
