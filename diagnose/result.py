@@ -124,7 +124,7 @@ class Diagnosis:
             big = self.largest_rejected()
             if big:
                 lines.append(f"   largest candidate: {big['candidate']}: {big['reason']}")
-        top = min((rank(c.verdict) for c in self.aero_causes), default=(3, float("inf")))
+        top = min((rank(c.verdict) for c in self.aero_causes), default=(3, 0, 0.0))
         unsure = [f"Discrepancy, cause not confirmed: {c.label}: {c.shape}; peak {c.peak:.4g}; F = {c.evidence['F']:.4g}; "
                   f"size {c.size:.3g} against a noise floor of {c.verdict['noise_floor']:.3g}; {c.verdict['reason']}"
                   for c in self.unconfirmed]

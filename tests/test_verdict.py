@@ -684,6 +684,22 @@ def test_a_cause_held_out_conditions_predict_worse_is_listed_after_those_they_co
     assert order == [confirmed, small, untested, worse]
 
 
+def test_of_the_discrepancies_ten_times_their_floor_the_one_that_explains_most_of_its_residual_comes_first():
+    """Fresh 8,500,066: a stock-737 drag dead band in the elevator, 16.7 times its floor, taking 96 % of the
+    drag residual, came after a smooth(mach) 28 times its floor that took 28 %; 8,700,256: a lift table
+    in the gear, 19.4 times and 96 %, after a lift in qhat 48.7 times and 42 % (what a vane delay left).
+    Beyond ten times the floor the share of the residual orders them; below it, the size over the
+    floor, after every one beyond it."""
+    from diagnose.verdict import rank
+    mach = {"holdout_gain": 1.06, "size_over_floor": 28.0, "explains_pct": 27.9}
+    elevator = {"holdout_gain": 4.28, "size_over_floor": 16.7, "explains_pct": 95.6}
+    smaller = {"holdout_gain": 1.5, "size_over_floor": 9.0, "explains_pct": 99.0}
+    smallest = {"holdout_gain": 1.5, "size_over_floor": 4.0, "explains_pct": 99.5}
+    no_share = {"holdout_gain": 1.5, "size_over_floor": 12.0, "explains_pct": float("nan")}
+    assert sorted([smallest, smaller, no_share, mach, elevator], key=rank) == [elevator, mach, no_share, smaller,
+                                                                               smallest]
+
+
 def _row(seed, size, hit, named, effect="dCD = +0.001 * step(mach; at 0.5)", shape=0.1):
     """A case record as ``benchmarks/detection_curve.py`` writes it (its CSV's columns)."""
     return {"seed": seed, "aircraft": "A320", "conditions": "3 ft/s", "effect": effect, "size_over_floor": size,
