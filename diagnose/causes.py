@@ -123,14 +123,10 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             k = sum(t.width for t in g)
             f, p = f_test(small, full, k, n_eff, p_all)
             contrib = sum(t.design(data) @ res.term_beta(t) for t in g)
-            # one-variable functions' variables first, the one whose function alone makes most of the cause
+            # one-variable terms' variables first, the one whose function alone makes most of the cause
             # first of them (not the one that entered first: a drag step in alpha on the A320 came in
-            # as smooth(CL), then quadratic(alpha) and alpha x CL, and was named "CD vs CL, alpha"); a smooth
-            # term in alpha or Mach that varies with the other is a function of either (a stock-737 drag table
-            # in alpha, fitted by smooth(alpha) x Mach beside smooth(Mach), was "CD vs mach, alpha")
-            single = list(dict.fromkeys([t.variables[0] for t in g if t.kind in ("smooth", "linear", "quadratic")]
-                                        + [v for t in g if t.kind == "smooth_x_linear" and t.variables[0] != "gear_norm"
-                                           for v in t.variables]))
+            # as smooth(CL), then quadratic(alpha) and alpha x CL, and was named "CD vs CL, alpha")
+            single = list(dict.fromkeys(t.variables[0] for t in g if t.kind in ("smooth", "linear", "quadratic")))
             variables = sorted(single, key=lambda v: -_share(contrib, data[v].to_numpy())) if len(single) > 1 else single
             for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
                 ordered = t.variables

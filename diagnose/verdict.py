@@ -292,14 +292,14 @@ def _rank(gram: np.ndarray, rtol: float = 1e-9) -> int:
 
 
 def main_effect(cause: Cause, res: StepwiseResult, data: pd.DataFrame) -> tuple[Cause, StepwiseResult] | None:
-    """The cause cut to its terms on its first variable that has terms of its own, and its coefficient's fit refitted
+    """The cause cut to its terms on its first variable alone, and its coefficient's fit refitted
     without the rest of it (on ``data``, the fitted logs); None if it has no such term or nothing else.
 
     The stepwise search adds terms while they pass on the fitted logs; beside a large effect of one
     variable that its basis does not follow exactly (a table of 4 knots against a smooth term's
     quantile knots), interactions can enter to mop up what is left, and the cause they form with it
     fails on held-out conditions where its main effect alone would not."""
-    v = next((v for v in cause.variables if any(t.variables == (v,) for t in cause.terms)), None)
+    v = cause.variables[0]
     own = [t for t in cause.terms if t.variables == (v,)]
     if not own or len(own) == len(cause.terms):
         return None
