@@ -13,8 +13,9 @@ our 737 and of the stock 737 and A320 of the jsbsim package, flown over each one
 (1.5 ft/s turbulence) or the same with 3 ft/s, a random sensor error in a fifth of the cases; each
 is diagnosed against the bare model. Nulls: the same without an effect.
 
-A hit: the largest aerodynamic discrepancy named, a cause or one the data cannot confirm (by its
-size beyond instrument errors over its floor; the summary lists them so), is the effect's
+A hit: the first aerodynamic discrepancy named, a cause or one the data cannot confirm (in the
+summary's order, :func:`diagnose.verdict.rank`: those ten times their floor by the share of the
+residual they take, then the others by their size beyond instrument errors over the floor), is the effect's
 coefficient, holds the effect's variables, and leads with one of them. Invented: another such
 discrepancy named beside it, on another coefficient or none of its variables. A hit as flown: a hit,
 or the first cause is the effect's coefficient, leads with one of its variables and holds no other

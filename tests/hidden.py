@@ -153,9 +153,10 @@ def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instrumen
 
 
 def discrepancies(doc: dict) -> list[dict]:
-    """The aerodynamic discrepancies a diagnosis names, causes and those it cannot confirm, the largest
-    (beyond instrument errors, over its floor) first, those held-out conditions confirmed before the
-    others, as its summary lists them (:func:`diagnose.verdict.rank`)."""
+    """The aerodynamic discrepancies a diagnosis names, causes and those it cannot confirm, in the order
+    its summary lists them (:func:`diagnose.verdict.rank`: those held-out conditions confirmed first; in
+    each group those ten times their floor, the one that takes most of its coefficient's residual first,
+    then the largest beyond instrument errors over its floor)."""
     from diagnose.verdict import rank
     return sorted([c for c in doc["causes"] if c["kind"] == "aero"] + doc.get("unconfirmed", []),
                   key=lambda c: rank(c["verdict"]))
