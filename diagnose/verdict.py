@@ -77,7 +77,9 @@ REFUTED_GAIN = 1.0
 #: :data:`STRONG_OVER_FLOOR` times their floor that were not the effect were four drags in flap or gear x flap in
 #: 3 ft/s at an F of 29-46 (one a null: 8,700,158), 11-26 times their floor; the 12 that were the effect (Cm in
 #: flap or gear x flap) had an F of 80-498. A cause :data:`CLEAR_OVER_FLOOR` times its floor at an F of
-#: :data:`STRONG_F` is above it anyway.
+#: :data:`STRONG_F` is above it anyway. It does not close that class: on the fresh 8,900,000 and 9,000,000 it fired
+#: on no case, and one such drag at the A320's flap 15 in 3 ft/s had an F of 250 (8,900,247, an effect below 0.3
+#: times its floor elsewhere).
 ONE_CONDITION_F = 60.0
 #: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
 #: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size
