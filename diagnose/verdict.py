@@ -421,16 +421,19 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
                            f"is wrong ({made or 'a combination of those errors'} would make it)")
         clear = strong or (beyond >= CLEAR_OVER_FLOOR * floor and cause.evidence.get("F", 0.0) >= STRONG_F)
-        refuted = ((bool(np.isfinite(replicate))
-                    and max(replicate, departs if np.isfinite(departs) else -np.inf) < REFUTED_GAIN)
-                   or cause.evidence.get("F", 0.0) < ONE_CONDITION_F)
+        refuted = (bool(np.isfinite(replicate))
+                   and max(replicate, departs if np.isfinite(departs) else -np.inf) < REFUTED_GAIN)
+        weak = cause.evidence.get("F", 0.0) < ONE_CONDITION_F
+        if alone and clear and not refuted and weak and len(reasons) == 1:
+            reasons[0] += (f"; F = {cause.evidence.get('F', 0.0):.3g}, below the {ONE_CONDITION_F:g} a discrepancy at one "
+                           f"condition needs")
         unseen = (cause.kind == "aero" and beyond >= CLEAR_OVER_FLOOR * floor
                   and cause.evidence.get("F", 0.0) >= HELD_OUT_F and not repeated)
         if unseen and len(reasons) == 1:
             reasons[0] += (f"; a discrepancy all the same (F = {cause.evidence['F']:.4g}, {beyond / floor:.1f} times its "
                            f"noise floor beyond instrument errors), in a shape these data do not confirm")
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
-                         "unconfirmed": ((alone and clear and not refuted) or unseen) and len(reasons) == 1 or mimicked,
+                         "unconfirmed": ((alone and clear and not refuted and not weak) or unseen) and len(reasons) == 1 or mimicked,
                          "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
                          "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
                          "holdout_gain": gain,

@@ -214,6 +214,7 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
         v = cause.verdict
         assert not v["accepted"] and "one condition only (10000/0.5/0)" in v["reason"], v["reason"]
         assert v["unconfirmed"] is unconfirmed, (f_stat, floor, v)
+        assert ("a discrepancy at one condition needs" in v["reason"]) is (f_stat < 60.0), v["reason"]
 
 
 def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_discrepancy():
