@@ -433,6 +433,17 @@ class NoiseFloor:
                 out.append(row)
         return out
 
+    def channel_left_se(self, channel: str) -> float:
+        """How far the errors of one channel the logs still hold as measured (:attr:`uncertain_left`) are,
+        together, from none: the Mahalanobis distance in their joint covariance [standard errors]. A vane's
+        bias and scale, confounded over the few trim alphas flown, can each be short of 2 standard errors
+        of none and the vane's offset over those alphas many."""
+        j = [i for i, (ch, _) in enumerate(self.uncertain) if ch == channel]
+        if not j:
+            return 0.0
+        v = self.uncertain_left[j]
+        return float(np.sqrt(max(float(v @ np.linalg.pinv(self.uncertain_cov[np.ix_(j, j)]) @ v), 0.0)))
+
     def instrument_axes(self) -> np.ndarray:
         """The principal axes of the remaining instrument errors' covariance, one standard error
         long (columns, in channel units)."""
@@ -517,7 +528,8 @@ class NoiseFloor:
                     k, share = alone(seen @ to_axes[:, j] * se[j])  # one standard error of this error alone
                     left = float(self.uncertain_left[j])
                     alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k - left / se[j],
-                                 "se": float(se[j]), "left": left, "explains_pct": share})
+                                 "se": float(se[j]), "left": left, "explains_pct": share,
+                                 "channel_left_se": self.channel_left_se(ch)})
             for ch, err, r in blind:  # errors the data compatibility could not measure: no standard error
                 k, share = alone(through_terms(r[f"r_{c}"].to_numpy()[:, None])[:, 0])
                 alts.append({"channel": ch, "error": err, "needs": k * unit[err], "needs_se": 0.0,

@@ -540,6 +540,33 @@ def test_a_cause_an_error_measured_and_left_uncorrected_makes_whole_is_that_erro
     assert verdicts["beside"]["accepted"], verdicts["beside"]["reason"]
 
 
+def test_a_cause_a_vane_error_measured_whole_but_split_makes_is_that_error_whatever_is_left():
+    """Fresh null 9,200,256 (stock 737, 3 ft/s): a +0.282 deg vane bias was measured as +0.097 +- 0.12 deg and a
+    4.0 +- 2.1 % scale, each short of 2 standard errors, together 5.5 from none; the drag in alpha x Mach it made
+    was named, 1.8 times its floor beyond what the errors within reach make. When the data compatibility measured
+    a channel's errors together APPLY_Z standard errors from none, left them, and one of them alone makes 90 % of
+    the cause at a size within 2 standard errors of its measurement, the cause is that error. Re-flown effects 3-10
+    times their floor whose named cause such an error made had their vane's errors 0.3-1.8 from none together:
+    those stay named."""
+    from diagnose.verdict import MEASURED_CHANNEL_SE, judge
+    from identify.compat import APPLY_Z
+    assert MEASURED_CHANNEL_SE == APPLY_Z
+    bias = {"channel": "alpha_deg", "error": "bias", "needs": 0.268, "needs_se": 1.48, "se": 0.116, "left": 0.097,
+            "explains_pct": 99.1}
+    verdicts = {}
+    for name, joint in (("measured together", 5.54), ("not measured", 1.8)):
+        cause, res, data = _slope(3)
+        floor = cause.size / 13
+        reach = {"made": 0.89 * cause.size, "left": 1.8 * floor, "alternatives": [{**bias, "channel_left_se": joint}]}
+        judge([cause], {"CL": res}, data, [np.array([floor])], reach=[reach])
+        verdicts[name] = cause.verdict
+        assert cause.verdict["replicate_gain"] >= 1.5, cause.verdict
+    v = verdicts["measured together"]
+    assert not v["accepted"] and not v["unconfirmed"], v
+    assert "errors together 5.5 standard errors from none" in v["reason"] and "that error" in v["reason"], v["reason"]
+    assert verdicts["not measured"]["accepted"], verdicts["not measured"]["reason"]
+
+
 def _transit(bump: float, seed: int):
     """Four conditions, three gear extensions each: 200 samples gear up, 100 in the gear's travel,
     200 gear down; ``r_CL`` a bump of ``bump`` during the travel (at gear_norm 0.5, width 0.13),
