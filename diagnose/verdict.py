@@ -414,17 +414,17 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                          or a.get("channel_left_se", 0.0) >= MEASURED_CHANNEL_SE)][:1]
         mimicked = (cause.size >= STRONG_OVER_FLOOR * floor and not beyond > floor and len(reasons) == 1
                     and cause.evidence["p_value"] < alpha_in and gain >= STRONG_GAIN and not alone and not measured)
-        for a in (measured if made_by is None else []):
-            reasons.append(f"the data compatibility measured {a['channel']}'s errors together "
-                           f"{a['channel_left_se']:.1f} standard errors from none and left them uncorrected, and "
-                           f"its {a['error']} alone makes {a['explains_pct']:.0f} % of it (it needs {a['needs']:+.3g}, "
-                           f"measured {a['left']:+.3g} +- {a['se']:.2g}): that error, not the model")
-        for a in (measured if made_by is not None else []):
-            together = (f" ({a['channel']}'s errors together {a['channel_left_se']:.1f} standard errors from none)"
-                        if abs(a["left"]) < REACH_SE * a["se"] else "")
-            reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} "
-                                 f"+- {a['se']:.2g}{together} and left it uncorrected, and that makes it (it needs "
-                                 f"{a['needs']:+.3g})")
+        for a in measured:
+            together = f"{a['channel']}'s errors together {a.get('channel_left_se', 0.0):.1f} standard errors from none"
+            if made_by is None:
+                reasons.append(f"the data compatibility measured {together} and left them uncorrected, and its "
+                               f"{a['error']} alone makes {a['explains_pct']:.0f} % of it (it needs {a['needs']:+.3g}, "
+                               f"measured {a['left']:+.3g} +- {a['se']:.2g}): that error, not the model")
+            else:
+                alone_se = abs(a["left"]) >= REACH_SE * a["se"]
+                reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} "
+                                     f"+- {a['se']:.2g}{'' if alone_se else f' ({together})'} and left it uncorrected, "
+                                     f"and that makes it (it needs {a['needs']:+.3g})")
         if mimicked:
             made = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}" for a in alts)
             reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
@@ -466,7 +466,8 @@ MEASURED_PCT = 90.0
 #: and the drag in alpha x Mach it made was named on a stock-737 null in 3 ft/s, 1.8 times its floor beyond
 #: what the errors within reach make (fresh seed 9,200,256); the bias alone made 99 % of it at +0.268 deg.
 #: Re-flown, 16 development effects 3-10 times their floor, which a margin over the floor in its place would have
-#: lost, had their alpha vane's errors 0.3-1.8 standard errors from none together. The distance alone does not
+#: lost: the 11 whose cause an alpha-vane error could make at all had the vane's errors 0.3-1.8 standard errors
+#: from none together (the other 5 had no such alternative). The distance alone does not
 #: make the rule: on the fresh 9,300,303 (3 ft/s, no sensor error hidden) the kinematics put the vane's errors
 #: 6.8 from none together, and the rule fired on a "CD vs mach" the held-out logs had rejected already.
 MEASURED_CHANNEL_SE = APPLY_Z

@@ -546,8 +546,8 @@ def test_a_cause_a_vane_error_measured_whole_but_split_makes_is_that_error_whate
     was named, 1.8 times its floor beyond what the errors within reach make. When the data compatibility measured
     a channel's errors together APPLY_Z standard errors from none, left them, and one of them alone makes 90 % of
     the cause at a size within 2 standard errors of its measurement, the cause is that error. Re-flown effects 3-10
-    times their floor whose named cause such an error made had their vane's errors 0.3-1.8 from none together:
-    those stay named."""
+    times their floor whose named cause a vane error could make (11 of 16 a margin rule would have lost) had their
+    vane's errors 0.3-1.8 from none together: those stay named."""
     from diagnose.verdict import MEASURED_CHANNEL_SE, judge
     from identify.compat import APPLY_Z
     assert MEASURED_CHANNEL_SE == APPLY_Z
