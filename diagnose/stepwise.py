@@ -159,8 +159,7 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     if rows and rows[0]["p_value"] < alpha_in:
         width = rows[0]["term"].width
         best = min((r for r in rows if r["p_value"] < alpha_in and r["term"].width == width), key=lambda r: r["fit"].rss)
-        rows.remove(best)
-        rows.insert(0, best)
+        rows.sort(key=lambda r: r is not best)  # stable: the others keep their order
 
 
 @dataclass
@@ -171,7 +170,7 @@ class StepwiseResult:
     terms: list[Term]
     beta: np.ndarray  # intercept first, then each term's columns
     evidence: dict[str, dict]
-    alternatives: list[dict]
+    alternatives: list[dict]  # the first step's candidates in the order they were ranked (:func:`rank_on`)
     rms_before: float
     rms_after: float
     n_eff: float

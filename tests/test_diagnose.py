@@ -411,6 +411,9 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
     assert right["rss_reduction_pct"] > wrong["rss_reduction_pct"] + 2.0
     assert res.alternatives[0]["term"] == "gear_norm x mach"
     assert [t.label for t in res.terms] == ["gear_norm x mach"]
+    # with one term (later steps here took gear x CL back out; in 9,400,050 they named it)
+    assert [t.label for t in stepwise(frame, "CD", candidate_terms(frame, "CD"), max_terms=1).terms] == \
+        ["gear_norm x mach"]
 
 
 @pytest.mark.parametrize("truth, term", [("alpha_deg", ("mach", "alpha_deg")), ("mach", ("alpha_deg", "mach"))])
