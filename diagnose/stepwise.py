@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy import special, stats
 
 from diagnose.terms import Term, connected, tail_twin
 from identify.lsq import solve_normal
@@ -140,10 +140,51 @@ def f_test(small: Fit, big: Fit, k: int, n_eff: float, p_big: int) -> tuple[floa
     return float(f), float(stats.f.sf(f, k, dof)) if np.isfinite(f) else 0.0
 
 
+def f_logsf(f: float, d1: float, d2: float) -> float:
+    """Natural log of the F(``d1``, ``d2``) distribution's survival function at ``f``.
+
+    scipy's ``f.sf`` underflows to 0 below about 1e-308 and its ``logsf`` to -inf, while the strongest
+    candidates of a stepwise step reach 1e-500 and lower. There the survival function is the regularized
+    incomplete beta I_x(d2/2, d1/2) at x = d2 / (d2 + d1 f), whose prefactor x^a (1-x)^b / (a B(a, b)) is
+    taken in logs and whose continued fraction (modified Lentz) converges fast in this far tail.
+    """
+    if not np.isfinite(f):
+        return -np.inf
+    p = float(stats.f.sf(f, d1, d2))
+    if p > 1e-280:
+        return float(np.log(p))
+    a, b = d2 / 2.0, d1 / 2.0
+    x = d2 / (d2 + d1 * f)
+    if not x < (a + 1.0) / (a + b + 2.0):  # the fraction converges fast only in the tail (never reached here)
+        return float(np.log(max(p, 1e-320)))
+    pre = a * np.log(x) + b * np.log1p(-x) - np.log(a) - special.betaln(a, b)
+    tiny = 1e-300
+
+    def clip(v: float) -> float:
+        return v if abs(v) > tiny else tiny
+
+    c, d = 1.0, 1.0 / clip(1.0 - (a + b) * x / (a + 1.0))
+    h = d
+    for m in range(1, 10000):
+        for aa in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+                   -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1.0 / clip(1.0 + aa * d)
+            c = clip(1.0 + aa / c)
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-13:
+            break
+    return float(pre + np.log(h))
+
+
 def rank_on(rows: list[dict], alpha_in: float) -> None:
-    """Order a step's candidates (``rows``, each with its own partial F-test): by ``p_value``, then by ``F``;
-    but of the candidates as wide as the first that pass (p < ``alpha_in``), the one that leaves the least
-    residual comes first.
+    """Order a step's candidates (``rows``, each with its own partial F-test): by ``log_p``, the log of the
+    p-value (:func:`f_logsf`, exact where the p-value underflows), then by ``F``; but of the candidates as
+    wide as the first that pass (p < ``alpha_in``), the one that leaves the least residual comes first.
+
+    The strongest candidates' p-values fall below 1e-308, where they are 0 in floating point: ranked by F,
+    whose size per column favours narrow terms, quadratic(Mach) (2 columns, 67 % of the residual removed)
+    came before smooth(alpha) x Mach (14 columns, 72 %) for an A320 Cm step in alpha x Mach, whose p-values
+    are 10^-437 and 10^-518 (fresh seed 9,400,043).
 
     Each candidate's own test counts the independent samples of the residual it leaves. The term that
     removes the effect leaves the slow errors beside it (a thrust error, the gusts' low frequencies), few
@@ -155,7 +196,7 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     least of the passing candidates'), terms in alpha or Mach alone came before the interactions of the
     two that were the effects (development seeds 9,300,254 and 9,300,282).
     """
-    rows.sort(key=lambda r: (r["p_value"], -r["F"]))
+    rows.sort(key=lambda r: (r["log_p"], -r["F"]))
     if rows and rows[0]["p_value"] < alpha_in:
         width = rows[0]["term"].width
         best = min((r for r in rows if r["p_value"] < alpha_in and r["term"].width == width), key=lambda r: r["fit"].rss)
@@ -232,7 +273,8 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             f, p = f_test(current, big, t.width, n_eff, p_now + t.width)
             big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                         "n_eff": n_eff, "fit": big})
+                         "n_eff": n_eff, "fit": big,
+                         "log_p": f_logsf(f, t.width, max(n_eff - p_now - t.width, 1.0)) if p < 1e-280 else np.log(p)})
         if not rows:
             return None, None, rows
         rank_on(rows, alpha_in)
@@ -299,6 +341,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 break
             if not alternatives:
                 alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
+                                 "log10_p": r["log_p"] / np.log(10.0),
                                  "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
             if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
                 break
