@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from diagnose.stepwise import Fit, Lags, StepwiseResult, f_test, fit_terms
+from diagnose.stepwise import Fit, Lags, StepwiseResult, f_logsf, f_test, fit_terms
 from diagnose.terms import Term, connected, hats, sensor_of
 @dataclass
 class Cause:
@@ -154,6 +154,7 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
                 cause_kw = {}
             causes.append(Cause(c, variables, g, shape,
                                 {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
+                                 "log10_p": f_logsf(f, k, max(n_eff - p_all, 1.0)) / np.log(10.0),
                                  "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
                                  "terms": {t.label: res.evidence.get(t.label, {}) for t in g},
                                  "hardly_separated_from": [a for t in g for a in res.close.get(t.label, [])]},

@@ -147,7 +147,8 @@ class Diagnosis:
                     lines.append(f"   caution: the data hardly separate it from {a['term']} "
                                  f"(F = {a['F']:.4g}, {100 * a['F_ratio']:.0f} % of the chosen term's)")
                 continue
-            p = f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else "p < 1e-300"
+            p = (f"p = {e['p_value']:.2g}" if e["p_value"] > 0 else
+                 f"p = 1e{e['log10_p']:.0f}" if np.isfinite(e.get("log10_p", np.nan)) else "p < 1e-300")
             made = (f", instrument errors could make {v['instrument_errors_make']:.3g} of it"
                     if v.get("instrument_errors_make") else "")
             lines.append(f"{i}. {c.label}: {c.shape}; peak {c.peak:.4g}; "

@@ -416,6 +416,70 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
         ["gear_norm x mach"]
 
 
+def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
+    """F(2, d) and F(4, d) have closed-form tails, (1 + 2f/d)^(-d/2) and x^a (1 + a(1 - x)) with a = d/2,
+    x = d / (d + 4f); the log tail matches them to 1e-10 relative from p = 1e-5 down to 1e-3000, where
+    scipy's sf is 0 and its logsf -inf, and is continuous and decreasing in f for odd widths across the
+    switch from scipy to the continued fraction (at p = 1e-280)."""
+    from scipy import stats
+
+    from diagnose.stepwise import f_logsf
+    for d2 in (12.0, 80.0, 400.0, 1900.0, 9000.0):
+        for f in np.geomspace(20.0, 1e6, 60):
+            closed2 = -(d2 / 2) * np.log1p(2 * f / d2)
+            a, x = d2 / 2, d2 / (d2 + 4 * f)
+            closed4 = a * np.log(x) + np.log1p(a * (1 - x))
+            for d1, closed in ((2, closed2), (4, closed4)):
+                if closed > np.log(1e-5) or closed < np.log(10.0) * -3000:
+                    continue
+                assert f_logsf(f, d1, d2) == pytest.approx(closed, rel=1e-10), (f, d1, d2)
+    assert stats.f.sf(1791.0, 2, 1900.0) == 0.0 and stats.f.logsf(1791.0, 2, 1900.0) == -np.inf
+    for d1, d2 in ((3, 500.0), (14, 1900.0), (9, 300.0)):
+        fs = np.linspace(1.0, 4000.0, 4000)
+        v = np.array([f_logsf(f, d1, d2) for f in fs])
+        assert np.all(np.diff(v) < 0), (d1, d2)
+        switch = int(np.argmax(v < np.log(1e-280)))
+        assert switch > 10, (d1, d2)
+        bend = np.diff(v, 2)[switch - 6:switch + 4]  # the curvature is smooth across the switch: no step
+        k = np.arange(len(bend))
+        off = bend - np.polyval(np.polyfit(k, bend, 2), k)
+        assert bend.min() > 0 and np.max(np.abs(off)) < 1e-5 * bend.mean(), (d1, d2, off / bend.mean())
+    assert f_logsf(np.inf, 3, 100.0) == -np.inf
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_stepwise_search_ranks_candidates_whose_p_values_underflow_by_their_exact_logs(seed):
+    """A pitching moment step in alpha, growing with Mach, in twelve logs at six Mach numbers trimmed at
+    falling alpha, the alpha swinging half a degree. Four candidates' p-values are below 1e-308, 0 in
+    floating point; ranked among them by F, whose size per column favours narrow terms, smooth(Mach)
+    entered first and smooth(alpha) beside it: two causes for one (fresh seed 9,400,043: quadratic(Mach)
+    and smooth(alpha) for an A320 Cm step in alpha x Mach). In logs the effect's form is the strongest."""
+    import pandas as pd
+
+    from diagnose.causes import name_causes
+    from diagnose.stepwise import Lags, stepwise
+    from diagnose.terms import candidate_terms
+    rng = np.random.default_rng(seed)
+    frames, n = [], 600
+    for i, (mach, trim) in enumerate([(0.25, 8.0), (0.3, 6.5), (0.4, 4.5), (0.5, 3.2), (0.6, 2.4), (0.7, 1.8)] * 2):
+        swing = 0.5 * np.sin(2 * np.pi * 0.3 * np.arange(n) / 60.0)
+        a = trim + swing + rng.normal(0, 0.05, n)
+        m = mach - 0.004 * swing + rng.normal(0, 0.001, n)
+        frames.append(pd.DataFrame({"log": i, "alpha_deg": a, "mach": m,
+                                    "r_Cm": 0.01 * (a > 5.0) * (m - 0.2) / 0.5 + rng.normal(0, 1e-3, n)}))
+    frame = pd.concat(frames, ignore_index=True)
+    res = stepwise(frame, "Cm", candidate_terms(frame, "Cm"))
+    first = {a["term"]: a for a in res.alternatives}
+    right = first["smooth(alpha_deg) x mach"]
+    narrow = [a for a in res.alternatives if a["p_value"] == 0.0 and a["F"] > right["F"]]
+    assert right["p_value"] == 0.0 and narrow, "the case needs p-values that underflow, a narrower one with more F"
+    assert res.alternatives[0]["term"] == "smooth(alpha_deg) x mach"
+    assert all(right["log10_p"] < a["log10_p"] for a in narrow)
+    assert [t.label for t in res.terms] == ["smooth(alpha_deg) x mach"]
+    (cause,) = name_causes({"Cm": res}, frame, Lags(frame["log"].to_numpy()))
+    assert cause.evidence["p_value"] == 0.0 and -1e4 < cause.evidence["log10_p"] < -308  # what the summary prints
+
+
 @pytest.mark.parametrize("truth, term", [("alpha_deg", ("mach", "alpha_deg")), ("mach", ("alpha_deg", "mach"))])
 def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_that_carries_it(truth, term):
     """Four conditions, each trimmed at its own alpha (the faster, the lower), with a 2-3-1-1's alpha
