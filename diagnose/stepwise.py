@@ -281,11 +281,13 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         best = rows[0]
         # prefer a leaner term on a subset of the same variables if it does as well
         leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
-                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in),
+                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in
+                         and r["rss_reduction"] >= min_reduction),
                         key=lambda r: r["term"].width)
-        for lean in leaner:
-            if f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
-                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
+        for lean in leaner:  # as well: the wider one's extra would not pass the tests to enter after it
+            if (f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
+                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in
+                    or (lean["fit"].rss - best["fit"].rss) / rss0 < min_reduction):
                 best = lean
                 break
         entered = best  # its rivals are those nearly as strong as it, unrefined
