@@ -101,16 +101,18 @@ class Diagnosis:
         if self.rejected:
             c = max(self.rejected, key=lambda c: c.verdict["size_over_floor"])
             return {"candidate": c.label, "size": c.size, "peak": c.peak, "reason": c.verdict["reason"],
-                    "evidence": {k: c.evidence[k] for k in ("F", "p_value", "rss_reduction_pct")},
+                    "evidence": {k: c.evidence[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct")
+                                 if k in c.evidence},
                     "noise_floor": c.verdict["noise_floor"], "holdout_gain": c.verdict["holdout_gain"]}
-        best = min(self.first_step.items(), key=lambda kv: (kv[1]["p_value"], -kv[1]["F"]), default=None)
+        best = min(self.first_step.items(), key=lambda kv: (kv[1].get("log10_p", np.log10(max(kv[1]["p_value"], 1e-320))),
+                                                           -kv[1]["F"]), default=None)
         if best is None:
             return {}
         c, a = best
         why = (f"not significant (p = {a['p_value']:.2g}, needs < 1e-06)" if a["p_value"] >= 1e-6 else
                f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs 1 %)")
         return {"candidate": f"{c} vs {a['term']}", "reason": why,
-                "evidence": {k: a[k] for k in ("F", "p_value", "rss_reduction_pct")}}
+                "evidence": {k: a[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct") if k in a}}
 
     def summary(self) -> str:
         lines = []

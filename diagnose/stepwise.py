@@ -154,10 +154,12 @@ def f_logsf(f: float, d1: float, d2: float) -> float:
     if p > 1e-280:
         return float(np.log(p))
     a, b = d2 / 2.0, d1 / 2.0
-    x = d2 / (d2 + d1 * f)
+    log_sum = np.logaddexp(np.log(d2), np.log(d1) + np.log(f))  # log(d2 + d1 f), safe where d1 f overflows
+    log_x, log_1mx = np.log(d2) - log_sum, np.log(d1) + np.log(f) - log_sum
+    x = float(np.exp(log_x))
     if not x < (a + 1.0) / (a + b + 2.0):  # the fraction converges fast only in the tail (never reached here)
         return float(np.log(max(p, 1e-320)))
-    pre = a * np.log(x) + b * np.log1p(-x) - np.log(a) - special.betaln(a, b)
+    pre = a * log_x + b * log_1mx - np.log(a) - special.betaln(a, b)
     tiny = 1e-300
 
     def clip(v: float) -> float:

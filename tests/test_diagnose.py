@@ -418,22 +418,30 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
 
 def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
     """F(2, d) and F(4, d) have closed-form tails, (1 + 2f/d)^(-d/2) and x^a (1 + a(1 - x)) with a = d/2,
-    x = d / (d + 4f); the log tail matches them to 1e-10 relative from p = 1e-5 down to 1e-3000, where
-    scipy's sf is 0 and its logsf -inf, and is continuous and decreasing in f for odd widths across the
-    switch from scipy to the continued fraction (at p = 1e-280)."""
-    from scipy import stats
+    x = d / (d + 4f); for any width the tail is the prefactor times the hypergeometric series
+    2F1(a + b, 1; a + 1; x), b = width/2, whose terms are all positive (a check independent of the
+    continued fraction, whose deeper terms the closed forms never reach). The log tail matches them to
+    1e-10 relative from p = 1e-5 down to 1e-3000 (the series to 1e-12 below 1e-280), where scipy's sf
+    is 0, and its curvature in f has no step where it switches from scipy to the continued fraction
+    (at p = 1e-280)."""
+    from scipy import special, stats
 
     from diagnose.stepwise import f_logsf
     for d2 in (12.0, 80.0, 400.0, 1900.0, 9000.0):
         for f in np.geomspace(20.0, 1e6, 60):
-            closed2 = -(d2 / 2) * np.log1p(2 * f / d2)
             a, x = d2 / 2, d2 / (d2 + 4 * f)
-            closed4 = a * np.log(x) + np.log1p(a * (1 - x))
-            for d1, closed in ((2, closed2), (4, closed4)):
-                if closed > np.log(1e-5) or closed < np.log(10.0) * -3000:
-                    continue
-                assert f_logsf(f, d1, d2) == pytest.approx(closed, rel=1e-10), (f, d1, d2)
-    assert stats.f.sf(1791.0, 2, 1900.0) == 0.0 and stats.f.logsf(1791.0, 2, 1900.0) == -np.inf
+            for d1, closed in ((2, -(d2 / 2) * np.log1p(2 * f / d2)), (4, a * np.log(x) + np.log1p(a * (1 - x)))):
+                if -3000 * np.log(10.0) < closed < np.log(1e-5):
+                    assert f_logsf(f, d1, d2) == pytest.approx(closed, rel=1e-10), (f, d1, d2)
+        for d1 in (3, 9, 15):
+            for f in np.geomspace(20.0, 1e4, 25):
+                a, b = d2 / 2, d1 / 2
+                x = d2 / (d2 + d1 * f)
+                series = (a * np.log(x) + b * np.log1p(-x) - np.log(a) - special.betaln(a, b)
+                          + np.log(special.hyp2f1(a + b, 1.0, a + 1.0, x)))
+                if -3000 * np.log(10.0) < series < np.log(1e-280):  # the continued fraction's range
+                    assert f_logsf(f, d1, d2) == pytest.approx(series, rel=1e-12), (f, d1, d2)
+    assert stats.f.sf(1791.0, 2, 1900.0) == 0.0 and f_logsf(1791.0, 2, 1900.0) == pytest.approx(-1006.635306, abs=1e-5)
     for d1, d2 in ((3, 500.0), (14, 1900.0), (9, 300.0)):
         fs = np.linspace(1.0, 4000.0, 4000)
         v = np.array([f_logsf(f, d1, d2) for f in fs])
