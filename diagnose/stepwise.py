@@ -144,9 +144,10 @@ def f_logsf(f: float, d1: float, d2: float) -> float:
     """Natural log of the F(``d1``, ``d2``) distribution's survival function at ``f``.
 
     scipy's ``f.sf`` underflows to 0 below about 1e-308 and its ``logsf`` to -inf, while the strongest
-    candidates of a stepwise step reach 1e-500 and lower. There the survival function is the regularized
-    incomplete beta I_x(d2/2, d1/2) at x = d2 / (d2 + d1 f), whose prefactor x^a (1-x)^b / (a B(a, b)) is
-    taken in logs and whose continued fraction (modified Lentz) converges fast in this far tail.
+    candidates of a stepwise step reach 1e-500 and lower (reported in the evidence as ``log10_p``). There
+    the survival function is the regularized incomplete beta I_x(d2/2, d1/2) at x = d2 / (d2 + d1 f),
+    whose prefactor x^a (1-x)^b / (a B(a, b)) is taken in logs and whose continued fraction (modified
+    Lentz) converges fast in this far tail.
     """
     if not np.isfinite(f):
         return -np.inf
@@ -179,14 +180,9 @@ def f_logsf(f: float, d1: float, d2: float) -> float:
 
 
 def rank_on(rows: list[dict], alpha_in: float) -> None:
-    """Order a step's candidates (``rows``, each with its own partial F-test): by ``log_p``, the log of the
-    p-value (:func:`f_logsf`, exact where the p-value underflows), then by ``F``; but of the candidates as
-    wide as the first that pass (p < ``alpha_in``), the one that leaves the least residual comes first.
-
-    The strongest candidates' p-values fall below 1e-308, where they are 0 in floating point: ranked by F,
-    whose size per column favours narrow terms, quadratic(Mach) (2 columns, 67 % of the residual removed)
-    came before smooth(alpha) x Mach (14 columns, 72 %) for an A320 Cm step in alpha x Mach, whose p-values
-    are 10^-437 and 10^-518 (fresh seed 9,400,043).
+    """Order a step's candidates (``rows``, each with its own partial F-test): by ``p_value``, then by ``F``;
+    but of the candidates as wide as the first that pass (p < ``alpha_in``), the one that leaves the least
+    residual comes first.
 
     Each candidate's own test counts the independent samples of the residual it leaves. The term that
     removes the effect leaves the slow errors beside it (a thrust error, the gusts' low frequencies), few
@@ -198,7 +194,7 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     least of the passing candidates'), terms in alpha or Mach alone came before the interactions of the
     two that were the effects (development seeds 9,300,254 and 9,300,282).
     """
-    rows.sort(key=lambda r: (r["log_p"], -r["F"]))
+    rows.sort(key=lambda r: (r["p_value"], -r["F"]))
     if rows and rows[0]["p_value"] < alpha_in:
         width = rows[0]["term"].width
         best = min((r for r in rows if r["p_value"] < alpha_in and r["term"].width == width), key=lambda r: r["fit"].rss)
@@ -275,7 +271,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             f, p = f_test(current, big, t.width, n_eff, p_now + t.width)
             big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                         "n_eff": n_eff, "fit": big,
+                         "n_eff": n_eff, "fit": big,  # log_p: reported, not ranked on (the README's model structure)
                          "log_p": f_logsf(f, t.width, max(n_eff - p_now - t.width, 1.0)) if p < 1e-280 else np.log(p)})
         if not rows:
             return None, None, rows
@@ -283,13 +279,11 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         best = rows[0]
         # prefer a leaner term on a subset of the same variables if it does as well
         leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
-                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in
-                         and r["rss_reduction"] >= min_reduction),
+                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in),
                         key=lambda r: r["term"].width)
-        for lean in leaner:  # as well: the wider one's extra would not pass the tests to enter after it
-            if (f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
-                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in
-                    or (lean["fit"].rss - best["fit"].rss) / rss0 < min_reduction):
+        for lean in leaner:
+            if f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
+                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
                 best = lean
                 break
         entered = best  # its rivals are those nearly as strong as it, unrefined

@@ -153,9 +153,7 @@ def test_stock_737_own_terms_changed_in_the_model_are_named(stock_737_noisy, tmp
 
 def test_missing_gear_drag_does_not_leak_into_pitch_about_a_high_aerorp(stock_737_noisy, tmp_path):
     """The stock 737's AERORP sits 64 in above its CG: dCD * dz / cbar = 0.0065 in Cm if the transfer
-    used only the x offset. The drag is named in the gear alone: gear x elevator, whose p-value (10^-1516)
-    beats linear(gear)'s (10^-1475) on a slightly larger effective sample size, takes no more than a
-    hundredth of the residual more, so its elevator part could not enter after the gear."""
+    used only the x offset."""
     model = scaled_copy(STOCK / "737", tmp_path, "aero/coefficient/CDgear", 0.0)
     train, held = split(load_data(stock_737_noisy))
     diag = diagnose(train, ModelEvaluator(model), held)
