@@ -104,15 +104,14 @@ class Diagnosis:
                     "evidence": {k: c.evidence[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct")
                                  if k in c.evidence},
                     "noise_floor": c.verdict["noise_floor"], "holdout_gain": c.verdict["holdout_gain"]}
-        best = min(self.first_step.items(), key=lambda kv: (kv[1].get("log10_p", np.log10(max(kv[1]["p_value"], 1e-320))),
-                                                           -kv[1]["F"]), default=None)
+        best = min(self.first_step.items(), key=lambda kv: (kv[1]["log10_p"], -kv[1]["F"]), default=None)
         if best is None:
             return {}
         c, a = best
         why = (f"not significant (p = {a['p_value']:.2g}, needs < 1e-06)" if a["p_value"] >= 1e-6 else
                f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs 1 %)")
         return {"candidate": f"{c} vs {a['term']}", "reason": why,
-                "evidence": {k: a[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct") if k in a}}
+                "evidence": {k: a[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct")}}
 
     def summary(self) -> str:
         lines = []

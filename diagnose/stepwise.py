@@ -271,8 +271,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             f, p = f_test(current, big, t.width, n_eff, p_now + t.width)
             big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
             rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                         "n_eff": n_eff, "fit": big,  # log_p: reported, not ranked on (the README's model structure)
-                         "log_p": f_logsf(f, t.width, max(n_eff - p_now - t.width, 1.0)) if p < 1e-280 else np.log(p)})
+                         "n_eff": n_eff, "fit": big, "dof": max(n_eff - p_now - t.width, 1.0)})
         if not rows:
             return None, None, rows
         rank_on(rows, alpha_in)
@@ -339,7 +338,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 break
             if not alternatives:
                 alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
-                                 "log10_p": r["log_p"] / np.log(10.0),
+                                 "log10_p": f_logsf(r["F"], r["term"].width, r["dof"]) / np.log(10.0),
                                  "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
             if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
                 break
