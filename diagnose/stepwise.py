@@ -157,9 +157,7 @@ def f_logsf(f: float, d1: float, d2: float) -> float:
     a, b = d2 / 2.0, d1 / 2.0
     log_sum = np.logaddexp(np.log(d2), np.log(d1) + np.log(f))  # log(d2 + d1 f), safe where d1 f overflows
     log_x, log_1mx = np.log(d2) - log_sum, np.log(d1) + np.log(f) - log_sum
-    x = float(np.exp(log_x))
-    if not x < (a + 1.0) / (a + b + 2.0):  # the fraction converges fast only in the tail (never reached here)
-        return float(np.log(max(p, 1e-320)))
+    x = float(np.exp(log_x))  # below (a + 1) / (a + b + 2) wherever p < 1e-280: the fraction's fast range
     pre = a * log_x + b * log_1mx - np.log(a) - special.betaln(a, b)
     tiny = 1e-300
 
@@ -294,7 +292,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if f_test(best["fit"], big, twin.width - best["term"].width, n_eff, p_now + twin.width)[1] < alpha_in:
                 f, p = f_test(current, big, twin.width, n_eff, p_now + twin.width)
                 best = {"term": twin, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                        "n_eff": n_eff, "fit": big}
+                        "n_eff": n_eff, "fit": big, "dof": max(n_eff - p_now - twin.width, 1.0)}
         return best, entered, rows
 
     def rivals(best: dict, entered: dict, rows: list[dict]) -> list[dict]:
