@@ -5,8 +5,9 @@
     python benchmarks/detection_curve.py --merge DIR [DIR ...] --out DIR
 
 Random effects from the shape grammar (tests/shapes.py: every candidate variable and pairs of
-them, late onset, early saturation, bump, dip, step, ramp above a threshold, dead band, random
-monotone and non-monotone tables, gear x flap, gear x alpha, gear x Mach, alpha x Mach, a random
+them, on the range each aircraft flies it over (:func:`flown_ranges`, from stop 71), late onset,
+early saturation, bump, dip, step, ramp above a threshold, dead band, random monotone and
+non-monotone tables, gear x flap, gear x alpha, gear x Mach, alpha x Mach, a random
 sign, a size log-uniform from 0.3x to 30x the coefficient's noise floor) are hidden in the data of
 our 737 and of the stock 737 and A320 of the jsbsim package, flown over each one's matrix (:data:`OUR_737`,
 :data:`STOCK_737`, :data:`A320`: five conditions, two Mach numbers at one alpha) through the flight-test profile
@@ -41,6 +42,7 @@ Run by hand, outside CI: about 16 s a case on 2 cores (two processes side by sid
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import tempfile
@@ -93,6 +95,23 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
              ("A320", str(stock / "A320"), A320)]
     drawn = every[int(rng.integers(3))]
     return every[AIRCRAFT.index(only)] if only else drawn
+
+
+@functools.lru_cache(maxsize=None)
+def flown_ranges(folder: str, matrix: str) -> dict[str, tuple[float, float]]:
+    """The range [own units] each of the grammar's variables is flown over on an aircraft's matrix: the
+    1st to 99th percentile of its logged channel, the bare aircraft flown through the flight-test profile
+    in 1.5 ft/s (seed 0). The shapes are drawn on it (:func:`tests.shapes.draw`): the stock A320 trims
+    its elevator between -25 and -2 deg and flies Mach 0.3 to 0.5, where our 737 flies -3 to 3 deg and
+    Mach 0.2 to 0.5. A variable the matrix holds still (the stock 737's flap) has an empty range."""
+    from campaign.diagnose import load_data
+    with tempfile.TemporaryDirectory(prefix="ranges-") as tmp:
+        prof = Path(tmp) / "instruments.toml"
+        prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 1.5\n')
+        data = run_matrix(Path(tmp), matrix, folder, None, noise=str(prof), seed=0)
+        frames = [log.data for log in load_data(data)]
+    return {v: tuple(float(np.percentile(np.concatenate([f[v].to_numpy() for f in frames]), q)) for q in (1, 99))
+            for v in VARIABLES}
 
 
 def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, extension: str | None) -> dict:
@@ -166,11 +185,12 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
     name, folder, matrix = aircraft(rng, only)
     effect = None
     if not null:
-        allowed = [v for v in VARIABLES if not (v == "flap_deg" and name == "stock 737")]
+        ranges = flown_ranges(folder, matrix)
+        allowed = [v for v in VARIABLES if ranges[v][1] > ranges[v][0]]
         pick = ((PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(allowed)),)))
         if not set(pick) <= set(allowed):
             pick = (pick[0],)
-        effect = draw(rng, variables=pick)
+        effect = draw(rng, variables=pick, ranges=ranges)
     sensor = rng.uniform() < 0.2 or sensor_family is not None
     prof, what = profile(rng, work, sensor, sigma_fps, sensor_family)
     fx = None

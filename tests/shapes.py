@@ -21,7 +21,8 @@ import numpy as np
 
 from tests.hidden import _wrap
 
-#: Variable -> (JSBSim property, the range the diagnosis matrices fly it over).
+#: Variable -> (JSBSim property, the range our 737 flies it over on the diagnosis matrices: the default
+#: of :func:`draw`, which takes another aircraft's ``ranges`` as flown).
 VARIABLES = {"gear_norm": ("gear/gear-pos-norm", 0.0, 1.0),
              "alpha_deg": ("aero/alpha-deg", 1.0, 10.0),
              "mach": ("velocities/mach", 0.2, 0.5),
@@ -98,9 +99,15 @@ def _table_2d(row_prop: str, col_prop: str, rows, cols, values) -> str:
 
 
 def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coefficient: str | None = None,
-         variables: tuple[str, ...] | None = None, name: str | None = None) -> Effect:
+         variables: tuple[str, ...] | None = None, name: str | None = None,
+         ranges: dict[str, tuple[float, float]] | None = None) -> Effect:
     """A random effect: coefficient, one variable or an interaction pair, shape, sign, and a size
-    log-uniform from ``low`` to ``high`` times the coefficient's noise floor (:data:`FLOOR`)."""
+    log-uniform from ``low`` to ``high`` times the coefficient's noise floor (:data:`FLOOR`).
+
+    ``ranges`` maps a variable to the (low, high) range the aircraft flies it over, in its own units
+    (by default :data:`VARIABLES`'s, our 737's): the shapes are drawn on it, so that they act where the
+    aircraft flies and not where only another aircraft does. The random draws are the same for any
+    ranges."""
     c = coefficient or str(rng.choice(["CL", "CD", "Cm"]))
     if variables is None:
         variables = (PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3
@@ -109,7 +116,8 @@ def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coeffic
     size = FLOOR[c] * float(np.exp(rng.uniform(np.log(low), np.log(high))))
     amp = size * float(rng.choice([-1.0, 1.0]))
     v = variables[0]
-    prop, lo, hi = VARIABLES[v]
+    span = {k: (ranges or {}).get(k, (lo, hi)) for k, (_, lo, hi) in VARIABLES.items()}
+    prop, (lo, hi) = VARIABLES[v][0], span[v]
     n = 41
     x = np.linspace(lo, hi, n)
     y, how = shape(name, np.linspace(0, 1, n), rng)
@@ -118,7 +126,7 @@ def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coeffic
         desc = f"d{c} = {amp:+.4g} * {name}({v}; {how})"
     else:
         w = variables[1]
-        prop2, lo2, hi2 = VARIABLES[w]
+        prop2, (lo2, hi2) = VARIABLES[w][0], span[w]
         x2 = np.linspace(lo2, hi2, 5)
         second = (x2 - lo2) / (hi2 - lo2)  # 0 at the low end: the effect grows along the second variable
         body = _table_2d(prop, prop2, x, x2, amp * np.outer(y, second))
