@@ -2,6 +2,8 @@
 and never "no significant discrepancy" to an effect that dominates the residual.
 
 Only these tests read the overlays, to score the answer."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -676,6 +678,38 @@ def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
     az_moved = 0.05 + (0.05 * 0.005 / 0.0054) * (got["alpha_deg.scale"].estimate - 0.02996)
     assert got["az_fps2.bias"].applied and got["az_fps2.bias"].estimate == pytest.approx(az_moved)
     assert abs(az_moved - 0.05) < 0.3 * 0.005
+
+
+def _breakpoints(xml: str, lookup: str | None = None) -> list[float]:
+    """The breakpoints of an effect overlay's table: its rows, or (``lookup="column"``) its columns."""
+    import xml.etree.ElementTree as ET
+    rows = [r.split() for r in ET.fromstring(xml).find(".//tableData").text.strip().splitlines()]
+    return [float(x) for x in rows[0]] if lookup == "column" else [float(r[0]) for r in rows[lookup == "row":]]
+
+
+def test_the_grammar_draws_an_effect_on_the_range_it_is_given_and_nothing_else_changes():
+    """The stock A320 trims its elevator at -25 to -2 deg and our 737 at -3 to 3: a shape drawn on our 737's
+    range acts on the A320 in a few samples of one condition. Given the aircraft's range, the table spans it,
+    and the draw (shape, its parameters, sign, size) is the same as on the default range."""
+    mine = draw(np.random.default_rng(7), variables=("elevator_deg",))
+    theirs = draw(np.random.default_rng(7), variables=("elevator_deg",), ranges={"elevator_deg": (-25.0, -2.0)})
+    assert (theirs.description, theirs.size) == (mine.description, mine.size)
+    assert _breakpoints(mine.xml)[::40] == [-3.0, 3.0] and _breakpoints(theirs.xml)[::40] == [-25.0, -2.0]
+    pair = draw(np.random.default_rng(7), variables=("alpha_deg", "mach"), ranges={"mach": (0.3, 0.5)})
+    assert _breakpoints(pair.xml, "column")[::4] == [0.3, 0.5] and _breakpoints(pair.xml, "row")[::40] == [1.0, 10.0]
+    assert "(mach - 0.3)/0.2" in pair.description
+
+
+def test_the_benchmark_draws_on_the_range_each_aircraft_flies(tmp_path):
+    """The detection curve's ranges are the stock A320's as flown over its matrix, not our 737's: its
+    elevator trims below -2 deg, it flies Mach 0.3 to 0.5 and its flap at 0 and 15 deg."""
+    import jsbsim
+
+    from benchmarks.detection_curve import A320, flown_ranges
+    got = flown_ranges(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "A320"), A320)
+    assert -27 < got["elevator_deg"][0] < -20 and -4 < got["elevator_deg"][1] < -1, got
+    assert got["mach"] == pytest.approx((0.3, 0.5), abs=0.01) and got["flap_deg"] == (0.0, 15.0), got
+    assert got["gear_norm"] == (0.0, 1.0) and 0 < got["alpha_deg"][0] < got["alpha_deg"][1] < 12, got
 
 
 def test_what_an_effect_leaves_beyond_one_variable_shows_a_second_only_where_the_data_vary_it():
