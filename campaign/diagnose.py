@@ -57,9 +57,7 @@ def load_data(path: Path) -> list[Log]:
 def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
     """Hold out about every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
     ``logs``), chosen so that the rest still brackets what was flown: every altitude, Mach, flap angle and
-    gear state of the held-out conditions in the fit or within its range; where the choice has to move
-    for that, it moves to the set that also confounds least and keeps the trimmed angles of attack
-    bracketed (:func:`_unbracketed`).
+    gear state of the held-out conditions in the fit or within its range (:func:`_unbracketed`).
     Logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a held-out
     condition, so that adding them moves no condition out of the fit."""
     first = first or logs
@@ -68,15 +66,11 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tu
         raise UserError("--data: needs logs from at least two flight conditions (one is held out)")
     held = {c for i, c in enumerate(conds) if i % every == every - 1} or {conds[-1]}
     states = {c: set() for c in conds}
-    alpha = {c: [] for c in conds}
     for lg in first:
         states[lg.condition].add(_gear_state(lg))
-        if "alpha_deg" in getattr(lg, "columns", ()):
-            alpha[lg.condition].append(lg.data["alpha_deg"].to_numpy())
-    spans = {c: _span(a) for c, a in alpha.items()}
-    best = _unbracketed(held, conds, states, spans)
-    while best[0] > 0:
-        score, h, c = min(((_unbracketed((held - {h}) | {c}, conds, states, spans), h, c) for h in sorted(held)
+    best = _unbracketed(held, conds, states)
+    while best > 0:
+        score, h, c = min(((_unbracketed((held - {h}) | {c}, conds, states), h, c) for h in sorted(held)
                            for c in conds if c not in held), key=lambda s: s[0])
         if not score < best:
             break
@@ -91,46 +85,18 @@ def _gear_state(log: Log) -> str:
         return "up"
 
 
-def _span(alpha: list) -> tuple[float, float, float] | None:
-    """(1st percentile, median, 99th percentile) [deg] of a condition's angle of attack over its logs."""
-    a = np.concatenate(alpha) if alpha else np.empty(0)
-    a = a[np.isfinite(a)]
-    return tuple(np.percentile(a, [1, 50, 99])) if a.size else None
-
-
-def _unbracketed(held: set, conds: list, states: dict, spans: dict | None = None) -> tuple[int, int]:
-    """What holding out ``held`` takes from the fit, as (what it loses, what it blurs).
-
-    Lost: values of altitude, Mach, flap or gear state that no fitted condition has and that lie outside
-    the fitted range (one inside it is interpolated). Blurred, weighed only among the sets a split moves
-    to: each Mach number and flap angle the fit would fly at the same conditions only while the data fly
-    them apart (Mach 0.3 flown clean and with flap 15, the clean one held out, leaves Mach 0.3 and flap
-    15 one and the same in the fit), and each held-out condition whose median angle of attack lies
-    outside what the fitted logs fly (``spans``, from :func:`_span`: a cause in alpha is extrapolated
-    there). Blurring is no reason to move: with three conditions, one of them flap 15, every choice
-    blurs or loses, and the benchmark's 737 matrices hold out their highest alpha, where the only set
-    that keeps it takes from the fit the Mach number that shares an alpha with another."""
+def _unbracketed(held: set, conds: list, states: dict) -> int:
+    """What holding out ``held`` takes from the fit: values of altitude, Mach, flap or gear state that no
+    fitted condition has and that lie outside the fitted range (one inside it is interpolated; and taking
+    an inner condition instead can confound two variables: Mach 0.3 flown clean and with flap 15, the clean
+    one held out, leaves Mach 0.3 and flap 15 one and the same in the fit)."""
     train = [c for c in conds if c not in held]
     outside = 0
     for j in range(3):
         have = {c[j] for c in train}
         outside += sum(not min(have) < v < max(have) for v in {c[j] for c in held} - have)
     fitted = set().union(*(states[c] for c in train))
-    flown = [spans[c] for c in train if spans and spans.get(c)]
-    alpha_out = 0
-    if flown:
-        lo, hi = min(f[0] for f in flown), max(f[2] for f in flown)
-        alpha_out = sum(not lo <= spans[c][1] <= hi for c in held if spans.get(c))
-    return outside + len(set().union(*(states[c] for c in held)) - fitted), _confounded(train, conds) + alpha_out
-
-
-def _confounded(train: list, conds: list) -> int:
-    """How many (Mach number, flap angle) pairs the conditions ``train`` fly at exactly the same conditions
-    while ``conds`` do not."""
-    def at(cs, j, v):
-        return frozenset(c for c in cs if c[j] == v)
-    return sum(at(train, 1, m) == at(train, 2, f) and at(conds, 1, m) != at(conds, 2, f)
-               for m in {c[1] for c in train} for f in {c[2] for c in train})
+    return outside + len(set().union(*(states[c] for c in held)) - fitted)
 
 
 #: Below this RMS [ft/s] the wind measured in a log is taken as still air (noise-free campaigns).
