@@ -809,3 +809,22 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
         main()
     err = capsys.readouterr().err.strip().splitlines()
     assert stop.value.code == 2 and "no detection_curve.csv there" in err[-1] and not (tmp_path / "new").exists()
+
+
+def test_the_a320_benchmark_matrix_crosses_its_alpha_gap_at_one_mach_number(tmp_path):
+    """The A320's Mach 0.5 trims at 10,000 ft about 3 deg of alpha below its Mach 0.4; the benchmark's
+    sixth condition (stop 72), Mach 0.5 at the dynamic pressure of Mach 0.4 at 10,000 ft, trims within
+    0.3 deg of Mach 0.4's alpha on the A320 itself, so that an effect changing in that gap changes within
+    one Mach number too."""
+    import jsbsim
+
+    from benchmarks.detection_curve import A320, same_alpha_alt_ft
+    from campaign.diagnose import load_data
+    from tests.support import run_matrix
+    alt = same_alpha_alt_ft(10000, 0.4, 0.5)
+    assert f"alt_ft = {alt}" in A320 and 20000 < alt < 22000
+    points = [("up", 0, 0.4, 10000), ("up", 0, 0.5, alt), ("up", 0, 0.5, 10000)]
+    data = run_matrix(tmp_path, matrix_toml(points, "gap"), str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "A320"))
+    trim = {lg.condition[:2]: float(np.median(lg.data["alpha_deg"].to_numpy()[:20])) for lg in load_data(data)}
+    assert abs(trim[(alt, 0.5)] - trim[(10000.0, 0.4)]) < 0.3, trim
+    assert trim[(10000.0, 0.4)] - trim[(10000.0, 0.5)] > 2.0, trim
