@@ -552,6 +552,16 @@ def instrument_fits_better(cause) -> str:
     return _better_sensor(cause, measured=True)
 
 
+def instrument_settles(cause) -> bool:
+    """Whether the measured instrument error that :func:`instrument_fits_better` names fits better by
+    :data:`SETTLED_SE` or more overall, as well as not losing by as much in the cause's own coefficient."""
+    def settled(r: dict) -> bool:
+        return r["separation_se"] <= -SETTLED_SE and r["by_coefficient"].get(cause.coefficient, 0.0) < SETTLED_SE ** 2
+    alts = {(a["channel"], a["error"]) for a in cause.evidence.get("sensor_alternatives", []) if not a.get("unmeasured")}
+    return any(r["kind"] == "sensor" and (r["channel"], r["error"]) in alts and settled(r)
+               for r in cause.evidence.get("rivals", []))
+
+
 def instrument_preferred(cause) -> str:
     """Why a cause is not named: an instrument error the data compatibility could not measure fits
     the residuals better, by :data:`SETTLED_SE` or more (``""`` if none does). The residuals alone
