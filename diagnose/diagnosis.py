@@ -161,7 +161,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
         by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
                                                                                                  data)) for c in aero],
-                                                      data, weights=noise_weights(data, results, lags)))) if aero else {}
+                                                      data, weights=noise_weights(data, results, lags),
+                                                      beside={o: r.terms for o, r in results.items()}))) if aero else {}
         reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
         factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
         eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]

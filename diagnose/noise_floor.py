@@ -454,7 +454,7 @@ class NoiseFloor:
         return v[:, keep] * np.sqrt(w[keep])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
-              radius: float = REACH_SE, weights=None) -> list[dict]:
+              radius: float = REACH_SE, weights=None, beside: dict | None = None) -> list[dict]:
         """What the remaining instrument errors can make of each cause's fitted shape.
 
         For a cause on coefficient ``c`` with terms ``T`` and fitted contribution ``f``
@@ -466,7 +466,11 @@ class NoiseFloor:
         part of ``f`` left is what no plausible instrument error can make. With ``weights`` (one
         over each coefficient's noise per effective sample, CL, CD, Cm) the errors must also fit
         the other coefficients' residuals, each weighted so: an error that would make the cause
-        but leave in CD or Cm a signature the data do not hold cannot make it. Each
+        but leave in CD or Cm a signature the data do not hold cannot make it. ``beside`` (the terms
+        fitted to each coefficient): the other coefficients' residuals and signatures are taken beside
+        their own terms, so that an error may share another coefficient's residual with the aero
+        terms fitted there (a vane scale under-corrected leaves a Cm in alpha, and a CL effect in
+        alpha beside it made the CL residual seem to refuse the scale). Each
         instrument error alone, at any size, is also fitted to ``f``: the alternatives
         that make most of it, with the size they would need.
 
@@ -519,8 +523,14 @@ class NoiseFloor:
                             cols = np.column_stack([r[f"r_{o}"].to_numpy() for r in resp])
                             y = data[f"r_{o}"].to_numpy(float)
                             ok = np.isfinite(y) & np.isfinite(cols).all(axis=1)
-                            a.append(w[o] * np.where(ok[:, None], cols - cols[ok].mean(axis=0), 0.0))
-                            b.append(w[o] * np.where(ok, y - y[ok].mean(), 0.0))
+                            cols = np.where(ok[:, None], cols - cols[ok].mean(axis=0), 0.0)
+                            y = np.where(ok, y - y[ok].mean(), 0.0)
+                            if beside and beside.get(o):
+                                xo = design_matrix(beside[o], data)
+                                xo = np.where(ok[:, None], xo - xo[ok].mean(axis=0), 0.0)
+                                cols, y = (v - xo @ np.linalg.lstsq(xo, v, rcond=None)[0] for v in (cols, y))
+                            a.append(w[o] * cols)
+                            b.append(w[o] * y)
                     a, b = np.vstack(a), np.concatenate(b)
                 z0 = to_axes @ self.uncertain_left
                 made = seen @ (z0 + _trust_region(a, b - a @ z0, radius))
