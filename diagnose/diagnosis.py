@@ -78,9 +78,27 @@ def _strong(cause) -> bool:
     that fits better by less than :data:`~diagnose.separation.SETTLED_SE` leaves it unconfirmed, not
     rejected: a stock-737 drag table in alpha, 1.3 times its floor (F = 1,337, x1.66), was rejected for a
     -0.08 deg vane bias 2.1 standard errors from the data compatibility's measurement, which fitted
-    2.9 standard errors better (fresh seed 9,401,808). On 390 null flights of the detection curve
-    (9,400,000-9,402,159), no candidate this strong was rejected by any rule."""
+    2.9 standard errors better (fresh seed 9,401,808). On 390 null flights of the detection curve at the
+    codes of stops 69-72 (seeds 9,300,150-9,402,159), no candidate this strong was rejected by any rule."""
     return cause.evidence.get("F", 0.0) >= STRONG_F and cause.verdict.get("holdout_gain", 0.0) >= STRONG_GAIN
+
+
+def instrument_verdict(cause) -> None:
+    """The instrument-error rules on a cause's verdict, in place, after its rivals are fitted. An error
+    the data compatibility could not measure that fits better leaves it unconfirmed
+    (:func:`~diagnose.separation.instrument_preferred`); one it measured, within reach, rejects it
+    (:func:`~diagnose.separation.instrument_fits_better`), unless the discrepancy is :func:`_strong` and
+    that error does not fit better by :data:`~diagnose.separation.SETTLED_SE`: then it is unconfirmed."""
+    c = cause
+    preferred = instrument_preferred(c)
+    if preferred and c.verdict["accepted"]:
+        c.verdict.update(accepted=False, unconfirmed=True, reason=preferred)
+    within = instrument_fits_better(c)
+    if within and (c.verdict["accepted"] or c.verdict.get("unconfirmed")):
+        open_ = _strong(c) and not instrument_settles(c)
+        c.verdict.update(accepted=False, unconfirmed=open_, reason=within + (
+            f"; not by the {SETTLED_SE:g} standard errors that settle it, and the discrepancy itself is strong "
+            f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})" if open_ else ""))
 
 
 def _split_stands(causes, coefficient: str, split: list) -> bool:
@@ -206,15 +224,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     compat, logs, held, data, held_data, noise = p.compat, p.logs, p.held, p.data, p.held_data, p.noise
     results, causes = p.results, p.causes
     for c in causes:
-        preferred = instrument_preferred(c)
-        if preferred and c.verdict["accepted"]:
-            c.verdict.update(accepted=False, unconfirmed=True, reason=preferred)
-        within = instrument_fits_better(c)
-        if within and (c.verdict["accepted"] or c.verdict.get("unconfirmed")):
-            open_ = _strong(c) and not instrument_settles(c)
-            c.verdict.update(accepted=False, unconfirmed=open_, reason=within + (
-                f"; not by the {SETTLED_SE:g} standard errors that settle it, and the discrepancy itself is strong "
-                f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})" if open_ else ""))
+        instrument_verdict(c)
     aero_terms = {c: [t for t in r.terms if sensor_of(t.variables[0]) is None] for c, r in results.items()}
     sensors = compat_causes(compat, corrected, data, held_data, aero_terms) if compat else []
     sensors.sort(key=lambda c: -c.evidence["z"])

@@ -334,6 +334,41 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     assert sep.instrument_fits_better(blind) == "" and sep.instrument_preferred(blind)
 
 
+def test_a_strong_discrepancy_is_left_unconfirmed_not_rejected_by_an_instrument_error_that_does_not_settle_it():
+    """Fresh seed 9,401,808: a stock-737 drag table in alpha (F = 1,337, held-out gain x1.66) was
+    rejected because a -0.08 deg vane bias, 2.1 standard errors from the data compatibility's
+    measurement, fitted 2.9 standard errors better (13.5 of it in CD). No gate may dismiss a discrepancy
+    that strong: it stays a discrepancy, its cause unconfirmed. The same preference rejects a weaker one,
+    and a settled one (5 standard errors) rejects a strong one too."""
+    from types import SimpleNamespace
+
+    from diagnose.diagnosis import instrument_verdict
+
+    def cause(F, gain, separation, by_cd):
+        alt = {"channel": "alpha_deg", "error": "bias", "needs": -0.08, "needs_se": -2.08, "se": 0.064,
+               "explains_pct": 100.0}
+        rival = {"rival": "alpha_deg bias", "kind": "sensor", "channel": "alpha_deg", "error": "bias",
+                 "separation_se": separation, "by_coefficient": {"CL": 1.29, "CD": by_cd, "Cm": 0.0,
+                                                                 "data compatibility": 3.68}}
+        return SimpleNamespace(coefficient="CD", evidence={"F": F, "sensor_alternatives": [alt], "rivals": [rival]},
+                               verdict={"accepted": True, "holdout_gain": gain})
+
+    strong = cause(1337.3, 1.66, -2.93, -13.53)
+    instrument_verdict(strong)
+    assert not strong.verdict["accepted"] and strong.verdict["unconfirmed"]
+    assert "alpha_deg bias -0.08" in strong.verdict["reason"] and "not by the 5 standard errors" in strong.verdict["reason"]
+    for weak in (cause(900.0, 1.66, -2.93, -13.53), cause(1337.3, 1.4, -2.93, -13.53)):
+        instrument_verdict(weak)
+        assert not weak.verdict["accepted"] and not weak.verdict["unconfirmed"], weak.verdict
+    settled = cause(1337.3, 1.66, -5.5, -30.0)
+    instrument_verdict(settled)
+    assert not settled.verdict["accepted"] and not settled.verdict["unconfirmed"]
+    assert "not by the" not in settled.verdict["reason"]
+    untouched = cause(1337.3, 1.66, -1.5, -3.0)
+    instrument_verdict(untouched)
+    assert untouched.verdict["accepted"]
+
+
 def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces_a_named_cause_s_term():
     """The rival's swapped-in term replaces the one it stood for, in a named cause only; a rival
     2.9 standard errors better, a sensor rival, or one beside a rejected cause changes nothing."""
