@@ -24,7 +24,7 @@ import pandas as pd
 
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
-from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_alpha_for_mach, in_flow_states
+from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_alpha_for_mach, in_flow_states, widened
 from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
@@ -61,6 +61,12 @@ SWAP_SE = 3.0
 #: they name alike; none was a null. A term in a control the trim sets times another variable gives way
 #: alike to the same term in alpha or Mach (:func:`diagnose.state_twins.in_flow_states`).
 STATE_SE = 2.0
+#: A term in alpha alone or Mach alone gives way to one in both (:func:`diagnose.state_twins.widened`)
+#: if the data prefer that by this many standard errors. The rival holds the term, and its extra columns
+#: fit noise too: :func:`pair` takes their number off, but what is left scatters as a chi-square with
+#: that many degrees of freedom (12 to 24 here), which passes 3 standard errors about once in 20 and 5
+#: about once in 1,000 to 5,000. The dead band in alpha times Mach it is for was 17 better (9,402,104).
+WIDER_SE = 5.0
 
 
 def term_to_dict(t: Term) -> dict:
@@ -371,6 +377,23 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     return out
 
 
+def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) -> list[Hypothesis]:
+    """The cause with one of its terms in alpha alone or Mach alone put in both
+    (:func:`diagnose.state_twins.widened`, refined alike). They are kept apart from its rivals: each holds
+    the cause, so no flight separates them the other way (`campaign plan`), and they replace a term only
+    when the data prefer them by :data:`WIDER_SE`."""
+    out = []
+    for t in cause.terms:
+        for w in widened(t, pool):
+            w = refined_alike(w, t, pool, data)
+            if w in cause.terms:
+                continue
+            terms = tuple(w if u == t else u for u in cause.terms)
+            out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
+                                  cause.coefficient, terms))
+    return out
+
+
 def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, compat, lags) -> list[dict]:
     """:func:`pair` of every named (or unconfirmed) aero cause with each of its rivals.
 
@@ -392,17 +415,23 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     aero = [c for c in causes if c.kind == "aero" and (c.verdict.get("accepted") or c.verdict.get("unconfirmed"))]
     rivals = {id(c): rival_hypotheses(c, results[c.coefficient], pools[c.coefficient],
                                       c.evidence.get("sensor_alternatives", []), compat, data) for c in aero}
-    if not any(rivals.values()):
+    wider = {id(c): wider_hypotheses(c, pools[c.coefficient], data) for c in aero}
+    if not any(rivals.values()) and not any(wider.values()):
         return []
     weights = noise_weights(data, results, lags)
     sig = signatures(floor, [h.key for hs in rivals.values() for h in hs if h.kind == "sensor"])
     out = []
     for c in aero:
-        if not rivals[id(c)]:
+        if not rivals[id(c)] and not wider[id(c)]:
             continue
         context = {k: [t for o in aero if o is not c and o.coefficient == k for t in o.terms] for k in COEFFS}
         stack = Stack(data, weights, sig, context)
         mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
+        for h in wider[id(c)]:
+            doc = pair(stack, mine, h)
+            c.evidence.setdefault("wider_rivals", []).append(
+                {"rival": h.name, "kind": "aero", "term": [t.label for t in h.terms if t not in c.terms][0],
+                 "replaces": [t.label for t in c.terms if t not in h.terms][0], "separation_se": doc["separation_se"]})
         for h in rivals[id(c)]:
             doc = pair(stack, mine, h)
             doc["context"] = {k: [term_to_dict(t) for t in v] for k, v in context.items()}
@@ -457,6 +486,7 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
 
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
                   and (r["separation_se"] <= -SWAP_SE or in_states(r) and r["separation_se"] < STATE_SE)]
+        better += [r for r in c.evidence.get("wider_rivals", []) if r["separation_se"] <= -WIDER_SE]
         plain = {r.get("replaces") for r in better if not and_mach(r)}
         better = [r for r in better if not and_mach(r) or r.get("replaces") not in plain]  # Mach if alpha will not do
         if not better:

@@ -70,3 +70,17 @@ def in_flow_states(term: Term, pool: list[Term]) -> list[Term]:
         return []
     found = (_replaced(term, controls[0], state, pool) for state in FLOW_STATES if state not in term.variables)
     return [t for t in found if t is not None]
+
+
+def widened(term: Term, pool: list[Term]) -> list[Term]:
+    """The candidates of ``pool`` in alpha and Mach together, for a term in alpha alone or in Mach alone
+    (none otherwise). A term whose variables hold the cause's enters second only if it removes 1 % of
+    the residual the search began with (:func:`diagnose.stepwise.stepwise`), and a shape in alpha that
+    Mach scales is mostly a shape in alpha: an A320 Cm dead band in alpha times Mach, 17.6 times its
+    floor, was named "Cm vs alpha_deg" when smooth(alpha) removed 96.1 % of the residual and
+    smooth(alpha) x Mach 96.5 % (fresh seed 9,402,104). Such a rival contains the term, so the data
+    never prefer the term to it; they prefer the rival by what the other variable adds
+    (:data:`diagnose.separation.WIDER_SE`)."""
+    if term.variables not in (("alpha_deg",), ("mach",)):
+        return []
+    return [t for t in pool if set(t.variables) == set(FLOW_STATES)]
