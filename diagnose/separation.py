@@ -62,10 +62,10 @@ SWAP_SE = 3.0
 #: alike to the same term in alpha or Mach (:func:`diagnose.state_twins.in_flow_states`).
 STATE_SE = 2.0
 #: A term in alpha alone or Mach alone gives way to one in both (:func:`diagnose.state_twins.widened`)
-#: if the data prefer that by this many standard errors. The rival holds the term, and its extra columns
-#: fit noise too: :func:`pair` takes their number off, but what is left scatters as a chi-square with
-#: that many degrees of freedom (12 to 24 here), which passes 3 standard errors about once in 20 and 5
-#: about once in 1,000 to 5,000. The dead band in alpha times Mach it is for was 17 better (9,402,104).
+#: if the data prefer that by this many standard errors, to the term and to the term with twice its knots
+#: (:func:`wider_hypotheses`). The rival's extra columns fit noise too: :func:`pair` takes their number off,
+#: but what is left scatters as a chi-square with that many degrees of freedom (12 to 24 here), which passes
+#: 3 standard errors about once in 20 and 5 about once in 1,000 to 5,000.
 WIDER_SE = 5.0
 
 
@@ -377,20 +377,38 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     return out
 
 
-def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) -> list[Hypothesis]:
+def finer(term: Term, pool: list[Term]) -> Term:
+    """``term`` in its variable with twice the knots (a knot between each two): for a term that is not
+    smooth, the pool's smooth term in the same variable so refined (``term`` itself if there is none)."""
+    base = term if term.kind == "smooth" else next(
+        (t for t in pool if t.kind == "smooth" and t.variables == term.variables), None)
+    if base is None:
+        return term
+    k = np.asarray(base.knots, float)
+    return replace(base, knots=tuple(np.sort(np.concatenate([k, (k[1:] + k[:-1]) / 2]))))
+
+
+def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) -> list[tuple[Hypothesis, Hypothesis]]:
     """The cause with one of its terms in alpha alone or Mach alone put in both
-    (:func:`diagnose.state_twins.widened`, refined alike). They are kept apart from its rivals: each holds
-    the cause, so no flight separates them the other way (`campaign plan`), and they replace a term only
-    when the data prefer them by :data:`WIDER_SE`."""
+    (:func:`diagnose.state_twins.widened`, refined alike), each beside the cause with that term
+    :func:`finer` instead. They are kept apart from its rivals: each holds the cause, so no flight
+    separates them the other way (`campaign plan`), and they replace a term only when the data prefer
+    them by :data:`WIDER_SE` to both. A smooth term times the other variable adds knots' worth of columns
+    in the term's own variable too (trimmed alpha falls as Mach rises, and within one knot interval each
+    condition visits its own part): a Cm dead band in alpha alone, fitted by smooth(alpha), preferred
+    smooth(alpha) x Mach by 3.6-5.3 standard errors, and smooth(alpha) with twice the knots by 20 to it
+    (``tests/test_plan.py``)."""
     out = []
     for t in cause.terms:
+        fine = Hypothesis(f"{cause.coefficient}: finer", "aero", cause.coefficient,
+                          tuple(finer(t, pool) if u == t else u for u in cause.terms))
         for w in widened(t, pool):
             w = refined_alike(w, t, pool, data)
             if w in cause.terms:
                 continue
             terms = tuple(w if u == t else u for u in cause.terms)
-            out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
-                                  cause.coefficient, terms))
+            out.append((Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
+                                   cause.coefficient, terms), fine))
     return out
 
 
@@ -427,11 +445,12 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
         context = {k: [t for o in aero if o is not c and o.coefficient == k for t in o.terms] for k in COEFFS}
         stack = Stack(data, weights, sig, context)
         mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
-        for h in wider[id(c)]:
-            doc = pair(stack, mine, h)
+        for h, fine in wider[id(c)]:
             c.evidence.setdefault("wider_rivals", []).append(
                 {"rival": h.name, "kind": "aero", "term": [t.label for t in h.terms if t not in c.terms][0],
-                 "replaces": [t.label for t in c.terms if t not in h.terms][0], "separation_se": doc["separation_se"]})
+                 "replaces": [t.label for t in c.terms if t not in h.terms][0],
+                 "separation_se": pair(stack, mine, h)["separation_se"],
+                 "finer_separation_se": pair(stack, fine, h)["separation_se"]})
         for h in rivals[id(c)]:
             doc = pair(stack, mine, h)
             doc["context"] = {k: [term_to_dict(t) for t in v] for k, v in context.items()}
@@ -486,7 +505,8 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
 
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
                   and (r["separation_se"] <= -SWAP_SE or in_states(r) and r["separation_se"] < STATE_SE)]
-        better += [r for r in c.evidence.get("wider_rivals", []) if r["separation_se"] <= -WIDER_SE]
+        better += [r for r in c.evidence.get("wider_rivals", [])
+                   if max(r["separation_se"], r["finer_separation_se"]) <= -WIDER_SE]
         plain = {r.get("replaces") for r in better if not and_mach(r)}
         better = [r for r in better if not and_mach(r) or r.get("replaces") not in plain]  # Mach if alpha will not do
         if not better:

@@ -395,6 +395,54 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces
     assert sep.preferred_aero_rivals([cause(-9.6, accepted=False)], pools) == {}
 
 
+def _dead_band_in_alpha(with_mach: bool) -> pd.DataFrame:
+    """Twenty logs at five Mach numbers trimmed at falling alpha, the alpha swinging 1.5 deg, and a
+    pitching-moment dead band in alpha (flat within 0.7 deg of 5 deg), growing from nothing at Mach 0.28
+    to full at 0.5 if ``with_mach``."""
+    rng = np.random.default_rng(0)
+    out, n = [], 600
+    for i, (mach, trim) in enumerate([(0.3, 6.5), (0.35, 5.5), (0.4, 4.6), (0.45, 3.9), (0.5, 3.3)] * 4):
+        swing = 1.5 * np.sin(2 * np.pi * 0.3 * np.arange(n) / 60.0)
+        a = trim + swing + rng.normal(0, 0.05, n)
+        m = mach - 0.004 * swing + rng.normal(0, 0.001, n)
+        band = np.sign(a - 5.0) * np.maximum(np.abs(a - 5.0) - 0.7, 0.0)
+        scale = (m - 0.28) / 0.22 if with_mach else 1.0
+        out.append(pd.DataFrame({"log": i, "alpha_deg": a, "mach": m, "r_CL": rng.normal(0, 1e-3, n),
+                                 "r_CD": rng.normal(0, 1e-4, n), "r_Cm": 0.004 * band * scale + rng.normal(0, 2e-4, n)}))
+    return pd.concat(out, ignore_index=True)
+
+
+@pytest.mark.parametrize("with_mach", [True, False])
+def test_a_term_in_alpha_gives_way_to_one_in_alpha_and_mach_only_if_mach_fits_better_than_finer_knots(with_mach):
+    """Fresh seed 9,402,104: an A320 Cm dead band in alpha x Mach, 17.6 times its floor, was named "Cm vs
+    alpha_deg": smooth(alpha) removed 96.1 % of the residual, and smooth(alpha) x Mach could not enter
+    beside it (1 % of the residual at least). As a rival it takes the term's place when the data prefer it
+    by 5 standard errors to the term and to the term with twice its knots. For a dead band in alpha alone
+    the wider term is also preferred to smooth(alpha), by its extra knots' worth of columns in alpha, but
+    the finer knots fit better still: nothing changes."""
+    from diagnose.causes import name_causes
+    from diagnose.stepwise import Lags, stepwise
+    from diagnose.terms import candidate_terms
+    frame = _dead_band_in_alpha(with_mach)
+    lags = Lags(frame["log"].to_numpy())
+    pool = candidate_terms(frame, "Cm")
+    only = stepwise(frame, "Cm", [t for t in pool if t.label == "smooth(alpha_deg)"])
+    results = {"CL": stepwise(frame, "CL", []), "CD": stepwise(frame, "CD", []), "Cm": only}
+    (cause,) = name_causes({"Cm": only}, frame, lags)
+    cause.verdict = {"accepted": True}
+    assert sep.cause_rivals([cause], results, {"Cm": pool, "CL": [], "CD": []}, frame, None, None, lags) == []
+    wider = {r["term"]: r for r in cause.evidence["wider_rivals"]}
+    assert set(wider) == {"smooth(alpha_deg) x mach", "smooth(mach) x alpha_deg", "alpha_deg x mach"}
+    assert wider["smooth(alpha_deg) x mach"]["separation_se"] <= -sep.WIDER_SE  # more columns in alpha, either way
+    swaps = sep.preferred_aero_rivals([cause], {"Cm": pool}, frame)
+    if with_mach:
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] <= -sep.WIDER_SE
+        assert {a.label: b.label for a, b in swaps["Cm"].items()} == {"smooth(alpha_deg)": "smooth(alpha_deg) x mach"}
+    else:
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] >= sep.SETTLED_SE
+        assert swaps == {}
+
+
 def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refined_alike():
     """In place of smooth(CL) refined with the tails' knots, smooth(alpha) goes in with its own tails'
     knots, as the rivals were judged; in place of an unrefined term, unrefined."""
