@@ -39,12 +39,12 @@ from diagnose.causes import merge_sensors, name_causes
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import REACH_SE, NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.separation import (SETTLED_SE, SWAP_ROUNDS, cause_rivals, compose_swaps, instrument_fits_better,
-                                 instrument_preferred, instrument_settles, noise_weights, preferred_aero_rivals)
+from diagnose.sensor_rivals import instrument_verdict
+from diagnose.separation import SWAP_ROUNDS, cause_rivals, compose_swaps, noise_weights, preferred_aero_rivals
 from diagnose.result import Diagnosis
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
-from diagnose.verdict import STRONG_F, STRONG_GAIN, contribution, judge, rank
+from diagnose.verdict import contribution, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
 
@@ -70,35 +70,6 @@ def _parts(causes, coefficient: str, split: list) -> list:
 
 def _passes(cause) -> bool:
     return bool(cause.verdict.get("accepted") or cause.verdict.get("unconfirmed"))
-
-
-def _strong(cause) -> bool:
-    """A discrepancy no gate may dismiss outright: F of :data:`~diagnose.verdict.STRONG_F` or more and a
-    pooled held-out gain of :data:`~diagnose.verdict.STRONG_GAIN` or more. A measured instrument error
-    that fits better by less than :data:`~diagnose.separation.SETTLED_SE` leaves it unconfirmed, not
-    rejected: a stock-737 drag table in alpha, 1.3 times its floor (F = 1,337, x1.66), was rejected for a
-    -0.08 deg vane bias 2.1 standard errors from the data compatibility's measurement, which fitted
-    2.9 standard errors better (fresh seed 9,401,808). On 390 null flights of the detection curve at the
-    codes of stops 69-72 (seeds 9,300,150-9,402,159), no candidate this strong was rejected by any rule."""
-    return cause.evidence.get("F", 0.0) >= STRONG_F and cause.verdict.get("holdout_gain", 0.0) >= STRONG_GAIN
-
-
-def instrument_verdict(cause) -> None:
-    """The instrument-error rules on a cause's verdict, in place, after its rivals are fitted. An error
-    the data compatibility could not measure that fits better leaves it unconfirmed
-    (:func:`~diagnose.separation.instrument_preferred`); one it measured, within reach, rejects it
-    (:func:`~diagnose.separation.instrument_fits_better`), unless the discrepancy is :func:`_strong` and
-    that error does not fit better by :data:`~diagnose.separation.SETTLED_SE`: then it is unconfirmed."""
-    c = cause
-    preferred = instrument_preferred(c)
-    if preferred and c.verdict["accepted"]:
-        c.verdict.update(accepted=False, unconfirmed=True, reason=preferred)
-    within = instrument_fits_better(c)
-    if within and (c.verdict["accepted"] or c.verdict.get("unconfirmed")):
-        open_ = _strong(c) and not instrument_settles(c)
-        c.verdict.update(accepted=False, unconfirmed=open_, reason=within + (
-            f"; not by the {SETTLED_SE:g} standard errors that settle it, and the discrepancy itself is strong "
-            f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})" if open_ else ""))
 
 
 def _split_stands(causes, coefficient: str, split: list) -> bool:

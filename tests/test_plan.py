@@ -15,6 +15,7 @@ import pytest
 from campaign.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from campaign.plan import PLAN_SE
+from diagnose import sensor_rivals
 from diagnose import separation as sep
 from diagnose import state_twins
 from diagnose.terms import Term
@@ -315,23 +316,23 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
         return SimpleNamespace(coefficient=coefficient, evidence={"sensor_alternatives": [alt], "rivals": [rival]})
 
     lift = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0, "data compatibility": 0.5}, -6.2)
-    assert sep.instrument_fits_better(lift).startswith("an instrument error within the data compatibility's reach")
-    assert "6.2 standard errors better" in sep.instrument_fits_better(lift)
-    assert sep.instrument_preferred(lift) == ""
+    assert sensor_rivals.instrument_fits_better(lift).startswith("an instrument error within the data compatibility's reach")
+    assert "6.2 standard errors better" in sensor_rivals.instrument_fits_better(lift)
+    assert sensor_rivals.instrument_preferred(lift) == ""
     bump = cause("Cm", {"CL": 18858.6, "CD": -58037.5, "Cm": 2103.9, "data compatibility": 10.3}, -192.5)
-    assert sep.instrument_fits_better(bump) == ""
+    assert sensor_rivals.instrument_fits_better(bump) == ""
     drag = cause("CD", {"CL": -60.0, "CD": 4.4, "Cm": -48.0, "data compatibility": 0.5}, -10.2)
-    assert sep.instrument_fits_better(drag)
+    assert sensor_rivals.instrument_fits_better(drag)
     own = cause("CD", {"CL": -0.0, "CD": -13.1, "Cm": 0.0, "data compatibility": 1.1}, -3.6)
-    assert "3.6 standard errors better" in sep.instrument_fits_better(own)
+    assert "3.6 standard errors better" in sensor_rivals.instrument_fits_better(own)
     elsewhere = cause("CL", {"CL": 1.0, "CD": -20.4, "Cm": 0.0, "data compatibility": 0.5}, -4.4)
-    assert sep.instrument_fits_better(elsewhere) == ""
+    assert sensor_rivals.instrument_fits_better(elsewhere) == ""
     slight = cause("CL", {"CL": -1.7, "CD": -4.6, "Cm": -0.2, "data compatibility": -6.9}, -3.7)
-    assert sep.instrument_fits_better(slight) == ""
+    assert sensor_rivals.instrument_fits_better(slight) == ""
     close = cause("CD", {"CL": -0.0, "CD": -5.0, "Cm": 0.0, "data compatibility": 1.5}, -1.9)
-    assert sep.instrument_fits_better(close) == ""
+    assert sensor_rivals.instrument_fits_better(close) == ""
     blind = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0}, -6.2, unmeasured=True)
-    assert sep.instrument_fits_better(blind) == "" and sep.instrument_preferred(blind)
+    assert sensor_rivals.instrument_fits_better(blind) == "" and sensor_rivals.instrument_preferred(blind)
 
 
 def test_a_strong_discrepancy_is_left_unconfirmed_not_rejected_by_an_instrument_error_that_does_not_settle_it():
@@ -342,7 +343,7 @@ def test_a_strong_discrepancy_is_left_unconfirmed_not_rejected_by_an_instrument_
     and a settled one (5 standard errors) rejects a strong one too."""
     from types import SimpleNamespace
 
-    from diagnose.diagnosis import instrument_verdict
+    from diagnose.sensor_rivals import instrument_verdict
 
     def cause(F, gain, separation, by_cd):
         alt = {"channel": "alpha_deg", "error": "bias", "needs": -0.08, "needs_se": -2.08, "se": 0.064,
