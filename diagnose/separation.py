@@ -389,9 +389,9 @@ def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) 
     separates them the other way (`campaign plan`), and they replace a term only when the data prefer
     them by :data:`WIDER_SE` to both. A smooth term times the other variable adds knots' worth of columns
     in the term's own variable too (trimmed alpha falls as Mach rises, and within one knot interval each
-    condition visits its own part): a Cm dead band in alpha alone, fitted by smooth(alpha), preferred
-    smooth(alpha) x Mach by 3.6-5.3 standard errors, and smooth(alpha) with twice the knots by 20 to it
-    (``tests/test_plan.py``)."""
+    condition visits its own part): a synthetic Cm dead band in alpha alone, fitted by smooth(alpha),
+    preferred smooth(alpha) x Mach by 6-9 standard errors, and smooth(alpha) with twice the knots by about
+    30 to it (``tests/test_plan.py``)."""
     out = []
     for t in cause.terms:
         fine = Hypothesis(f"{cause.coefficient}: finer", "aero", cause.coefficient,
