@@ -47,26 +47,39 @@ def instrument_verdict(cause) -> None:
             f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})" if open_ else ""))
 
 
-def _better_sensor(cause, measured: bool) -> str:
-    """Why a cause is not named (``""`` if nothing says so): the sensor rival that fits the residuals
-    best, by :data:`~diagnose.separation.SETTLED_SE` or more, among the errors the data compatibility measured
-    (``measured``) or could not measure. For a measured error, the cause's own coefficient must not
-    settle it the other way (the cause better there by :data:`~diagnose.separation.SETTLED_SE`): the error's signature in the
-    other coefficients may fit what no cause there was named for (a thrust scale's remainder in CD made
-    an alpha scale 190 standard errors better than a Cm bump in alpha that was there, and that fitted
-    Cm 46 standard errors better). A measured error that fits better in the cause's own coefficient too
-    needs only :data:`PREFERRED_SE`, there and overall."""
+def _sensor_rivals(cause, measured: bool) -> tuple[dict, list[dict]]:
+    """The cause's instrument-error alternatives the data compatibility measured (``measured``) or could
+    not, by (channel, error), and its sensor rivals among them."""
     alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", [])
             if bool(a.get("unmeasured")) != measured}
+    return alts, [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
+                  and (r["channel"], r["error"]) in alts]
+
+
+def _settled(r: dict, coefficient: str) -> bool:
+    """A sensor rival better by :data:`~diagnose.separation.SETTLED_SE` overall that the cause's own
+    coefficient does not favour the other way by as much."""
+    return r["separation_se"] <= -SETTLED_SE and r["by_coefficient"].get(coefficient, 0.0) < SETTLED_SE ** 2
+
+
+def _better_sensor(cause, measured: bool) -> str:
+    """Why a cause is not named (``""`` if nothing says so): the sensor rival that fits the residuals
+    best, by :data:`~diagnose.separation.SETTLED_SE` or more, among the errors the data compatibility
+    measured (``measured``) or could not measure. For a measured error, the cause's own coefficient
+    must not settle it the other way (:func:`_settled`): the error's signature in the other
+    coefficients may fit what no cause there was named for (a thrust scale's remainder in CD made an
+    alpha scale 190 standard errors better than a Cm bump in alpha that was there, and that fitted Cm
+    46 standard errors better). A measured error that fits better in the cause's own coefficient too
+    needs only :data:`PREFERRED_SE`, there and overall."""
+    alts, rivals = _sensor_rivals(cause, measured)
+
     def wins(r: dict) -> bool:
-        own = r["by_coefficient"].get(cause.coefficient, 0.0)
         if not measured:
             return r["separation_se"] <= -SETTLED_SE
-        return ((r["separation_se"] <= -SETTLED_SE and own < SETTLED_SE ** 2)
-                or (r["separation_se"] <= -PREFERRED_SE and own <= -PREFERRED_SE ** 2))
+        own = r["by_coefficient"].get(cause.coefficient, 0.0)
+        return _settled(r, cause.coefficient) or (r["separation_se"] <= -PREFERRED_SE and own <= -PREFERRED_SE ** 2)
 
-    better = [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
-              and (r["channel"], r["error"]) in alts and wins(r)]
+    better = [r for r in rivals if wins(r)]
     if not better:
         return ""
     r = min(better, key=lambda r: r["separation_se"])
@@ -93,13 +106,9 @@ def instrument_fits_better(cause) -> str:
 
 
 def instrument_settles(cause) -> bool:
-    """Whether the measured instrument error that :func:`instrument_fits_better` names fits better by
-    :data:`SETTLED_SE` or more overall, as well as not losing by as much in the cause's own coefficient."""
-    def settled(r: dict) -> bool:
-        return r["separation_se"] <= -SETTLED_SE and r["by_coefficient"].get(cause.coefficient, 0.0) < SETTLED_SE ** 2
-    alts = {(a["channel"], a["error"]) for a in cause.evidence.get("sensor_alternatives", []) if not a.get("unmeasured")}
-    return any(r["kind"] == "sensor" and (r["channel"], r["error"]) in alts and settled(r)
-               for r in cause.evidence.get("rivals", []))
+    """Whether a measured instrument error within reach fits better by :data:`~diagnose.separation.SETTLED_SE`
+    (:func:`_settled`), not only by :data:`PREFERRED_SE`."""
+    return any(_settled(r, cause.coefficient) for r in _sensor_rivals(cause, measured=True)[1])
 
 
 def instrument_preferred(cause) -> str:
