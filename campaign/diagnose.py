@@ -56,11 +56,12 @@ def load_data(path: Path) -> list[Log]:
 
 def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
     """Hold out about every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
-    ``logs``), chosen so that the fit keeps what was flown (:func:`_taken`): first every altitude outside
-    the fitted range, every Mach number, flap angle and gear state; then no Mach number flown at one flap
-    angle only that the data fly at another, and every held-out trim angle of attack within what the
-    fitted logs fly. Where no choice of that many keeps all of it, fewer are held out if that keeps it
-    all (at least one); if nothing does, the choice of that many taking least.
+    ``logs``), chosen so that the fit keeps what was flown (:func:`_taken`): first every altitude, Mach
+    number and flap angle outside the fitted range, and every gear state; then every Mach number and flap
+    angle inside it, no Mach number flown at one flap angle only that the data fly at another, and every
+    held-out trim angle of attack within what the fitted logs fly. Where no choice of that many keeps all
+    of it, fewer are held out if that keeps it all (at least one); if nothing does, the choice of that
+    many taking least.
     Logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a held-out
     condition, so that adding them moves no condition out of the fit."""
     first = first or logs
@@ -115,20 +116,26 @@ def _span(alpha: list) -> tuple[float, float, float] | None:
 def _taken(held: set, conds: list, states: dict, spans: dict) -> tuple[int, int]:
     """What holding out ``held`` takes from the fit, as (what it loses, what it blurs).
 
-    Lost: altitudes that no fitted condition has outside the fitted range (one inside it is
-    interpolated, and altitude enters the aerodynamics through Mach and the trim alone), Mach numbers
-    and flap angles no fitted condition has (a Mach bump at 0.4 is seen in held-out data only when both
-    conditions at Mach 0.4 are held out: fresh 9,400,4xx, stop 72), and gear states. Blurred: each Mach
-    number and flap angle the fit would fly at the same conditions only while the data fly them apart
-    (the A320's Mach 0.3 flown clean and with flap 15, the clean one held out: a Mach step, 6.6 times
-    its floor, was named "CD vs flap_deg", fresh 9,402,611), and each held-out condition whose median
-    angle of attack lies outside what the fitted logs fly (``spans``, from :func:`_span`; our 737's
-    Mach 0.3 at 10,000 ft trims at 9.5 deg where the rest fly up to 9.3: a Cm rise above 9 deg, 7.6
-    times its floor, had F 3 in the fit, fresh 9,402,558)."""
+    Lost: values of altitude, Mach or flap that no fitted condition has and that lie outside the fitted
+    range, and gear states. Blurred: Mach numbers and flap angles no fitted condition has inside its
+    range (interpolated: a Mach bump at 0.4 is seen in held-out data only when both conditions at Mach
+    0.4 are held out, fresh 9,401,330, stop 72); each Mach number and flap angle the fit would fly at
+    the same conditions only while the data fly them apart (the A320's Mach 0.3 flown clean and with
+    flap 15, the clean one held out: a Mach step, 6.6 times its floor, was named "CD vs flap_deg", fresh
+    9,402,611); and each held-out condition whose median angle of attack lies outside what the fitted
+    logs fly (``spans``, from :func:`_span`; our 737's Mach 0.3 at 10,000 ft trims at 9.5 deg where the
+    rest fly up to 9.3: a Cm rise above 9 deg, 7.6 times its floor, had F 3 in the fit, fresh
+    9,402,558). Altitude enters the aerodynamics through Mach and the trim alone, and an inner one is
+    not counted. With four conditions, one of them flap 15 and one the only Mach 0.4, every choice
+    blurs or loses, and the first stays."""
     train = [c for c in conds if c not in held]
-    have = [{c[j] for c in train} for j in range(3)]
-    lost = sum(not min(have[0]) < v < max(have[0]) for v in {c[0] for c in held} - have[0])
-    lost += sum(len({c[j] for c in held} - have[j]) for j in (1, 2))
+    lost = inner = 0
+    for j in range(3):
+        have = {c[j] for c in train}
+        gone = {c[j] for c in held} - have
+        outside = sum(not min(have) < v < max(have) for v in gone)
+        lost += outside
+        inner += (len(gone) - outside) if j else 0
     fitted = set().union(*(states[c] for c in train))
     lost += len(set().union(*(states[c] for c in held)) - fitted)
     flown = [spans[c] for c in train if spans.get(c)]
@@ -136,7 +143,7 @@ def _taken(held: set, conds: list, states: dict, spans: dict) -> tuple[int, int]
     if flown:
         lo, hi = min(f[0] for f in flown), max(f[2] for f in flown)
         alpha_out = sum(not lo <= spans[c][1] <= hi for c in held if spans.get(c))
-    return lost, _confounded(train, conds) + alpha_out
+    return lost, inner + _confounded(train, conds) + alpha_out
 
 
 def _confounded(train: list, conds: list) -> int:

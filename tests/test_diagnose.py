@@ -83,13 +83,15 @@ def test_a_vane_scale_the_kinematics_leave_undecided_is_refined_by_the_residuals
     correct on their word alone; the model's residuals call for the same scale, within the
     kinematics' error of their estimate: the vane is corrected, no aero cause named. (Since stop 44
     the CL residual first chooses the kinematics' 3.7 % from 2.5 standard errors; what CL and CD
-    still need then refines it to 4.0 %. Before, CL, CD and Cm each needed the whole of it.)"""
+    still need then refines it to 4.0 %. Before, CL, CD and Cm each needed the whole of it. Since stop 74
+    the fit holds the highest-alpha condition, and the kinematics put it at 3.6 % +- 0.6 %: still not
+    applied on their word alone, and the residuals take it nearer the truth.)"""
     fault = make_sensor("alpha_scale", np.random.default_rng(0), 0.04)
     r = score_sensor(tmp_path, fault, seed=91_003)
     comp = {p["channel"] + "." + p["error"]: p for p in r["doc"]["data_compatibility"]["parameters"]}
     scale = comp["alpha_deg.scale"]
     assert set(scale["methods"]) == {"kinematics", "residuals"}, scale
-    assert scale["methods"]["kinematics"]["estimate"] / scale["methods"]["kinematics"]["se"] < 5.0, scale
+    assert abs(scale["estimate"] - 0.04) < abs(scale["methods"]["kinematics"]["estimate"] - 0.04), scale
     assert scale["applied"] and scale["chosen_because"].startswith("the residuals of CL, CD"), scale
     assert r["sensor_first"] and r["within"], (r.get("estimate"), r.get("se"))
     assert not r["aero_named"] and not r["other_sensors"], (r["aero_named"], r["other_sensors"])
@@ -100,7 +102,9 @@ def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_e
     the detection curve). The kinematics applied 0.28 +- 0.05 deg; the CL and CD residuals each need
     0.12 deg more, 2.6 standard errors from the kinematics' estimate. Up to stop 44 agreement ended at
     2.5, the 95th percentile of the kinematics' own errors on simulated flights, and "CD vs flap,
-    alpha" was named; at their 99th (3.5) the bias is refined to what the residuals need."""
+    alpha" was named; at their 99th (3.5) the bias is refined to what the residuals need. Since stop 74 the
+    fit holds the highest-alpha condition, the kinematics measure 0.33 +- 0.08 deg, and the residuals
+    still take it nearer the truth."""
     from campaign.aircraft import DEFAULT_AIRCRAFT
     from tests.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
     doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 4500069,
@@ -109,7 +113,8 @@ def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_e
     comp = {p["channel"] + "." + p["error"]: p for p in doc["data_compatibility"]["parameters"]}
     bias = comp["alpha_deg.bias"]
     assert bias["applied"] and set(bias["methods"]) == {"kinematics", "residuals"}, bias
-    assert abs(bias["estimate"] - 0.402) < 2 * bias["se"] < abs(bias["methods"]["kinematics"]["estimate"] - 0.402), bias
+    assert abs(bias["estimate"] - 0.402) < 2 * bias["se"], bias
+    assert abs(bias["estimate"] - 0.402) < abs(bias["methods"]["kinematics"]["estimate"] - 0.402), bias
 
 
 def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
@@ -944,6 +949,9 @@ def test_the_fit_keeps_every_mach_number_apart_from_the_flap_and_the_highest_alp
     assert [lg.condition for lg in held] == [(10000.0, 0.4, 0.0)]
     clean = {lg.condition[1] for lg in train if lg.condition[2] == 0.0}
     assert clean == {0.3, 0.4, 0.5}
+    # four of them: the only Mach 0.4 held out blurs no more than Mach 0.3 left at flap 15, and stays
+    four = [lg for lg in a320 if lg.condition[0] in (5000.0, 10000.0)]
+    assert [lg.condition for lg in split(four)[1]] == [(10000.0, 0.4, 0.0)]
     ours = [_trimmed(*c) for c in (((2000.0, 0.2, 30.0), 3.6, 6.0, 8.7), ((2000.0, 0.3, 0.0), 3.6, 6.6, 9.3),
                                    ((10000.0, 0.3, 0.0), 6.2, 9.5, 12.4), ((10000.0, 0.5, 0.0), -1.6, 1.9, 4.6),
                                    ((17000.0, 0.4, 0.0), 2.7, 6.4, 9.1))]
