@@ -54,7 +54,8 @@ def load_data(path: Path) -> list[Log]:
     raise UserError(f"{path}: not a campaign folder, a CSV or a Parquet log")
 
 
-def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
+def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
+          source: str = "") -> tuple[list[Log], list[Log]]:
     """Hold out about every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
     ``logs``), chosen so that the fit keeps what was flown (:func:`_taken`): first every altitude, Mach
     number and flap angle outside the fitted range, and every gear state; then every Mach number and flap
@@ -63,11 +64,14 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tu
     of it, fewer are held out if that keeps it all (at least one); if nothing does, the choice of that
     many taking least.
     Logs added later (flights ``campaign plan`` designed) are fitted on, unless they sit at a held-out
-    condition, so that adding them moves no condition out of the fit."""
+    condition, so that adding them moves no condition out of the fit. ``source`` names the data in the
+    error raised when ``first`` holds one flight condition only."""
     first = first or logs
     conds = sorted({log.condition for log in first})
     if len(conds) < 2:
-        raise UserError("--data: needs logs from at least two flight conditions (one is held out)")
+        found = ", ".join(f"{c[0]:g} ft, Mach {c[1]:g}, flap {c[2]:g}" for c in conds) or "none"
+        raise UserError(f"--data{' ' + source if source else ''}: needs logs from at least two flight conditions "
+                        f"(one is held out), found {len(conds)} ({found})")
     states = {c: set() for c in conds}
     alpha = {c: [] for c in conds}
     for lg in first:
@@ -291,7 +295,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                     raise UserError(f"--data: log {name} is in {where[name]} and in {p} (the report names logs by "
                                     f"file: each --data must hold other flights)")
                 where[name] = p
-        train, held = split(logs, first=sets[0])
+        train, held = split(logs, first=sets[0], source=str(paths[0]))
     except UserError:
         if client is not None:
             client.close()
