@@ -72,10 +72,12 @@ def _passes(cause) -> bool:
     return bool(cause.verdict.get("accepted") or cause.verdict.get("unconfirmed"))
 
 
-def _split_stands(causes, coefficient: str, split: list) -> bool:
-    """A split stands if every part it left is a discrepancy (or it left one cause there after all)."""
+def _split_stands(causes, coefficient: str, split: list, dropped: dict) -> bool:
+    """A split stands if every part it left is a discrepancy (or it left one cause there after all), none
+    of them dropped for falling (:func:`_dropped`)."""
     parts = _parts(causes, coefficient, split)
-    return len(parts) < 2 or all(map(_passes, parts))
+    fell = {v for t in dropped.get(coefficient, ()) for v in t.variables} & {v for t in split for v in t.variables}
+    return not fell and (len(parts) < 2 or all(map(_passes, parts)))
 
 
 def _whole_stands(causes, coefficient: str, split: list) -> bool:
@@ -155,37 +157,43 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
                 results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
-        for c, gone in (dropped or {}).items():
-            if gone & set(results[c].terms):
-                results[c] = refit(results[c], [t for t in results[c].terms if t not in gone], data)
-        causes = name_causes(results, data, lags)
-        stage("noise floor")
-        held_data = held_data() if callable(held_data) else held_data
-        if jobs > 1:
-            sensitivities()  # wanted or not: the workers are then free for what comes next
-        uncertain = compat.uncertainty(REACH_SE) if compat else None
-        floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=uncertain,
-                            left=compat.left_in_logs(uncertain[0]) if compat else None,
-                            unmeasured=compat.unmeasured if compat else (), jobs=jobs,
-                            sensitivities=sensitivities) if causes else None)
-        groups = [(c.coefficient, c.terms) for c in causes]
-        floors = floor.sizes(groups) if causes else []
-        stage("instrument reach")
-        aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
-        by_aero = dict(zip(map(id, aero), floor.reach([(c.coefficient, c.terms, contribution(results[c.coefficient], c,
-                                                                                                 data)) for c in aero],
-                                                      data, weights=noise_weights(data, results, lags),
-                                                      beside={o: r.terms for o, r in results.items()}))) if aero else {}
-        reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
-        factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
-        eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
-        data_all = pd.concat([_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
-                             ignore_index=True)
-        stage("verdict")
-        judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
+        dropped, floor = dict(dropped or {}), None
+        for round_ in range(DROP_ROUNDS + 1):  # each cause judged on the fit it is reported with
+            for c, gone in dropped.items():
+                if gone & set(results[c].terms):
+                    results[c] = refit(results[c], [t for t in results[c].terms if t not in gone], data)
+            causes = name_causes(results, data, lags)
+            if not round_:
+                stage("noise floor")
+                held_data = held_data() if callable(held_data) else held_data
+                if jobs > 1:
+                    sensitivities()  # wanted or not: the workers are then free for what comes next
+                uncertain = compat.uncertainty(REACH_SE) if compat else None
+                floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=uncertain,
+                                    left=compat.left_in_logs(uncertain[0]) if compat else None,
+                                    unmeasured=compat.unmeasured if compat else (), jobs=jobs,
+                                    sensitivities=sensitivities) if causes else None)
+                data_all = pd.concat([_conditions(data, logs)]
+                                     + ([_conditions(held_data, held, len(logs))] if held else []), ignore_index=True)
+            groups = [(c.coefficient, c.terms) for c in causes]
+            floors = floor.sizes(groups) if causes else []
+            stage("instrument reach")
+            aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
+            by_aero = dict(zip(map(id, aero), floor.reach(
+                [(c.coefficient, c.terms, contribution(results[c.coefficient], c, data)) for c in aero], data,
+                weights=noise_weights(data, results, lags), beside={o: r.terms for o, r in results.items()}))) if aero else {}
+            reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
+            factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
+            eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
+            stage("verdict")
+            judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
+            more = _dropped(causes, dropped)
+            if more == dropped or round_ == DROP_ROUNDS:
+                break
+            dropped = more
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
                                noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
-                               reach=reach)
+                               reach=reach, dropped=dropped)
 
     p = one_pass(compat)
     refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
@@ -197,7 +205,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             q.compat = stands
             p = q
     split = {c: r.splits for c, r in p.results.items() if r.splits}
-    whole = {c for c in split if not _split_stands(p.causes, c, split[c])}
+    whole = {c for c in split if not _split_stands(p.causes, c, split[c], p.dropped)}
     kept_whole = {}
     while whole:  # a split is two claims, each to stand on its own; if one falls, the whole reading
         w = one_pass(p.compat, whole=frozenset(whole))
@@ -218,13 +226,11 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     for c in p.causes:
         instrument_verdict(c)
-    dropped = {}
-    for _ in range(DROP_ROUNDS):  # each cause judged on the fit it is reported with
-        more = _dropped(p.causes, dropped)
-        if more == dropped:
+    for _ in range(DROP_ROUNDS):  # ... and the instrument errors that fit better than a cause drop it too
+        more = _dropped(p.causes, p.dropped)
+        if more == p.dropped:
             break
-        dropped = more
-        p = one_pass(p.compat, swaps, p.whole, dropped)
+        p = one_pass(p.compat, swaps, p.whole, more)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
         for c in p.causes:
             instrument_verdict(c)
