@@ -89,21 +89,21 @@ def _whole_stands(causes, coefficient: str, split: list) -> bool:
 DROP_ROUNDS = 2
 
 
-def _dropped(causes, dropped: dict) -> dict:
+def _dropped(causes, dropped: dict) -> tuple[dict, list]:
     """``dropped`` and the terms of each aero cause that fell where a cause of its coefficient stands
-    (coefficient -> frozenset of terms). The report fits each coefficient with the terms of the causes
-    named only, so each is judged on that fit: two terms alike share a residual between them with
-    contributions of either sign, each larger than the residual itself. An A320 null with a 0.23 deg
+    (coefficient -> frozenset of terms), and those causes. The report fits each coefficient with the terms
+    of the causes named only, so each is judged on that fit: two terms alike share a residual between them
+    with contributions of either sign, each larger than the residual itself. An A320 null with a 0.23 deg
     vane bias in 3 ft/s turbulence (fresh seed 9,402,865) named "CD vs alpha_deg" at 0.0076, 15 times its
     floor and past the instrument errors' reach, beside a "CD vs CL, flap_deg" that fell on held-out data;
     the CD residual spans 0.0014, which the bias makes."""
-    out = dict(dropped)
+    out, fell = dict(dropped), []
     for coefficient in {c.coefficient for c in causes if c.kind == "aero" and _passes(c)}:
-        fell = {t for c in causes if c.kind == "aero" and c.coefficient == coefficient and not _passes(c)
-                for t in c.terms}
-        if fell:
-            out[coefficient] = out.get(coefficient, frozenset()) | frozenset(fell)
-    return out
+        here = [c for c in causes if c.kind == "aero" and c.coefficient == coefficient and not _passes(c)]
+        if here:
+            out[coefficient] = out.get(coefficient, frozenset()) | frozenset(t for c in here for t in c.terms)
+            fell += here
+    return out, fell
 
 
 def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
@@ -138,7 +138,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
-    def one_pass(compat, swaps=None, whole=frozenset(), dropped=None):
+    def one_pass(compat, swaps=None, whole=frozenset(), dropped=None, fallen=()):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")
         data = corrected.residuals(compat)
@@ -157,7 +157,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
                 results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
-        dropped, floor = dict(dropped or {}), None
+        dropped, fallen, floor = dict(dropped or {}), list(fallen), None
         for round_ in range(DROP_ROUNDS + 1):  # each cause judged on the fit it is reported with
             for c, gone in dropped.items():
                 if gone & set(results[c].terms):
@@ -187,13 +187,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
             stage("verdict")
             judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
-            more = _dropped(causes, dropped)
+            more, fell = _dropped(causes, dropped)
             if more == dropped or round_ == DROP_ROUNDS:
                 break
-            dropped = more
+            dropped, fallen = more, fallen + fell
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
                                noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
-                               reach=reach, dropped=dropped)
+                               reach=reach, dropped=dropped, fallen=fallen)
 
     p = one_pass(compat)
     refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
@@ -227,10 +227,10 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     for c in p.causes:
         instrument_verdict(c)
     for _ in range(DROP_ROUNDS):  # ... and the instrument errors that fit better than a cause drop it too
-        more = _dropped(p.causes, p.dropped)
+        more, fell = _dropped(p.causes, p.dropped)
         if more == p.dropped:
             break
-        p = one_pass(p.compat, swaps, p.whole, more)
+        p = one_pass(p.compat, swaps, p.whole, more, p.fallen + fell)
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
         for c in p.causes:
             instrument_verdict(c)
@@ -243,7 +243,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     # the polar too, smaller than in lift
     causes.sort(key=lambda c: rank(c.verdict))
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
-    rejected = [c for c in sensors + causes if not c.verdict["accepted"]]
+    rejected = [c for c in sensors + causes if not c.verdict["accepted"]] + p.fallen
     for c in COEFFS:
         keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
         if len(keep) != len(results[c].terms):

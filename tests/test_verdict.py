@@ -830,3 +830,51 @@ def test_the_a320_benchmark_matrix_crosses_its_alpha_gap_at_one_mach_number(tmp_
     trim = {lg.condition[:2]: float(np.median(lg.data["alpha_deg"].to_numpy()[:20])) for lg in load_data(data)}
     assert abs(trim[(alt, 0.5)] - trim[(10000.0, 0.4)]) < 0.3, trim
     assert trim[(10000.0, 0.4)] - trim[(10000.0, 0.5)] > 2.0, trim
+
+
+def test_a_cause_beside_one_that_fell_is_judged_on_the_fit_without_it():
+    """The report fits each coefficient with its named causes' terms only, so a cause is judged on that
+    fit: the terms of a cause that fell where another cause of its coefficient stands are dropped and the
+    rest judged again (an A320 null's "CD vs alpha_deg", 15 times its floor beside a collinear "CD vs CL,
+    flap_deg" that fell, spanned 0.0076 where the CD residual spans 0.0014; fresh seed 9,402,865). A
+    coefficient where nothing stands keeps its fit; an unconfirmed discrepancy stands; a split one of whose
+    parts was dropped is read whole, as one whose part fell."""
+    from diagnose.causes import Cause
+    from diagnose.diagnosis import _dropped, _split_stands
+    from diagnose.terms import Term
+    a, cl, g, m = (Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),))
+                   for v in ("alpha_deg", "CL", "gear_norm", "mach"))
+
+    def cause(coefficient, term, **verdict):
+        return Cause(coefficient, list(term.variables), [term], "linear", {}, 0.0,
+                     verdict={"accepted": False, "unconfirmed": False, **verdict})
+
+    stands, fell = cause("CD", a, accepted=True), cause("CD", cl)
+    alone, open_ = cause("Cm", g), cause("CL", m, unconfirmed=True)
+    beside_open = cause("CL", cl)
+    dropped, gone = _dropped([stands, fell, alone, open_, beside_open], {})
+    assert dropped == {"CD": frozenset({cl}), "CL": frozenset({cl})}
+    assert {id(c) for c in gone} == {id(fell), id(beside_open)}
+    assert _dropped([stands, open_], dropped) == (dropped, [])  # judged again, nothing more fell: settled
+    assert not _split_stands([stands], "CD", [a, cl], dropped)
+    assert _split_stands([stands], "CD", [a, cl], {})
+    assert _split_stands([stands], "CD", [a, g], dropped)  # the dropped term is not of this split
+
+
+def test_an_a320_vane_bias_in_turbulence_is_that_bias_not_a_drag_in_alpha(tmp_path):
+    """The benchmark's A320 null 9,402,865 (its matrix, 3 ft/s, a +0.230 deg alpha-vane bias): the
+    kinematics split the bias into +0.056 +- 0.064 deg and a 3.0 % scale and corrected neither; the
+    stepwise search took the drag the bias leaves as "CD vs alpha_deg" beside a collinear "CD vs CL,
+    flap_deg", the two 0.0076 and 0.0066 in size where the residual spans 0.0014. The second fell on
+    held-out data, the first was named on its share of the pair. Judged on the fit without it, the drag in
+    alpha is the bias's, with the lift's: the residuals refine the bias, and nothing aerodynamic is named."""
+    from tests.support import pairs
+    a320 = Path(__import__("jsbsim").get_default_root_dir()) / "aircraft" / "A320"
+    matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000),
+                               (0, 0.4, 19500.0), (0, 0.5, 21000.0)), "a320")
+    doc = diagnose_overlay(tmp_path, None, a320, matrix, seed=9_402_865, sigma_fps=3.0,
+                           channels="[channels.alpha_deg]\nbias = 0.2299727280418436\n")
+    assert not discrepancies(doc), [(c["coefficient"], c["variables"]) for c in discrepancies(doc)]
+    first = doc["causes"][0]
+    assert (first["kind"], first["channel"], first["error"]) == ("sensor", "alpha_deg", "bias")
+    assert abs(first["estimate"] - 0.230) <= 2 * first["se"], (first["estimate"], first["se"])
