@@ -157,7 +157,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
                 results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
-        dropped, fallen, floor = dict(dropped or {}), list(fallen), None
+        dropped, fallen, fallen_reach, floor = dict(dropped or {}), list(fallen), [], None
         for round_ in range(DROP_ROUNDS + 1):  # each cause judged on the fit it is reported with
             for c, gone in dropped.items():
                 if gone & set(results[c].terms):
@@ -191,12 +191,16 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             if more == dropped or round_ == DROP_ROUNDS:
                 break
             dropped, fallen = more, fallen + fell
+            fallen_reach += [reach[next(i for i, c in enumerate(causes) if c is f)] for f in fell]
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
                                noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
-                               reach=reach, dropped=dropped, fallen=fallen)
+                               reach=reach, dropped=dropped, fallen=fallen,
+                               fallen_reach=fallen_reach)
 
     p = one_pass(compat)
-    refined = None if compat is None else residual_refinement(compat, p.causes, p.reach, kw.get("alpha_in", 1e-6))
+    # the refinement reads every cause, accepted or not: those dropped for falling too, as they fell
+    refined = None if compat is None else residual_refinement(compat, p.causes + p.fallen, p.reach + p.fallen_reach,
+                                                              kw.get("alpha_in", 1e-6))
     if refined is not None:
         refined = refined._replace(compat=rearbitrate(compat, refined.compat, corrected))
         q = one_pass(refined.compat)
