@@ -106,6 +106,11 @@ def _dropped(causes, dropped: dict) -> tuple[dict, list]:
     return out, fell
 
 
+def _with_reach(fell: list, causes: list, reach: list) -> list[tuple]:
+    """Each cause of ``fell`` with its instrument reach (``reach`` in the order of ``causes``)."""
+    return [(f, next(r for c, r in zip(causes, reach) if c is f)) for f in fell]
+
+
 def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
              compatibility: bool = True, jobs: int = 1, progress=None, **kw) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
@@ -157,7 +162,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
                 results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
-        dropped, fallen, fallen_reach, floor = dict(dropped or {}), list(fallen), [], None
+        dropped, fallen, floor = dict(dropped or {}), list(fallen), None  # fallen: (cause, its reach) as it fell
         for round_ in range(DROP_ROUNDS + 1):  # each cause judged on the fit it is reported with
             for c, gone in dropped.items():
                 if gone & set(results[c].terms):
@@ -190,16 +195,15 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             more, fell = _dropped(causes, dropped)
             if more == dropped or round_ == DROP_ROUNDS:
                 break
-            dropped, fallen = more, fallen + fell
-            fallen_reach += [reach[next(i for i, c in enumerate(causes) if c is f)] for f in fell]
+            dropped, fallen = more, fallen + _with_reach(fell, causes, reach)
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
                                noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
-                               reach=reach, dropped=dropped, fallen=fallen,
-                               fallen_reach=fallen_reach)
+                               reach=reach, dropped=dropped, fallen=fallen)
 
     p = one_pass(compat)
     # the refinement reads every cause, accepted or not: those dropped for falling too, as they fell
-    refined = None if compat is None else residual_refinement(compat, p.causes + p.fallen, p.reach + p.fallen_reach,
+    refined = None if compat is None else residual_refinement(compat, p.causes + [c for c, _ in p.fallen],
+                                                              p.reach + [r for _, r in p.fallen],
                                                               kw.get("alpha_in", 1e-6))
     if refined is not None:
         refined = refined._replace(compat=rearbitrate(compat, refined.compat, corrected))
@@ -234,7 +238,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         more, fell = _dropped(p.causes, p.dropped)
         if more == p.dropped:
             break
-        p = one_pass(p.compat, swaps, p.whole, more, p.fallen + fell)
+        p = one_pass(p.compat, swaps, p.whole, more, p.fallen + _with_reach(fell, p.causes, p.reach))
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
         for c in p.causes:
             instrument_verdict(c)
@@ -247,7 +251,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     # the polar too, smaller than in lift
     causes.sort(key=lambda c: rank(c.verdict))
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
-    rejected = [c for c in sensors + causes if not c.verdict["accepted"]] + p.fallen
+    rejected = [c for c in sensors + causes if not c.verdict["accepted"]] + [c for c, _ in p.fallen]
     for c in COEFFS:
         keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
         if len(keep) != len(results[c].terms):
