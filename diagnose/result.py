@@ -8,6 +8,7 @@ import pandas as pd
 
 from diagnose.causes import Cause
 from diagnose.separation import SETTLED_SE
+from diagnose.settings import flown_together
 from diagnose.stepwise import StepwiseResult
 from diagnose.verdict import rank
 from identify.compat import CompatResult
@@ -87,6 +88,12 @@ class Diagnosis:
         return [c for c in self.rejected if c.verdict.get("unconfirmed")]
 
     @property
+    def together(self) -> dict | None:
+        """The flap angle and Mach number if the logs (held-out ones too) never vary them apart
+        (:func:`diagnose.settings.flown_together`), else None."""
+        return flown_together([lg.condition for lg in self.logs + self.held_logs])
+
+    @property
     def aero_causes(self) -> list[Cause]:
         """The accepted causes in the aerodynamics (the extension holds these)."""
         return [c for c in self.causes if c.kind == "aero"]
@@ -120,6 +127,9 @@ class Diagnosis:
                 f"{p.name} {p.estimate:+.4g} +- {p.se:.2g} {p.unit}" for p in self.compat.applied))
         if self.unset:
             lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
+        together = self.together
+        if together:
+            lines.append(f"Caution: {together['text']}")
         if not self.causes and not self.unconfirmed:
             lines.append("No significant discrepancy.")
             big = self.largest_rejected()
@@ -159,6 +169,10 @@ class Diagnosis:
                          + (f", x{v['replicate_gain']:.2f} with each log left out" if "replicate_gain" in v else "")
                          + (f" (x{v['replicate_gain_where_departs']:.2f} where it departs from the model)"
                             if np.isfinite(v.get("replicate_gain_where_departs", np.nan)) else ""))
+            if together and len(set(c.variables) & set(together["variables"])) == 1:
+                other = next(v for v in together["variables"] if v not in c.variables)
+                lines.append(f"   caution: flap and Mach are flown together in these data (above): it may be an "
+                             f"effect of {other}")
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
             settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):
