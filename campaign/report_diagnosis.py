@@ -56,7 +56,9 @@ def diagnosis_report(folder: Path) -> str:
         verdict += f" (largest candidate: {lr['candidate']}: {lr['reason']})"
     header = ["cause", "kind", "shape", "size", "F", "noise floor", "size / floor", "instrument errors make",
               "held-out gain", "sensor alternatives"]
-    sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>'
+    together = doc.get("flown_together")
+    caution = f'<p class="note">Caution: {escape(together["text"])}.</p>' if together else ""
+    sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>' + caution
                              + html.definitions([("data", doc["data"]["path"]), ("logs", doc["data"]["logs"]),
                                                  ("held out", len(doc["data"]["held_out"])), ("model", doc["model"])]))]
     body = html.table(header, _cause_rows(causes)) if causes else "<p>No cause named.</p>"
