@@ -10,8 +10,8 @@ early saturation, bump, dip, step, ramp above a threshold, dead band, random mon
 non-monotone tables, gear x flap, gear x alpha, gear x Mach, alpha x Mach, a random
 sign, a size log-uniform from 0.3x to 30x the coefficient's noise floor) are hidden in the data of
 our 737 and of the stock 737 and A320 of the jsbsim package, flown over each one's matrix (:data:`OUR_737`,
-:data:`STOCK_737`, :data:`A320`: five or six conditions, two Mach numbers at one alpha, no flap angle at
-one Mach number only) through the flight-test profile (1.5 ft/s turbulence) or the same with 3 ft/s, a
+:data:`STOCK_737`, :data:`A320`: five or six conditions, two Mach numbers at one alpha, a Mach number at
+two flap angles) through the flight-test profile (1.5 ft/s turbulence) or the same with 3 ft/s, a
 random sensor error in a fifth of the cases; each is diagnosed against the bare model. Nulls: the same
 without an effect.
 
@@ -76,11 +76,11 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
 #: effects were seen in held-out data only. From stop 72 the A320 also flies Mach 0.5 at the alpha of Mach
 #: 0.4 at 10,000 ft (21,000 ft): its Mach 0.5 trimmed at 1.9 deg and its Mach 0.4 at 4.7, and an effect
 #: changing in that gap (all of stop 71's fresh misses from 3x) fitted a level per Mach number as well.
-#: From stop 76 our 737 also flies flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, inside the flap-30
-#: placard): with Mach 0.2 flown at flap 30 only, the flap angle was a function of Mach and the other way
-#: round for flap 30, and an effect in Mach below 0.3 was the flap's over the data flown (named "CL vs
-#: flap_deg": 9,400,256, 9,400,406 at 27.8x, 9,403,337; "Cm vs flap_deg" 9,402,594). Flown again with the
-#: point, each was named in Mach.
+#: From stop 76 our 737 also flies flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's
+#: 175 kt flap-30 placard): with Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle
+#: was a function of Mach over the data (:mod:`diagnose.settings`), and an effect in Mach below 0.3 was the
+#: flap's (named "CL vs flap_deg": 9,400,256, 9,403,337; "Cm vs flap_deg": 9,400,406 at 27.8x, 9,402,594).
+#: Flown again with the point, each was named in Mach.
 OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000), (30, 0.3, 10000),
                             (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
 STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),

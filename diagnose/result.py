@@ -8,7 +8,7 @@ import pandas as pd
 
 from diagnose.causes import Cause
 from diagnose.separation import SETTLED_SE
-from diagnose.settings import flown_together
+from diagnose.settings import flown_together, level_share
 from diagnose.stepwise import StepwiseResult
 from diagnose.verdict import rank
 from identify.compat import CompatResult
@@ -89,9 +89,21 @@ class Diagnosis:
 
     @property
     def together(self) -> dict | None:
-        """The flap angle and Mach number if the logs (held-out ones too) never vary them apart
+        """The flap angles and Mach numbers if the logs fitted on never vary them apart
         (:func:`diagnose.settings.flown_together`), else None."""
-        return flown_together([lg.condition for lg in self.logs + self.held_logs])
+        return flown_together([lg.condition for lg in self.logs])
+
+    def _level_note(self, c: Cause, together: dict) -> str:
+        """For a cause in the flap angle or in Mach (not both) over logs that fly them together: how much of
+        it one level per group of settings makes, the part an effect of the other would make alike."""
+        other = [v for v in together["variables"] if v not in c.variables]
+        res = self.results.get(c.coefficient)
+        if len(other) != 1 or res is None or not set(c.terms) <= set(res.terms):
+            return ""
+        contrib = sum(t.design(self.data) @ res.term_beta(t) for t in c.terms)
+        share = level_share(contrib, self.data["log"].to_numpy(), [lg.condition for lg in self.logs], together)
+        return (f"   caution: flap and Mach are flown together in these data (above): {100 * share:.0f} % of it is "
+                f"one level per set of flap angles and Mach numbers, which an effect of {other[0]} would make alike")
 
     @property
     def aero_causes(self) -> list[Cause]:
@@ -129,7 +141,7 @@ class Diagnosis:
             lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
         together = self.together
         if together:
-            lines.append(f"Caution: {together['text']}")
+            lines.append(f"Caution: {together['text']}.")
         if not self.causes and not self.unconfirmed:
             lines.append("No significant discrepancy.")
             big = self.largest_rejected()
@@ -169,10 +181,8 @@ class Diagnosis:
                          + (f", x{v['replicate_gain']:.2f} with each log left out" if "replicate_gain" in v else "")
                          + (f" (x{v['replicate_gain_where_departs']:.2f} where it departs from the model)"
                             if np.isfinite(v.get("replicate_gain_where_departs", np.nan)) else ""))
-            if together and len(set(c.variables) & set(together["variables"])) == 1:
-                other = next(v for v in together["variables"] if v not in c.variables)
-                lines.append(f"   caution: flap and Mach are flown together in these data (above): it may be an "
-                             f"effect of {other}")
+            if together and self._level_note(c, together):
+                lines.append(self._level_note(c, together))
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
             settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):

@@ -107,6 +107,7 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     doc = json.loads((out / "diagnosis.json").read_text())
     assert verdict.startswith(doc["verdict"])
     assert {"verdict", "causes", "compat", "rejected", "trace"} <= {s.get("id") for s in tree.findall(".//section")}
+    assert doc["flown_together"] is None and tree.find(".//section[@id='verdict']/p[@class='note']") is None
     log = render(out / "report.html", tmp_path / "diagnosis.png")
     assert "CONSOLE" not in log
     # logs whose every Mach number is flown at one flap angle: the verdict carries the caution
@@ -116,7 +117,7 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     assert main(["report", str(out)]) == 0
     tree, _ = parse(out / "report.html")
     note = tree.find(".//section[@id='verdict']/p[@class='note']")
-    assert note is not None and note.text.startswith("Caution: flap and Mach flown together (flap 30 deg at Mach 0.2")
+    assert note is not None and note.text.startswith("Caution: flap and Mach flown together (flap 30 deg only at Mach 0.2")
 
 
 def test_report_command_refreshes_and_refuses_what_is_not_a_result(campaign, tmp_path, capsys):

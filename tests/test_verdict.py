@@ -376,30 +376,46 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     doc = diagnose_overlay(tmp_path, "lift_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000041)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
-    # the matrix flies flap 30 at Mach 0.2 only: the report says the cause may be the flap's
-    assert doc["flown_together"]["mach_by_flap"] == [{"flap_deg": 30.0, "mach": [0.2]},
-                                                     {"flap_deg": 0.0, "mach": [0.3, 0.5]}], doc["flown_together"]
+    # the matrix flies flap 30 at Mach 0.2 only: the report says how much of the cause the flap could make
+    assert doc["flown_together"]["groups"] == [{"flap_deg": [30.0], "mach": [0.2]},
+                                               {"flap_deg": [0.0], "mach": [0.3, 0.5]}], doc["flown_together"]
     lines = doc["summary"].splitlines()
     first = next(i for i, t in enumerate(lines) if t.startswith("1. CL vs mach"))
-    assert "may be an effect of flap_deg" in lines[first + 1] and any(t.startswith("Caution: flap and Mach") for t in lines)
+    assert "which an effect of flap_deg would make alike" in lines[first + 1], lines[first + 1]
+    assert any(t.startswith("Caution: flap and Mach flown together") for t in lines[:first])
 
 
 def test_flap_and_mach_flown_together_are_told_and_the_benchmark_matrices_fly_them_apart(tmp_path):
-    """Where each Mach number is flown at one flap angle only, an effect of one fits as the other over the
-    data (:mod:`diagnose.settings`); the detection curve's matrices fly a flap angle at another's Mach number."""
-    from benchmarks.detection_curve import A320, OUR_737, STOCK_737
+    """Where the flap angles and the Mach numbers they are flown at fall into sets that share neither, an
+    effect of one fits as the other over the data (:mod:`diagnose.settings`); the detection curve's
+    matrices fly a flap angle at another's Mach number."""
+    from benchmarks.detection_curve import A320, OUR_737
     from campaign.matrix import load_matrix
-    from diagnose.settings import flown_together
-    old = flown_together([(2000, 0.3, 0), (10000, 0.3, 0.0), (10000, 0.5, 0), (2000, 0.2, 30)])
-    assert old["mach_by_flap"] == [{"flap_deg": 30.0, "mach": [0.2]}, {"flap_deg": 0.0, "mach": [0.3, 0.5]}]
-    assert "flap 30 deg at Mach 0.2 only; flap 0 deg at Mach 0.3, 0.5 only" in old["text"]
+    from diagnose.settings import flown_together, level_share
+    old = [(2000, 0.3, 0), (10000, 0.3, 0.0), (10000, 0.5, 0), (2000, 0.2, 30)]
+    told = flown_together(old)
+    assert told["groups"] == [{"flap_deg": [30.0], "mach": [0.2]}, {"flap_deg": [0.0], "mach": [0.3, 0.5]}]
+    assert "flap 30 deg only at Mach 0.2; flap 0 deg only at Mach 0.3, 0.5" in told["text"]
     assert flown_together([(2000, 0.3, 0), (10000, 0.3, 30), (2000, 0.2, 30)]) is None  # Mach 0.3 at both
     assert flown_together([(2000, 0.3, 0), (10000, 0.5, 0)]) is None  # one flap angle
+    # three flap angles: 0 and 15 share Mach 0.4, flap 30 is flown at Mach 0.2 alone
+    three = flown_together([(2000, 0.3, 0), (5000, 0.4, 0), (5000, 0.4, 15), (2000, 0.2, 30)])
+    assert three["groups"] == [{"flap_deg": [30.0], "mach": [0.2]}, {"flap_deg": [0.0, 15.0], "mach": [0.3, 0.4]}]
+    # imported logs: a flap channel's mean reads 0.04 in one log and 0.06 in the next, one setting
+    assert flown_together([(2000, 0.3, 0.04), (2000, 0.4, 0.06), (2000, 0.2, 30.1)])["groups"][1]["flap_deg"] == [0.0]
+    assert flown_together([(2000, 0.3, 0.04), (2000, 0.4, 0.06)]) is None
+    # a level at flap 30 is all a level per set; a slope over the clean Mach numbers is none of it
+    log = np.repeat(np.arange(4), 50)
+    mach = np.array([0.3, 0.3, 0.5, 0.2])[log]
+    assert level_share(np.where(log == 3, 0.01, 0.0), log, old, told) == pytest.approx(1.0)
+    slope = np.where(log < 3, mach - mach[log < 3].mean(), 0.0)
+    assert level_share(slope, log, old, told) == pytest.approx(0.0, abs=1e-12)
+
     def points(text: str) -> list[tuple]:
         (tmp_path / "m.toml").write_text(text)
         return [(p.alt_ft, p.mach, p.flap_deg) for p in load_matrix(tmp_path / "m.toml").points]
 
-    for name, text in (("our 737", OUR_737), ("stock 737", STOCK_737), ("A320", A320)):
+    for name, text in (("our 737", OUR_737), ("A320", A320)):
         assert flown_together(points(text)) is None, name
     assert flown_together(points(DIAG_MATRIX)) is not None  # the tests' own matrix, as the benchmark's was
 
