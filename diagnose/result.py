@@ -181,8 +181,8 @@ class Diagnosis:
                          + (f", x{v['replicate_gain']:.2f} with each log left out" if "replicate_gain" in v else "")
                          + (f" (x{v['replicate_gain_where_departs']:.2f} where it departs from the model)"
                             if np.isfinite(v.get("replicate_gain_where_departs", np.nan)) else ""))
-            if together and self._level_note(c, together):
-                lines.append(self._level_note(c, together))
+            note = self._level_note(c, together) if together else ""
+            lines += [note] if note else []
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
             settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
             for a in e.get("hardly_separated_from", []):
