@@ -1,8 +1,11 @@
 """Aerodynamic coefficients from measured channels (paper eq. 1).
 
-CL and CD follow eq. (1a, 1b). Cm follows eq. (1c), less the thrust line's
-moment, so it is the aerodynamic pitching moment about the CG. The body-axis
-force coefficients Cx and Cz come along: a moment transfer needs them.
+CL follows eq. (1a). CD is eq. (1b) taken into wind axes: the drag along the
+airspeed, as JSBSim's ``DRAG`` axis holds it, so with sideslip it has the side
+force's share and the ``cos(beta)`` of the others (without a logged sideslip
+and lateral acceleration it is eq. (1b)). Cm follows eq. (1c), less the thrust
+line's moment, so it is the aerodynamic pitching moment about the CG. The
+body-axis force coefficients Cx and Cz come along: a moment transfer needs them.
 """
 from __future__ import annotations
 
@@ -48,7 +51,8 @@ def coefficient_arrays(data: pd.DataFrame, meta: dict, qdot_dps2: np.ndarray | N
     cbar = g["cbar_ft"]
     a, qs, fx, fz = _aero_forces(data, meta)
     cl = _lift(a, qs, fx, fz)
-    cd = (-fx * np.cos(a) - fz * np.sin(a)) / qs
+    b, fy = _sideslip(data)
+    cd = (-(fx * np.cos(a) + fz * np.sin(a)) * np.cos(b) - fy * np.sin(b)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
     qdot = (pitch_acceleration(data) if qdot_dps2 is None else qdot_dps2) * D2R
     moment = (inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r
@@ -69,6 +73,15 @@ def _aero_forces(data: pd.DataFrame, meta: dict) -> tuple[np.ndarray, ...]:
     return a, qs, fx, fz
 
 
+def _sideslip(data: pd.DataFrame) -> tuple[np.ndarray | float, np.ndarray | float]:
+    """Sideslip [rad] and the body-axis side force (right) [lbf], zero where the log has neither
+    ``beta_deg`` nor ``ay_fps2``."""
+    if "beta_deg" not in data or "ay_fps2" not in data:
+        return 0.0, 0.0
+    return (data["beta_deg"].to_numpy() * D2R,
+            data["mass_slug"].to_numpy() * data["ay_fps2"].to_numpy())
+
+
 def lift_coefficient(data: pd.DataFrame, meta: dict) -> np.ndarray:
     """CL alone (eq. 1a), as :func:`coefficients` gives it, without the pitch acceleration's cost [-]."""
     return _lift(*_aero_forces(data, meta))
@@ -87,7 +100,8 @@ def thrust_share(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     a = data["alpha_deg"].to_numpy() * D2R
     qs = data["qbar_psf"].to_numpy() * g["S_ft2"]
     t = data["thrust_lbf"].to_numpy()
-    return pd.DataFrame({"CL": -t * np.sin(a) / qs, "CD": t * np.cos(a) / qs,
+    b = _sideslip(data)[0]
+    return pd.DataFrame({"CL": -t * np.sin(a) / qs, "CD": t * np.cos(a) * np.cos(b) / qs,
                          "Cm": g.get("thrust_z_arm_ft", 0.0) * t / (qs * g["cbar_ft"]), "Cx": -t / qs,
                          "Cz": np.zeros(len(t))}, index=data.index)
 
