@@ -135,13 +135,12 @@ def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
     assert {"coefficient", "variables"} <= set(aero) and "channel" not in aero
 
 
-@pytest.mark.xfail(strict=True, reason="since flights in turbulence start trimmed in their first gust (2026-11-25) "
-                   "this realization names the drag rise but rejects the 0.074 ft/s^2 ax bias: its held-out "
-                   "gain is x0.28 (needs x1.02), judged on the raw residual, not beside the aero terms")
 def test_an_accelerometer_bias_beside_a_drag_rise_is_named_with_it(tmp_path):
     """The kinematics measure the x-accelerometer's bias precisely but cannot tell it from a pitch
     attitude bias; a drag rise with Mach in the same residual hides the correction's gain in the
-    raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version."""
+    raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version.
+    From 2026-11-25 to stop 77 this realization rejected the 0.074 ft/s^2 ax bias (x0.28 held out, a
+    strict xfail): the drag measured without the sideslip's share left turbulence's sideslip in CD."""
     rng = np.random.default_rng(95_003)
     fault = make_sensor("accel_bias", rng)
     hidden = make("mach", rng)
