@@ -80,7 +80,9 @@ REFUTED_GAIN = 1.0
 #: flap or gear x flap) had an F of 80-498. A cause :data:`CLEAR_OVER_FLOOR` times its floor at an F of
 #: :data:`STRONG_F` is above it anyway. It does not close that class: on the fresh 8,900,000 and 9,000,000 it fired
 #: on no case, and one such drag at the A320's flap 15 in 3 ft/s had an F of 250 (8,900,247, an effect below 0.3
-#: times its floor elsewhere).
+#: times its floor elsewhere). That class was not the floor's but eq. (1)'s: the drag measured without the share
+#: the side force has of it in the sideslip turbulence makes (stop 77, :mod:`identify.coefficients`). This bound
+#: and :data:`REFUTED_GAIN` are kept; they were not measured without it.
 ONE_CONDITION_F = 60.0
 #: A pooled held-out gain that marks a cause's fit against the terms chosen before it alone as the
 #: stepwise search's own order (:func:`holdout_gain`), and that names a cause whose whole size

@@ -140,7 +140,7 @@ def test_an_accelerometer_bias_beside_a_drag_rise_is_named_with_it(tmp_path):
     attitude bias; a drag rise with Mach in the same residual hides the correction's gain in the
     raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version.
     From 2026-11-25 to stop 77 this realization rejected the 0.074 ft/s^2 ax bias (x0.28 held out, a
-    strict xfail): the drag measured without the sideslip's share left turbulence's sideslip in CD."""
+    strict xfail); it is named since the drag is measured along the airspeed, with the sideslip's share."""
     rng = np.random.default_rng(95_003)
     fault = make_sensor("accel_bias", rng)
     hidden = make("mach", rng)
