@@ -74,8 +74,8 @@ def _aero_forces(data: pd.DataFrame, meta: dict) -> tuple[np.ndarray, ...]:
 
 
 def _sideslip(data: pd.DataFrame) -> tuple[np.ndarray | float, np.ndarray | float]:
-    """Sideslip [rad] and the body-axis side force (right) [lbf], zero where the log has neither
-    ``beta_deg`` nor ``ay_fps2``."""
+    """Sideslip [rad] and the body-axis side force (right) [lbf]; both zero unless the log has
+    ``beta_deg`` and ``ay_fps2``."""
     if "beta_deg" not in data or "ay_fps2" not in data:
         return 0.0, 0.0
     return (data["beta_deg"].to_numpy() * D2R,
