@@ -218,7 +218,7 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
              "effect": None if effect is None else {"coefficient": effect.coefficient,
                                                     "variables": list(effect.variables),
                                                     "description": effect.description},
-             **slim}, default=str))
+             "held_out_check": doc.get("held_out_check"), **slim}, default=str))
     row = {"seed": seed, "aircraft": name, "conditions": what, "discrepancy": doc["discrepancy"],
            "named": f"{aero[0]['coefficient']} vs {', '.join(aero[0]['variables'])}" if aero else ""}
     # an unconfirmed discrepancy is reported as one ("a discrepancy all the same"): not rejected

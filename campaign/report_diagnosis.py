@@ -7,6 +7,7 @@ from html import escape
 from pathlib import Path
 
 from campaign import html
+from diagnose.held_out import told_text
 from diagnose.separation import SETTLED_SE
 
 
@@ -58,6 +59,7 @@ def diagnosis_report(folder: Path) -> str:
               "held-out gain", "sensor alternatives"]
     together = doc.get("flown_together")
     caution = f'<p class="note">Caution: {escape(together["text"])}.</p>' if together else ""
+    caution += "".join(f'<p class="note">Caution: {escape(t)}.</p>' for t in told_text(doc.get("held_out_check") or {}))
     sections = [html.section("verdict", "Verdict", f'<p class="verdict">{escape(verdict)}</p>' + caution
                              + html.definitions([("data", doc["data"]["path"]), ("logs", doc["data"]["logs"]),
                                                  ("held out", len(doc["data"]["held_out"])), ("model", doc["model"])]))]

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from diagnose.causes import Cause
+from diagnose.held_out import held_out_check, told_text
 from diagnose.separation import SETTLED_SE
 from diagnose.settings import flown_together, level_share
 from diagnose.stepwise import StepwiseResult
@@ -40,7 +41,7 @@ class Diagnosis:
     data : DataFrame
         Residual data of the logs fitted on.
     held : DataFrame or None
-        Residual data of the held-out logs (``log`` counts on after the fitted ones).
+        Residual data of the held-out logs (``log``: an index into ``held_logs``).
     results : dict
         Coefficient -> :class:`StepwiseResult`, refitted on the accepted causes' terms.
     causes : list of Cause
@@ -92,6 +93,13 @@ class Diagnosis:
         """The flap angles and Mach numbers if the logs fitted on never vary them apart
         (:func:`diagnose.settings.flown_together`), else None."""
         return flown_together([lg.condition for lg in self.logs])
+
+    @property
+    def held_out_check(self) -> dict:
+        """What each held-out log leaves of each coefficient beside the fitted logs
+        (:func:`diagnose.held_out.held_out_check`); empty without held-out logs."""
+        return held_out_check(self.data, self.held, self.results, [lg.path for lg in self.logs],
+                              [lg.path for lg in self.held_logs])
 
     def _level_note(self, c: Cause, together: dict) -> str:
         """For a cause in the flap angle or in Mach (not both) over logs that fly them together: how much of
@@ -212,6 +220,7 @@ class Diagnosis:
                                  f"{r['separation_se']:+.1f} standard errors (`campaign plan` designs the flights "
                                  f"that would settle it)")
         lines += [u for u, big in zip(unsure, larger) if not big]
+        lines += [f"Caution: {t}." for t in told_text(self.held_out_check)]
         if self.causes and self.rejected:
             lines.append("Rejected: " + "; ".join(f"{c.label} ({c.verdict['reason']})" for c in self.rejected))
         lines.append("")

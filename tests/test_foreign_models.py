@@ -180,6 +180,38 @@ def test_diagnosis_json_says_no_discrepancy_with_the_largest_candidate(stock_737
     lr = doc["largest_rejected"]
     assert escape(f"no significant discrepancy (largest candidate: {lr['candidate']}: {lr['reason']})") in page
     assert abs(doc["noise_estimated"]["alpha_deg"] - 0.05) < 0.005  # estimated from the logs alone
+    check = doc["held_out_check"]  # the held-out logs leave what the fitted ones do
+    assert set(check) == {"CL", "CD", "Cm"} and not any(v["told"] for v in check.values()), check
+    assert "held-out data disagree" not in text and "held-out data disagree" not in page
+
+
+#: A drag offset [-] at every state: flown at the held-out condition alone, it is a discrepancy the fitted logs
+#: cannot see.
+HELD_ONLY_DCD = 0.002
+
+
+def test_a_drag_the_held_out_condition_alone_flies_is_told_though_no_cause_is_named(stock_737_noisy, tmp_path):
+    """The fitted logs of the stock 737 are its own; the held-out condition is flown again with a drag offset.
+    Nothing is named (the fitted logs hold no discrepancy), and the held-out check tells the drag, in CD
+    alone, with the held-out log and how many times the fitted logs' worst it leaves."""
+    train, held = split(load_data(stock_737_noisy))
+    (alt, mach, flap), = {lg.condition for lg in held}
+    fx = tmp_path / "held_only.xml"
+    fx.write_text(f'''<effects><axis name="DRAG"><function name="aero/coefficient/held-only">
+  <product><property>aero/qbar-psf</property><property>metrics/Sw-sqft</property><value>{HELD_ONLY_DCD}</value>
+  </product></function></axis></effects>''')
+    data = run_matrix(tmp_path / "held", matrix_toml(pairs((flap, mach, alt)), "clean"), str(STOCK / "737"),
+                      str(fx), noise="flight-test", seed=31)
+    diag = diagnose(train, ModelEvaluator(STOCK / "737"), load_data(data))
+    assert not [c.label for c in diag.causes if c.kind == "aero"], [c.label for c in diag.causes]
+    check = diag.held_out_check
+    assert check["CD"]["told"] and not check["CL"]["told"] and not check["Cm"]["told"], check
+    # what it leaves there is the offset, and the fitted logs' worst is their noise
+    assert check["CD"]["held_out_rms"][check["CD"]["worst_log"]] == pytest.approx(HELD_ONLY_DCD, rel=0.15)
+    assert check["CD"]["fitted_worst_rms"] < HELD_ONLY_DCD / 3
+    text = diag.summary()
+    assert f"Caution: the held-out data disagree in CD: {check['CD']['worst_log']} leaves" in text
+    assert text.count("held-out data disagree") == 1
 
 
 def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp(stock_737_clean, tmp_path):

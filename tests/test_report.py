@@ -118,6 +118,16 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     tree, _ = parse(out / "report.html")
     note = tree.find(".//section[@id='verdict']/p[@class='note']")
     assert note is not None and note.text.startswith("Caution: flap and Mach flown together (flap 30 deg only at Mach 0.2")
+    # a held-out log that leaves three times what the fitted ones do: the verdict says so too
+    check = doc["held_out_check"]["CD"]
+    assert not check["told"] and set(check["held_out_rms"]) == {Path(p).name for p in doc["data"]["held_out"]}
+    worst = check["worst_log"]
+    check.update(held_out_rms={**check["held_out_rms"], worst: 4.0 * check["fitted_worst_rms"]}, ratio=4.0, told=True)
+    (out / "diagnosis.json").write_text(json.dumps(doc))
+    assert main(["report", str(out)]) == 0
+    tree, _ = parse(out / "report.html")
+    notes = [p.text for p in tree.findall(".//section[@id='verdict']/p[@class='note']")]
+    assert len(notes) == 2 and notes[1].startswith(f"Caution: the held-out data disagree in CD: {worst} leaves"), notes
 
 
 def test_report_command_refreshes_and_refuses_what_is_not_a_result(campaign, tmp_path, capsys):
