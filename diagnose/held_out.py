@@ -1,8 +1,9 @@
 """What the held-out logs leave beside what the fitted logs leave: a discrepancy the causes named do not carry.
 
-The verdict confirms each cause on conditions of the fitted logs left out in turn; the held-out logs are
-never looked at by a decision. They can still hold what the fitted logs cannot show: an effect that the
-fitted conditions fly as a function of another variable (an A320 drag step in the elevator, on at Mach 0.5
+The verdict confirms each cause on its conditions left out in turn, the held-out ones among them, but only
+where the cause departs from the model: where no named cause does, what the held-out logs hold is never
+looked at. They can hold what the fitted logs cannot show: an effect that the fitted conditions fly as a
+function of another variable (an A320 drag step in the elevator, on at Mach 0.5
 and off at Mach 0.3 and 0.4 over the fitted logs, named "CD vs mach" while the held-out Mach 0.4 logs,
 flown where the step is on, kept all of it: fresh seed 9,404,595), or one that acts at the held-out
 condition alone. Each coefficient's residual, less what the fit predicts there, is compared log by log
@@ -28,6 +29,7 @@ HELD_OUT_RATIO = 3.0
 
 def left_per_log(frame: pd.DataFrame, res: StepwiseResult) -> pd.Series:
     """RMS [-] of ``res``'s coefficient residual less the fit's prediction (its offset included), per ``log``."""
+    # StepwiseResult.predict keeps the offset where Diagnosis.predict, for a coefficient with no term, gives 0
     left = frame[f"r_{res.coefficient}"].to_numpy() - res.predict(frame)
     return pd.Series(left ** 2).groupby(frame["log"].to_numpy()).mean() ** 0.5
 

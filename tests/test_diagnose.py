@@ -915,6 +915,43 @@ def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, 
     assert "--bands" in err and err.count("\n") == 1 and not (tmp_path / "x").exists()
 
 
+def _alpha_slope_logs(rng: np.random.Generator, offsets: list[float]):
+    """Residual data of one log per offset: a CL slope of 0.01 per deg of alpha (2 to 8 deg), 1e-4 of noise,
+    and the log's offset."""
+    import pandas as pd
+    frames = []
+    for i, off in enumerate(offsets):
+        a = rng.uniform(2.0, 8.0, 500)
+        frames.append(pd.DataFrame({"log": i, "alpha_deg": a,
+                                    "r_CL": 0.01 * (a - 5.0) + off + rng.normal(0.0, 1e-4, 500)}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry():
+    """A CL slope in alpha fitted on three logs: on held-out logs that carry the same slope nothing is told;
+    an offset of 0.002 on one of them, which the fit does not carry, is told there, with its size. Without
+    the fit taken off, the slope (0.017 RMS) would hide the offset from the ratio."""
+    from diagnose.held_out import HELD_OUT_RATIO, held_out_check
+    from diagnose.stepwise import StepwiseResult
+    from diagnose.terms import Term
+    rng = np.random.default_rng(0)
+    data = _alpha_slope_logs(rng, [0.0, 0.0, 0.0])
+    term = Term("linear", ("alpha_deg",), (), (5.0,), ((2.0, 8.0),))
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data["r_CL"], rcond=None)[0]
+    fit = {"CL": StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, 1000.0)}
+    fitted, held = ["a.parquet", "b.parquet", "c.parquet"], ["d.parquet", "e.parquet"]
+    carried = held_out_check(data, _alpha_slope_logs(rng, [0.0, 0.0]), fit, fitted, held)["CL"]
+    assert not carried["told"] and carried["ratio"] < 1.2, carried
+    assert set(carried["held_out_rms"]) == set(held) and carried["fitted_worst_log"] in fitted
+    assert carried["fitted_worst_rms"] == pytest.approx(1e-4, rel=0.2)
+    told = held_out_check(data, _alpha_slope_logs(rng, [0.0, 0.002]), fit, fitted, held)["CL"]
+    assert told["told"] and told["worst_log"] == "e.parquet", told
+    assert told["held_out_rms"]["e.parquet"] == pytest.approx(0.002, rel=0.05)
+    assert told["ratio"] == pytest.approx(told["held_out_rms"]["e.parquet"] / told["fitted_worst_rms"])
+    assert told["ratio"] > 5 * HELD_OUT_RATIO
+    assert held_out_check(data, None, fit, fitted, []) == {}
+
+
 def test_the_held_out_condition_is_one_the_fitted_ones_bracket():
     """Three conditions, one Mach 0.5 and one flap 15: holding out either leaves the fit without
     that Mach or flap, and an effect there is visible in held-out data only (a Mach step hidden in
