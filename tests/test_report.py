@@ -118,7 +118,7 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     tree, _ = parse(out / "report.html")
     note = tree.find(".//section[@id='verdict']/p[@class='note']")
     assert note is not None and note.text.startswith("Caution: flap and Mach flown together (flap 30 deg only at Mach 0.2")
-    # a held-out log that leaves three times what the fitted ones do: the verdict says so too
+    # a held-out log that leaves four times what the fitted ones do (three is told): the verdict says so too
     check = doc["held_out_check"]["CD"]
     assert not check["told"] and set(check["held_out_rms"]) == {Path(p).name for p in doc["data"]["held_out"]}
     worst = check["worst_log"]
