@@ -52,18 +52,18 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import (SENSOR_FAMILIES, differences, discrepancies,  # noqa: E402
+from campaign.validation.hidden import (SENSOR_FAMILIES, differences, discrepancies,  # noqa: E402
                           make_sensor, shape_error)
-from tests.shapes import FLOOR, PAIRS, VARIABLES, Effect, draw  # noqa: E402
-from tests.support import matrix_toml, pairs, run_matrix  # noqa: E402
+from campaign.validation.shapes import FLOOR, PAIRS, VARIABLES, Effect, draw  # noqa: E402
+from campaign.validation.support import matrix_toml, pairs, run_matrix  # noqa: E402
 
 BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
 
 
 def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     """The altitude [ft] at which ``to_mach`` flies at the dynamic pressure ``mach`` has at ``alt_ft``
-    (:func:`campaign.plan.same_lift_alt_ft`, the plan's candidate), rounded to 500 ft."""
-    from campaign.plan import same_lift_alt_ft
+    (:func:`campaign.design.plan.same_lift_alt_ft`, the plan's candidate), rounded to 500 ft."""
+    from campaign.design.plan import same_lift_alt_ft
     return float(round(same_lift_alt_ft(alt_ft, mach, to_mach) / 500.0) * 500.0)
 
 
@@ -98,7 +98,7 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     draw still made so that the rest of the case is the same)."""
     import jsbsim
 
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
     every = [("our 737", str(DEFAULT_AIRCRAFT), OUR_737), ("stock 737", str(stock / "737"), STOCK_737),
              ("A320", str(stock / "A320"), A320)]
@@ -110,10 +110,10 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
 def flown_ranges(folder: str, matrix: str) -> dict[str, tuple[float, float]]:
     """The range [own units] each of the grammar's variables is flown over on an aircraft's matrix: the
     1st to 99th percentile of its logged channel, the bare aircraft flown through the flight-test profile
-    in 1.5 ft/s (seed 0). The shapes are drawn on it (:func:`tests.shapes.draw`): the stock A320 trims
+    in 1.5 ft/s (seed 0). The shapes are drawn on it (:func:`campaign.validation.shapes.draw`): the stock A320 trims
     its elevator between -25 and -2 deg and flies Mach 0.3 to 0.5, where our 737 flies -3 to 3 deg and
     Mach 0.2 to 0.5. A variable the matrix holds still (the stock 737's flap) has an empty range."""
-    from campaign.diagnose import load_data
+    from campaign.diagnosis.run import load_data
     with tempfile.TemporaryDirectory(prefix="ranges-") as tmp:
         prof = Path(tmp) / "instruments.toml"
         prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 1.5\n')
@@ -127,10 +127,10 @@ def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, exte
     """The effect over the logs flown (the model with the effect less the model, JSBSim evaluating both
     at the measured states, every log flown, held-out ones included): its range ``size``; the range of
     its middle 98 % ``middle`` (an effect the data reach in a few samples only is large by the first,
-    small by the second); the extension's ``shape_error`` there (:func:`tests.hidden.shape_error`; nan
+    small by the second); the extension's ``shape_error`` there (:func:`campaign.validation.hidden.shape_error`; nan
     without an extension); and ``left``: for each of its variables, the middle 98 % range of what the
     effect leaves beyond a function of that variable alone (:func:`left_beyond`)."""
-    from campaign.diagnose import load_data
+    from campaign.diagnosis.run import load_data
     from identify.export import merge_into_aircraft
     truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
     models = [truth] + ([extension] if extension else [])
@@ -189,7 +189,7 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
 
 def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float | None, keep: Path | None,
           sensor_family: str | None) -> dict:
-    from campaign.diagnose import run_diagnosis
+    from campaign.diagnosis.run import run_diagnosis
     rng = np.random.default_rng(seed)
     name, folder, matrix = aircraft(rng, only)
     effect = None

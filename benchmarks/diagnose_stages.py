@@ -6,7 +6,7 @@ its workers in each stage.
 ``DATA_DIR`` is a campaign folder, for example one flown with
 ``campaign run --noise flight-test --no-identify --out DATA_DIR``. The diagnosis is the command's
 own (:func:`campaign.cli.main`), its report written to a temporary folder and removed; the
-stages are those of its progress bar (``campaign.diagnose.STAGES``), "start" is everything
+stages are those of its progress bar (``campaign.diagnosis.run.STAGES``), "start" is everything
 before the first (imports of the command, reading the logs, the model's evaluation copy).
 CPU-seconds are read from ``/proc`` for the main process and every live descendant (the
 workers and the process that flies replays ahead) as each stage begins. Run by hand, outside CI.
@@ -21,7 +21,7 @@ import time
 
 T0 = time.perf_counter()
 
-import campaign.diagnose as diagnose  # noqa: E402
+import campaign.diagnosis.run as diagnose  # noqa: E402
 from speed_table import _descendants  # noqa: E402  (this folder is the script's first path)
 
 

@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import (CLEAN, FAMILIES, OWN_TERMS, SENSOR_FAMILIES, make, make_sensor, score,  # noqa: E402
+from campaign.validation.hidden import (CLEAN, FAMILIES, OWN_TERMS, SENSOR_FAMILIES, make, make_sensor, score,  # noqa: E402
                           score_sensor)
-from tests.support import matrix_toml, pairs, run_matrix, scaled_copy  # noqa: E402
+from campaign.validation.support import matrix_toml, pairs, run_matrix, scaled_copy  # noqa: E402
 
 #: Sizes swept for the detection floors: aero families as a multiple of their drawn size,
 #: sensor faults in their own units (accelerometer: x then z).
@@ -99,7 +99,7 @@ def nulls_ours(n: int) -> list[bool]:
 def nulls_stock(n: int) -> list[bool]:
     import jsbsim
 
-    from campaign.diagnose import run_diagnosis
+    from campaign.diagnosis.run import run_diagnosis
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
     matrices = {"737": CLEAN, "A320": matrix_toml(pairs((0, 0.3, 5000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")}
     out = []
@@ -119,7 +119,7 @@ def nulls_stock(n: int) -> list[bool]:
 def stock_terms() -> list[dict]:
     import jsbsim
 
-    from campaign.diagnose import run_diagnosis
+    from campaign.diagnosis.run import run_diagnosis
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"
     data = run_matrix(_tmp("stock-terms-"), CLEAN, str(stock), noise="flight-test", seed=31)
     rows = []

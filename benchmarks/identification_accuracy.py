@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
-from campaign.engine import FlightConfig, new_fdm
-from campaign.matrix import load_matrix
-from campaign.runner import run_campaign
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+from campaign.simulation.engine import FlightConfig, new_fdm
+from campaign.simulation.matrix import load_matrix
+from campaign.orchestration.runner import run_campaign
 from identify.logs import read_campaign
 from identify.pipeline import identify_logs
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import reference_gear_truth  # noqa: E402
-from tests.support import z_scores  # noqa: E402
+from campaign.validation.hidden import reference_gear_truth  # noqa: E402
+from campaign.validation.support import z_scores  # noqa: E402
 
 ARM = (638.95 - 635.84) / 155.81
 CLA = ([0, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8], [5.247, 5.358, 5.5, 5.726, 6.058, 6.558, 7.349, 8.746])

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.support import matrix_toml, pairs  # noqa: E402
+from campaign.validation.support import matrix_toml, pairs  # noqa: E402
 
 CONDITIONS = pairs((0, 0.3, 5000), (5, 0.3, 2000), (30, 0.2, 2000))
 MANEUVERS = {
@@ -42,10 +42,10 @@ DERIVATIVES = {"Cmq": ("Cm", "qhat_rad"), "Cmalpha": ("Cm", "dalpha_rad"), "Cmde
 
 
 def fly(work: Path, kind: str, seed: int, band_hz: tuple[float, float] = BAND_HZ) -> pd.DataFrame:
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.matrix import load_matrix
-    from campaign.runner import run_campaign
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.simulation.matrix import load_matrix
+    from campaign.orchestration.runner import run_campaign
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs
     name, table = MANEUVERS[kind]

@@ -17,9 +17,9 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
 from campaign.cli import main as cli  # noqa: E402
-from tests.hidden import DIAG_MATRIX  # noqa: E402
+from campaign.validation.hidden import DIAG_MATRIX  # noqa: E402
 
 
 def label(c: dict) -> str:

@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import fly_data, make  # noqa: E402
-from tests.test_plan import NARROW  # noqa: E402
+from campaign.validation.hidden import fly_data, make  # noqa: E402
+from campaign.validation.support import NARROW  # noqa: E402
 
 
 def case(seed: int, work: Path) -> dict:
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
     from diagnose.separation import SETTLED_SE
     hidden = make("gear_x_alpha", np.random.default_rng(seed), "Cm")

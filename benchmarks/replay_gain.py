@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.hidden import make, score  # noqa: E402
-from tests.test_diagnose import CASES  # noqa: E402
+from campaign.validation.hidden import make, score  # noqa: E402
+from campaign.validation.hidden import CASES  # noqa: E402
 
 
 def attainable(workdir: Path, g: dict) -> dict[str, float]:
     """The truth's own replay errors where the cause acts (the data diagnosed against the model
     with the hidden effect): the smallest error any extension could reach, per channel."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import run_diagnosis
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnosis.run import run_diagnosis
     truth = workdir / "truth" / DEFAULT_AIRCRAFT.name
     doc = run_diagnosis(workdir / "data", truth, workdir / "truth-report", plots="none")
     where = [doc["replays"][name] for name in g["cause_exercised_in"] if name in doc["replays"]]

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from campaign.report import write_report
+from campaign.reports.report import write_report
 
 
 def main(folders: list[Path]) -> None:

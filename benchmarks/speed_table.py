@@ -149,7 +149,7 @@ def scaled_matrix(factor: int, path: Path) -> int:
             v = dense if k == "alt_ft" else v
             lines.append(f"{k} = {v!r}".replace("'", '"') if not isinstance(v, bool) else f"{k} = {str(v).lower()}")
     path.write_text("\n".join(lines) + "\n")
-    from campaign.matrix import load_matrix
+    from campaign.simulation.matrix import load_matrix
     return len(load_matrix(path).points)
 
 

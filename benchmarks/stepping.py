@@ -16,11 +16,11 @@ from pathlib import Path
 
 os.environ.setdefault("JSBSIM_DEBUG", "0")
 
-from campaign import catalog as cat  # noqa: E402
-from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
-from campaign.engine import (FlightConfig, flap_schedule, fly, model_catalog, new_fdm, trim,  # noqa: E402
+from campaign.simulation import catalog as cat  # noqa: E402
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
+from campaign.simulation.engine import (FlightConfig, flap_schedule, fly, model_catalog, new_fdm, trim,  # noqa: E402
                              trimmed_fdm)
-from campaign.matrix import load_matrix  # noqa: E402
+from campaign.simulation.matrix import load_matrix  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains  # noqa: E402
 
 

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
-from campaign.diagnose import load_data  # noqa: E402
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
+from campaign.diagnosis.run import load_data  # noqa: E402
 from identify.compat import estimate  # noqa: E402
-from tests.support import TURN_MATRIX as MATRIX, run_matrix  # noqa: E402
+from campaign.validation.support import TURN_MATRIX as MATRIX, run_matrix  # noqa: E402
 
 
 def one(root: Path, scale: float, sigma: float, seed: int) -> tuple[float, float, float]:

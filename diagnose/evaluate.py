@@ -7,7 +7,7 @@ nothing here assumes ours. The copy differs from the model in three ways:
 - it has no flight-control system, so the measured surface, flap and gear
   positions are set directly; every other FCS output that moves with them
   (a normalised elevator, a flap angle computed from a flap norm, a gear angle)
-  is set from the model's own control schedules (:mod:`identify.model`);
+  is set from the model's own control schedules (:mod:`infra.model`);
 - ``aero/alphadot-*``, ``aero/betadot-*`` and ``aero/cl-squared`` are read
   from settable ``eval/`` properties. When JSBSim flies, it computes them
   from the previous frame (α̇ from the previous frame's accelerations, CL²
@@ -42,10 +42,10 @@ import numpy as np
 import pandas as pd
 
 from identify.kinematics import angle_rates
-from identify.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
+from infra.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
                             control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs,
                             mentioned, reads)
-from identify.workers import owned_tmpdir
+from infra.pool import owned_tmpdir
 
 D2R = np.pi / 180.0
 #: JSBSim properties computed from the previous frame, and the settable stand-ins of the copy.
@@ -227,7 +227,7 @@ class ModelEvaluator:
     Attributes
     ----------
     schedules : dict
-        The model's control schedules (:func:`identify.model.control_schedules`).
+        The model's control schedules (:func:`infra.model.control_schedules`).
     unset : list of UnsetInput
         Inputs of the model's lift, drag and pitching moment that the logs do
         not set; they keep the value shown (normally 0, as in level flight).
@@ -453,7 +453,7 @@ def by_log_chunks(func, logs: list, evaluator: "ModelEvaluator", jobs: int, *arg
     """``func(chunk, evaluator, *args)`` (a list back) over ``logs`` cut into chunks of at most
     :data:`CHUNK_LOGS`, the results joined in order. With ``jobs`` > 1 each chunk is a task
     for the workers, which pass their own evaluator of the same model (:func:`evaluator_for`), on the
-    Dask cluster within :func:`identify.workers.on_cluster` (the model folder shipped with the tasks);
+    Dask cluster within :func:`infra.pool.on_cluster` (the model folder shipped with the tasks);
     else they run here, one after another. Each chunk starts from a freshly loaded model
     (:meth:`ModelEvaluator.restart`): the chunks do not depend on the number of workers, so
     neither do the numbers, to the bit, whichever worker runs which chunk.
@@ -466,7 +466,7 @@ def by_log_chunks(func, logs: list, evaluator: "ModelEvaluator", jobs: int, *arg
         def here() -> list:
             return [x for c in chunks for x in func(c, evaluator.restart(), *args)]
         return here() if wait else here
-    from identify.workers import cluster, results, ship, submit
+    from infra.pool import cluster, results, ship, submit
     model = ship(evaluator.model_dir) if cluster() is not None else evaluator.model_dir  # other machines' files
     futures = submit(_in_worker, [(func, c, model, args) for c in chunks], jobs)
 
@@ -476,7 +476,7 @@ def by_log_chunks(func, logs: list, evaluator: "ModelEvaluator", jobs: int, *arg
 
 
 def _in_worker(func, chunk: list, model, args: tuple) -> list:
-    from identify.workers import Shipment, landed
+    from infra.pool import Shipment, landed
     model_dir = landed(model) / model.name if isinstance(model, Shipment) else model
     return func(chunk, evaluator_for(model_dir).restart(), *args)
 
@@ -491,7 +491,7 @@ def in_chunks(func, items: list, jobs: int, *args, wait: bool = True):
     n = min(jobs, len(items))
     if n <= 1:
         return func(list(items), *args) if wait else lambda: func(list(items), *args)
-    from identify.workers import results, submit
+    from infra.pool import results, submit
     futures = submit(func, [([items[i] for i in c], *args) for c in np.array_split(np.arange(len(items)), n)], jobs)
 
     def joined() -> list:

@@ -9,7 +9,7 @@ share an intercept per coefficient and the terms of the other causes on it.
 
 The separation of a cause A from a rival B is the likelihood ratio of their fits in standard errors,
 ``sqrt(RSS_B - RSS_A)`` (negative when the rival fits better). The same algebra predicts data not
-yet flown (:mod:`campaign.plan`): A's fit taken as the truth, B refitted to A's prediction leaves
+yet flown (:mod:`campaign.design.plan`): A's fit taken as the truth, B refitted to A's prediction leaves
 ``c - b' G^+ b`` with ``G = Z_B' Z_B``, ``b = Z_B' z_A``, ``c = z_A' z_A`` summed over old and new
 rows (T-optimal discrimination, Atkinson and Fedorov 1975), less what A's fitted noise adds to it
 (:func:`left`). The old rows enter through these sums, which ``diagnosis.json`` stores; a flight

@@ -64,7 +64,7 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarra
     return y[::-1][pad:pad + len(x)]
 
 
-def _dt(log: Log) -> float:
+def sample_interval(log: Log) -> float:
     return float(np.median(np.diff(log.data["t_s"].to_numpy())))
 
 
@@ -133,8 +133,8 @@ def regressors(log: Log, ref: Reference) -> pd.DataFrame:
     }, index=d.index)
 
 
-def _filtered(log: Log, frame: pd.DataFrame) -> pd.DataFrame:
-    dt = _dt(log)
+def filtered_frame(log: Log, frame: pd.DataFrame) -> pd.DataFrame:
+    dt = sample_interval(log)
     out = frame.copy()
     cols = [c for c in frame.columns if c != "const"]
     if cols:
@@ -180,11 +180,11 @@ class PointFit:
 
 def fit_baseline(log: Log, ref: Reference) -> PointFit:
     """Least squares of eq. (3) on one 2-3-1-1 log."""
-    edge = int(round(EDGE_S / _dt(log)))
+    edge = int(round(EDGE_S / sample_interval(log)))
     inner = slice(edge, len(log.data) - edge)
-    y = _filtered(log, coefficients(log.data, log.meta)).iloc[inner]
-    x = _filtered(log, regressors(log, ref)).iloc[inner]
-    fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / _dt(log))), name=c).fit()
+    y = filtered_frame(log, coefficients(log.data, log.meta)).iloc[inner]
+    x = filtered_frame(log, regressors(log, ref)).iloc[inner]
+    fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / sample_interval(log))), name=c).fit()
             for c in COEFFS}
     for res in fits.values():
         # C0 is the coefficient at the reference state, itself a mean of measured samples
@@ -280,11 +280,11 @@ def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments
     reference: its mean coefficients are ``C0_gearup`` and its mean state the
     point the regressors are taken about.
     """
-    coef = _filtered(log, coefficients(log.data, log.meta))
+    coef = filtered_frame(log, coefficients(log.data, log.meta))
     d = log.data
     up = (d["gear_norm"] == 0.0).to_numpy()
     ref = _reference(d[up], log.path)
-    x = _filtered(log, regressors(log, ref))
+    x = filtered_frame(log, regressors(log, ref))
     x["qhat_rad"] = x["qhat_rad"] - x["qhat_rad"][up].mean()
     raw = {}
     for c in COEFFS:

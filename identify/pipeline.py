@@ -18,12 +18,12 @@ import pandas as pd
 from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
 from identify.logs import Log, LogError, LogHead, read_heads
-from identify.model import folder_hash
+from infra.model import folder_hash
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
 from identify.timedomain import METHODS, refine_point
-from identify.workers import imap, pmap
+from infra.pool import imap, pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
 

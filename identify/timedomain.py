@@ -21,7 +21,7 @@ from identify.estimators.filtererror import FilterError
 from identify.estimators.models import Airframe, longitudinal
 from identify.kinematics import effective_gravity
 from identify.logs import Log
-from identify.models import COEFFS, EDGE_S, PointFit, _dt, _filtered, lowpass, regressors
+from identify.models import COEFFS, EDGE_S, PointFit, sample_interval, filtered_frame, lowpass, regressors
 
 METHODS = ("ee", "oe", "fe")
 RATE_HZ = 10.0
@@ -36,7 +36,7 @@ F0 = (0.5, 0.002, 0.0005, 0.002)
 
 def _record(log: Log) -> tuple[Record, dict]:
     d = log.data
-    dt = _dt(log)
+    dt = sample_interval(log)
     step = max(1, int(round(1.0 / (RATE_HZ * dt))))
     cols = {"V": d["tas_kt"] * FT_PER_KT, "alpha_rad": d["alpha_deg"] * D2R, "theta_rad": d["theta_deg"] * D2R,
             "q_rps": d["q_dps"] * D2R, "ax": d["ax_fps2"], "az": d["az_fps2"],
@@ -98,10 +98,10 @@ def refine_point(log: Log, fit: PointFit, method: str) -> PointFit:
         res = None
     if res is None or not np.all(np.isfinite(res.params)):
         return replace(fit, fits={c: replace(r, converged=False) for c, r in fit.fits.items()})
-    edge = int(round(EDGE_S / _dt(log)))
+    edge = int(round(EDGE_S / sample_interval(log)))
     inner = slice(edge, len(log.data) - edge)
-    y = _filtered(log, coefficients(log.data, log.meta)).iloc[inner]
-    x = _filtered(log, regressors(log, fit.reference)).iloc[inner]
+    y = filtered_frame(log, coefficients(log.data, log.meta)).iloc[inner]
+    x = filtered_frame(log, regressors(log, fit.reference)).iloc[inner]
     fits = {}
     for c in COEFFS:
         old = fit.fits[c]

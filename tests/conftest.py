@@ -4,14 +4,14 @@ import pytest
 
 os.environ.setdefault("JSBSIM_DEBUG", "0")
 
-from identify.workers import one_blas_thread  # noqa: E402
+from infra.pool import one_blas_thread  # noqa: E402
 
 one_blas_thread()  # as the command line does: two test workers each with two BLAS threads wait on each other
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
-from campaign.engine import FlightConfig  # noqa: E402
-from campaign.matrix import load_matrix  # noqa: E402
-from tests.support import matrix_toml  # noqa: E402
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
+from campaign.simulation.engine import FlightConfig  # noqa: E402
+from campaign.simulation.matrix import load_matrix  # noqa: E402
+from campaign.validation.support import matrix_toml  # noqa: E402
 
 
 @pytest.fixture(autouse=True)

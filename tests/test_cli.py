@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from campaign.cli import main
-from campaign.store import LOCK, read_log
-from tests.support import matrix_toml, one_line_error
+from campaign.orchestration.store import LOCK, read_log
+from campaign.validation.support import matrix_toml, one_line_error
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
 
@@ -74,7 +74,7 @@ def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix, capsy
     assert [p["status"] for p in manifest["points"]] == ["ok"] * 3 and manifest["complete"]
     assert manifest["hashes"]["aircraft"] and manifest["hashes"]["effects"] and manifest["versions"]["jsbsim"]
     import pyarrow.parquet as pq
-    from campaign.catalog import LOG_COLUMNS
+    from campaign.simulation.catalog import LOG_COLUMNS
     path = out / "h02000_m0.30_f05_gdn__gear_extension.parquet"
     log, meta = read_log(path)
     assert tuple(log.columns) == LOG_COLUMNS
@@ -85,7 +85,7 @@ def test_logs_follow_the_schema_and_carry_metadata(tmp_path, small_matrix, capsy
     assert log.t_s.diff().dropna().round(12).eq(round(1 / 120, 12)).all()
     assert "BYTE_STREAM_SPLIT" in pq.ParquetFile(path).metadata.row_group(0).column(0).encodings
     # a log round-trips exactly, whatever its columns hold
-    from campaign.store import write_log
+    from campaign.orchestration.store import write_log
     mixed = log.head(50).assign(label="a", n=range(50), flag=lambda d: d.t_s > 0.1)
     write_log(tmp_path / "mixed.parquet", mixed, meta)
     back, back_meta = read_log(tmp_path / "mixed.parquet")

@@ -8,8 +8,8 @@ import pytest
 from distributed import LocalCluster
 
 from campaign.cli import main
-from campaign.runner import fly_logs, run_campaign
-from tests.support import matrix_toml, one_line_error
+from campaign.orchestration.runner import fly_logs, run_campaign
+from campaign.validation.support import matrix_toml, one_line_error
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +41,10 @@ def test_cluster_logs_equal_a_local_runs_bit_for_bit(tmp_path, cluster):
 
 
 def test_a_point_that_kills_its_worker_fails_alone(tmp_path, cluster):
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.instruments import load_profile
-    from campaign.matrix import load_matrix
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.simulation.instruments import load_profile
+    from campaign.simulation.matrix import load_matrix
 
     matrix = load_matrix(str(_matrix(tmp_path)))
     config = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects("none")), 0, load_profile("none"),
@@ -75,7 +75,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
     one_line_error(capsys, argv + ["--cluster", "tcp://127.0.0.1:9"], "--cluster", "no Dask scheduler")
     one_line_error(capsys, argv + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
     assert not (tmp_path / "c").exists()  # not even the folder, nor its lock
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     diag = ["diagnose", "--data", str(tmp_path), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d")]
     one_line_error(capsys, diag + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
     assert not (tmp_path / "d").exists()
@@ -101,9 +101,9 @@ def test_diagnosis_on_the_cluster_equals_a_local_one_bit_for_bit(tmp_path, clust
     """The residuals, sensitivities, noise realizations and replays on the cluster's two workers (the
     model and the extended aircraft shipped with the tasks): diagnosis.json is a local run's, to the
     bit, with one local job as with two."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS
-    from tests.hidden import DIAG_MATRIX
-    from tests.support import run_matrix
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS
+    from campaign.validation.hidden import DIAG_MATRIX
+    from campaign.validation.support import run_matrix
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(DEFAULT_EFFECTS), noise="flight-test", seed=5)
     common = ["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--no-plots", "--quiet"]
     runs = {"one": ["--jobs", "1"], "two": ["--jobs", "2"], "dask": ["--cluster", cluster.scheduler_address]}
@@ -118,6 +118,6 @@ def test_diagnosis_on_the_cluster_equals_a_local_one_bit_for_bit(tmp_path, clust
 
 
 def _tasks(cluster) -> int:
-    """Tasks of identify.workers.submit the cluster's scheduler has seen finish."""
+    """Tasks of infra.pool.submit the cluster's scheduler has seen finish."""
     prefix = cluster.scheduler.task_prefixes.get("on_cluster_worker")  # the key's prefix, its "_" dropped
     return prefix.state_counts["memory"] if prefix is not None else 0

@@ -13,11 +13,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT
-from campaign.diagnose import load_data
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+from campaign.diagnosis.run import load_data
 from identify.compat import estimate
-from tests.hidden import DIAG_MATRIX
-from tests.support import run_matrix
+from campaign.validation.hidden import DIAG_MATRIX
+from campaign.validation.support import run_matrix
 
 #: (channel.error, value in the profile's terms, value as the compatibility reports it)
 INJECTED = {"alpha_deg.bias": ("alpha_deg", "bias", 0.5, 0.5),
@@ -78,7 +78,7 @@ def test_injected_instrument_errors_are_recovered(tmp_path, sigma_fps):
 def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     """Seed 42 is a null whose clustered standard error of the alpha scale came out 4x small (z 4.5):
     the kinematics alone apply nothing below 5 standard errors, and the residuals refuse it."""
-    from campaign.diagnose import split
+    from campaign.diagnosis.run import split
     from diagnose.corrected import Corrected
     from diagnose.diagnosis import diagnose
     from diagnose.evaluate import ModelEvaluator
@@ -125,7 +125,7 @@ def test_a_full_circle_measures_the_airspeed_error_in_turbulence(tmp_path):
     360-deg level turn in the flight-test profile's turbulence: the prior on the gusts keeps the
     wind from trading with them, and the standard error holds the mean gust the splines leave out
     (on seeds 2-11 of benchmarks/turn_airspeed.py; seed 12 is this test's own)."""
-    from tests.support import TURN_MATRIX
+    from campaign.validation.support import TURN_MATRIX
     prof = tmp_path / "p.toml"
     prof.write_text('extends = "flight-test"\n[channels.tas_kt]\nscale = 1.03\n')
     logs = load_data(run_matrix(tmp_path, TURN_MATRIX, str(DEFAULT_AIRCRAFT), noise=str(prof), seed=12))
@@ -198,8 +198,8 @@ def test_a_correction_the_logs_do_not_all_carry_is_not_applied_on_the_kinematics
     with the log, and the spread is 5 to 10 times larger: neither is applied."""
     import jsbsim
 
-    from campaign.diagnose import split
-    from tests.support import matrix_toml, pairs
+    from campaign.diagnosis.run import split
+    from campaign.validation.support import matrix_toml, pairs
     a320 = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
     prof = tmp_path / "turbulence.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 1.5\n')

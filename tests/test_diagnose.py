@@ -14,13 +14,10 @@ import numpy as np
 import pytest
 
 from campaign.cli import main
-from tests.hidden import make, make_sensor, score, score_sensor
+from campaign.validation.hidden import CASES, make, make_sensor, score, score_sensor
 
 #: (family, coefficient, seed): each family once, and each coefficient in a gear family (the random
 #: shapes of tests/test_verdict.py and the detection curve's hundreds cover the rest)
-CASES = [("gear_saturating", "CD", 1001), ("gear_saturating", "Cm", 1002), ("gear_bump", "CL", 1003),
-         ("alpha", None, 1006), ("mach", None, 1007), ("gear_x_alpha", None, 1008),
-         ("elevator_derivative", None, 1009)]
 
 
 @pytest.mark.parametrize("family, coeff, seed", CASES, ids=[f"{f}-{c or 'any'}" for f, c, _ in CASES])
@@ -110,8 +107,8 @@ def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_e
     alpha" was named; at their 99th (3.5) the bias is refined to what the residuals need. Since stop 74 the
     fit holds the highest-alpha condition, the kinematics measure 0.33 +- 0.08 deg, and the residuals
     still take it nearer the truth."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from tests.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
     doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 4500069,
                            channels="[channels.alpha_deg]\nbias = 0.40241062049587184\n")
     assert not discrepancies(doc), doc["summary"]
@@ -160,11 +157,11 @@ def test_noise_alone_is_no_discrepancy(tmp_path, seed):
 
 
 def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
-    from tests.hidden import fly_data
+    from campaign.validation.hidden import fly_data
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
     data, _ = fly_data(tmp_path / "w", hidden, seed=5)
     out = tmp_path / "report"
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "1. CD vs gear_norm" in text
@@ -221,8 +218,8 @@ def _same(a, b, where: str, skip=()) -> None:
 
 
 def test_diagnose_bad_inputs(tmp_path, capsys):
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from tests.hidden import fly_data
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.validation.hidden import fly_data
     data, _ = fly_data(tmp_path / "w", None, seed=3)
     # a CSV log with a bad value: file, column and row named
     from identify.logs import read_parquet
@@ -251,10 +248,10 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
 
 def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
     """Same start, same recorded inputs, same aircraft: the flight comes back."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
-    from campaign.diagnose import replay
-    from campaign.engine import FlightConfig, fly
-    from campaign.matrix import load_matrix
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+    from campaign.diagnosis.run import replay
+    from campaign.simulation.engine import FlightConfig, fly
+    from campaign.simulation.matrix import load_matrix
     from identify.logs import Log
     m = load_matrix()
     src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS))
@@ -271,10 +268,10 @@ def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
     """A log recorded at 50 Hz (the flight-test profile, here in still air) is replayed over its
     own 28 s at the simulation's 120 Hz, not compressed into 1400 steps (11.7 s), and follows the
     data on its own aircraft within the instruments' errors."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.diagnose import replay
-    from campaign.engine import FlightConfig, fly
-    from campaign.matrix import load_matrix
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.diagnosis.run import replay
+    from campaign.simulation.engine import FlightConfig, fly
+    from campaign.simulation.matrix import load_matrix
     from diagnose.gain import replay_errors
     from identify.logs import Log
     still = tmp_path / "still.toml"
@@ -312,7 +309,7 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
     import pandas as pd
 
     from diagnose.terms import MIN_KNOT_SPACING, candidate_terms
-    from tests.shapes import SHAPES, shape
+    from campaign.validation.shapes import SHAPES, shape
     rng = np.random.default_rng(0)
     trims = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 8.0, 12.0]
     alpha = np.concatenate([t + 1.2 * np.sin(np.linspace(0, 6 * np.pi, 600)) * rng.uniform(0.3, 1, 600)
@@ -351,7 +348,7 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     import pandas as pd
 
     from diagnose.terms import TAIL_SPACING, candidate_terms, tail_twin
-    from tests.shapes import SHAPES, shape
+    from campaign.validation.shapes import SHAPES, shape
     rng = np.random.default_rng(0)
     elev = _elevator_as_the_a320_flies_it(rng)
     frame = pd.DataFrame({"elevator_deg": elev})
@@ -769,7 +766,7 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
     from diagnose.evaluate import ModelEvaluator
     from identify.logs import read_campaign
     from diagnose.noise_floor import NoiseFloor, channel_noise
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
                  "--no-identify", "--quiet"]) == 0
     logs = read_campaign(tmp_path / "c")
@@ -798,7 +795,7 @@ def test_the_errors_in_variables_factor_is_measured_per_variable(tmp_path, small
     from diagnose.evaluate import ModelEvaluator
     from identify.logs import Log, read_campaign
     from diagnose.noise_floor import NoiseFloor, channel_noise
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
                  "--no-identify", "--quiet"]) == 0
     logs = read_campaign(tmp_path / "c")
@@ -824,8 +821,8 @@ def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path
     """``--refine oe`` on data flown through the flight-test instruments in still air: the
     equation-error extension of a hidden gear-drag bump is refined through JSBSim replays of the
     fitted logs, written beside it, and its gain reported beside the first one's."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from tests.hidden import fly_data
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.validation.hidden import fly_data
     still = tmp_path / "still.toml"
     still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
@@ -855,13 +852,13 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     the held-out replays fly in the wind measured in each log (inertial minus air-relative
     velocity) and follow the data within 0.5 deg of pitch and 30 ft over the whole log; the
     same replays in still air do not."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.diagnose import log_wind, replay
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.diagnosis.run import log_wind, replay
     from diagnose.gain import replay_errors
     from identify.compat import estimate
     from identify.kinematics import measured_wind
     from identify.logs import read_campaign
-    from tests.support import matrix_toml, pairs, run_matrix
+    from campaign.validation.support import matrix_toml, pairs, run_matrix
     prof = tmp_path / "t3.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
     data = run_matrix(tmp_path / "w", matrix_toml(pairs((0, 0.3, [2000, 10000])), "w3"), str(DEFAULT_AIRCRAFT),
@@ -892,8 +889,8 @@ def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, 
     """``--bands 20``: the extension's terms drawn from their covariance, the held-out replays where
     the cause acts flown for each draw in the measured wind. A 21st draw, held back from the band,
     lies inside it nearly all the time; the pass probability and the shaded plot are reported."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from tests.hidden import fly_data
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.validation.hidden import fly_data
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
     data, _ = fly_data(tmp_path / "w", hidden, seed=5)
     out = tmp_path / "report"
@@ -959,7 +956,7 @@ def test_the_held_out_condition_is_one_the_fitted_ones_bracket():
     flew the gear down stays in the fit."""
     from types import SimpleNamespace
 
-    from campaign.diagnose import split
+    from campaign.diagnosis.run import split
 
     def log(c, gear="up"):
         return SimpleNamespace(condition=c, transition=False, gear_down=gear == "down")
@@ -987,7 +984,7 @@ def test_the_fit_keeps_every_mach_number_apart_from_the_flap_and_the_highest_alp
     is held out, and it leaves every Mach number clean in the fit. Our 737's five: its Mach 0.3 at
     10,000 ft trims above what the rest fly, and a Cm rise above 9 deg had F 3 in the fit; the
     condition held out is one the fit brackets."""
-    from campaign.diagnose import split
+    from campaign.diagnosis.run import split
     a320 = [_trimmed(*c) for c in (((5000.0, 0.3, 0.0), 6.1, 8.0, 9.5), ((5000.0, 0.3, 15.0), 4.8, 5.9, 7.0),
                                    ((10000.0, 0.4, 0.0), 3.4, 4.7, 5.6), ((10000.0, 0.5, 0.0), 0.5, 1.9, 3.2),
                                    ((19500.0, 0.4, 0.0), 6.5, 8.0, 9.4), ((21000.0, 0.5, 0.0), 3.1, 4.8, 5.8))]

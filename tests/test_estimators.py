@@ -132,9 +132,9 @@ def test_identify_method_fe_on_turbulent_737_logs(tmp_path, capsys):
     derivatives land on the model's own XML values (per rad, Cm about the CG)."""
     import json
 
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
-    from tests.support import matrix_toml, pairs, run_matrix
+    from campaign.validation.support import matrix_toml, pairs, run_matrix
     data = run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "one"), str(DEFAULT_AIRCRAFT),
                       noise="flight-test", seed=5)
     assert main(["identify", str(data), "--out", str(tmp_path / "fe"), "--method", "fe", "--plots", "none"]) == 0

@@ -12,23 +12,23 @@ from pathlib import Path
 
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
-from campaign.runner import fly_logs, run_campaign
-from campaign.store import LOCK, read_log, readable_log
-from tests.support import matrix_toml, one_line_error
+from campaign.orchestration.runner import fly_logs, run_campaign
+from campaign.orchestration.store import LOCK, read_log, readable_log
+from campaign.validation.support import matrix_toml, one_line_error
 
 
 def _config(matrix):
-    from campaign.aircraft import AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.instruments import load_profile
+    from campaign.simulation.aircraft import AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.simulation.instruments import load_profile
     return FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects("none")), 0, load_profile("none"),
                         matrix.maneuver_params, matrix.clmax_by_flap)
 
 
 def test_a_point_that_kills_its_local_worker_fails_alone(tmp_path):
-    from campaign.matrix import load_matrix
+    from campaign.simulation.matrix import load_matrix
     m = tmp_path / "m.toml"
     m.write_text(matrix_toml([(g, 0, [0.3, 0.5], [2000, 6000]) for g in ("up", "down")]))
     matrix = load_matrix(str(m))

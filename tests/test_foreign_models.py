@@ -14,16 +14,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-from campaign.diagnose import load_data, split
-from campaign.engine import FlightConfig, fly
-from campaign.matrix import StatusPoint
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+from campaign.diagnosis.run import load_data, split
+from campaign.simulation.engine import FlightConfig, fly
+from campaign.simulation.matrix import StatusPoint
 from identify.coefficients import coefficients
 from diagnose.diagnosis import diagnose
 from diagnose.residuals import residual_data
 from diagnose.evaluate import ModelEvaluator, moment_transfer
-from tests.hidden import CLEAN, DIAG_MATRIX, OWN_TERMS, diagnose_overlay, discrepancies
-from tests.support import matrix_toml, pairs, run_matrix, scaled_copy
+from campaign.validation.hidden import CLEAN, DIAG_MATRIX, OWN_TERMS, diagnose_overlay, discrepancies
+from campaign.validation.support import matrix_toml, pairs, run_matrix, scaled_copy
 
 STOCK = Path(jsbsim.get_default_root_dir()) / "aircraft"
 SHORT = "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"
@@ -217,7 +217,7 @@ def test_a_drag_the_held_out_condition_alone_flies_is_told_though_no_cause_is_na
 def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp(stock_737_clean, tmp_path):
     """Identify the stock 737's gear drag, export it, merge it: JSBSim then gives the identified increments
     about the CG, the AERORP 64 in above it included (x-only transfer missed 0.006 in Cm)."""
-    from campaign.engine import new_fdm
+    from campaign.simulation.engine import new_fdm
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs, write_outputs
     ident = identify_logs(read_campaign(stock_737_clean))
@@ -277,7 +277,7 @@ def test_models_whose_other_parts_read_what_the_evaluation_removes_load(name, tm
 def test_a_model_jsbsim_cannot_run_is_one_line(stock_737_clean, tmp_path, capsys):
     """The DR.I reads FlightGear's /sim tree, which JSBSim alone lacks: exit 2, one line naming the
     folder, nothing written (it was a traceback)."""
-    from tests.support import one_line_error
+    from campaign.validation.support import one_line_error
     one_line_error(capsys, ["diagnose", "--data", str(stock_737_clean), "--model", str(STOCK / "dr1"), "--out",
                             str(tmp_path / "d"), "--quiet"], str(STOCK / "dr1"), "/sim/model/pushback")
     assert not (tmp_path / "d").exists()
@@ -605,8 +605,8 @@ def test_a_stock_aircraft_without_a_point_mass_replays_its_own_logs(tmp_path):
     """The stock A320 has no point mass to set a weight with, and flies as loaded. A replay starts at
     the weight its log records, which is the aircraft's own: it trims and flies the log again (it was
     refused, and every held-out replay of an A320 diagnosis was NaN)."""
-    from campaign.diagnose import replay
-    from campaign.engine import TrimError, trimmed_fdm
+    from campaign.diagnosis.run import replay
+    from campaign.simulation.engine import TrimError, trimmed_fdm
     from diagnose.gain import replay_errors
     text = matrix_toml([("up", 0, 0.3, 5000)], "a320", '[maneuvers.doublet]\ntail_s = 2.0\n')
     source = AircraftSource(str(STOCK / "A320"), load_effects(None))

@@ -11,16 +11,16 @@ import jsbsim
 import numpy as np
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
 from campaign.cli import main
-from campaign.engine import FlightConfig, fly, new_fdm
-from campaign.matrix import load_matrix
-from campaign.runner import run_campaign
+from campaign.simulation.engine import FlightConfig, fly, new_fdm
+from campaign.simulation.matrix import load_matrix
+from campaign.orchestration.runner import run_campaign
 from identify.coefficients import coefficients
 from identify.logs import LogError, read_campaign, read_csv
 from identify.pipeline import identify_logs
-from tests.hidden import reference_gear_truth
-from tests.support import matrix_toml, pairs, z_scores
+from campaign.validation.hidden import reference_gear_truth
+from campaign.validation.support import matrix_toml, pairs, z_scores
 
 STOCK_737 = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
 D2R = np.pi / 180
@@ -283,7 +283,7 @@ def test_csv_logs_with_sidecar_and_their_errors(reference_gear_down, tmp_path):
 
 def test_identify_never_imports_the_flying_code():
     code = ("import sys, identify.pipeline, identify.plots, diagnose.diagnosis, diagnose.extension, "
-            "identify.model, identify.kinematics, diagnose.residuals, diagnose.noise_floor, "
+            "infra.model, identify.kinematics, diagnose.residuals, diagnose.noise_floor, "
             "diagnose.plots, diagnose.evaluate; "
             "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
             "assert not bad, bad")

@@ -11,11 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from identify.logs import read_campaign
 from identify.pipeline import identify_logs
-from tests.support import matrix_toml, one_line_error, pairs, run_matrix
+from campaign.validation.support import matrix_toml, one_line_error, pairs, run_matrix
 
 #: source name, unit, factor from our unit to the source's
 SI = {"alt_ft": ("HP", "m", 0.3048), "tas_kt": ("VTAS", "m/s", 0.514444444), "alpha_deg": ("ALPHA", "rad", np.pi / 180),
@@ -270,7 +270,7 @@ def test_the_readme_map_is_a_valid_map(tmp_path):
     """The complete example map of the README loads (and the docs cannot drift from the parser)."""
     from pathlib import Path
 
-    from campaign.importer import load_map
+    from campaign.importing.importer import load_map
     text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     block = text.split("A complete map:")[1].split("```toml\n")[1].split("```")[0]
     (tmp_path / "readme.toml").write_text(block)

@@ -11,16 +11,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
 from campaign.cli import main
-from campaign.engine import DT_S, FlightConfig, fly
-from campaign.instruments import load_profile, record
-from campaign.matrix import StatusPoint
-from campaign.turbulence import dryden_gusts, scales
+from campaign.simulation.engine import DT_S, FlightConfig, fly
+from campaign.simulation.instruments import load_profile, record
+from campaign.simulation.matrix import StatusPoint
+from campaign.simulation.turbulence import dryden_gusts, scales
 from identify.coefficients import coefficients
 from identify.models import lowpass
 from diagnose.residuals import kept
-from tests.support import one_line_error
+from campaign.validation.support import one_line_error
 
 SHORT = (("doublet", (("tail_s", 2.0),)), ("gear_extension", (("post_s", 5.0),)))
 POINT = StatusPoint(5000.0, 0.4, 0, False)
@@ -205,7 +205,7 @@ def test_derived_pitch_acceleration_costs_little_in_cm(tmp_path):
 
 
 def test_the_shipped_profile_flies_and_logs_what_it_says(small_matrix, tmp_path):
-    from campaign.store import read_log
+    from campaign.orchestration.store import read_log
     assert main(["fly", "h02000_m0.30_f00_gup", "--matrix", str(small_matrix), "--out", str(tmp_path / "o"),
                  "--noise", "flight-test"]) == 0
     log, meta = read_log(tmp_path / "o" / "h02000_m0.30_f00_gup__doublet.parquet")

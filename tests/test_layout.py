@@ -5,7 +5,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("maneuvers", "campaign", "identify", "diagnose")
+PACKAGES = ("infra", "maneuvers", "campaign", "identify", "diagnose")
 MAX_LINES = 600
 
 
@@ -86,6 +86,14 @@ def test_no_circular_imports():
     # a package's __init__ re-exporting its own modules is not a cycle between jobs
     cycles = [c for c in cycles if not all(x.split(".")[:2] == c[0].split(".")[:2] for x in c)]
     assert not cycles, cycles
+
+
+def test_infra_imports_no_science():
+    """The process pool and model loading stand apart: they import none of the jobs above them."""
+    graph = _graph()
+    wrong = {m: sorted(d for d in deps if d.split(".")[0] != "infra")
+             for m, deps in graph.items() if m.split(".")[0] == "infra"}
+    assert not any(wrong.values()), wrong
 
 
 def test_packages_follow_the_flow():

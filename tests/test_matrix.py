@@ -3,7 +3,7 @@ import pickle
 import pytest
 
 from campaign.errors import UserError
-from campaign.matrix import StatusPoint, load_matrix
+from campaign.simulation.matrix import StatusPoint, load_matrix
 
 
 def test_default_matrix_is_the_papers_fig3(matrix):

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from campaign.errors import UserError
-from campaign.matrix import load_matrix
+from campaign.simulation.matrix import load_matrix
 from maneuvers.library import Multisine, make_maneuver
 from maneuvers.multisine import multisine_signals, relative_peak_factor
-from tests.support import matrix_toml, pairs
+from campaign.validation.support import matrix_toml, pairs
 
 DT = 1 / 120
 
@@ -69,9 +69,9 @@ def test_bad_multisine_parameters_name_the_field(tmp_path, table, says):
 def test_a_flown_multisine_identifies_the_models_own_derivatives(tmp_path):
     """Noise-free, one condition gear up and down: the equation error on the multisine gives the XML's
     derivatives as the 2-3-1-1 does (tests/test_identify.py), and nothing lateral moves."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.runner import run_campaign
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.orchestration.runner import run_campaign
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs
     p = tmp_path / "m.toml"

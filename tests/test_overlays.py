@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects, merged_xml
-from campaign.engine import new_fdm
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects, merged_xml
+from campaign.simulation.engine import new_fdm
 from campaign.errors import UserError
 
 OVERLAY = """<effects>
@@ -121,7 +121,7 @@ def test_a_long_lived_process_keeps_only_its_latest_merged_roots(tmp_path, monke
     temporary folder until the process ended, or for good if it was killed)."""
     import tempfile
 
-    from campaign import engine
+    from campaign.simulation import engine
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
     roots = lambda: sorted(p.name for p in (tmp_path / "tmp").iterdir())  # noqa: E731

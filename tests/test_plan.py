@@ -12,18 +12,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
-from campaign.plan import PLAN_SE
+from campaign.design.plan import PLAN_SE
 from diagnose import sensor_rivals
 from diagnose import separation as sep
 from diagnose import state_twins
 from diagnose.terms import Term
-from tests.hidden import Hidden, _wrap, fly_data, make
-from tests.support import matrix_toml, pairs
+from campaign.validation.hidden import Hidden, wrap, fly_data, make
+from campaign.validation.support import NARROW, matrix_toml, pairs
 
-NARROW = matrix_toml(pairs((5, [0.25, 0.3, 0.35, 0.4], 5000)), "narrow",
-                     '[defaults]\nmaneuvers_gear_down = ["gear_extension"]\n')
 
 
 def _frame(rng, n=400):
@@ -109,7 +107,7 @@ def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
     condition would otherwise shift every third condition (and could hold out the plan itself)."""
     from types import SimpleNamespace
 
-    from campaign.diagnose import split
+    from campaign.diagnosis.run import split
     old = [SimpleNamespace(condition=(5000.0, m, 5.0)) for m in (0.25, 0.3, 0.35, 0.4)]
     new = [SimpleNamespace(condition=c) for c in ((5000.0, 0.3, 15.0), (1500.0, 0.3, 5.0), (5000.0, 0.35, 5.0))]
     train, held = split(old)
@@ -126,9 +124,9 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
     below 1,500 ft is not offered, and one within 250 ft of a condition flown at its Mach number is that one."""
     from types import SimpleNamespace
 
-    from campaign.aircraft import AircraftSource, load_effects
-    from campaign.importer import _isa
-    from campaign.plan import candidates
+    from campaign.simulation.aircraft import AircraftSource, load_effects
+    from campaign.importing.importer import isa
+    from campaign.design.plan import candidates
     logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
     source = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
     points = candidates(logs, source, None, None)
@@ -136,7 +134,7 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
             and p.mach != 0.3}
     assert {(a, m) for a, m, _ in away} == {(16900.0, 0.4)}, away  # Mach 0.2 would be below sea level
     assert {d for *_, d in away} == {False, True}
-    q = [_isa(a)[0].item() * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
+    q = [isa(a)[0].item() * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
     assert q[1] == pytest.approx(q[0], rel=5e-3)
     # Mach 0.2 at the dynamic pressure of Mach 0.3 at 21,500 ft is at 800 ft: not offered
     high = [SimpleNamespace(condition=(21500.0, 0.3, 0.0), meta=logs[0].meta)]
@@ -232,7 +230,7 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     kinematics' estimate; the CD and Cm residuals that scale would make are not there: the cause is
     named, the vane rejected beyond 5 standard errors, and there is nothing left to plan."""
     body = "        <property>aero/alpha-rad</property>\n        <value>0.17</value>"
-    hidden = Hidden("slope", "CL", ("alpha_deg",), _wrap("CL", body, "slope"), "dCL = 0.17 alpha")
+    hidden = Hidden("slope", "CL", ("alpha_deg",), wrap("CL", body, "slope"), "dCL = 0.17 alpha")
     data, _ = fly_data(tmp_path / "w", hidden, seed=7)
     assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d"),
                  "--no-plots", "--jobs", "2"]) == 0
@@ -253,7 +251,7 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     damping error (Cm vs qhat) that the scale makes. The scale fits the residuals better by far, so
     the cause is not confirmed; the plan flies the level turn that measures the scale, and old and
     new data together name the instrument error and nothing else."""
-    from tests.hidden import DIAG_MATRIX
+    from campaign.validation.hidden import DIAG_MATRIX
     prof = tmp_path / "pitot.toml"
     prof.write_text('extends = "flight-test"\n[channels.tas_kt]\nscale = 1.06\n')
     matrix = tmp_path / "m.toml"

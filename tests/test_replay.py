@@ -8,8 +8,8 @@ import pytest
 
 from campaign.cli import main
 from campaign.errors import UserError
-from campaign.replay import DEFAULT_CASES, load_cases, select
-from tests.support import matrix_toml, pairs
+from campaign.replays.replay import DEFAULT_CASES, load_cases, select
+from campaign.validation.support import matrix_toml, pairs
 
 MATRIX = matrix_toml(pairs((5, 0.3, [2000, 5000, 10000]), (5, 0.4, 5000), (30, 0.2, [2000, 5000]),
                             (30, 0.3, [5000, 10000])), "replay-test")
@@ -78,7 +78,7 @@ def test_a_run_resumed_on_a_finished_folder_keeps_what_its_inputs_have_not_chang
     replays are flown again and the rest stay as they were."""
     import shutil
 
-    from campaign.store import read_meta
+    from campaign.orchestration.store import read_meta
     c = tmp_path / "c"
     shutil.copytree(replayed, c)  # the copy keeps its identification's stamp: paths are not in it
     rep = c / "replays"
@@ -124,7 +124,7 @@ def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_optio
 
 
 def test_open_loop_freezes_controls_and_closed_loop_holds(replayed):
-    from campaign.store import read_log
+    from campaign.orchestration.store import read_log
     open_, _ = read_log(replayed / "replays" / "landing-135kt__reference__open.parquet")
     closed, _ = read_log(replayed / "replays" / "landing-135kt__reference__closed.parquet")
     assert open_.elevator_deg.nunique() == 1 and open_.throttle_norm.nunique() == 1
@@ -167,7 +167,7 @@ def test_a_case_figure_drawn_on_the_reused_axes_equals_a_new_figure(tmp_path):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from campaign.replay_report import CHANNELS, _save_plot, plot_case
+    from campaign.replays.report import CHANNELS, _save_plot, plot_case
 
     def log(t, scale, gear_at):
         d = {c: scale * np.sin(t * (i + 1) / 7.0) + 100.0 * i for i, (c, _) in enumerate(CHANNELS)}
@@ -190,9 +190,9 @@ def banded(replayed, tmp_path_factory):
     """A copy of the replayed campaign with 20-draw bands on one case (4 draws held back)."""
     import shutil
 
-    from campaign.replay import load_cases, select
-    from campaign.replay_bands import replay_bands
-    from campaign.replay_report import write_report
+    from campaign.replays.replay import load_cases, select
+    from campaign.replays.bands import replay_bands
+    from campaign.replays.report import write_report
     out = tmp_path_factory.mktemp("bands") / "c"
     shutil.copytree(replayed, out)
     doc = replay_bands(out, select(load_cases(), ["landing-135kt"]), 20, jobs=2, held_back=4)
@@ -222,7 +222,7 @@ def test_bands_cover_models_drawn_from_the_covariance_and_give_pass_probabilitie
     # the nonlinear model meets Part 60 in every draw; the linear one's open loop is far from its band
     assert (landing[landing.model == "nonlinear"].pass_probability == 1.0).all()
     assert "pass_probability" in (out / "replays" / "metrics.txt").read_text()
-    from campaign.report import write_report as html_report
+    from campaign.reports.report import write_report as html_report
     page = Path(html_report(out)).read_text()
     assert page.count("% of 20 draws") == 4 and page.count("not drawn") == 16
 
@@ -230,7 +230,7 @@ def test_bands_cover_models_drawn_from_the_covariance_and_give_pass_probabilitie
 def test_bands_are_shaded_in_the_case_plots_and_dropped_when_stale(banded, tmp_path):
     import shutil
 
-    from campaign.replay_report import load_bands, load_replays, plot_case
+    from campaign.replays.report import load_bands, load_replays, plot_case
     src, _ = banded
     out = tmp_path / "c"
     shutil.copytree(src, out)
@@ -249,7 +249,7 @@ def test_bands_are_shaded_in_the_case_plots_and_dropped_when_stale(banded, tmp_p
 def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
     import shutil
 
-    from campaign.replay_report import load_bands
+    from campaign.replays.report import load_bands
     src, _ = banded
     out = tmp_path / "c"
     shutil.copytree(src, out)
@@ -257,7 +257,7 @@ def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
     f = out / "identification" / "gear_surfaces.json"
     f.write_text(f.read_text().replace('"arm_ft": [', '"arm_ft": [ '))
     assert load_bands(out) == ({}, {})
-    from campaign.report import write_report as html_report
+    from campaign.reports.report import write_report as html_report
     page = Path(html_report(out)).read_text()
     assert "% of 20 draws" not in page and page.count("not drawn") == 20
 

@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from campaign.cli import main
-from campaign.html import sha256_files
-from tests.support import matrix_toml, one_line_error, pairs
+from campaign.reports.html import sha256_files
+from campaign.validation.support import matrix_toml, one_line_error, pairs
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -98,7 +98,7 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000  # a page with content, not a blank
     # the diagnosis of the same campaign against its own bare model: nothing to name, still a report
     out = tmp_path / "diag"
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     assert main(["diagnose", "--data", str(campaign), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
                  "--no-plots", "--quiet"]) == 0
     tree, text = parse(out / "report.html")

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from campaign import catalog as cat
-from campaign.engine import fly, trimmed_fdm
+from campaign.simulation import catalog as cat
+from campaign.simulation.engine import fly, trimmed_fdm
 
 
 def test_every_matrix_point_trims_gear_up_and_down(matrix, reference_config):
@@ -110,7 +110,7 @@ def test_log_metadata_matches_the_models_xml(matrix, reference_config):
 
 def test_catalog_catches_a_misspelled_property(reference_config, monkeypatch):
     from campaign.errors import UserError
-    from campaign.engine import new_fdm
+    from campaign.simulation.engine import new_fdm
     fdm = new_fdm(reference_config.aircraft)
     monkeypatch.setitem(cat.STATE_CHANNELS, "mach", ("velocities/mahc", 1.0))
     with pytest.raises(UserError, match="velocities/mahc"):
@@ -139,7 +139,7 @@ def test_doublet_holds_the_trimmed_gear(matrix, reference_config, point):
 
 @pytest.mark.parametrize("weight", [120000.0, 170000.0])
 def test_status_point_weight_is_flown(reference_config, weight):
-    from campaign.matrix import StatusPoint
+    from campaign.simulation.matrix import StatusPoint
     log, meta = (lambda f: (f.log, f.meta))(fly(StatusPoint(2000.0, 0.35, 5, False, weight, ("doublet",)),
                                                 "doublet", reference_config))
     assert meta["trim"]["weight_lb"] == pytest.approx(weight)
@@ -176,8 +176,8 @@ def test_a_level_turn_circles_once_coordinated_at_its_altitude(reference_config,
 
     import jsbsim
 
-    from campaign.aircraft import AircraftSource, load_effects
-    from campaign.matrix import StatusPoint
+    from campaign.simulation.aircraft import AircraftSource, load_effects
+    from campaign.simulation.matrix import StatusPoint
     cfg = reference_config if aircraft == "ours" else replace(
         reference_config, aircraft=AircraftSource(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"),
                                                       load_effects(None)),
@@ -200,10 +200,10 @@ def test_a_level_turn_circles_once_coordinated_at_its_altitude(reference_config,
 
 def test_a_level_turn_is_not_an_excitation(tmp_path):
     """Flown for the data compatibility (the air-data calibration): the eq. (3) fits leave it out."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import load_data
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnosis.run import load_data
     from identify.pipeline import identify_logs
-    from tests.support import run_matrix
+    from campaign.validation.support import run_matrix
     text = ('name = "turn"\n[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
             '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
             '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.4\nalt_ft = 2000\nmaneuvers = ["doublet"]\n')
@@ -218,10 +218,10 @@ def test_a_level_turn_is_not_an_excitation(tmp_path):
 def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
     """The reconstruction's standard errors are the spread between logs: one log has none (it gave
     0, so z = inf, and a correction of nothing but noise was applied)."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import load_data
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnosis.run import load_data
     from identify.compat import estimate
-    from tests.support import run_matrix
+    from campaign.validation.support import run_matrix
     text = ('name = "one"\n[maneuvers.doublet]\ntail_s = 2.0\n'
             '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet"]\n')
     res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3)))

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from campaign.aircraft import DEFAULT_AIRCRAFT
-from tests.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies, score
-from tests.shapes import draw
-from tests.support import matrix_toml
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies, score
+from campaign.validation.shapes import draw
+from campaign.validation.support import matrix_toml
 
 
 def _named_first(r: dict, effect) -> bool:
@@ -90,7 +90,7 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     pooled held-out gain of x8.8; a strong cause is no longer vetoed by one condition."""
     import json
 
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
     fx = tmp_path / "step.xml"
     fx.write_text(MACH_STEP)
@@ -372,7 +372,7 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     0.009, 4.4 times the floor, 3 ft/s turbulence, our 737): Mach 0.2 and 0.5, each flown at one
     condition, were predicted by extrapolation and refuted it (x0.81 pooled); the answer was
     "no significant discrepancy"."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "lift_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000041)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
@@ -390,7 +390,7 @@ def test_flap_and_mach_flown_together_are_told_and_the_benchmark_matrices_fly_th
     effect of one fits as the other over the data (:mod:`diagnose.settings`); the detection curve's
     matrices fly a flap angle at another's Mach number."""
     from benchmarks.detection_curve import A320, OUR_737
-    from campaign.matrix import load_matrix
+    from campaign.simulation.matrix import load_matrix
     from diagnose.settings import flown_together, level_share
     old = [(2000, 0.3, 0), (10000, 0.3, 0.0), (10000, 0.5, 0), (2000, 0.2, 30)]
     told = flown_together(old)
@@ -501,7 +501,7 @@ def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
     turbulence, 9 times the floor): fitted 3.5 times its floor beyond instrument errors, x1.31 on
     held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. No
     condition vetoes a cause now (stop 42): the pooled gain decides."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
@@ -512,7 +512,7 @@ def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_pat
     the detection curve: 5.7 times the floor, 3 ft/s, our 737). With no smooth term in alpha that
     varies with Mach among the candidates, it was named "Cm vs mach": the right coefficient, not
     the shape."""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "moment_alpha_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3600081)
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
@@ -527,7 +527,7 @@ def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition
     condition flies flap 30: only its repeats confirm the flap term, and it stands for whatever else sets
     that condition apart. The cause the held-out conditions confirm is the answer. (Since stop 74 the fit
     holds the highest-alpha condition, and the drag is named "CD vs mach, alpha_deg": Mach first.)"""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "drag_mach_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000083,
                            channels="[channels.thrust_lbf]\nscale = 1.0612165590313636\n")
     aero = [c for c in doc["causes"] if c["kind"] == "aero"]
@@ -546,7 +546,7 @@ def test_a_cause_the_replacement_splits_in_two_is_named(tmp_path):
     its own; when a part falls, the search runs again without splitting, and the whole reading is
     kept if it names a discrepancy there. (Forbidding every split lost a lift table in Mach on the
     stock 737 whose parts both stand: ``test_the_replacement_splits_a_term_that_stood_for_two_causes``.)"""
-    from campaign.aircraft import DEFAULT_AIRCRAFT
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "moment_alpha_mach_monotone.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000126)
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
@@ -863,8 +863,8 @@ def test_the_a320_benchmark_matrix_crosses_its_alpha_gap_at_one_mach_number(tmp_
     import jsbsim
 
     from benchmarks.detection_curve import A320, same_alpha_alt_ft
-    from campaign.diagnose import load_data
-    from tests.support import run_matrix
+    from campaign.diagnosis.run import load_data
+    from campaign.validation.support import run_matrix
     alt = same_alpha_alt_ft(10000, 0.4, 0.5)
     assert f"alt_ft = {alt}" in A320 and 20000 < alt < 22000
     points = [("up", 0, 0.4, 10000), ("up", 0, 0.5, alt), ("up", 0, 0.5, 10000)]
@@ -910,7 +910,7 @@ def test_an_a320_vane_bias_in_turbulence_is_that_bias_not_a_drag_in_alpha(tmp_pa
     flap_deg", the two 0.0076 and 0.0066 in size where the residual spans 0.0014. The second fell on
     held-out data, the first was named on its share of the pair. Judged on the fit without it, the drag in
     alpha is the bias's, with the lift's: the residuals refine the bias, and nothing aerodynamic is named."""
-    from tests.support import pairs
+    from campaign.validation.support import pairs
     a320 = Path(__import__("jsbsim").get_default_root_dir()) / "aircraft" / "A320"
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000),
                                (0, 0.4, 19500.0), (0, 0.5, 21000.0)), "a320")

@@ -1,4 +1,4 @@
-"""Local worker processes (identify.workers): forks of a warm server, in order, deaths survived."""
+"""Local worker processes (infra.pool): forks of a warm server, in order, deaths survived."""
 import json
 import os
 import subprocess
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from identify.workers import BLAS_THREAD_VARIABLES, Ahead, WorkerDied, alone, pmap, submit
+from infra.pool import BLAS_THREAD_VARIABLES, Ahead, WorkerDied, alone, pmap, submit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -107,7 +107,7 @@ def test_workers_run_in_the_callers_directory(tmp_path):
 
 WARM = """
 import sys, time
-from identify.workers import submit, warm
+from infra.pool import submit, warm
 
 def probe():
     return "identify.pipeline" in sys.modules
@@ -138,17 +138,17 @@ def test_a_worker_is_a_fork_of_the_warm_server_with_the_modules_imported(tmp_pat
 
 LIBRARY = """
 import sys, time
-from identify.workers import Ahead, alone, pmap
+from infra.pool import Ahead, alone, pmap
 
 def probe(marker=None):
-    seen = [m in sys.modules for m in ("identify.pipeline", "pandas", "campaign.plan")]
+    seen = [m in sys.modules for m in ("identify.pipeline", "pandas", "campaign.design.plan")]
     if marker:
         open(marker, "w").close()
     return seen
 
 if __name__ == "__main__":
     import os
-    import identify.pipeline  # what the caller uses; campaign.plan it does not
+    import identify.pipeline  # what the caller uses; campaign.design.plan it does not
     ahead = Ahead(probe, [("probed",)], 2)
     for _ in range(2400):
         if os.path.exists("probed"):
@@ -196,14 +196,14 @@ def test_the_command_line_comes_up_without_the_numerics():
                           "print([m for m in ('numpy', 'pandas', 'scipy', 'jsbsim') if m in sys.modules])"],
                          capture_output=True, text=True, cwd=ROOT, check=True).stdout.strip()
     assert out == "[]", out
-    from campaign.cli import shipped
-    from campaign.instruments import shipped as profiles
+    from campaign.cli.main import shipped
+    from campaign.simulation.instruments import shipped as profiles
     assert shipped() == profiles() and "flight-test" in shipped()
 
 
 BLAS = """
 import sys
-from identify.workers import pmap
+from infra.pool import pmap
 
 def threads():
     import numpy, scipy.linalg  # each loads its own OpenBLAS
@@ -251,7 +251,7 @@ def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_pa
     import tempfile
     import time
 
-    import identify.workers as w
+    import infra.pool as w
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()  # reaped: its pid names no process (unless reused meanwhile, a chance of one in tens of thousands)
     zombie = subprocess.Popen([sys.executable, "-c", "pass"])

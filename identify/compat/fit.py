@@ -7,14 +7,14 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from identify.compat.reconstruction import (ESSENTIAL, INS, TURN_SPAN_DEG, _attitude, _body_to_ned, _excited,
-                                            _gauss_newton, _gust_basis, _noise, _prepare, _responses, _rotations,
-                                            _select, _shift, _shift_columns, _turned)
+from identify.compat.reconstruction import (ESSENTIAL, INS, TURN_SPAN_DEG, integrated_attitude, body_to_ned, unexcited_parameters,
+                                            gauss_newton, gust_basis, noise_level, prepare, velocity_responses, body_rotations,
+                                            select, delayed, shift_columns, heading_change)
 from identify.compat.result import (BLOCK_S, D2R, DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS, MAX_VIF,
-                                    PRUNE_FIRST, TURBULENT_FPS, CompatResult, _parameters, at_cg, columns_of,
+                                    PRUNE_FIRST, TURBULENT_FPS, CompatResult, instrument_parameters, at_cg, columns_of,
                                     documented_positions)
 from identify.logs import Log
-from identify.workers import pmap
+from infra.pool import pmap
 
 
 def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatResult:
@@ -34,7 +34,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
     -------
     CompatResult
     """
-    params = _parameters()
+    params = instrument_parameters()
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
@@ -44,8 +44,8 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         for p in params:
             p.identifiable, p.reason = False, f"no reconstruction: {why}"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
-    chosen = [lg.read() for lg in _select(logs)]
-    data = _prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
+    chosen = [lg.read() for lg in select(logs)]
+    data = prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
                                                     index=lg.data.index)) for lg in chosen])
     x_doc = positions.get("alpha_deg", [None])[0]
     xb_doc = positions.get("beta_deg", [x_doc])[0]
@@ -55,7 +55,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
     L = len(chosen)
     mask = data.mask
     valid = mask.ravel()
-    sig = {c: _noise(data.ch[c], mask, fl) for c, fl in (("theta_deg", 0.002 * D2R), ("phi_deg", 0.002 * D2R),
+    sig = {c: noise_level(data.ch[c], mask, fl) for c, fl in (("theta_deg", 0.002 * D2R), ("phi_deg", 0.002 * D2R),
                                                            ("psi_deg", 0.002 * D2R), ("alpha_deg", 0.005 * D2R),
                                                            ("beta_deg", 0.005 * D2R), ("tas_kt", 0.02 * FT_PER_KT),
                                                            ("alt_ft", 0.5), ("vn_fps", 0.02), ("ve_fps", 0.02),
@@ -77,11 +77,11 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         per = x[len(s1):].reshape(L, 3)
         biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
         key = np.array(biases).tobytes()  # bit for bit
-        th, ph, ps = attitudes.get(key + per.tobytes()) or _keep(attitudes, key + per.tobytes(), _attitude(
+        th, ph, ps = attitudes.get(key + per.tobytes()) or _keep(attitudes, key + per.tobytes(), integrated_attitude(
             data, *biases, per[:, 0], per[:, 1], per[:, 2],
-            steps=rotations[key] if key in rotations else _keep(rotations, key, _rotations(data, *biases))))
-        return {"theta_deg": (1 + v["theta_deg.scale"]) * _shift(th, data.t, v["theta_deg.delay"]),
-                "phi_deg": (1 + v["phi_deg.scale"]) * _shift(ph, data.t, v["phi_deg.delay"]),
+            steps=rotations[key] if key in rotations else _keep(rotations, key, body_rotations(data, *biases))))
+        return {"theta_deg": (1 + v["theta_deg.scale"]) * delayed(th, data.t, v["theta_deg.delay"]),
+                "phi_deg": (1 + v["phi_deg.scale"]) * delayed(ph, data.t, v["phi_deg.delay"]),
                 "psi_deg": ps}, (th, ph, ps)
 
     def resid1(x):
@@ -99,7 +99,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
 
     # ---- stage 2: velocity, air data and altitude from the accelerometers
     rates = tuple(data.ch[c] - v1[f"{c}.bias"] * D2R for c in ("p_dps", "q_dps", "r_dps"))
-    Phi, X, HPhi, HX = _responses(data, rates, th_r, ph_r)
+    Phi, X, HPhi, HX = velocity_responses(data, rates, th_r, ph_r)
     s2 = ["ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias",
           "alpha_deg.bias", "alpha_deg.scale", "alpha_deg.delay", "alpha_deg.position",
           "beta_deg.bias", "beta_deg.scale", "beta_deg.delay", "tas_kt.bias", "tas_kt.scale", "tas_kt.delay"]
@@ -108,14 +108,14 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
              if c in data.present]
     q_c, r_c = rates[1], rates[2]
 
-    gust = _gust_basis(data)
+    gust = gust_basis(data)
     minus_gust = -gust
     minus_gust_valid = minus_gust.reshape(-1, gust.shape[2])[valid]
     k_gust = gust.shape[2]
     n_wind = 2 if ins else 0  # a steady horizontal wind per log, where the INS tells air from ground
     g0 = 4 + n_wind
     n_per = g0 + 3 * k_gust
-    b2n = _body_to_ned(th_r, ph_r, ps_r)
+    b2n = body_to_ned(th_r, ph_r, ps_r)
     wind_dirs = np.swapaxes(b2n, -1, -2)[..., :2]  # (L, n, 3, 2): north and east in body axes
     ins_phi = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True) if ins else None  # d(v_NED)/d(v0)
 
@@ -155,14 +155,14 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
             vt = np.sqrt(u ** 2 + vv ** 2 + w ** 2)
         if only in (None, "alpha_deg"):
             alpha_v = np.arctan2(w - q_c * xh, u)
-            out["alpha_deg"] = (1 + v["alpha_deg.scale"]) * _shift(alpha_v, data.t, v["alpha_deg.delay"]) \
+            out["alpha_deg"] = (1 + v["alpha_deg.scale"]) * delayed(alpha_v, data.t, v["alpha_deg.delay"]) \
                 + v["alpha_deg.bias"] * D2R
         if only in (None, "beta_deg"):
             beta_v = np.arcsin(np.clip((vv + r_c * xb) / vt, -1, 1))
-            out["beta_deg"] = (1 + v["beta_deg.scale"]) * _shift(beta_v, data.t, v["beta_deg.delay"]) \
+            out["beta_deg"] = (1 + v["beta_deg.scale"]) * delayed(beta_v, data.t, v["beta_deg.delay"]) \
                 + v["beta_deg.bias"] * D2R
         if only in (None, "tas_kt"):
-            out["tas_kt"] = (1 + v["tas_kt.scale"]) * _shift(vt, data.t, v["tas_kt.delay"]) \
+            out["tas_kt"] = (1 + v["tas_kt.scale"]) * delayed(vt, data.t, v["tas_kt.delay"]) \
                 + v["tas_kt.bias"] * FT_PER_KT
         if only is None:
             out["alt_ft"] = h
@@ -237,7 +237,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
                         d[..., 4:6] = by_wind
                     for j in range(3):
                         np.multiply(dc[..., j, None], minus_gust, out=d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust])
-                    np.compress(valid, _shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per), axis=0,
+                    np.compress(valid, shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per), axis=0,
                                 out=block)
                 block *= 1 + v[f"{c}.scale"]
             block /= -sig[c]
@@ -247,7 +247,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
             for b, c in enumerate(outs2):
                 if c in d_out:
                     d = -d_out[c] * mask[..., None]
-                    steady[b * n_valid:(b + 1) * n_valid] = (_shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, 3)[
+                    steady[b * n_valid:(b + 1) * n_valid] = (shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, 3)[
                         valid] * (1 + v[f"{c}.scale"]) / -sig[c])
             prior["steady"] = steady
         return out
@@ -258,7 +258,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
                      data.ch["alt_ft"][:, 0]], 1)
     x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
     rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
-    turned = _turned(data) >= TURN_SPAN_DEG if n_wind else np.zeros(L, bool)
+    turned = heading_change(data) >= TURN_SPAN_DEG if n_wind else np.zeros(L, bool)
     if turned.all():
         for e in ("bias", "scale"):
             by[f"tas_kt.{e}"].identifiable = False
@@ -346,7 +346,7 @@ def _whole_jackknife(result: CompatResult, logs: list[Log], jobs: int = 1) -> No
 
 def _covariance(blk, blocks: tuple | None) -> np.ndarray:
     """The delete-one-log jackknife; with ``blocks`` (a log turns), the time-block sandwich plus
-    the steady gusts the splines leave out (:func:`identify.compat.reconstruction._gauss_newton`)."""
+    the steady gusts the splines leave out (:func:`identify.compat.reconstruction.gauss_newton`)."""
     return blk.cluster_cov() if blocks is None else blk.block_cov() + blk.offset_cov(blocks[2])
 
 
@@ -355,22 +355,22 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
     errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0.
     ``blocks``: for the standard errors when a log turns (:func:`_covariance`); ``column``: see
-    :func:`identify.compat.reconstruction._gauss_newton`."""
+    :func:`identify.compat.reconstruction.gauss_newton`."""
     ns = len(names)
     free = np.zeros(ns, bool)
     rows = [np.flatnonzero(rows == i) for i in range(L)]  # residual rows of each log
-    x, _, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, column=column)
+    x, _, e = gauss_newton(residual, x, free, ns, L, per, rows, perlog, column=column)
     n = int(valid.sum())
     for i, c in enumerate(outs):
         rms[c] = {"before": float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))}
     recon = {c: v for c, v in model(x).items()}
-    for name, why in _excited(data, recon).items():
+    for name, why in unexcited_parameters(data, recon).items():
         if name in by and name in names:
             by[name].identifiable, by[name].reason = False, why
     free[:] = [by[s].identifiable for s in names]
     pairs = []  # (pruned, kept) indices into names
     while True:
-        x, blk, e = _gauss_newton(residual, x, free, ns, L, per, rows, perlog, robust=blocks, column=column)
+        x, blk, e = gauss_newton(residual, x, free, ns, L, per, rows, perlog, robust=blocks, column=column)
         cov = _covariance(blk, blocks)
         idx = np.flatnonzero(free)
         sd = np.sqrt(np.abs(np.diag(cov)))
@@ -405,7 +405,7 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
         alt_free[pruned], alt_free[kept] = True, False
         x_alt = x.copy()
         x_alt[kept] = 0.0
-        x_alt, blk_alt, _ = _gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks,
+        x_alt, blk_alt, _ = gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks,
                                            column=column)
         j = int(np.flatnonzero(np.flatnonzero(alt_free) == pruned)[0])
         p = by[names[pruned]]

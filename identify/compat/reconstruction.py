@@ -28,7 +28,7 @@ class _Data:
     earth_rate: np.ndarray | None = None  # (L, n, 3) the Earth's rotation alone, in body axes [rad/s]
 
 
-def _select(logs: list[Log]) -> list[Log]:
+def select(logs: list[Log]) -> list[Log]:
     """At most MAX_LOGS logs spread over the conditions: calibration manoeuvres (level turns)
     first, then 2-3-1-1s (they excite most)."""
     ranked = sorted(logs, key=lambda lg: (lg.maneuver not in CALIBRATION, lg.transition, lg.gear_down,
@@ -57,7 +57,7 @@ ESSENTIAL = ("t_s", "p_dps", "q_dps", "r_dps", "ax_fps2", "ay_fps2", "az_fps2", 
              "alpha_deg", "beta_deg", "tas_kt", "alt_ft")
 
 
-def _prepare(logs: list[Log]) -> _Data:
+def prepare(logs: list[Log]) -> _Data:
     frames = []
     for lg in logs:
         d = lg.data
@@ -101,20 +101,20 @@ def _frame_rates(data: _Data, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lat = lat[:, None] * np.ones_like(th)
     earth = EARTH_RATE * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], -1)
     transport = np.stack([ve / r, -vn / r, -ve * np.tan(lat) / r], -1)
-    n2b = np.swapaxes(_body_to_ned(th, ph, ps), -1, -2)
+    n2b = np.swapaxes(body_to_ned(th, ph, ps), -1, -2)
     return (np.einsum("lnij,lnj->lni", n2b, earth + transport, optimize=True),
             np.einsum("lnij,lnj->lni", n2b, earth, optimize=True))
 
 
-def _shift(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+def delayed(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     """x(t - tau) per row (held at the ends)."""
     if tau == 0.0:
         return x
     return np.stack([np.interp(t[i] - tau, t[i], x[i]) for i in range(len(x))])
 
 
-def _shift_columns(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
-    """:func:`_shift` of every column of ``x`` (L, n, P) at once: the interpolation
+def shift_columns(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """:func:`delayed` of every column of ``x`` (L, n, P) at once: the interpolation
     weights are the same for all of a log's columns."""
     if tau == 0.0:
         return x
@@ -139,13 +139,13 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0], -1)
 
 
-def _attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0: np.ndarray,
+def integrated_attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0: np.ndarray,
               ps0: np.ndarray, steps: np.ndarray | None = None):
     """Euler angles integrated from the gyros [rad], less the local frame's own rotation when
-    the logs give the latitude and the heading. ``steps`` are :func:`_rotations` of these
+    the logs give the latitude and the heading. ``steps`` are :func:`body_rotations` of these
     biases if already known.
     """
-    steps = _rotations(data, bp, bq, br) if steps is None else steps
+    steps = body_rotations(data, bp, bq, br) if steps is None else steps
     (cy, ct, cf), (sy, st, sf) = np.cos(0.5 * np.stack([ps0, th0, ph0])), np.sin(0.5 * np.stack([ps0, th0, ph0]))
     q0 = np.stack([cf * ct * cy + sf * st * sy, sf * ct * cy - cf * st * sy, cf * st * cy + sf * ct * sy,
                    cf * ct * sy - sf * st * cy], -1)[:, None]
@@ -157,7 +157,7 @@ def _attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0
     return th, ph, ps
 
 
-def _rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
+def body_rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
     """The body's rotation from the first sample to each later one, as quaternions (L, n-1, 4).
 
     Each step's rotation is the fourth-order Magnus one of rates linear between
@@ -179,7 +179,7 @@ def _rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
     return steps
 
 
-def _body_to_ned(th: np.ndarray, ph: np.ndarray, ps: np.ndarray) -> np.ndarray:
+def body_to_ned(th: np.ndarray, ph: np.ndarray, ps: np.ndarray) -> np.ndarray:
     """Rotation matrices body -> north-east-down (L, n, 3, 3)."""
     ct, st, cp, sp, cs, ss = np.cos(th), np.sin(th), np.cos(ph), np.sin(ph), np.cos(ps), np.sin(ps)
     return np.stack([np.stack([ct * cs, sp * st * cs - cp * ss, cp * st * cs + sp * ss], -1),
@@ -201,7 +201,7 @@ def _skew_exp(w: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.eye(3)[None] + s * K + c * (K @ K)
 
 
-def _responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: np.ndarray):
+def velocity_responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: np.ndarray):
     """Body velocity responses of ``V' = -w x V + f``: to the initial velocity (Phi), to the
     measured forcing, to unit accelerometer biases and to attitude biases; and of altitude.
 
@@ -245,7 +245,7 @@ def _responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: n
 # ------------------------------------------------------------------------ estimation
 
 
-def _gust_basis(data: _Data) -> np.ndarray:
+def gust_basis(data: _Data) -> np.ndarray:
     """Zero-mean cubic B-splines, knots about :data:`GUST_KNOT_S` apart over each log (L, n, K):
     the slow wander of the air mass (turbulence) the air data see and the kinematics do not. A
     log shorter than the longest leaves its last columns zero."""
@@ -261,7 +261,7 @@ def _gust_basis(data: _Data) -> np.ndarray:
     return out
 
 
-def _noise(x: np.ndarray, mask: np.ndarray, floor: float) -> float:
+def noise_level(x: np.ndarray, mask: np.ndarray, floor: float) -> float:
     d2 = np.diff(x, 2, axis=1)[mask[:, 2:]]
     s = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if d2.size else 0.0
     return max(s, floor)
@@ -377,7 +377,7 @@ class _Blocks:
 TURN_SPAN_DEG = 60.0
 
 
-def _turned(data: _Data) -> np.ndarray:
+def heading_change(data: _Data) -> np.ndarray:
     """Heading change of each log [deg] (0 without a heading channel)."""
     if "psi_deg" not in data.present:
         return np.zeros(len(data.mask))
@@ -385,7 +385,7 @@ def _turned(data: _Data) -> np.ndarray:
     return np.array([float(np.ptp(psi[i][m])) / D2R if m.any() else 0.0 for i, m in enumerate(data.mask)])
 
 
-def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
+def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
     """Parameters the logs cannot identify, with the reason. Scale factors and time shifts
     need the reconstructed signal to move (turbulence moves the measured one too)."""
     out = {}
@@ -419,7 +419,7 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
         out.setdefault("theta_deg.bias", f"confounded with the longitudinal accelerometer's bias through gravity "
                                          f"(pitch spans {theta_span:.0f} deg, needs {THETA_BIAS_SPAN:g})")
     ins = all(c in data.present for c in INS)
-    turned = float(_turned(data).max(initial=0.0)) if ins else 0.0
+    turned = float(heading_change(data).max(initial=0.0)) if ins else 0.0
     for e in ("bias", "scale", "delay"):
         if e != "delay" and turned >= TURN_SPAN_DEG:
             continue  # a steady wind in the earth's axes, seen from several headings, is not an airspeed error
@@ -435,7 +435,7 @@ def _excited(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
     return out
 
 
-#: :func:`_gauss_newton` has converged when an undamped step (its damping at most :data:`UNDAMPED`
+#: :func:`gauss_newton` has converged when an undamped step (its damping at most :data:`UNDAMPED`
 #: of the normal matrix's diagonal) makes the cost smaller by at most this share of it. Each residual
 #: is in its channel's noise, so the cost is about the number of rows (1e4-1e5) and this is a chi-square
 #: of 0.01-0.1: the next step would move no estimate by as much as a thousandth of its standard
@@ -447,7 +447,7 @@ CONVERGED = 1e-6
 UNDAMPED = 1e-3
 
 
-def _gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, per: int,
+def gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, per: int,
                   rows: list[np.ndarray], perlog=None, max_iter: int = 40,
                   robust: tuple | None = None, column=None):
     """Damped Gauss-Newton: x = [shared (ns), per log (L x per)]; ``free`` masks the shared ones

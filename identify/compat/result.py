@@ -112,7 +112,7 @@ class Parameter:
                 "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()}}
 
 
-def _parameters() -> list[Parameter]:
+def instrument_parameters() -> list[Parameter]:
     p = [Parameter(c, "bias", "deg/s") for c in ("p_dps", "q_dps", "r_dps")]
     p += [Parameter(c, e, u) for c in ("theta_deg", "phi_deg") for e, u in (("scale", "-"), ("delay", "s"))]
     p += [Parameter(c, "bias", "ft/s^2") for c in ("ax_fps2", "ay_fps2", "az_fps2")]

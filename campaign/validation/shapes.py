@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tests.hidden import _wrap
+from campaign.validation.hidden import wrap
 
 #: Variable -> (JSBSim property, the range our 737 flies it over on the diagnosis matrices: the default
 #: of :func:`draw`, which takes another aircraft's ``ranges`` as flown).
@@ -131,4 +131,4 @@ def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coeffic
         second = (x2 - lo2) / (hi2 - lo2)  # 0 at the low end: the effect grows along the second variable
         body = _table_2d(prop, prop2, x, x2, amp * np.outer(y, second))
         desc = f"d{c} = {amp:+.4g} * {name}({v}; {how}) * ({w} - {lo2:g})/{hi2 - lo2:g}"
-    return Effect(c, tuple(variables), name, size, _wrap(c, body, f"shape-{name}"), desc)
+    return Effect(c, tuple(variables), name, size, wrap(c, body, f"shape-{name}"), desc)

@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.engine import FlightConfig, TrimError, fly
+from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
-from campaign.matrix import StatusPoint
+from campaign.simulation.matrix import StatusPoint
 from diagnose.diagnosis import STAGES, diagnose
 from diagnose.evaluate import ModelEvaluator
 from diagnose.extension import write_extension
@@ -30,10 +30,10 @@ from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
 from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from campaign.cluster import connect, pack, unpack_source
-from campaign.bands import replay_bands
-from campaign.refine import REFINE, refine_extension
-from identify.workers import Ahead, local_workers, on_cluster, pmap, results, submit
+from campaign.orchestration.cluster import connect, pack, unpack_source
+from campaign.diagnosis.bands import replay_bands
+from campaign.diagnosis.refine import REFINE, refine_extension
+from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
 
 G0 = 32.174049
@@ -265,11 +265,11 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         plots on ``jobs`` local workers. ``diagnosis.json`` is the same as a local run's, to the bit.
     refine : {"oe"}, optional
         Refine the extension's terms by output error through replays of the fitted logs
-        (:mod:`campaign.refine`, on the local workers) and report its gain beside the
+        (:mod:`campaign.diagnosis.refine`, on the local workers) and report its gain beside the
         equation-error extension's (``refine`` in ``diagnosis.json``).
     bands : int
         Monte Carlo draws of the extension for bands on the held-out replays where the cause
-        acts, and their Part 60 pass probability (:mod:`campaign.bands`; 0: none).
+        acts, and their Part 60 pass probability (:mod:`campaign.diagnosis.bands`; 0: none).
     """
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
@@ -310,7 +310,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
 
 def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
                train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0) -> dict:
-    """:func:`run_diagnosis` once its inputs are read (within :func:`identify.workers.on_cluster`)."""
+    """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
         evaluator = ModelEvaluator(model)

@@ -24,13 +24,13 @@ import jsbsim  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from campaign import catalog as cat  # noqa: E402
-from campaign.aircraft import AircraftSource, prepare, thruster_z_in  # noqa: E402
+from campaign.simulation import catalog as cat  # noqa: E402
+from campaign.simulation.aircraft import AircraftSource, prepare, thruster_z_in  # noqa: E402
 from campaign.errors import UserError  # noqa: E402
-from campaign.matrix import StatusPoint  # noqa: E402
-from campaign.instruments import InstrumentProfile, load_profile, record  # noqa: E402
-from campaign.turbulence import dryden_gusts  # noqa: E402
-from identify.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
+from campaign.simulation.matrix import StatusPoint  # noqa: E402
+from campaign.simulation.instruments import InstrumentProfile, load_profile, record  # noqa: E402
+from campaign.simulation.turbulence import dryden_gusts  # noqa: E402
+from infra.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains, bank_hold  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
 from maneuvers.signals import Constant  # noqa: E402
@@ -53,7 +53,7 @@ class FlightConfig:
     seed : int
         Campaign seed; each manoeuvre derives its own from it and its name.
     instruments : InstrumentProfile or str
-        How the instrumentation records the flight (:mod:`campaign.instruments`);
+        How the instrumentation records the flight (:mod:`campaign.simulation.instruments`);
         a shipped profile's name or a profile file is loaded.
     maneuver_params : tuple
         ``((manoeuvre name, ((param, value), ...)), ...)`` from the matrix.
@@ -100,7 +100,7 @@ WEIGHT_TOLERANCE = 1e-4
 def new_fdm(source: AircraftSource):
     """Load the aircraft (with its overlay merged) into a fresh FGFDMExec.
 
-    The merged root (:func:`campaign.aircraft.prepare`) is written once per source and kept for the
+    The merged root (:func:`campaign.simulation.aircraft.prepare`) is written once per source and kept for the
     next load; the oldest of more than :data:`ROOTS_KEPT` is removed (a loaded model no longer reads
     its files), and the rest as the process ends (a worker too runs multiprocessing's finalizers
     before it exits).
@@ -131,7 +131,7 @@ def engine_count(names: set[str]) -> int:
 @lru_cache(maxsize=8)
 def model_catalog(source: AircraftSource) -> tuple[cat.PropertyNames, int, dict[str, bool]]:
     """The aircraft's property names, engine count and optional properties present
-    (:func:`campaign.catalog.check_catalog`): the same for every FDM loaded from ``source``.
+    (:func:`campaign.simulation.catalog.check_catalog`): the same for every FDM loaded from ``source``.
 
     Raises
     ------

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from campaign.aircraft import AircraftSource, load_effects
+from campaign.simulation.aircraft import AircraftSource, load_effects
 from diagnose.evaluate import ModelEvaluator
 from diagnose.extension import aero_terms, scaled, term_name, write_extension
 from diagnose.gain import exercised, measure_gain, on_log_times
@@ -26,7 +26,7 @@ from identify.estimators import OutputError, Record, StateSpaceModel
 from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
 from identify.logs import Log
-from identify.workers import pmap
+from infra.pool import pmap
 
 REFINE = ("oe",)
 CHANNELS = ("theta_deg", "alpha_deg", "q_dps", "tas_kt")
@@ -50,7 +50,7 @@ class ReplayOutputError(OutputError):
     work : Path
         Scratch folder for the trial aircraft.
     replay : callable
-        ``replay(log, source) -> DataFrame or None`` (:func:`campaign.diagnose.replay`).
+        ``replay(log, source) -> DataFrame or None`` (:func:`campaign.diagnosis.run.replay`).
     jobs : int
     """
 

@@ -1,7 +1,7 @@
 """Fly status points on a Dask cluster (dask.distributed).
 
 The workers may be other machines: the aircraft folder and the effect overlay
-travel as data (:class:`identify.workers.Shipment`), each worker writes them once into its own
+travel as data (:class:`infra.pool.Shipment`), each worker writes them once into its own
 temporary folder and builds its own FGFDMExec there. The logs come back as
 data and the client writes them, atomically, as a local run does; they are
 bit-identical to a local run's (the folder path is in no log).
@@ -14,12 +14,12 @@ from pathlib import Path
 from typing import Callable, Iterator
 from urllib.parse import urlsplit
 
-from campaign.aircraft import AircraftSource, Effects
-from campaign.engine import FlightConfig
+from campaign.simulation.aircraft import AircraftSource, Effects
+from campaign.simulation.engine import FlightConfig
 from campaign.errors import UserError
-from campaign.matrix import StatusPoint
-from campaign.store import failed_record
-from identify.workers import Shipment, landed, ship
+from campaign.simulation.matrix import StatusPoint
+from campaign.orchestration.store import failed_record
+from infra.pool import Shipment, landed, ship
 
 
 def pack(source: AircraftSource) -> Shipment:
@@ -36,7 +36,7 @@ def unpack(shipment: Shipment, config: FlightConfig) -> FlightConfig:
 
 def unpack_source(shipment: Shipment, effects: Effects) -> AircraftSource:
     """The aircraft of ``shipment`` (and its overlay, parsed as ``effects``) from this machine's
-    copy, written once per worker machine (:func:`identify.workers.landed`)."""
+    copy, written once per worker machine (:func:`infra.pool.landed`)."""
     home = landed(shipment)
     fx = home / "effects.xml"
     return AircraftSource(str(home / shipment.name), Effects(str(fx) if fx.exists() else None, effects.functions))

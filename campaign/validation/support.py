@@ -44,10 +44,10 @@ def run_matrix(folder, text: str, aircraft: str, effects=None, noise: str = "non
     """Fly a matrix (TOML text) on an aircraft folder into ``folder/data``; return that folder."""
     from pathlib import Path
 
-    from campaign.aircraft import AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.matrix import load_matrix
-    from campaign.runner import run_campaign
+    from campaign.simulation.aircraft import AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.simulation.matrix import load_matrix
+    from campaign.orchestration.runner import run_campaign
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "m.toml").write_text(text)
@@ -94,3 +94,9 @@ def one_line_error(capsys, argv, *needles) -> str:
     for n in needles:
         assert n in err, err
     return err
+
+
+#: Flap 5 at 5,000 ft and four Mach numbers close together, gear up and down, with the gear extension
+#: only: a matrix whose narrow Mach range leaves rival readings apart for :mod:`campaign.design.plan`.
+NARROW = matrix_toml(pairs((5, [0.25, 0.3, 0.35, 0.4], 5000)), "narrow",
+                     '[defaults]\nmaneuvers_gear_down = ["gear_extension"]\n')

@@ -14,14 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.aircraft import AircraftSource, load_effects
+from campaign.simulation.aircraft import AircraftSource, load_effects
 from diagnose.extension import write_extension
 from diagnose.gain import REPLAY_CHANNELS, on_log_times
 from diagnose.result import Diagnosis
 from diagnose.uncertainty import band, draws, pass_probability
 from identify.export import merge_into_aircraft
 from identify.logs import Log
-from identify.workers import pmap
+from infra.pool import pmap
 
 
 def replay_bands(diag: Diagnosis, model: Path, out: Path, logs: list[Log], n: int, replay,

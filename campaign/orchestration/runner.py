@@ -14,10 +14,10 @@ import cloudpickle
 import numpy as np
 from tqdm import tqdm
 
-from campaign.engine import FlightConfig, TrimError, fly
+from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
-from campaign.matrix import Matrix, StatusPoint
-from campaign.store import (MANIFEST, clean_temporaries, failed_record, log_name, read_manifest, readable_log,
+from campaign.simulation.matrix import Matrix, StatusPoint
+from campaign.orchestration.store import (MANIFEST, clean_temporaries, failed_record, log_name, read_manifest, readable_log,
                             write_json, write_log)
 
 
@@ -128,7 +128,7 @@ def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer: byte
 def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int,
               flyer=None) -> Iterator[dict]:
     """Fly ``points`` into ``out`` on ``jobs`` local worker processes (forks of the warm server,
-    :mod:`identify.workers`), yielding each record as it finishes.
+    :mod:`infra.pool`), yielding each record as it finishes.
 
     A worker that dies (abort, segfault, out of memory) breaks the pool: the points
     finished so far are kept, those that had not started go on in a new pool, and
@@ -140,7 +140,7 @@ def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: 
         for p in points:
             yield fly_point(p, config, out, True, flyer)
         return
-    from identify.workers import WorkerDied, alone, owned_tmpdir, submit
+    from infra.pool import WorkerDied, alone, owned_tmpdir, submit
     marks = owned_tmpdir("started")
     blob = cloudpickle.dumps(flyer) if flyer is not None else None
     futures: dict = {}
@@ -213,7 +213,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
     """Fly the matrix into ``out``; resume if ``out`` holds the same campaign.
 
     ``jobs`` local worker processes (:func:`fly_local`), or the Dask cluster whose
-    scheduler is at ``cluster`` (``tcp://HOST:PORT``; :mod:`campaign.cluster`).
+    scheduler is at ``cluster`` (``tcp://HOST:PORT``; :mod:`campaign.orchestration.cluster`).
     ``flyer(point, config) -> (record, logs)`` flies one point (default :func:`fly_logs`).
 
     Raises
@@ -243,7 +243,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
                 done[rec["id"]] = rec
     client = None
     if cluster:  # before anything is written: a scheduler that does not answer changes nothing
-        from campaign.cluster import connect, fly_on_cluster
+        from campaign.orchestration.cluster import connect, fly_on_cluster
         client = connect(cluster)
     clean_temporaries(out)
     todo = [p for p in (points or matrix.points) if p.id not in done]

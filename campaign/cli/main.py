@@ -18,10 +18,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def shipped() -> list[str]:
-    """Names of the shipped instrument profiles (:func:`campaign.instruments.shipped`, read here
+    """Names of the shipped instrument profiles (:func:`campaign.simulation.instruments.shipped`, read here
     without importing that module's numerics: the command line must come up at once, for the
     worker server to start before the heavy imports)."""
-    return sorted(p.stem for p in (Path(__file__).parent / "instruments").glob("*.toml"))
+    return sorted(p.stem for p in (Path(__file__).resolve().parents[1] / "simulation" / "profiles").glob("*.toml"))
 
 
 def _jobs(text: str) -> int:
@@ -182,11 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _config(args):
-    from campaign.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
+    from campaign.simulation.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
                                    check_aircraft_folder, load_effects)
-    from campaign.engine import FlightConfig, check_flaps
-    from campaign.instruments import load_profile
-    from campaign.matrix import load_matrix
+    from campaign.simulation.engine import FlightConfig, check_flaps
+    from campaign.simulation.instruments import load_profile
+    from campaign.simulation.matrix import load_matrix
 
     matrix = load_matrix(args.matrix)
     folder = check_aircraft_folder(args.aircraft or DEFAULT_AIRCRAFT)
@@ -201,7 +201,7 @@ def _config(args):
 
 def _identify(results: Path, out: Path | None, model: str | None, plots: str, jobs: int = 1,
               method: str = "ee") -> int:
-    from campaign.aircraft import check_aircraft_folder
+    from campaign.simulation.aircraft import check_aircraft_folder
     from identify.logs import LogError
     from identify.pipeline import identify_campaign
     if model:
@@ -217,10 +217,10 @@ def _identify(results: Path, out: Path | None, model: str | None, plots: str, jo
 
 
 def _html_report(folder: Path) -> None:
-    """Write or refresh ``folder/report.html`` (:mod:`campaign.report`) and say where it is. At the
+    """Write or refresh ``folder/report.html`` (:mod:`campaign.reports.report`) and say where it is. At the
     end of a run, a replay or a diagnosis, a report that cannot be written is said, not fatal:
     the results are on disk (``campaign report`` tries again)."""
-    from campaign.report import write_report
+    from campaign.reports.report import write_report
     try:
         print(f"report: {write_report(folder)}")
     except (OSError, KeyError, ValueError, TypeError) as exc:
@@ -229,9 +229,9 @@ def _html_report(folder: Path) -> None:
 
 def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
             cluster: str | None = None, bands: int | None = None, resume: bool = False) -> int:
-    from campaign.replay import LOOPS, MODELS, load_cases, replayed_already, run_replays, select
-    from campaign.replay_bands import check_draws, load_surfaces, replay_bands
-    from campaign.replay_report import drop_bands, write_report
+    from campaign.replays.replay import LOOPS, MODELS, load_cases, replayed_already, run_replays, select
+    from campaign.replays.bands import check_draws, load_surfaces, replay_bands
+    from campaign.replays.report import drop_bands, write_report
     if not (results / "manifest.json").exists():
         raise UserError(f"{results}: no manifest.json (not a campaign folder)")
     cases = select(load_cases(cases_file), names)
@@ -262,33 +262,33 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
-    from identify.workers import one_blas_thread, sweep
+    from infra.pool import one_blas_thread, sweep
     one_blas_thread()  # the matrices are small: a second BLAS thread costs 10x
     sweep()  # what killed runs left in the temporary folder
     return _main(args)
 
 
 #: What each command's worker processes import: a server imports it once while the command
-#: starts its own work, and the workers are forks of it (:mod:`identify.workers`).
-PRELOAD = {"run": ("campaign.runner", "identify.pipeline", "identify.plots", "campaign.replay",
-                   "campaign.replay_report"),
-           "identify": ("identify.pipeline", "identify.plots"), "replay": ("campaign.replay", "campaign.replay_report"),
-           "plots": ("campaign.replay_report",), "diagnose": ("campaign.diagnose", "diagnose.plots")}
+#: starts its own work, and the workers are forks of it (:mod:`infra.pool`).
+PRELOAD = {"run": ("campaign.orchestration.runner", "identify.pipeline", "identify.plots", "campaign.replays.replay",
+                   "campaign.replays.report"),
+           "identify": ("identify.pipeline", "identify.plots"), "replay": ("campaign.replays.replay", "campaign.replays.report"),
+           "plots": ("campaign.replays.report",), "diagnose": ("campaign.diagnosis.run", "diagnose.plots")}
 
 
 def _main(args) -> int:
     if getattr(args, "jobs", 1) > 1 and args.command in PRELOAD:
-        from identify.workers import warm
+        from infra.pool import warm
         warm(PRELOAD[args.command])
     try:
         if args.command == "points":
-            from campaign.matrix import load_matrix
+            from campaign.simulation.matrix import load_matrix
             for p in load_matrix(args.matrix).points:
                 print(f"{p.id}  {' '.join(p.maneuvers)}")
             return 0
         if args.command == "plots":
-            from campaign.replay_report import write_report
-            from campaign.store import holding
+            from campaign.replays.report import write_report
+            from campaign.orchestration.store import holding
             results = Path(args.results)
             with holding(results, "plots"):
                 files = write_report(results, args.case, args.jobs)
@@ -297,14 +297,14 @@ def _main(args) -> int:
             print(f"{n_plots} plots in {Path(args.results) / 'replays' / 'plots'}")
             return 0
         if args.command == "report":
-            from campaign.report import write_report
+            from campaign.reports.report import write_report
             folder = Path(args.folder)
             if not folder.is_dir():
                 raise UserError(f"{folder}: not a folder")
             print(f"report: {write_report(folder)}")
             return 0
         if args.command == "diagnose":
-            from campaign.diagnose import run_diagnosis
+            from campaign.diagnosis.run import run_diagnosis
             doc = run_diagnosis([Path(d) for d in args.data], Path(args.model), Path(args.out),
                                 plots="none" if args.no_plots else args.plots, jobs=args.jobs,
                                 progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster,
@@ -314,18 +314,18 @@ def _main(args) -> int:
             _html_report(Path(args.out))
             return 0
         if args.command == "plan":
-            from campaign.plan import plan
+            from campaign.design.plan import plan
             result = plan(Path(args.diagnosis), args.out and Path(args.out), args.budget_min, args.matrix, args.jobs,
                           progress=not args.quiet and sys.stderr.isatty())
             print(result["text"], end="")
             return 0
         if args.command == "import":
-            from campaign.importer import import_files, report_text
+            from campaign.importing.importer import import_files, report_text
             report = import_files(args.files, args.map, Path(args.out))
             print(report_text(report), end="")
             print(f"{len(report['logs'])} logs and import.txt in {args.out}")
             return 0
-        from campaign.store import holding
+        from campaign.orchestration.store import holding
         if args.command == "replay":
             results = Path(args.results)
             if not (results / "manifest.json").exists():
@@ -346,7 +346,7 @@ def _main(args) -> int:
             with holding(out, "run"):
                 return _run(args, matrix, config, out)
         if args.command == "fly":
-            from campaign.runner import fly_point
+            from campaign.orchestration.runner import fly_point
             point = matrix.point(args.point_id)
             out = Path(args.out)
             with holding(out, "fly"):
@@ -379,10 +379,10 @@ def _main(args) -> int:
 
 def _run(args, matrix, config, out: Path) -> int:
     """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
-    from campaign.runner import run_campaign
+    from campaign.orchestration.runner import run_campaign
     if args.cases and not (args.no_identify or args.no_replay):  # a bad cases file is refused before anything flies
-        from campaign.engine import check_flaps
-        from campaign.replay import load_cases
+        from campaign.simulation.engine import check_flaps
+        from campaign.replays.replay import load_cases
         check_flaps(config.aircraft, [(f"{args.cases}: case {c.name}.flap_deg", c.flap_deg)
                                       for c in load_cases(args.cases)])
     summary = run_campaign(matrix, config, out, jobs=args.jobs,

@@ -10,7 +10,7 @@ the sensor sits (a vane on a nose boom sees the local flow, an accelerometer
 away from the CG the rotational accelerations), its first-order lag, the
 acquisition delay, scale and bias; then the anti-alias filter and resampling
 to the logging rate, then white noise. The recording never disturbs the flight;
-turbulence does, and the engine flies it (:mod:`campaign.turbulence`).
+turbulence does, and the engine flies it (:mod:`campaign.simulation.turbulence`).
 """
 from __future__ import annotations
 
@@ -25,10 +25,10 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter, lfilter_zi, resample_poly
 
-from campaign.catalog import LOG_COLUMNS
+from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
 
-SHIPPED = Path(__file__).resolve().parent / "instruments"
+SHIPPED = Path(__file__).resolve().parent / "profiles"
 TOP_KEYS = {"extends", "description", "rate_hz", "omit", "turbulence", "channels"}
 CHANNEL_KEYS = {"noise", "bias", "scale", "lag_s", "delay_s", "position_ft"}
 #: Channels a sensor position changes (vanes and pitot on a boom, accelerometers off the CG).

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from campaign.catalog import LOG_COLUMNS
+from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
-from campaign.instruments import POSITIONED
+from campaign.simulation.instruments import POSITIONED
 
 FORMATS = {".csv": "csv", ".txt": "whitespace", ".dat": "whitespace", ".asc": "whitespace", ".mat": "mat",
            ".parquet": "parquet"}
@@ -301,7 +301,7 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, where: str) -> np.ndarray:
 # ----------------------------------------------------------------------------- standard atmosphere
 
 
-def _isa(alt_ft: np.ndarray):
+def isa(alt_ft: np.ndarray):
     """ISA pressure [Pa], temperature [K], density [kg/m^3] and speed of sound [m/s] at a
     pressure altitude (geopotential) [ft]."""
     from ambiance import Atmosphere
@@ -315,7 +315,7 @@ def air_data(alt_ft: np.ndarray, tas_kt: np.ndarray) -> dict[str, np.ndarray]:
     altitude, in the standard atmosphere (ISA temperature: a 10 K warmer day makes Mach 1.7 %
     smaller)."""
     u = ureg()
-    p, t, rho, a = _isa(alt_ft)
+    p, t, rho, a = isa(alt_ft)
     v = np.asarray(tas_kt, float) * u.Quantity(1.0, "knot").to("m/s").magnitude
     mach = v / a
     qbar = 0.5 * rho * v ** 2 * u.Quantity(1.0, "Pa").to("force_pound / foot ** 2").magnitude
@@ -434,7 +434,7 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
 
     Nothing is written if any file or the map is bad, and no existing log is overwritten.
     """
-    from campaign.store import write_json, write_log
+    from campaign.orchestration.store import write_json, write_log
     from identify.logs import read_parquet
     m = load_map(map_path)
     if not files:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tests.support import matrix_toml, pairs
+from campaign.validation.support import matrix_toml, pairs
 
 AXIS = {"CL": "LIFT", "CD": "DRAG", "Cm": "PITCH"}
 SCALE = {"CL": ["aero/qbar-psf", "metrics/Sw-sqft"], "CD": ["aero/qbar-psf", "metrics/Sw-sqft"],
@@ -23,7 +23,7 @@ class Hidden:
     description: str
 
 
-def _wrap(coeff: str, body: str, name: str) -> str:
+def wrap(coeff: str, body: str, name: str) -> str:
     props = "\n".join(f"        <property>{p}</property>" for p in SCALE[coeff])
     return (f"<effects>\n  <axis name=\"{AXIS[coeff]}\">\n    <function name=\"aero/coefficient/hidden-{name}\">\n"
             f"      <product>\n{props}\n{body}\n      </product>\n    </function>\n  </axis>\n</effects>\n")
@@ -65,7 +65,7 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None, 
         amp = {"CL": rng.uniform(0.015, 0.03), "CD": rng.uniform(0.008, 0.025), "Cm": rng.uniform(0.01, 0.03)}[c]
         amp = scale * (abs(amp) if c == "CD" else sign * amp)
         knee = rng.uniform(0.3, 0.6)
-        return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, amp * _sat(d, knee)), family),
+        return Hidden(family, c, ("gear_norm",), wrap(c, _table("gear/gear-pos-norm", d, amp * _sat(d, knee)), family),
                       f"d{c} = {amp:.4f} * saturating(gear, knee {knee:.2f})")
     if family == "gear_bump":
         c = coefficient or rng.choice(["CL", "CD", "Cm"])
@@ -73,7 +73,7 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None, 
                               "Cm": rng.uniform(0.01, 0.03)}[c]
         peak = rng.uniform(0.3, 0.7)
         y = amp * np.sin(np.pi * np.where(d < peak, 0.5 * d / peak, 0.5 + 0.5 * (d - peak) / (1 - peak)))
-        return Hidden(family, c, ("gear_norm",), _wrap(c, _table("gear/gear-pos-norm", d, y), family),
+        return Hidden(family, c, ("gear_norm",), wrap(c, _table("gear/gear-pos-norm", d, y), family),
                       f"d{c} = {amp:.4f} * bump(gear, peak at {peak:.2f})")
     if family == "alpha":
         c = coefficient or rng.choice(["CL", "Cm"])
@@ -81,14 +81,14 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None, 
         a0 = rng.uniform(2.0, 8.0)
         a = np.linspace(-10, 20, 61)
         y = amp * 0.5 * (1 + np.tanh((a - a0) / 2.0))
-        return Hidden(family, c, ("alpha_deg",), _wrap(c, _table("aero/alpha-deg", a, y), family),
+        return Hidden(family, c, ("alpha_deg",), wrap(c, _table("aero/alpha-deg", a, y), family),
                       f"d{c} = {amp:.4f} * step(alpha around {a0:.1f} deg)")
     if family == "mach":
         c = "CD"
         amp = scale * rng.uniform(0.004, 0.01)
         m = np.linspace(0.1, 0.7, 31)
         y = amp * ((m - 0.1) / 0.4) ** 2
-        return Hidden(family, c, ("mach",), _wrap(c, _table("velocities/mach", m, y), family),
+        return Hidden(family, c, ("mach",), wrap(c, _table("velocities/mach", m, y), family),
                       f"dCD = {amp:.4f} * ((M - 0.1)/0.4)^2")
     if family == "gear_x_alpha":
         c = coefficient or rng.choice(["CL", "Cm"])
@@ -100,14 +100,14 @@ def make(family: str, rng: np.random.Generator, coefficient: str | None = None, 
         body = (f"        <table>\n          <independentVar lookup=\"row\">gear/gear-pos-norm</independentVar>\n"
                 f"          <independentVar lookup=\"column\">aero/alpha-deg</independentVar>\n"
                 f"          <tableData>\n{lines}\n          </tableData>\n        </table>")
-        return Hidden(family, c, ("gear_norm", "alpha_deg"), _wrap(c, body, family),
+        return Hidden(family, c, ("gear_norm", "alpha_deg"), wrap(c, body, family),
                       f"d{c} = {amp:.4f}/deg * (alpha - 4) * saturating(gear)")
     if family == "elevator_derivative":
         c = coefficient or rng.choice(["CL", "Cm"])
         base = {"CL": 0.40, "Cm": -1.4}[c]
         k = scale * sign * (rng.uniform(0.35, 0.5) if c == "CL" else rng.uniform(0.2, 0.35))
         body = f"        <property>fcs/elevator-pos-rad</property>\n        <value>{k * base:.6f}</value>"
-        return Hidden(family, c, ("elevator_deg",), _wrap(c, body, family),
+        return Hidden(family, c, ("elevator_deg",), wrap(c, body, family),
                       f"d{c}de = {k * base:+.4f} /rad ({k:+.0%} of the model's)")
     raise ValueError(family)
 
@@ -130,14 +130,14 @@ DIAG_MATRIX = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0
 def fly_data(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments="flight-test",
              matrix: str = DIAG_MATRIX):
     """Fly the diagnosis matrix (or ``matrix``, TOML text) on the model plus a hidden effect (a
-    :class:`Hidden` or a :class:`tests.shapes.Effect`) through an instrument profile (the shipped
+    :class:`Hidden` or a :class:`campaign.validation.shapes.Effect`) through an instrument profile (the shipped
     flight-test one: turbulence, 50 Hz, no qdot, nose-boom vanes, noise)."""
     from pathlib import Path
 
-    from campaign.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
-    from campaign.engine import FlightConfig
-    from campaign.matrix import load_matrix
-    from campaign.runner import run_campaign
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig
+    from campaign.simulation.matrix import load_matrix
+    from campaign.orchestration.runner import run_campaign
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     (workdir / "m.toml").write_text(matrix)
@@ -169,8 +169,8 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
     tables of instrument errors), and diagnose it against the bare model: the diagnosis document."""
     from pathlib import Path
 
-    from campaign.diagnose import run_diagnosis
-    from tests.support import run_matrix
+    from campaign.diagnosis.run import run_diagnosis
+    from campaign.validation.support import run_matrix
     workdir = Path(workdir)
     fx = str(Path(__file__).parent / "data" / overlay) if overlay else None
     (workdir / "turbulence.toml").write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma_fps}\n'
@@ -203,8 +203,8 @@ def score(workdir, hidden: Hidden | None, seed: int, jobs: int = 2, instruments=
     ``shape``, also the extension's shape error and residual gain: three more model evaluations)."""
     from pathlib import Path
 
-    from campaign.aircraft import DEFAULT_AIRCRAFT
-    from campaign.diagnose import load_data, run_diagnosis, split
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from campaign.diagnosis.run import load_data, run_diagnosis, split
     from identify.export import merge_into_aircraft
     workdir = Path(workdir)
     data, fx = fly_data(workdir, hidden, seed, jobs, instruments, matrix)
@@ -300,3 +300,9 @@ def score_sensor(workdir, fault: SensorFault, seed: int, hidden: Hidden | None =
     r["other_sensors"] = [f"{c['channel']} {c['error']}" for c in causes
                           if c["kind"] == "sensor" and c not in named]
     return r
+
+
+#: The hidden effects the test suite flies end to end: (family, coefficient or None for any, seed).
+CASES = [("gear_saturating", "CD", 1001), ("gear_saturating", "Cm", 1002), ("gear_bump", "CL", 1003),
+         ("alpha", None, 1006), ("mach", None, 1007), ("gear_x_alpha", None, 1008),
+         ("elevator_derivative", None, 1009)]

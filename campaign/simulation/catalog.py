@@ -95,7 +95,7 @@ INITIAL_CONDITIONS = (
     "ic/h-sl-ft", "ic/mach", "ic/gamma-deg", "ic/beta-deg", "ic/phi-deg", "ic/psi-true-deg",
 )
 
-#: Gust inputs (NED) the turbulence of an instrument profile flies through (:mod:`campaign.turbulence`).
+#: Gust inputs (NED) the turbulence of an instrument profile flies through (:mod:`campaign.simulation.turbulence`).
 GUSTS = ("atmosphere/gust-north-fps", "atmosphere/gust-east-fps", "atmosphere/gust-down-fps")
 
 #: Body angular accelerations, for accelerometers away from the CG (not logged).

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from campaign import html
+from campaign.reports import html
 from campaign.errors import UserError
-from campaign.report_diagnosis import diagnosis_report
-from campaign.replay_report import TOL_ALT_FT, TOL_TAS_KT, TOL_THETA_DEG
+from campaign.reports.diagnosis import diagnosis_report
+from campaign.replays.report import TOL_ALT_FT, TOL_TAS_KT, TOL_THETA_DEG
 
 POINT_ID = re.compile(r"h(?P<alt>\d+)_m(?P<mach>[\d.]+)_f(?P<flap>\d+)_g(?P<gear>up|dn)")
 REPORT = "report.html"
@@ -110,7 +110,7 @@ def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
         return [html.section("replays", "Replays", "<p>No replays (run <code>campaign replay</code>).</p>")]
     metrics = pd.read_csv(rep / "metrics.csv")
     if "pass_probability" in metrics:  # only bands drawn from the identification on disk
-        from campaign.replay_report import load_bands
+        from campaign.replays.report import load_bands
         valid = load_bands(folder)[0]
         keys = metrics.case + "__" + metrics.model + "__" + metrics.loop
         metrics.loc[~keys.isin(valid), "pass_probability"] = float("nan")

@@ -12,12 +12,12 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
+from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.simulation.engine import FlightConfig, TrimError, check_flaps, fly, new_fdm
 from campaign.errors import UserError
-from campaign.matrix import StatusPoint
-from campaign.store import atomic_write, clean_temporaries, read_meta, write_log
-from identify import workers
+from campaign.simulation.matrix import StatusPoint
+from campaign.orchestration.store import atomic_write, clean_temporaries, read_meta, write_log
+from infra import pool
 
 DEFAULT_CASES = Path(__file__).resolve().parent / "cases" / "replays.toml"
 CASE_KEYS = {"name", "alt_ft", "ias_kt", "flap_deg", "gear", "weight_lb", "pre_s", "post_s"}
@@ -133,7 +133,7 @@ def fly_case(case: ReplayCase, source: AircraftSource, loop: str):
     return flight
 
 
-def _fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> tuple[object, dict, str]:
+def fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> tuple[object, dict, str]:
     """``(log, meta, "")`` of one replay flight, or ``(None, {}, why)`` if it did not trim."""
     try:
         flight = fly_case(case, source, loop)
@@ -144,9 +144,9 @@ def _fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str) ->
 
 
 def _fly_shipped(case: ReplayCase, model: str, shipment, effects, loop: str):
-    """On a cluster worker: :func:`_fly_one` on this machine's copy of the shipped aircraft."""
-    from campaign.cluster import unpack_source
-    return _fly_one(case, model, unpack_source(shipment, effects), loop)
+    """On a cluster worker: :func:`fly_one` on this machine's copy of the shipped aircraft."""
+    from campaign.orchestration.cluster import unpack_source
+    return fly_one(case, model, unpack_source(shipment, effects), loop)
 
 
 def _log_name(case: ReplayCase, model: str, loop: str) -> str:
@@ -190,7 +190,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
     check_flaps(sources["reference"], [(f"{where}: case {c.name}.flap_deg", c.flap_deg) for c in cases])
     client = None
     if cluster:  # before anything is written
-        from campaign.cluster import connect
+        from campaign.orchestration.cluster import connect
         client = connect(cluster)
     out = results / "replays"
     out.mkdir(parents=True, exist_ok=True)
@@ -201,7 +201,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
     stamps = _stamps(sources)
     if client is None:
         calls = [(c, m, sources[m], lp) for c, m, lp in flights]
-        res = workers.results(workers.submit(_fly_one, calls, jobs)) if jobs > 1 else (_fly_one(*a) for a in calls)
+        res = pool.results(pool.submit(fly_one, calls, jobs)) if jobs > 1 else (fly_one(*a) for a in calls)
     else:
         res = _on_cluster(client, flights, sources)
     failures = []
@@ -216,7 +216,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
 def _on_cluster(client, flights: list, sources: dict[str, AircraftSource]):
     """Each flight's ``(log, meta, why)`` from the cluster, in order; a worker's death or error
     fails that flight only."""
-    from campaign.cluster import pack
+    from campaign.orchestration.cluster import pack
     try:
         ships = {m: pack(s) for m, s in sources.items()}
         futures = [client.submit(_fly_shipped, c, m, ships[m], sources[m].effects, lp, pure=False)

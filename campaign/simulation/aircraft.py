@@ -14,12 +14,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+from aircraft import SHIPPED_737
 from campaign.errors import UserError
-from identify.model import folder_hash, unsafe_folder, unsafe_xml
-from identify.workers import owned_tmpdir
+from infra.model import folder_hash, unsafe_folder, unsafe_xml
+from infra.pool import owned_tmpdir
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_AIRCRAFT = REPO_ROOT / "aircraft" / "737"
+DEFAULT_AIRCRAFT = SHIPPED_737
 DEFAULT_EFFECTS = DEFAULT_AIRCRAFT / "effects" / "reference.xml"
 AXES = ("LIFT", "DRAG", "SIDE", "ROLL", "PITCH", "YAW")
 

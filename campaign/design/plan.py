@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.diagnose import load_data
-from campaign.engine import FlightConfig, check_flaps
+from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.diagnosis.run import load_data
+from campaign.simulation.engine import FlightConfig, check_flaps
 from campaign.errors import UserError
-from campaign.matrix import Matrix, StatusPoint, load_matrix
-from campaign.store import read_manifest
+from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
+from campaign.orchestration.store import read_manifest
 from diagnose import separation as sep
 from identify.logs import Log
 
@@ -113,7 +113,7 @@ def _old_matrix(paths: list[Path]) -> Matrix | None:
 def other_flaps(source: AircraftSource, like: Matrix | None, have: set[float]) -> list[float]:
     """Up to three flap angles not in ``have``: the aircraft's lowest, middle and highest, each snapped
     to the nearest angle of ``like``'s CLmax table in range (the stall margin is known there)."""
-    from campaign.engine import flap_schedule
+    from campaign.simulation.engine import flap_schedule
     s = flap_schedule(source)
     if not s.moves:
         return []
@@ -130,7 +130,7 @@ def other_flaps(source: AircraftSource, like: Matrix | None, have: set[float]) -
 def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
     """A measured flap angle snapped into what the aircraft can fly (0 without flaps, else clipped
     to its range): imported data log the mean of a measured flap channel."""
-    from campaign.engine import flap_schedule
+    from campaign.simulation.engine import flap_schedule
     s = flap_schedule(source)
     if not s.moves:
         return 0.0
@@ -140,17 +140,17 @@ def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
 
 def same_lift_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     """The pressure altitude [ft] at which ``to_mach`` has the dynamic pressure ``mach`` has at ``alt_ft``
-    (the standard atmosphere of :func:`campaign.importer._isa`; ``q = 0.7 p M^2``), rounded to 100 ft: at
+    (the standard atmosphere of :func:`campaign.importing.importer.isa`; ``q = 0.7 p M^2``), rounded to 100 ft: at
     one weight the same lift coefficient, so about the same alpha at another Mach number (compressibility
     moves it a little). NaN outside 0-80,000 ft."""
     from scipy.optimize import brentq
 
-    from campaign.importer import _isa
-    target = float(_isa(alt_ft)[0][0]) * (mach / to_mach) ** 2
+    from campaign.importing.importer import isa
+    target = float(isa(alt_ft)[0][0]) * (mach / to_mach) ** 2
     lo, hi = 0.0, 80000.0
-    if not float(_isa(hi)[0][0]) <= target <= float(_isa(lo)[0][0]):
+    if not float(isa(hi)[0][0]) <= target <= float(isa(lo)[0][0]):
         return float("nan")
-    alt = brentq(lambda h: float(_isa(h)[0][0]) - target, lo, hi, xtol=1.0)
+    alt = brentq(lambda h: float(isa(h)[0][0]) - target, lo, hi, xtol=1.0)
     return float(round(alt / 100.0) * 100.0)
 
 
@@ -213,8 +213,8 @@ def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, 
                    progress: bool, rate_hz: float | None = None) -> list[Log]:
     """Fly the candidates on the model, noise-free, recorded at ``rate_hz`` (the old data's: the
     residuals are thinned per second, and the weights count rows), into ``out``; the logs flown."""
-    from campaign.instruments import load_profile
-    from campaign.runner import run_campaign
+    from campaign.simulation.instruments import load_profile
+    from campaign.orchestration.runner import run_campaign
     from identify.logs import read_campaign
     profile = "none"
     if rate_hz is not None:
@@ -482,7 +482,7 @@ def _value(v) -> str:
 
 def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Matrix | None) -> str:
     """A matrix file of the chosen flights (each point with its own manoeuvres), readable by
-    :func:`campaign.matrix.load_matrix`."""
+    :func:`campaign.simulation.matrix.load_matrix`."""
     lines = [f"# Flights planned by `campaign plan` to separate the rivals of diagnosis {name}.",
              f"name = {_value('plan-' + name)}", 'description = "flights that separate a diagnosis\'s rivals"', ""]
     for m, params in (like.maneuver_params if like else ()):

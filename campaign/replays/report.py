@@ -19,9 +19,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from campaign.errors import UserError  # noqa: E402
-from campaign.store import atomic_write, clean_temporaries, read_log  # noqa: E402
+from campaign.orchestration.store import atomic_write, clean_temporaries, read_log  # noqa: E402
 from identify.figures import emptied_axes  # noqa: E402
-from identify.workers import pmap  # noqa: E402
+from infra.pool import pmap  # noqa: E402
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
             ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
@@ -201,7 +201,7 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     return files
 
 
-# Monte Carlo bands (written by campaign.replay_bands; read here, without JSBSim)
+# Monte Carlo bands (written by campaign.replays.bands; read here, without JSBSim)
 
 def surfaces_file(results: Path) -> Path:
     return Path(results) / "identification" / "gear_surfaces.json"

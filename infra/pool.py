@@ -58,7 +58,7 @@ def warm(modules: Iterable[str]) -> None:
 
 
 #: The packages whose modules a library caller has imported are what its worker processes need.
-PACKAGES = ("campaign", "identify", "diagnose", "maneuvers")
+PACKAGES = ("campaign", "identify", "diagnose", "maneuvers", "infra")
 
 
 def _warm_as_imported() -> None:

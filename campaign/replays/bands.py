@@ -21,16 +21,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from campaign.aircraft import AircraftSource, load_effects
+from campaign.simulation.aircraft import AircraftSource, load_effects
 from campaign.errors import UserError
-from campaign.replay import LOOPS, ReplayCase, _fly_one, aircraft_for
-from campaign.replay_report import bands_doc_text, stored_bands_doc, surfaces_file, surfaces_sha
+from campaign.replays.replay import LOOPS, ReplayCase, fly_one, aircraft_for
+from campaign.replays.report import bands_doc_text, stored_bands_doc, surfaces_file, surfaces_sha
 from diagnose.gain import REPLAY_CHANNELS
 from diagnose.uncertainty import band, pass_probability
-from campaign.store import atomic_write, read_log
+from campaign.orchestration.store import atomic_write, read_log
 from identify.export import merge_into_aircraft, write_effects
 from identify.models import GearSurface
-from identify.workers import pmap
+from infra.pool import pmap
 
 MIN_DRAWS = 20
 CHANNELS = REPLAY_CHANNELS
@@ -57,7 +57,7 @@ def check_draws(n: int) -> None:
 
 def _fly_channels(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> np.ndarray | None:
     """One draw's flight: its :data:`CHANNELS` only (float32), None if it did not trim."""
-    log, _, _ = _fly_one(case, model, source, loop)
+    log, _, _ = fly_one(case, model, source, loop)
     return None if log is None else log[list(CHANNELS)].to_numpy(np.float32)
 
 

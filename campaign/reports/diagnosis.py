@@ -6,7 +6,7 @@ import json
 from html import escape
 from pathlib import Path
 
-from campaign import html
+from campaign.reports import html
 from diagnose.held_out import told_text
 from diagnose.separation import SETTLED_SE
 

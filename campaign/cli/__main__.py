@@ -1,0 +1,5 @@
+import sys
+
+from campaign.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""Test design: ``campaign plan``, the next flight that separates the rival readings of a diagnosis."""

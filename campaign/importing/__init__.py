@@ -1,0 +1,1 @@
+"""``campaign import``: measured files (CSV, ASCII, MATLAB, Parquet) and a channel map into logs."""
