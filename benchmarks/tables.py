@@ -5,9 +5,9 @@
 
 Every figure the documentation quotes comes from a file in ``benchmarks/results/`` (CSV or JSON), each
 holding the command that measured it and the commit and date of the code it measured; nothing here
-measures anything. ``mkdocs build`` runs this script first (``docs/hooks.py``), so the site always shows
+measures anything. ``mkdocs build`` runs :func:`write_docs` first (``docs/hooks.py``), so the site always shows
 the results as they are on disk; the README's validation table is written between two marker lines and
-checked by the tests.
+checked by the tests (``tests/test_product_text.py``).
 """
 from __future__ import annotations
 
@@ -268,7 +268,8 @@ def readme_with_table(text: str) -> str:
     return head + BEGIN + "\n" + validation_table() + rest[rest.index(END):]
 
 
-def write() -> None:
+def write_docs() -> None:
+    """docs/generated/: every page of :data:`PAGES` and the detection figure (written only when changed)."""
     GENERATED.mkdir(parents=True, exist_ok=True)
     for name, make in PAGES.items():
         path = GENERATED / name
@@ -276,6 +277,11 @@ def write() -> None:
         if not path.exists() or path.read_text() != text:
             path.write_text(text)
     detection_figure(GENERATED / "detection.png")
+
+
+def write() -> None:
+    """docs/generated/ and README.md's validation table."""
+    write_docs()
     text = README.read_text()
     new = readme_with_table(text)
     if new != text:
