@@ -39,7 +39,7 @@ def commands(text: str) -> list[str]:
             if not skip:
                 cmd = ""
                 for line in block:
-                    cmd += line.rstrip()
+                    cmd += line.strip() if cmd else line.rstrip()
                     if cmd.endswith("\\"):
                         cmd = cmd[:-1].rstrip() + " "
                         continue
