@@ -5,7 +5,7 @@
     python benchmarks/detection_curve.py --merge DIR [DIR ...] --out DIR
 
 Random effects from the shape grammar (tests/shapes.py: every candidate variable and pairs of
-them, on the range each aircraft flies it over (:func:`flown_ranges`, from stop 71), late onset,
+them, on the range each aircraft flies it over (:func:`flown_ranges`), late onset,
 early saturation, bump, dip, step, ramp above a threshold, dead band, random monotone and
 non-monotone tables, gear x flap, gear x alpha, gear x Mach, alpha x Mach, a random
 sign, a size log-uniform from 0.3x to 30x the coefficient's noise floor) are hidden in the data of
@@ -31,8 +31,8 @@ model leaves; the table gives its median and 90th percentile over the hits. The 
 range over the data flown (the model and the model with the effect evaluated at the measured
 states), against the coefficient's floor (tests/shapes.py). A false positive: a null with an aero
 cause named, or a sensor cause when no sensor error was hidden. The seeds start at ``--seed-base``
-(2,000,000 by default, the first reserved range, reported long since: a fresh measurement takes a
-range no one has developed against, recorded in the README; the tests use 900-905).
+(2,000,000 by default; a validation takes a range no one has developed against, and its table goes
+into ``benchmarks/results/detection_curve_*.csv``; the tests use 900-905).
 
 Writes ``detection_curve.csv``, ``detection_curve.md`` (the table), ``detection_curve.png`` and
 ``cases/<seed>.json`` (every candidate cause and its verdict) into ``--out``; ``--merge`` writes
@@ -71,16 +71,13 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
 #: no flap angle), and Mach 0.4 at the alpha of the lowest Mach 0.3 condition (a third altitude). Without
 #: that point two Mach numbers met at one alpha only at the edges of the 2-3-1-1s (Mach 0.3 and 0.5, by about
 #: a degree) or at another flap angle (our 737's Mach 0.2 at flap 30), and an effect in alpha x Mach read as
-#: a finer shape in alpha alone. The A320 does not trim at Mach 0.3 and 10,000 ft; its first matrix had three
-#: conditions: any one held out took a Mach number, an altitude or the flap setting from the fit, and Mach
-#: effects were seen in held-out data only. From stop 72 the A320 also flies Mach 0.5 at the alpha of Mach
-#: 0.4 at 10,000 ft (21,000 ft): its Mach 0.5 trimmed at 1.9 deg and its Mach 0.4 at 4.7, and an effect
-#: changing in that gap (all of stop 71's fresh misses from 3x) fitted a level per Mach number as well.
-#: From stop 76 our 737 also flies flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's
-#: 175 kt flap-30 placard): with Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle
-#: was a function of Mach over the data (:mod:`diagnose.settings`), and an effect in Mach below 0.3 was the
-#: flap's (named "CL vs flap_deg": 9,400,256, 9,403,337; "Cm vs flap_deg": 9,400,406 at 27.8x, 9,402,594).
-#: Flown again with the point, each was named in Mach.
+#: a finer shape in alpha alone. The A320 does not trim at Mach 0.3 and 10,000 ft; with three conditions any
+#: one held out would take a Mach number, an altitude or the flap setting from the fit. The A320 also flies
+#: Mach 0.5 at the alpha of Mach 0.4 at 10,000 ft (21,000 ft): its Mach 0.5 trims at 1.9 deg and its Mach 0.4
+#: at 4.7, and an effect changing in that gap would fit a level per Mach number as well. Our 737 also flies
+#: flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's 175 kt flap-30 placard): with
+#: Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle would be a function of Mach
+#: over the data (:mod:`diagnose.settings`), and an effect in Mach below 0.3 the flap's.
 OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000), (30, 0.3, 10000),
                             (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
 STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),

@@ -4,7 +4,7 @@
 
 Every flight goes through the shipped flight-test instrument profile (Dryden
 turbulence at 1.5 ft/s, 50 Hz after anti-alias filtering, no qdot channel,
-nose-boom vanes 62 ft ahead of the CG, sensor noise), with fresh seeds.
+nose-boom vanes 62 ft ahead of the CG, sensor noise), with seeds no development was done against.
 
 1. Hidden aero effects: each case draws a random overlay from one family
    (tests/hidden.py), flies the diagnosis matrix on our 737, diagnoses against the

@@ -1,4 +1,4 @@
-"""Issue 32's third ambiguity: an airspeed scale that needs a turn, settled by the plan.
+"""An airspeed scale that needs a turn, settled by the plan.
 
 A ``--scale`` airspeed scale (the pitot's) on our 737 through the flight-test instruments, on the
 diagnosis matrix with gear extensions and retractions: diagnosed, planned with the default budget

@@ -191,7 +191,7 @@ def test_no_instrument_error_is_taken_as_larger_than_plausible():
 
 
 def test_a_correction_the_logs_do_not_all_carry_is_not_applied_on_the_kinematics_word_alone(tmp_path):
-    """The A320 in 1.5 ft/s with no instrument error (development seed 5,800,246 of the detection
+    """The A320 in 1.5 ft/s with no instrument error (seed 5,800,246 of the detection
     curve, a null that named "Cm vs alpha" beside a vane scale and bias). The one-step jackknife put
     the vane scale at +2.5 % +- 0.24 % and the bias at -0.10 +- 0.013 deg: both applied on the
     kinematics' word alone. Made again with each log left out, the estimate's own choices move

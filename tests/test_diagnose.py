@@ -83,11 +83,9 @@ def test_a_vane_delay_in_turbulence_is_timed_by_the_aerodynamic_residuals(tmp_pa
 def test_a_vane_scale_the_kinematics_leave_undecided_is_refined_by_the_residuals(tmp_path):
     """In turbulence the kinematics put a 4 % vane scale at about 3 standard errors, too few to
     correct on their word alone; the model's residuals call for the same scale, within the
-    kinematics' error of their estimate: the vane is corrected, no aero cause named. (Since stop 44
-    the CL residual first chooses the kinematics' 3.7 % from 2.5 standard errors; what CL and CD
-    still need then refines it to 4.0 %. Before, CL, CD and Cm each needed the whole of it. Since stop 74
-    the fit holds the highest-alpha condition, and the kinematics put it at 3.6 % +- 0.6 %: still not
-    applied on their word alone, and the residuals take it nearer the truth.)"""
+    kinematics' error of their estimate: the vane is corrected, no aero cause named. (The kinematics
+    put it at 3.6 % +- 0.6 %, not applied on their word alone; the residuals take it nearer the
+    truth.)"""
     fault = make_sensor("alpha_scale", np.random.default_rng(0), 0.04)
     r = score_sensor(tmp_path, fault, seed=91_003)
     comp = {p["channel"] + "." + p["error"]: p for p in r["doc"]["data_compatibility"]["parameters"]}
@@ -100,13 +98,10 @@ def test_a_vane_scale_the_kinematics_leave_undecided_is_refined_by_the_residuals
 
 
 def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_errors(tmp_path):
-    """Our 737 through a vane reading 0.40 deg high in 3 ft/s turbulence (development null 4,500,069 of
-    the detection curve). The kinematics applied 0.28 +- 0.05 deg; the CL and CD residuals each need
-    0.12 deg more, 2.6 standard errors from the kinematics' estimate. Up to stop 44 agreement ended at
-    2.5, the 95th percentile of the kinematics' own errors on simulated flights, and "CD vs flap,
-    alpha" was named; at their 99th (3.5) the bias is refined to what the residuals need. Since stop 74 the
-    fit holds the highest-alpha condition, the kinematics measure 0.33 +- 0.08 deg, and the residuals
-    still take it nearer the truth."""
+    """Our 737 through a vane reading 0.40 deg high in 3 ft/s turbulence (null 4,500,069 of the
+    detection curve). The kinematics measure 0.33 +- 0.08 deg; the CL and CD residuals need more, within
+    3.5 standard errors (the 99th percentile of the kinematics' own errors on simulated flights) of the
+    kinematics' estimate, so the bias is refined to what the residuals need, nearer the truth."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
     doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 4500069,
@@ -135,9 +130,9 @@ def test_sensor_fault_and_aero_effect_are_both_named(tmp_path):
 def test_an_accelerometer_bias_beside_a_drag_rise_is_named_with_it(tmp_path):
     """The kinematics measure the x-accelerometer's bias precisely but cannot tell it from a pitch
     attitude bias; a drag rise with Mach in the same residual hides the correction's gain in the
-    raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version.
-    From 2026-11-25 to stop 77 this realization rejected the 0.074 ft/s^2 ax bias (x0.28 held out, a
-    strict xfail); it is named since the drag is measured along the airspeed, with the sideslip's share."""
+    raw residual (the held-out RMS even grows), not beside the aero terms fitted to each version. The
+    drag is measured along the airspeed, with the sideslip's share: without it the sideslip's drag
+    hides the bias's gain on this realization."""
     rng = np.random.default_rng(95_003)
     fault = make_sensor("accel_bias", rng)
     hidden = make("mach", rng)
@@ -304,7 +299,7 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
     12, a doublet's swing in each. Knots at the quintiles, thinned, were -1.2, 0.65, 2.45, 7.4 and 13 deg:
     one interval across a third of the range, and a tenth of the grammar's shapes in alpha left more than
     a quarter of themselves unfitted (an A320 drag step in alpha, 12 times its floor, was named "CD vs CL"
-    at development seed 5,300,054). Every shape of the grammar is fitted to within 8 % at the 90th
+    at seed 5,300,054). Every shape of the grammar is fitted to within 8 % at the 90th
     percentile, and the knots stay 10 % of the range apart."""
     import pandas as pd
 
@@ -343,7 +338,7 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     range) act where only the two fastest conditions' upswings go, 3 % of the samples. On the quantile
     knots the tail above -4.8 deg is one interval, and the 90th percentile of the shapes leaves 47 % of
     itself unfitted (an A320 drag step there, 18 times its floor and 50 times the noise in those samples,
-    was not named at development seed 5,500,060); the term's twin with the tails' knots, under 8 %. The
+    was not named at seed 5,500,060); the term's twin with the tails' knots, under 8 %. The
     twin keeps the quantile knots and stays 2 % of the range apart."""
     import pandas as pd
 
@@ -400,7 +395,7 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
     trimmed lift, which falls with Mach, and leaves the swing's misfit, fast and white; gear x Mach leaves
     the slow error, of few independent samples. On each term's own effective sample size gear x CL came
     first (by 10^40 and 10^3 at these seeds), though it leaves four to seven times the residual with as
-    many columns (fresh seed 9,400,050: gear x CL and smooth(Mach) named for a gear x Mach 29 times its
+    many columns (seed 9,400,050: gear x CL and smooth(Mach) named for a gear x Mach 29 times its
     floor). Of terms as wide, the better fit comes first, and enters on its own test."""
     import pandas as pd
     from scipy.signal import lfilter
@@ -498,17 +493,15 @@ def test_a_cause_whose_p_value_underflows_reports_it_in_logs():
     assert cause.evidence["p_value"] == 0.0 and -1e4 < cause.evidence["log10_p"] < -308
 
 
-@pytest.mark.xfail(strict=True, reason="stop 70: ranked by the exact log p, this case is mended, but among fits "
-                   "alike the log p follows the effective sample sizes and wider terms came first (the stock-737 "
-                   "gear-drag test named gear x elevator; development seed 9,300,263 lost); a leaner term standing "
-                   "in when the extra removes under 1 % lost 9,300,282 and 9,300,065. Not kept: the README's model "
-                   "structure.")
+@pytest.mark.xfail(strict=True, reason="ranked by the exact log p this case would be named right, but among "
+                   "fits alike the log p follows the effective sample sizes and wider terms come first (the "
+                   "stock-737 gear-drag test would name gear x elevator); the ranking keeps the F-test's order")
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_stepwise_search_ranks_candidates_whose_p_values_underflow_by_their_exact_logs(seed):
     """A pitching moment step in alpha, growing with Mach (:func:`_cm_step_in_alpha_growing_with_mach`).
     Four candidates' p-values are below 1e-308, 0 in floating point; ranked among them by F, whose size
     per column favours narrow terms, smooth(Mach) enters first and smooth(alpha) beside it: two causes for
-    one (fresh seed 9,400,043: quadratic(Mach) and smooth(alpha) for an A320 Cm step in alpha x Mach). In
+    one (seed 9,400,043: quadratic(Mach) and smooth(alpha) for an A320 Cm step in alpha x Mach). In
     logs the effect's form is the strongest."""
     from diagnose.stepwise import stepwise
     from diagnose.terms import candidate_terms
@@ -527,7 +520,7 @@ def test_the_stepwise_search_ranks_candidates_whose_p_values_underflow_by_their_
 def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_that_carries_it(truth, term):
     """Four conditions, each trimmed at its own alpha (the faster, the lower), with a 2-3-1-1's alpha
     swing in each: a dead band in alpha, or a step in Mach, fitted by a smooth term in the other
-    variable that varies linearly with the first (development seeds 4,600,055 and 2,000,282 of the
+    variable that varies linearly with the first (seeds 4,600,055 and 2,000,282 of the
     detection curve: "Cm vs mach, alpha_deg" for a dead band in alpha, and "Cm vs alpha_deg, mach" for
     a step in Mach). The variable whose function alone makes the cause comes first."""
     import pandas as pd
@@ -569,7 +562,7 @@ def _needing_a_vane_scale(coefficient: str, needs: float, se: float, explains_pc
 
 def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_block_a_refinement():
     """The residuals of CL and Cm each need a vane scale of about 3.7 %, 2 standard errors from the
-    kinematics' 1.1 +- 1.3 % (development null 4,600,183: an A320 with a 3.7 % scale in 3 ft/s). A
+    kinematics' 1.1 +- 1.3 % (null 4,600,183: an A320 with a 3.7 % scale in 3 ft/s). A
     "CD vs CL" beside them would need -63 %, 48 standard errors the other way: it is some other cause's,
     and the scale is refined. Had CD needed -2 % (2.4 standard errors), the coefficients would disagree."""
     from diagnose.arbitration import residual_refinement
@@ -612,7 +605,7 @@ def test_two_coefficients_that_agree_refine_beside_a_third_that_needs_more_of_th
 
 def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not_grow_it_as_far():
     """A vane scale of +2.9 +- 0.52 % applied on the kinematics' word (5.6 standard errors); CL, CD and Cm
-    need a further -2.8, -1.9 and -2.8 % (development null 4,900,238): refined to +0.1 %, 5.4 standard
+    need a further -2.8, -1.9 and -2.8 % (null 4,900,238): refined to +0.1 %, 5.4 standard
     errors from the kinematics' estimate but between it and none. The same needs with the opposite sign
     would grow the correction to 5.7 %, 5.4 standard errors past it: not refined."""
     from diagnose.arbitration import residual_refinement
@@ -634,7 +627,7 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
 
 def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two():
     """A vane scale the kinematics measure at 1.19 +- 0.75 % (not applied); Cm, CL and CD need 4.04, 4.47
-    and 3.04 % (development null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
+    and 3.04 % (null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
     the 5.3 three may refine (:data:`AGREE_ALL_SE`) and past the 3.5 two may (:data:`AGREE_SE`)."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
@@ -651,7 +644,7 @@ def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two(
 
 
 def test_a_cause_its_own_held_out_logs_refute_does_not_veto_what_two_others_agree_on():
-    """Our 737 in 3 ft/s with a +4.8 % vane scale and nothing else hidden (fresh null 6,700,233). The kinematics
+    """Our 737 in 3 ft/s with a +4.8 % vane scale and nothing else hidden (null 6,700,233). The kinematics
     put the scale at -0.16 +- 2.7 %; CL and Cm each need +4.9 and +4.5 %. A "CD vs qhat" 3 times its floor,
     which its held-out logs refute (x1.012 with each left out), would need -1.75 %, and its opposite sign
     vetoed the scale: "CL vs alpha" and "Cm vs alpha" were named on a null. Refuted, it does not veto; held
@@ -672,7 +665,7 @@ def test_a_cause_its_own_held_out_logs_refute_does_not_veto_what_two_others_agre
 
 
 def test_a_refinement_several_coefficients_need_is_vetoed_by_a_residual_growing_about_its_mean_only():
-    """A -4.95 +- 1.27 % vane scale chosen where there is none, beside a lift offset it masked (fresh seed
+    """A -4.95 +- 1.27 % vane scale chosen where there is none, beside a lift offset it masked (seed
     6,700,032): CL, CD and Cm each need it undone. Undone, CL's residual grows 1.7-fold with its mean (the
     offset, which the stepwise search's intercept takes up) and shrinks about it: the refinement stands.
     A residual that grows about its mean by more than 1.1 still refuses it."""
@@ -701,7 +694,7 @@ def test_a_refinement_several_coefficients_need_is_vetoed_by_a_residual_growing_
 
 
 def test_one_coefficient_adjusts_only_a_correction_the_kinematics_made_and_needs_another_as_witness():
-    """CD alone needs a further +0.075 deg of vane bias (development null 5,000,150: -0.589 +- 0.031 deg
+    """CD alone needs a further +0.075 deg of vane bias (null 5,000,150: -0.589 +- 0.031 deg
     applied, the truth -0.51): refined, since the kinematics made that correction. It stands only if
     another coefficient's whole residual gets 1.1 times smaller with it (CL's offset did, 4.8-fold), and
     no coefficient's grows by more than 1.1. A correction the kinematics did not make (the vane scale,

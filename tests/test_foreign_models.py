@@ -323,7 +323,7 @@ def test_an_evaluator_leaves_no_temporary_copy_closed_or_not(tmp_path, monkeypat
 
 
 def test_a_drag_dip_in_alpha_fitted_by_two_near_collinear_terms_is_named(tmp_path):
-    """CD -0.019 at alpha 5.5 deg, less on either side (a 3-knot table; development seed 3,000,174,
+    """CD -0.019 at alpha 5.5 deg, less on either side (a 3-knot table; seed 3,000,174,
     the stock 737 in 3 ft/s turbulence, 19 times the floor): the stepwise search fitted smooth(alpha)
     and then quadratic(CL), and each, held out against the other, gained nothing (x0.69, x0.90). The
     answer was "no significant discrepancy". The first is also tested against the terms before it."""
@@ -348,7 +348,7 @@ def test_a_lift_change_with_alpha_on_a_drag_polar_is_not_taken_for_a_vane_scale(
 
 def test_a_vane_scale_in_turbulence_is_not_named_as_drag_against_lift(tmp_path):
     """The stock 737 as it is, through an alpha vane reading 4.6 % high in 3 ft/s turbulence
-    (development null 3,300,011 of the detection curve). The drag residual regressed on the measured
+    (null 3,300,011 of the detection curve). The drag residual regressed on the measured
     CL, which carries the lift the turbulence leaves in the residuals, named "CD vs CL" (13.7 times
     its floor, x5.2 held out): a false positive. Against the model's CL at the measured states there
     is no aerodynamic discrepancy, and the vane scale is named."""
@@ -367,8 +367,7 @@ def test_a_vane_scale_the_kinematics_barely_measure_is_tried_and_no_aero_cause_i
     linearised reach could not make the slopes the scale left, and "Cm vs alpha" (112 times its floor),
     "CD vs alpha" and "CL vs alpha, mach" were named. Tried, the scale shrinks the CL residual 4-fold on
     held-out logs and is applied. What its remaining 1.5 % leaves ("CD vs elevator", "Cm vs alpha")
-    that remainder fits better than any aerodynamic term, in CL, CD and Cm together. With knots at the
-    5 % quantiles (stop 48), "CL vs alpha, mach" took that remainder too, 1.4 times its floor; CL and Cm
+    that remainder fits better than any aerodynamic term, in CL, CD and Cm together. CL and Cm
     each need 1.7 % more scale, CD 2.8 %, and the two that agree refine it to 7.4 %."""
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
     doc = diagnose_overlay(tmp_path, None, STOCK / "A320", matrix, 4300078,
@@ -380,7 +379,7 @@ def test_a_vane_scale_the_kinematics_barely_measure_is_tried_and_no_aero_cause_i
 
 def test_a_term_that_fits_worse_than_its_rival_once_the_others_are_in_is_swapped(tmp_path):
     """A Cm rise in alpha that saturates from 4.8 deg, 16 times its floor, on the A320 in 1.5 ft/s
-    (seed 4,700,066 of the detection curve, first flown as a fresh draw). The stepwise search took
+    (seed 4,700,066 of the detection curve). The stepwise search took
     "quadratic(CL)" first (alpha x Mach came within 0.74 of its F), and "Cm vs CL" was named; fitted
     in its place with the other terms in, alpha x Mach fits Cm 9.6 standard errors better. The rival
     the data prefer by 5 standard errors or more is the cause (sequential replacement)."""
@@ -397,8 +396,8 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
     -0.12 deg vane bias beside it, which undid it at the trim alphas. CL, CD and Cm each needed the
     scale undone (-2.8, -1.9 and -2.8 %), and "CL vs alpha", "Cm vs CL" and "CD vs CL" were named,
     each 18 to 21 times its floor. A refinement may shrink a correction the data carry toward none:
-    the scale goes, the bias is chosen again without it (and is not), and nothing is named. Since the
-    drag has had the sideslip's share (stop 77) CL and Cm ask for it, and CD no longer does."""
+    the scale goes, the bias is chosen again without it (and is not), and nothing is named. With the
+    drag's sideslip share in eq. (1), CL and Cm ask for it and CD does not."""
     doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 4900238, sigma_fps=1.5)
     assert not discrepancies(doc), doc["summary"]
     alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
@@ -407,7 +406,7 @@ def test_a_vane_scale_the_kinematics_measure_where_there_is_none_is_undone_by_th
 
 
 def test_a_vane_scale_refined_beside_a_bias_the_residuals_chose_chooses_the_bias_again(tmp_path):
-    """Our 737 in 3 ft/s with a +4.8 % alpha-vane scale and nothing else hidden (fresh null 6,700,233 of the
+    """Our 737 in 3 ft/s with a +4.8 % alpha-vane scale and nothing else hidden (null 6,700,233 of the
     detection curve). The kinematics put the bias at +0.21 +- 0.064 deg and the scale at -0.16 +- 2.7 %;
     the CL residual chose the bias, which at the trim alphas stands in for the scale. CL and Cm each needed
     +4.7 % more scale, and "CL vs alpha" and "Cm vs alpha" were named. The scale is refined, the bias chosen
@@ -422,7 +421,7 @@ def test_a_vane_scale_refined_beside_a_bias_the_residuals_chose_chooses_the_bias
 
 def test_a_vane_correction_that_grows_another_coefficients_residual_about_its_mean_is_not_chosen(tmp_path):
     """The A320 in 1.5 ft/s with CL down to -0.023 over a table in alpha, times (Mach - 0.2) / 0.3, and no
-    instrument error (fresh seed 7,100,074). The kinematics put the vane scale at -1.8 +- 0.54 % (3.4
+    instrument error (seed 7,100,074). The kinematics put the vane scale at -1.8 +- 0.54 % (3.4
     standard errors); beside the aerodynamic terms the CL residual took it (x1.48, x1.92 held out), while
     Cm's residual grew 2.1-fold about its mean with it. Chosen, "Cm vs alpha" was named first, 12 times its
     floor. A correction no other coefficient's residual agrees with is not chosen: the lift change is named."""
@@ -436,7 +435,7 @@ def test_a_vane_correction_that_grows_another_coefficients_residual_about_its_me
 
 
 def test_a_cause_whose_terms_in_cl_give_way_gives_way_whole_to_one_state(tmp_path):
-    """The stock 737 in 3 ft/s with CD up to 0.014 higher in alpha, times a dip in gear (fresh seed
+    """The stock 737 in 3 ft/s with CD up to 0.014 higher in alpha, times a dip in gear (seed
     7,100,139). The drag entered as linear(CL) and smooth(gear) x CL, one cause. Only the first term gave
     way to the states (quadratic(alpha)), and the cause fell apart: "CD vs alpha", 110 times its floor, and
     "CD vs gear_norm, CL", with gear x alpha 0.3 standard errors behind it. Both terms give way, in the same
@@ -450,7 +449,7 @@ def test_a_cause_whose_terms_in_cl_give_way_gives_way_whole_to_one_state(tmp_pat
 
 def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kinematics(tmp_path):
     """The stock 737 in 1.5 ft/s with an 82 ms alpha delay and CL up to 0.025 higher as the gear comes
-    down, times (Mach - 0.2) / 0.3 (seed 5,200,118 of the detection curve, first flown fresh at stop 47).
+    down, times (Mach - 0.2) / 0.3 (seed 5,200,118 of the detection curve.
     The kinematics put the delay at 94 ms, untrusted in turbulence; timed by the residuals from no delay
     it came out at -371 ms and was not applied, and "CL vs adothat", 68 times its floor, was the first
     discrepancy. The kinematics' estimate, judged by the residuals, is applied and refined; the delay and
@@ -466,7 +465,7 @@ def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kine
 
 def test_a_gear_step_times_mach_is_named_by_both_when_they_fit_3_standard_errors_better(tmp_path):
     """The stock 737 in 3 ft/s with CD 0.008 lower with the gear down, times (Mach - 0.2) / 0.3, beside an
-    engine deck 7.4 % short (seed 5,100,139 of the detection curve, first flown fresh at stop 47). The
+    engine deck 7.4 % short (seed 5,100,139 of the detection curve. The
     search took gear x CL first; gear x Mach fitted 4.4 standard errors better in its place, short of the
     5 that settle a rival, and "CD vs gear_norm, CL" was named. The better-fitting of the two is named."""
     doc = diagnose_overlay(tmp_path, "drag_gear_step_mach.xml", STOCK / "737", CLEAN, 5100139, sigma_fps=3.0,
@@ -478,7 +477,7 @@ def test_a_gear_step_times_mach_is_named_by_both_when_they_fit_3_standard_errors
 
 def test_a_drag_step_in_the_elevator_only_the_fastest_upswings_reach_is_named(tmp_path):
     """The A320 in 3 ft/s with CD 0.023 lower as the elevator goes from -3 to -1 deg (seed 5,500,060 of
-    the detection curve, first flown fresh at stop 48). The A320 trims at -4 to -25 deg: the effect acts
+    the detection curve. The A320 trims at -4 to -25 deg: the effect acts
     in the upswings of the two Mach 0.5 doublets only, 2 % of the samples, 50 times the noise there. On
     the quantile knots alone the tail above -4.8 deg was one interval: smooth(elevator) left 26 % of the
     residual, failed on held-out logs (x0.985) and nothing was named. Refined with the tails' own knots,
@@ -491,7 +490,7 @@ def test_a_drag_step_in_the_elevator_only_the_fastest_upswings_reach_is_named(tm
 
 def test_a_rival_of_a_term_refined_with_the_tails_knots_is_refined_alike(tmp_path):
     """The stock 737 in 1.5 ft/s with a Cm table in alpha, 25.8 times its floor, beside a +0.058 ft/s^2 ax
-    bias (reserved seed 2,000,229, lost at stop 49). smooth(CL) enters first (F 1,448 against
+    bias (seed 2,000,229). smooth(CL) enters first (F 1,448 against
     smooth(alpha)'s 1,382) and is refined with the tails' knots (F 3,404). Its rivals were taken
     within half of the refined F, so smooth(alpha) was none, and "Cm vs CL" was named. Rivals are those
     within half of the term as it entered, and refined alike: smooth(alpha) fits better and is named."""
@@ -549,7 +548,7 @@ def test_a_vane_scale_all_three_coefficients_put_past_the_kinematics_3_5_standar
 
 def test_a_term_standing_in_for_an_instrument_error_and_an_effect_is_replaced_by_the_two(tmp_path):
     """The A320 in 1.5 ft/s with a CD table in alpha, 5.3 times its floor, beside a thrust reading 4.1 %
-    high (reserved seed 2,000,177). The search took gear x elevator first: it follows both the trim
+    high (seed 2,000,177). The search took gear x elevator first: it follows both the trim
     points' thrust and the doublets' alpha, removing 98 % of the residual; smooth(alpha) x Mach came
     second, and "CD vs gear_norm, elevator" was named. In its place, the thrust signature fits better
     with fewer columns: the thrust scale and the drag table in alpha are named."""
@@ -565,7 +564,7 @@ def test_a_term_standing_in_for_an_instrument_error_and_an_effect_is_replaced_by
 
 def test_a_cause_of_several_one_variable_terms_is_named_by_the_variable_that_alone_makes_most_of_it(tmp_path):
     """The A320 in 1.5 ft/s with CD 0.010 lower above 6.1 deg of alpha, 10 times its floor (seed 5,900,046
-    of the detection curve, first flown fresh at stop 50). smooth(CL) entered first, then quadratic(alpha)
+    of the detection curve. smooth(CL) entered first, then quadratic(alpha)
     and alpha x CL: one cause, named by the order its one-variable terms entered, "CD vs CL, alpha". The
     A320's flap setting moves CL at a given alpha, and alpha alone makes more of the step: "CD vs alpha"."""
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
@@ -576,7 +575,7 @@ def test_a_cause_of_several_one_variable_terms_is_named_by_the_variable_that_alo
 
 def test_a_term_in_cl_the_data_cannot_tell_from_alpha_is_named_in_alpha(tmp_path):
     """The stock 737 in 3 ft/s with Cm up to +0.038 in a bump in gear travel times (alpha - 1) / 9, 24 times
-    its floor (seed 6,000,109 of the detection curve, first flown fresh at stop 51). It entered as
+    its floor (seed 6,000,109 of the detection curve. It entered as
     smooth(gear) x CL, and smooth(gear) x alpha fitted 0.7 standard errors behind it: "Cm vs gear_norm, CL".
     Within a configuration CL follows alpha; the model's tables are written in alpha. Unless the data
     prefer CL by 2 standard errors, the term in alpha is named."""
@@ -590,7 +589,7 @@ def test_a_term_in_cl_the_data_cannot_tell_from_alpha_is_named_in_alpha(tmp_path
 
 def test_the_replacement_splits_a_term_that_stood_for_two_causes(tmp_path):
     """The stock 737 in 1.5 ft/s with CL up by a random 4-knot table in Mach, 6 times its floor (seed
-    6,100,145 of the detection curve, first flown fresh at stop 51). The data compatibility corrected a
+    6,100,145 of the detection curve. The data compatibility corrected a
     -2.2 % vane scale that is not there, which leaves a line in alpha in CL's residual. The search chose
     linear(alpha) and smooth(Mach) x alpha; in the product's place, smooth(Mach) fits as well with fewer
     columns, and the lift table in Mach is named, the largest discrepancy. Both parts stand as

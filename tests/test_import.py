@@ -266,15 +266,12 @@ def test_identify_without_a_matrix_fits_each_manoeuvre_and_says_why_no_gear_mode
     assert "dstabilizer_rad" in summary and "not identifiable" in summary
 
 
-def test_the_readme_map_is_a_valid_map(tmp_path):
-    """The complete example map of the README loads (and the docs cannot drift from the parser)."""
+def test_the_documented_map_is_a_valid_map(tmp_path):
+    """The complete example map of the documentation loads (and the docs cannot drift from the parser);
+    the README's check imports a real record with it."""
     from pathlib import Path
 
     from campaign.importing.importer import load_map
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    block = text.split("A complete map:")[1].split("```toml\n")[1].split("```")[0]
-    (tmp_path / "readme.toml").write_text(block)
-    m = load_map(tmp_path / "readme.toml")
-    assert m.format == "whitespace" and dict((c, s) for c, s, _ in m.channels)["alpha_deg"] == "ALFCG"
-    assert dict(m.positions)["alpha_deg"] == pytest.approx((11.2 / 0.3048, 0.0, 0.3 / 0.3048))
+    m = load_map(Path(__file__).resolve().parents[1] / "docs" / "examples" / "hfb320-map.toml")
+    assert m.format == "whitespace" and dict((c, s) for c, s, _ in m.channels)["alpha_deg"] == "alpha"
     assert dict(m.aircraft)["iyy"] == pytest.approx(91389 / 1.3558179483)

@@ -334,7 +334,7 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
 
 
 def test_a_strong_discrepancy_is_left_unconfirmed_not_rejected_by_an_instrument_error_that_does_not_settle_it():
-    """Fresh seed 9,401,808: a stock-737 drag table in alpha (F = 1,337, held-out gain x1.66) was
+    """Seed 9,401,808: a stock-737 drag table in alpha (F = 1,337, held-out gain x1.66) was
     rejected because a -0.08 deg vane bias, 2.1 standard errors from the data compatibility's
     measurement, fitted 2.9 standard errors better (13.5 of it in CD). No gate may dismiss a discrepancy
     that strong: it stays a discrepancy, its cause unconfirmed. The same preference rejects a weaker one,
@@ -413,7 +413,7 @@ def _dead_band_in_alpha(with_mach: bool) -> pd.DataFrame:
 
 @pytest.mark.parametrize("with_mach", [True, False])
 def test_a_term_in_alpha_gives_way_to_one_in_alpha_and_mach_only_if_mach_fits_better_than_finer_knots(with_mach):
-    """Fresh seed 9,402,104: an A320 Cm dead band in alpha x Mach, 17.6 times its floor, was named "Cm vs
+    """Seed 9,402,104: an A320 Cm dead band in alpha x Mach, 17.6 times its floor, was named "Cm vs
     alpha_deg": smooth(alpha) removed 96.1 % of the residual, and smooth(alpha) x Mach could not enter
     beside it (1 % of the residual at least). As a rival it takes the term's place when the data prefer it
     by 5 standard errors to the term and to the term with twice its knots. For a dead band in alpha alone
@@ -614,7 +614,7 @@ def _alpha_and_mach(seed: int, effect) -> pd.DataFrame:
 
 def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condition_tell_them_apart():
     """Across trimmed conditions alpha falls as Mach rises, and a lift step in alpha entered the search as
-    linear(mach) (fresh seed 8,400,045: "CL vs mach" for a CL table in alpha, 18.7 times its floor). A term
+    linear(mach) (seed 8,400,045: "CL vs mach" for a CL table in alpha, 18.7 times its floor). A term
     in Mach alone has every candidate in alpha alone as a rival, a term in Mach and another variable the
     same term in alpha: the step in alpha, which the manoeuvres cross, is then named in alpha. A ramp in
     Mach keeps its name: no candidate in alpha fits it 3 standard errors better."""

@@ -36,7 +36,7 @@ def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path)
     assert acting and not acting & set(gear_up_logs), first["verdict"]["holdout_logs"]
 
 
-#: Development seeds of the random shapes: the benchmark reports on others (benchmarks/detection_curve.py).
+#: Seeds of the random shapes: the benchmark reports on others (benchmarks/detection_curve.py).
 #: None is a known miss: 904 (a 4-knot alpha table in Cm) passes since a condition whose removal leaves the
 #: terms unestimable no longer vetoes a cause; 900 (a gear x flap effect only the matrix's single flap-30
 #: condition sees) since a strong cause at one condition, 3 times its floor, is named unconfirmed.
@@ -51,7 +51,7 @@ def test_a_random_shape_ten_times_its_floor_is_named_first(tmp_path, seed):
 
 
 def test_a_drag_onset_with_flap_is_not_put_down_to_an_implausible_sideslip_vane_bias(tmp_path):
-    """Our 737 in 3 ft/s with CD 0.006 lower at flap 30, an onset above 20 deg (development seed
+    """Our 737 in 3 ft/s with CD 0.006 lower at flap 30, an onset above 20 deg (seed
     5,000,001 of the detection curve), beside a +0.047 ft/s^2 ax bias. The kinematics hardly measure the
     sideslip vane's bias in longitudinal manoeuvres (+- 10 deg); within 2 of those standard errors, a
     -19 deg bias, through the wind axes, made all of the drag change, and nothing was named. No
@@ -173,7 +173,7 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
 def test_extrapolation_cannot_refute_a_cause_ten_times_its_floor():
     """The Mach step of the test above with an F of 100: below 10 times its floor, the condition
     beyond the others' range still refutes it with the conditions left out in turn; from 10 times up
-    (a CD bump in Mach at 15 times the floor on development seed 3,600,091, x0.31 pooled for Mach
+    (a CD bump in Mach at 15 times the floor on seed 3,600,091, x0.31 pooled for Mach
     0.5 predicted from the two below, x2.7 at the Mach 0.3 the others bracket), it can only confirm
     it. The decision, each log left out, counts rows within the others' range alone: here Mach 0.4,
     predicted half the step, names it either way."""
@@ -187,11 +187,11 @@ def test_extrapolation_cannot_refute_a_cause_ten_times_its_floor():
 
 
 def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_its_floor():
-    """A lift step in Mach that only the one condition flown above it sees (development seed
+    """A lift step in Mach that only the one condition flown above it sees (seed
     3,600,045: CL +0.0127 from Mach 0.32, flown at 0.2, 0.3 and 0.5; F 6,500, 7.5 times its floor)
     is a discrepancy no other condition can confirm: named unconfirmed, not dismissed, when it is 3
     times its floor with an F of 1,000, or 10 times with an F of 60. A weak one (F 100 at 7.5 times, F 40
-    at 18 times: what one condition's turbulence left as a level, fresh null 8,700,158's F was 38) or a
+    at 18 times: what one condition's turbulence left as a level, null 8,700,158's F was 38) or a
     small one (twice the floor) is not."""
     import pandas as pd
 
@@ -223,7 +223,7 @@ def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_
     """The lift step of the test above, 18 times its floor at an F of 100 (the held-out rule's F of 300 not
     reached), its one condition above the step flown three times. When the three logs agree, each one left
     out is predicted by the other two: the cause is named. When the step
-    is one log's alone (one flight's turbulence: fresh null 8,700,158, an A320 drag in gear x flap at its
+    is one log's alone (one flight's turbulence: null 8,700,158, an A320 drag in gear x flap at its
     flap-15 condition, 18 times its floor, x0.876 with each log left out), each log left out is predicted
     worse with it than without: its repeats refute it, and it is not a discrepancy whose cause the data
     cannot confirm."""
@@ -283,8 +283,9 @@ def test_the_held_out_decision_is_the_replicate_gain_calibrated_on_nulls():
     """One decision on held-out data: each log left out in turn, predicted from the others, its own
     condition's repeats among them, at least REPLICATE_GAIN (x1.2, above the x1.164 the largest of
     the candidates of 300 simulated null flights without sensor errors reached). A line in Mach fitted
-    to the offsets of a few flights gains x1.11 with each condition left out, which the decision until
-    stop 43 (x1.05) took for a cause; with each log left out it gains x1.04, and is not named."""
+    to the offsets of a few flights gains x1.11 with each condition left out, which a decision by
+    conditions left out (at x1.05) would take for a cause; with each log left out it gains x1.04, and is
+    not named."""
     from diagnose.verdict import REPLICATE_GAIN
     assert REPLICATE_GAIN == 1.2
     v = _offsets(11)
@@ -293,14 +294,13 @@ def test_the_held_out_decision_is_the_replicate_gain_calibrated_on_nulls():
 
 
 def test_a_strong_candidate_only_held_out_data_reject_is_a_discrepancy_whose_cause_is_not_confirmed():
-    """Fresh seed 8,300,209: a Cm step in the elevator hidden in the stock 737, flown in 3 ft/s, removed
+    """Seed 8,300,209: a Cm step in the elevator hidden in the stock 737, flown in 3 ft/s, removed
     74 % of the Cm residual (F 482, 10.6 times its floor beyond instrument errors), but its shape did not
-    predict the logs left out (x0.98), and the answer was "No significant discrepancy". A candidate
-    that held-out data alone reject, with an F of HELD_OUT_F (300; the nulls' largest such was 73) and
-    3 times its floor (10 until stop 65), is a discrepancy, its cause not confirmed: named so, kept out
-    of the extension (fresh seed 8,400,252, a CL table in the elevator at F 358 and 5.8 times its floor,
-    was a miss at 10).
-    Below either bound it is rejected as before, and so is an instrument error's signature (fresh seed
+    predict the logs left out (x0.98). A candidate that held-out data alone reject, with an F of
+    HELD_OUT_F (300; the nulls' largest such was 73) and 3 times its floor, is a discrepancy, its cause
+    not confirmed: named so, kept out of the extension (seed 8,400,252, a CL table in the elevator at
+    F 358 and 5.8 times its floor, is one).
+    Below either bound it is rejected as before, and so is an instrument error's signature (seed
     8,400,184 named one so, and the benchmark took it for an aerodynamic discrepancy)."""
     from diagnose.verdict import HELD_OUT_F
     for over in (12.0, 3.5):
@@ -348,7 +348,7 @@ def _mach_cause(data, term, shape: str, f: float):
 
 
 def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
-    """A lift change at the one Mach number between the others flown (development seeds 3,800,066
+    """A lift change at the one Mach number between the others flown (seeds 3,800,066
     and 3,800,124: a table and a late onset in Mach on the A320, 3 and 18 times the floor, x1.03 and
     x1.004 with each condition left out, "no significant discrepancy") is named: each log,
     predicted from the others, its own condition's repeats among them, gains REPLICATE_GAIN, where
@@ -368,7 +368,7 @@ def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
 
 
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
-    """A random 8-knot table in Mach (development seed 3,000,041 of the detection curve: CL up to
+    """A random 8-knot table in Mach (seed 3,000,041 of the detection curve: CL up to
     0.009, 4.4 times the floor, 3 ft/s turbulence, our 737): Mach 0.2 and 0.5, each flown at one
     condition, were predicted by extrapolation and refuted it (x0.81 pooled); the answer was
     "no significant discrepancy"."""
@@ -455,7 +455,7 @@ def test_two_collinear_causes_that_cancel_gain_nothing_on_held_out_data():
 
 
 def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it():
-    """A drag dip in alpha on the stock 737 in 3 ft/s turbulence (development seed 3,000,174: 19 times
+    """A drag dip in alpha on the stock 737 in 3 ft/s turbulence (seed 3,000,174: 19 times
     the floor) was fitted by smooth(alpha) and then quadratic(CL), nearly the same variable: each
     cause, tested against the other, gained nothing on held-out data (x0.69 and x0.90) and the answer
     was "no significant discrepancy". The first to enter is also tested against the terms that entered
@@ -497,10 +497,10 @@ def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it
 
 
 def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
-    """CL changed by +0.0134 times a dip over alpha (development seed 3,000,203 of the detection curve, our 737, 3 ft/s
+    """CL changed by +0.0134 times a dip over alpha (seed 3,000,203 of the detection curve, our 737, 3 ft/s
     turbulence, 9 times the floor): fitted 3.5 times its floor beyond instrument errors, x1.31 on
-    held-out data pooled, but x0.69 at one condition left out, and that condition vetoed it. No
-    condition vetoes a cause now (stop 42): the pooled gain decides."""
+    held-out data pooled, but x0.69 at one condition left out. No single condition vetoes a cause: the
+    pooled gain decides."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
@@ -508,7 +508,7 @@ def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
 
 
 def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_path):
-    """A random 7-knot table in alpha times (Mach - 0.2) / 0.3 in Cm (development seed 3,600,081 of
+    """A random 7-knot table in alpha times (Mach - 0.2) / 0.3 in Cm (seed 3,600,081 of
     the detection curve: 5.7 times the floor, 3 ft/s, our 737). With no smooth term in alpha that
     varies with Mach among the candidates, it was named "Cm vs mach": the right coefficient, not
     the shape."""
@@ -521,12 +521,12 @@ def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_pat
 
 def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition_can_test(tmp_path):
     """Our 737 in 3 ft/s with CD up to +0.014 in a dip about Mach 0.34, beside an engine deck 6.1 % long
-    (reserved seed 2,000,083, 13 times its floor). The thrust scale was named at +0.056, and the rest of it
+    (seed 2,000,083, 13 times its floor). The thrust scale was named at +0.056, and the rest of it
     is largest in the one flap-30 condition, flown at Mach 0.2 on the most thrust over dynamic pressure:
     "CD vs flap" came 159 times its floor, "CD vs mach" 147 and x3.2 on held-out conditions. No other
     condition flies flap 30: only its repeats confirm the flap term, and it stands for whatever else sets
-    that condition apart. The cause the held-out conditions confirm is the answer. (Since stop 74 the fit
-    holds the highest-alpha condition, and the drag is named "CD vs mach, alpha_deg": Mach first.)"""
+    that condition apart. The cause the held-out conditions confirm is the answer: with the fit holding
+    the highest-alpha condition, the drag is named "CD vs mach, alpha_deg", Mach first."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     doc = diagnose_overlay(tmp_path, "drag_mach_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000083,
                            channels="[channels.thrust_lbf]\nscale = 1.0612165590313636\n")
@@ -539,7 +539,7 @@ def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition
 
 def test_a_cause_the_replacement_splits_in_two_is_named(tmp_path):
     """A monotone 7-knot table in alpha times (Mach - 0.2) / 0.3 in Cm, down to -0.013, in our 737's data
-    in 3 ft/s (reserved seed 2,000,126, 3.5 times its floor). The search chose smooth(alpha) and
+    in 3 ft/s (seed 2,000,126, 3.5 times its floor). The search chose smooth(alpha) and
     alpha x Mach: one cause. The sequential replacement put quadratic(Mach) in alpha x Mach's place,
     a closer fit with fewer columns, and the one cause became two, each too small to gain on held-out
     logs (x1.10 and x1.20, needing x1.2): nothing was named. A split is two claims, each to stand on
@@ -587,7 +587,7 @@ def test_a_cause_an_error_measured_and_left_uncorrected_makes_whole_is_that_erro
 
 
 def test_a_cause_a_vane_error_measured_whole_but_split_makes_is_that_error_whatever_is_left():
-    """Fresh null 9,200,256 (stock 737, 3 ft/s): a +0.282 deg vane bias was measured as +0.097 +- 0.12 deg and a
+    """Null 9,200,256 (stock 737, 3 ft/s): a +0.282 deg vane bias was measured as +0.097 +- 0.12 deg and a
     4.0 +- 2.1 % scale, each short of 2 standard errors, together 5.5 from none; the drag in alpha x Mach it made
     was named, 1.8 times its floor beyond what the errors within reach make. When the data compatibility measured
     a channel's errors together APPLY_Z standard errors from none, left them, and one of them alone makes 90 % of
@@ -641,7 +641,7 @@ def _transit(bump: float, seed: int):
 
 
 def test_a_cause_that_acts_during_the_gear_travel_alone_is_judged_where_it_departs():
-    """A lift bump during the gear's travel (development seeds 6,200,038 and 2,000,181: 6.6 and 7.2
+    """A lift bump during the gear's travel (seeds 6,200,038 and 2,000,181: 6.6 and 7.2
     times the floor, x1.16 and x1.08 with each log left out, "no significant discrepancy") acts in a
     fifth of each gear extension: counted over the whole log, its held-out gain is diluted below
     REPLICATE_GAIN. Counted where it departs from the model, it is DEPARTS_GAIN or more, and it is
@@ -817,7 +817,7 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
         tmp_path, monkeypatch, capsys):
     """The benchmark's table, and its merge of two runs: an effect the data hold less than 0.3 of the
     floor of is as good as a null, and another cause named there is counted (seed 8,250,020, a
-    development seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs flap, gear" and "CL vs mach,
+    seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs flap, gear" and "CL vs mach,
     alpha" named beside an elevator step the manoeuvres never reached)."""
     import sys
 
@@ -857,7 +857,7 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
 
 def test_the_a320_benchmark_matrix_crosses_its_alpha_gap_at_one_mach_number(tmp_path):
     """The A320's Mach 0.5 trims at 10,000 ft about 3 deg of alpha below its Mach 0.4; the benchmark's
-    sixth condition (stop 72), Mach 0.5 at the dynamic pressure of Mach 0.4 at 10,000 ft, trims within
+    sixth condition, Mach 0.5 at the dynamic pressure of Mach 0.4 at 10,000 ft, trims within
     0.3 deg of Mach 0.4's alpha on the A320 itself, so that an effect changing in that gap changes within
     one Mach number too."""
     import jsbsim
@@ -878,7 +878,7 @@ def test_a_cause_beside_one_that_fell_is_judged_on_the_fit_without_it():
     """The report fits each coefficient with its named causes' terms only, so a cause is judged on that
     fit: the terms of a cause that fell where another cause of its coefficient stands are dropped and the
     rest judged again (an A320 null's "CD vs alpha_deg", 15 times its floor beside a collinear "CD vs CL,
-    flap_deg" that fell, spanned 0.0076 where the CD residual spans 0.0014; fresh seed 9,402,865). A
+    flap_deg" that fell, spanned 0.0076 where the CD residual spans 0.0014; seed 9,402,865). A
     coefficient where nothing stands keeps its fit; an unconfirmed discrepancy stands; a split one of whose
     parts was dropped is read whole, as one whose part fell."""
     from diagnose.causes import Cause

@@ -48,7 +48,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                           "'flight-test' (50 Hz, no qdot, nose-boom vanes, noise, light turbulence)")
     rec.add_argument("--instruments", metavar="FILE",
                      help="instrument profile TOML (rate, omitted channels, turbulence, per-channel noise, "
-                          "bias, scale, lag, delay, position; see the README)")
+                          "bias, scale, lag, delay, position; see the user guide, docs/guide/instruments.md)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -158,7 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "and diagnose then read DIR like a campaign folder.")
     imp.add_argument("files", nargs="+", metavar="FILE", help="measured data files, one manoeuvre each")
     imp.add_argument("--map", required=True, metavar="MAP.toml", help="channel map: names, units, constants, "
-                                                                       "aircraft data (see the README)")
+                                                                       "aircraft data (see docs/guide/import.md)")
     imp.add_argument("--out", required=True, metavar="DIR", help="folder for the logs and the import report")
 
     pla = sub.add_parser("plan", help="design the flights that separate a diagnosis's rival explanations",

@@ -123,13 +123,12 @@ def _taken(held: set, conds: list, states: dict, spans: dict) -> tuple[int, int]
     Lost: values of altitude, Mach or flap that no fitted condition has and that lie outside the fitted
     range, and gear states. Blurred: Mach numbers and flap angles no fitted condition has inside its
     range (interpolated: a Mach bump at 0.4 is seen in held-out data only when both conditions at Mach
-    0.4 are held out, fresh 9,401,330, stop 72); each Mach number and flap angle the fit would fly at
-    the same conditions only while the data fly them apart (the A320's Mach 0.3 flown clean and with
-    flap 15, the clean one held out: a Mach step, 6.6 times its floor, was named "CD vs flap_deg", fresh
-    9,402,611); and each held-out condition whose median angle of attack lies outside what the fitted
-    logs fly (``spans``, from :func:`_span`; our 737's Mach 0.3 at 10,000 ft trims at 9.5 deg where the
-    rest fly up to 9.3: a Cm rise above 9 deg, 7.6 times its floor, had F 3 in the fit, fresh
-    9,402,558). Altitude enters the aerodynamics through Mach and the trim alone, and an inner one is
+    0.4 are held out); each Mach number and flap angle the fit would fly at the same conditions only
+    while the data fly them apart (the A320's Mach 0.3 flown clean and with flap 15, the clean one held
+    out: a Mach step fits as one in the flap angle); and each held-out condition whose median angle of
+    attack lies outside what the fitted logs fly (``spans``, from :func:`_span`; our 737's Mach 0.3 at
+    10,000 ft trims at 9.5 deg where the rest fly up to 9.3: a Cm rise above 9 deg is hardly in the
+    fit). Altitude enters the aerodynamics through Mach and the trim alone, and an inner one is
     not counted. With four conditions, one of them flap 15 and one the only Mach 0.4, every choice
     blurs or loses, and the first stays."""
     train = [c for c in conds if c not in held]

@@ -1,0 +1,307 @@
+"""The documentation's tables and figures, made from the benchmark results in ``benchmarks/results/``.
+
+    python benchmarks/tables.py            # write docs/generated/*.md, *.png and README.md's table
+    python benchmarks/tables.py --check    # exit 1 if README.md's table is not what the results give
+
+Every figure the documentation quotes comes from a file in ``benchmarks/results/`` (CSV or JSON), each
+holding the command that measured it and the commit and date of the code it measured; nothing here
+measures anything. ``mkdocs build`` runs :func:`write_docs` first (``docs/hooks.py``), so the site always shows
+the results as they are on disk; the README's validation table is written between two marker lines and
+checked by the tests (``tests/test_product_text.py``).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+GENERATED = ROOT / "docs" / "generated"
+README = ROOT / "README.md"
+BEGIN = "<!-- validation table: written by benchmarks/tables.py from benchmarks/results/, do not edit -->"
+END = "<!-- end of validation table -->"
+BANDS = ("0.3-1", "1-3", "3-10", "10 and more")
+
+
+def _json(name: str) -> dict:
+    return json.loads((RESULTS / name).read_text())
+
+
+def _csv(name: str) -> list[dict]:
+    with open(RESULTS / name, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _pct(k: int, n: int) -> str:
+    return f"{k} of {n} ({100 * k / n:.1f} %)" if n else "-"
+
+
+def _table(head: list[str], rows: list[list]) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _source(doc: dict) -> str:
+    """The provenance line under a table: the command, the commit and its date."""
+    commit = doc.get("code_commit") or doc.get("recorded_at_commit")
+    what = "code at commit" if "code_commit" in doc else "recorded at commit"
+    return (f"\n*Measured by `{doc['command']}`; {what} `{commit[:7]}` ({doc['date'][:10]}). "
+            f"Data: `benchmarks/results/`.*\n")
+
+
+def current_ranges() -> list[dict]:
+    """The detection-curve ranges flown at the decisions of the newest range measured."""
+    ranges = _csv("detection_curve_ranges.csv")
+    newest = max(ranges, key=lambda r: r["code_date"])
+    return [r for r in ranges if r["decisions_of"] == newest["decisions_of"]]
+
+
+def detection_headline() -> dict:
+    """Hits from 3 and from 10 times the floor and false positives over the current ranges."""
+    cur = current_ranges()
+    s = {k: sum(int(r[k]) for r in cur) for k in ("effects", "nulls", "false_positives", "effects_3_10",
+                                                  "hits_3_10", "effects_10_up", "hits_10_up")}
+    s["ranges"] = cur
+    return s
+
+
+def validation_table() -> str:
+    """The README's one table: what the tool has been validated on."""
+    d = detection_headline()
+    seeds = ", ".join(f"{int(r['seed_first']):,}-{int(r['seed_first']) + int(r['effects']) + int(r['nulls']) - 1:,}"
+                      for r in d["ranges"])
+    ident = _json("identification_accuracy.json")
+    ee = next(r for r in ident["rows"] if r["method"] == "equation error" and r["data"].startswith("flight-test"))
+    est = _json("estimators_flight_data.json")
+    attas = [r for r in est["rows"] if r["check"].startswith("ATTAS")]
+    hfb = [r for r in est["rows"] if r["check"].startswith("HFB")]
+    worst = lambda rows: max(abs(r["ours"] / r["published"] - 1) for r in rows) * 100  # noqa: E731
+    hit = _json("diagnosis_hit_rate.json")
+    sensor = next(c for c in hit["cases"] if c["case"].startswith("sensor faults"))
+    gain = _json("replay_gain.json")
+    share = [r["gain"] / r["truth_gain"] for r in gain["rows"]]
+    rows = [
+        ["Hidden effects the diagnosis was not built against, 10 times the noise floor or more: first cause right",
+         f"{d['effects']} random effects in our 737, the stock 737 and A320 (seeds {seeds})",
+         _pct(d["hits_10_up"], d["effects_10_up"]), "`benchmarks/detection_curve.py`"],
+        ["... 3 to 10 times the noise floor", "the same", _pct(d["hits_3_10"], d["effects_3_10"]),
+         "`benchmarks/detection_curve.py`"],
+        ["Null flights (no effect) that name a cause", f"{d['nulls']} nulls, the same aircraft",
+         f"{d['false_positives']} of {d['nulls']}", "`benchmarks/detection_curve.py`"],
+        ["Sensor faults named first, nothing aerodynamic invented", "our 737, 5 fault kinds x 4 seeds",
+         f"{sensor['count']} of {sensor['of']}", "`benchmarks/diagnosis_hit_rate.py`"],
+        ["Replay gain of the extension over the gain of the true model (1: the best any extension can do)",
+         f"{len(gain['rows'])} hidden-effect cases", f"{min(share):.2f} to {max(share):.2f}", "`benchmarks/replay_gain.py`"],
+        ["Derivatives by equation error in turbulence, RMS error against the XML", "97 2-3-1-1s, paper matrix",
+         f"CLalpha {ee['CLalpha']} %, Cmalpha {ee['Cmalpha']} %, Cmq {ee['Cmq']} %",
+         "`benchmarks/identification_accuracy.py --methods`"],
+        ["Output error on real flight data (ATTAS), against the published estimates", "2 elevator records",
+         f"within {worst(attas):.3f} %", "`tests/test_estimators.py`"],
+        ["Filter error on real flight data in turbulence (HFB-320)", "1 record",
+         f"within {worst(hfb):.1f} % (4 main derivatives)", "`tests/test_estimators.py`"],
+    ]
+    return _table(["what", "on", "result", "measured by"], rows)
+
+
+def detection_page() -> str:
+    """docs/generated/detection.md: the detection curve's tables."""
+    d = detection_headline()
+    bands = _csv("detection_curve_bands.csv")
+    cur = {r["seed_first"] for r in d["ranges"]}
+    out = ["The ranges flown at the present decisions, together:\n\n"]
+    rows = []
+    for b in BANDS:
+        sel = [r for r in bands if r["seed_first"] in cur and r["band"] == b]
+        e, h = sum(int(r["effects"]) for r in sel), sum(int(r["hits"]) for r in sel)
+        rows.append([b, e, h, f"{100 * h / e:.0f} %" if e else "-",
+                     sum(int(r["invented"]) for r in sel), sum(int(r["strong_rejected"]) for r in sel)])
+    out.append(_table(["size / floor", "effects", "hits", "hit rate", "invented causes",
+                       "strong candidates rejected"], rows))
+    out.append(f"\nFalse positives: {d['false_positives']} of {d['nulls']} null flights.\n")
+    first = d["ranges"][-1]
+    out.append(f"\n*Measured by `{first['command']}` (and the same for each range); code at commits "
+               + ", ".join(f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})" for r in d["ranges"])
+               + ". Data: `benchmarks/results/detection_curve_bands.csv`.*\n")
+    out.append("\n### Every range, at the code it was flown with\n\n")
+    rows = [[f"{int(r['seed_first']):,}", f"{r['effects']}, {r['nulls']}", r["conditions_per_case"],
+             r["shapes_drawn_on"], _pct(int(r["hits_3_10"]), int(r["effects_3_10"])),
+             _pct(int(r["hits_10_up"]), int(r["effects_10_up"])), r["false_positives"],
+             f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})"]
+            for r in _csv("detection_curve_ranges.csv")]
+    out.append(_table(["first seed", "effects, nulls", "conditions per case", "shapes drawn on", "3-10 x floor",
+                       "10 x floor and more", "false positives", "code"], rows))
+    out.append("\n*Data: `benchmarks/results/detection_curve_ranges.csv` (with the command of each range).*\n")
+    return "".join(out)
+
+
+def detection_figure(path: Path) -> None:
+    """Hit rate per size band: each range in grey, the present decisions' ranges together in black."""
+    from matplotlib.figure import Figure
+
+    bands = _csv("detection_curve_bands.csv")
+    cur = {r["seed_first"] for r in current_ranges()}
+    fig = Figure(figsize=(6.4, 3.6), dpi=110)
+    ax = fig.add_subplot()
+    x = range(len(BANDS))
+    for seed in dict.fromkeys(r["seed_first"] for r in bands):
+        sel = {r["band"]: r for r in bands if r["seed_first"] == seed}
+        ax.plot(x, [100 * int(sel[b]["hits"]) / int(sel[b]["effects"]) for b in BANDS], color="0.8", lw=1)
+    tot = [(sum(int(r["hits"]) for r in bands if r["seed_first"] in cur and r["band"] == b),
+            sum(int(r["effects"]) for r in bands if r["seed_first"] in cur and r["band"] == b)) for b in BANDS]
+    ax.plot(x, [100 * h / e for h, e in tot], "o-", color="k", lw=2, label="present decisions")
+    ax.plot([], [], color="0.8", lw=1, label="each range at its code")
+    ax.set_xticks(list(x), [f"{b} x" for b in BANDS])
+    ax.set_xlabel("size of the hidden effect / noise floor")
+    ax.set_ylabel("first cause right [%]")
+    ax.set_ylim(0, 102)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", frameon=False)
+    fig.subplots_adjust(left=0.11, right=0.98, top=0.96, bottom=0.16)
+    fig.savefig(path)
+
+
+def methods_page() -> str:
+    doc = _json("identification_accuracy.json")
+    cols = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
+    rows = [[r["data"], r["method"], *[r[c] for c in cols], r["s_per_point"]] for r in doc["rows"]]
+    out = _table(["data", "method", *cols, "s / point"], rows) + _source(doc)
+    out += f"\n{doc['setup']}. {doc['caveat'][0].upper() + doc['caveat'][1:]}.\n"
+    out += "\nShare of estimates within 3 coloured standard errors of the XML, flight-test profile: " + ", ".join(
+        f"{k} {v}" for k, v in doc["within_3_coloured_se"].items()) + ".\n"
+    return out
+
+
+def estimators_page() -> str:
+    doc = _json("estimators_flight_data.json")
+    rows = [[r["check"], r["parameter"], r["published"], r["ours"], f"{100 * (r['ours'] / r['published'] - 1):+.3g} %"]
+            for r in doc["rows"]]
+    return (_table(["record, method", "parameter", "published", "ours", "difference"], rows) + _source(doc)
+            + "".join(f"\n- {n}." for n in doc["notes"]) + "\n")
+
+
+def hit_rate_page() -> str:
+    doc = _json("diagnosis_hit_rate.json")
+    out = _table(["case", "result", ""], [[c["case"], f"{c['count']} of {c['of']}", c["detail"]] for c in doc["cases"]])
+    out += _source(doc) + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n"
+    fl = doc["detection_floors"]
+    out += f"\nDetection floors ({fl['setup']}): " + ", ".join(f"{s['error']} {s['floor']}" for s in fl["sensor"])
+    out += "; hidden aerodynamic effects down to " + ", ".join(
+        f"{a['floor']} ({a['family']})" for a in fl["aero_times_drawn_size"]) + " times their drawn size.\n"
+    return out
+
+
+def replay_gain_page() -> str:
+    doc = _json("replay_gain.json")
+    rows = [[r["effect"], r["size_over_floor"], r["moved_most"], f"x{r['gain']:.3g}", f"x{r['truth_gain']:.3g}"]
+            for r in doc["rows"]]
+    return (_table(["hidden effect", "size / floor", "moved most", "gain", "the truth's gain"], rows)
+            + _source(doc) + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n")
+
+
+def multisine_page() -> str:
+    doc = _json("multisine_information.json")
+    rows = [[r["derivative"], f"{r['predicted'][0]}-{r['predicted'][1]}", f"{r['realized'][0]}-{r['realized'][1]}"]
+            for r in doc["rows"]]
+    return (_table(["derivative", "predicted", "realized"], rows) + _source(doc)
+            + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n")
+
+
+def plan_page() -> str:
+    p, t = _json("plan_separation.json"), _json("turn_airspeed.json")
+    r = p["results"]
+    out = _table(["", ""], [
+        ["cases", r["cases"]], ["an open rival before the plan", r["open_rival_before"]],
+        ["the rival's separation before [standard errors]", f"{r['rival_separation_before_se'][0]} to {r['rival_separation_before_se'][1]}"],
+        ["the plan", r["plan"]], ["right cause first after", f"{r['right_cause_first_after']} of {r['open_rival_before']}"],
+        ["rival settled after (5 standard errors)", f"{r['settled_after']} of {r['open_rival_before']}"],
+        ["separation after [standard errors]", f"{r['separation_after_se'][0]} to {r['separation_after_se'][1]}"],
+        ["planned separation [standard errors]", f"{r['planned_se'][0]} to {r['planned_se'][1]}"],
+        ["measured / planned", f"{r['measured_over_planned'][0]} to {r['measured_over_planned'][1]} "
+                               f"(mean {r['measured_over_planned_mean']})"]])
+    out += _source(p) + f"\n{p['setup'][0].upper() + p['setup'][1:]}.\n"
+    tr = t["results"]
+    out += (f"\n**Airspeed error from a level turn.** {t['setup'][0].upper() + t['setup'][1:]}. With no error hidden "
+            f"({tr['null_seeds']} seeds) the error came out between {tr['null_error_kt'][0]} and +{tr['null_error_kt'][1]} kt, "
+            f"at {tr['null_z'][0]} to +{tr['null_z'][1]} standard errors (RMS {tr['null_z_rms']}: the standard error is "
+            f"about that much too small); with a 3 % scale hidden it came out {tr['scale_3pct_error_from_truth_kt'][0]} to "
+            f"{tr['scale_3pct_error_from_truth_kt'][1]} kt from the truth.\n" + _source(t))
+    return out
+
+
+def speed_page() -> str:
+    s = _json("speed.json")
+    rows = [[r["stage"], r["jobs_1_s"], r["jobs_2_s"], f"x{r['jobs_1_s'] / r['jobs_2_s']:.2f}", r["main_peak_mb"],
+             r["worker_peak_mb"], r["worker_uss_mb"]] for r in s["stages"]]
+    out = _table(["stage (paper matrix, flight-test profile)", "1 job [s]", "2 jobs [s]", "speed-up",
+                  "main peak [MB]", "worker peak [MB]", "worker USS [MB]"], rows) + _source(s)
+    out += f"\n{s['setup'][0].upper() + s['setup'][1:]}. {s['caveat'][0].upper() + s['caveat'][1:]}.\n"
+    x = s["scaled_10x"]
+    out += f"\n**Ten times the points** ({x['setup']}; `{x['command']}`):\n\n" + _table(
+        ["seed", "fly [s]", "identify [s]", "fly per point [ms]"],
+        [[r["seed"], r["fly_s"], r["identify_s"], r["fly_per_point_ms"]] for r in x["rows"]])
+    c = _json("scale_identify.json")
+    r = c["results"]
+    out += (f"\n**A hundred times the points** ({c['setup']}): flying {r['fly_s']} s ({r['fly_per_point_ms']} ms a "
+            f"point; {r['points_flown']:,} flew, {r['points_failed']} failed: {r['failed_because']}); identification "
+            f"{r['identify_s']} s, main process peak {r['identify_main_peak_mb'][0]}-{r['identify_main_peak_mb'][1]} MB.\n"
+            + _source(c))
+    rs = _json("report_speed.json")
+    out += "\n**The HTML report**: " + "; ".join(f"{r['folder']}: {r['size_mb']} MB written in {r['write_s']} s"
+                                                for r in rs["rows"]) + ".\n" + _source(rs)
+    return out
+
+
+PAGES = {"validation-summary.md": validation_table, "detection.md": detection_page, "methods.md": methods_page,
+         "estimators.md": estimators_page, "hit-rate.md": hit_rate_page, "replay-gain.md": replay_gain_page,
+         "multisine.md": multisine_page, "plan.md": plan_page, "speed.md": speed_page}
+
+
+def readme_with_table(text: str) -> str:
+    """README.md's text with the validation table between its markers replaced by the results'."""
+    head, sep, rest = text.partition(BEGIN)
+    if not sep or END not in rest:
+        raise SystemExit(f"{README}: the validation table's marker lines are missing")
+    return head + BEGIN + "\n" + validation_table() + rest[rest.index(END):]
+
+
+def write_docs() -> None:
+    """docs/generated/: every page of :data:`PAGES` and the detection figure (written only when changed)."""
+    GENERATED.mkdir(parents=True, exist_ok=True)
+    for name, make in PAGES.items():
+        path = GENERATED / name
+        text = make()
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+    detection_figure(GENERATED / "detection.png")
+
+
+def write() -> None:
+    """docs/generated/ and README.md's validation table."""
+    write_docs()
+    text = README.read_text()
+    new = readme_with_table(text)
+    if new != text:
+        README.write_text(new)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="only check that README.md's table is up to date")
+    args = ap.parse_args(argv)
+    if args.check:
+        text = README.read_text()
+        if readme_with_table(text) != text:
+            print(f"{README}: the validation table differs from benchmarks/results/ "
+                  "(run python benchmarks/tables.py)", file=sys.stderr)
+            return 1
+        return 0
+    write()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,46 @@
+"""MkDocs hooks: before each build, the pages made from data.
+
+- ``docs/generated/*.md`` and ``*.png``: the benchmark results' tables and figures
+  (:mod:`benchmarks.tables`, from ``benchmarks/results/``);
+- ``docs/generated/cli.md``: every subcommand's ``--help``, from the command line's own parser.
+"""
+from __future__ import annotations
+
+import importlib.util
+import io
+import os
+import sys
+from contextlib import redirect_stdout
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tables():
+    spec = importlib.util.spec_from_file_location("tables", ROOT / "benchmarks" / "tables.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def cli_reference() -> str:
+    """``campaign --help`` and each subcommand's, as the parser prints them."""
+    sys.path.insert(0, str(ROOT))
+    from campaign.cli.main import build_parser
+
+    os.environ["COLUMNS"] = "100"
+    parser = build_parser()
+    out = ["```\n" + parser.format_help() + "```\n"]
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for name, p in sub.choices.items():
+        out.append(f"\n## campaign {name}\n\n```\n{p.format_help()}```\n")
+    return "".join(out)
+
+
+def on_pre_build(config, **kwargs) -> None:
+    tables = _tables()
+    tables.write_docs()
+    path = tables.GENERATED / "cli.md"
+    text = cli_reference()
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
