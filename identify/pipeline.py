@@ -316,16 +316,18 @@ def _plots(ident: Identification, out: Path, which: str, jobs: int = 1) -> dict[
 
 
 def _draw(kind: str, args: tuple, path: Path) -> None:
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
+    from identify import plots
     from identify.figures import emptied_axes
-    from identify.plots import FIT_SIZE, fit_axes, plot_alpha_transitions, plot_fit, plot_increments
     if kind == "fit":  # drawn for every point: on one figure per process
-        plot_fit(*args, axes=emptied_axes("fit", FIT_SIZE, fit_axes)).savefig(path, dpi=110)
+        plots.plot_fit(*args, axes=emptied_axes("fit", plots.FIT_SIZE, plots.fit_axes)).savefig(path, dpi=110)
         return
-    fig = {"alpha_during_gear_transitions": plot_alpha_transitions, "gear_increments": plot_increments}[kind](*args)
+    if kind == "alpha_during_gear_transitions":
+        fig = plots.plot_alpha_transitions(*args, ax=plots.alpha_axes(Figure(figsize=plots.ALPHA_SIZE)))
+    else:
+        fig = plots.plot_increments(*args, axes=plots.increments_axes(Figure(figsize=plots.INCREMENTS_SIZE)))
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,

@@ -11,17 +11,13 @@ import hashlib
 import json
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from campaign.errors import UserError  # noqa: E402
-from campaign.orchestration.store import atomic_write, clean_temporaries, read_log  # noqa: E402
-from identify.figures import emptied_axes  # noqa: E402
-from infra.pool import pmap  # noqa: E402
+from campaign.errors import UserError
+from campaign.orchestration.store import atomic_write, clean_temporaries, read_log
+from identify.figures import emptied_axes, new_figure
+from infra.pool import pmap
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
             ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
@@ -123,7 +119,7 @@ def plot_case(replays: dict, case: str, loop: str, axes=None, bands: dict | None
     bands = bands or {}
     ref = replays[(case, "reference", loop)]
     if axes is None:
-        axes = _case_axes(plt.figure(figsize=FIGSIZE))
+        axes = _case_axes(new_figure(FIGSIZE))
     fig = axes[0][0].figure
     g = ref.gear_norm.to_numpy()
     moving = np.flatnonzero(np.diff(g) != 0)

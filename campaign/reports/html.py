@@ -75,11 +75,9 @@ def png(path: Path, alt: str, caption: str = "") -> str:
 
 
 def svg(fig, caption: str = "") -> str:
-    """A matplotlib figure as inline SVG (the figure is closed)."""
-    import matplotlib.pyplot as plt
+    """A matplotlib figure as inline SVG."""
     buf = io.StringIO()
     fig.savefig(buf, format="svg", bbox_inches="tight")
-    plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg"):]
     cap = f"<figcaption>{escape(caption)}</figcaption>" if caption else ""

@@ -27,10 +27,9 @@ REPORT = "report.html"
 
 
 def _coverage_figure(man: dict) -> str:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(9.0, 4.2))
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(9.0, 4.2))
+    ax = fig.subplots()
     flaps: dict = {}
     failed = []
     for p in man["points"]:
