@@ -167,6 +167,8 @@ class DiagnosisResult:
         return Path(e) if e else None
 
     def to_dict(self) -> dict:
+        """``diagnosis.json``: the tool, the verdict, the causes, unconfirmed and rejected candidates with
+        their evidence, the noise, the data compatibility, the rivals, the extension, the gain, the data."""
         return self.document
 
     def summary(self) -> str:
@@ -197,10 +199,12 @@ class PlanResult:
         return Path(m) if m else None
 
     def to_dict(self) -> dict:
+        """``plan.json``: the tool, the budget [min], each rival's separation now and planned [standard
+        errors], the flights chosen [min] and the matrix."""
         return self.document
 
     def summary(self) -> str:
-        """``plan.txt``."""
+        """``plan.txt``: the rivals, the flights chosen and how to fly them."""
         return (self.folder / "plan.txt").read_text()
 
 
@@ -224,6 +228,7 @@ class ReportResult:
     first_page: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
+        """``path``, ``kind`` and ``summary`` (the first page's rows; margins [%] of each tolerance)."""
         return {"path": str(self.path), "kind": self.kind, "summary": self.first_page}
 
     def summary(self) -> str:

@@ -37,10 +37,10 @@ def _jobs(text: str) -> int:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
     p.add_argument("--aircraft", metavar="DIR",
-                   help="JSBSim aircraft folder holding DIR/<name>.xml (default: aircraft/737)")
+                   help="JSBSim aircraft folder holding DIR/<name>.xml (default: the shipped 737-800)")
     p.add_argument("--effects", metavar="FILE",
                    help="effect overlay XML, or 'none' for the bare model "
-                        "(default: aircraft/737/effects/reference.xml, the 'real aeroplane')")
+                        "(default: the shipped 737-800's effects/reference.xml, the 'real aeroplane')")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--noise", choices=shipped(), default=None,
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
     run.add_argument("--no-replay", action="store_true", help="fly and identify, but no replays")
-    run.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
+    run.add_argument("--cases", metavar="FILE", help="replay cases TOML (default: the five shipped cases)")
 
     ident = sub.add_parser("identify", help="identify the aerodynamic models from a campaign's logs",
                            description="Eq. (1) coefficients, eq. (3) fits per 2-3-1-1, linear (eq. 4) and "
@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "metrics and plots into RESULTS_DIR/replays.")
     rep.add_argument("results", metavar="RESULTS_DIR", help="campaign folder, already identified")
     rep.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
-    rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
+    rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default: the five shipped cases)")
     rep.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     rep.add_argument("--cluster", metavar="tcp://HOST:PORT",
                      help="fly the replays on the Dask cluster whose scheduler is there")
