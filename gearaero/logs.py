@@ -82,7 +82,8 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
     b_ft : float
         Wing span [ft]; 0 by default.
     thrust_z_arm_ft : float
-        Height of the CG above the thrust line [ft] (the thrust's pitching-moment arm); 0 by default.
+        Height of the thrust line above the CG [ft] (negative below it: the thrust's pitching-moment
+        arm, moment -thrust_z_arm_ft * thrust_lbf); 0 by default.
     cg_x_in, cg_z_in, aerorp_x_in, aerorp_z_in : float, optional
         CG and aerodynamic reference point, structural frame [in]; without them the moments are
         taken about the CG.
