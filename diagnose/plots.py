@@ -6,20 +6,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from diagnose.residuals import COEFFS  # noqa: E402
-from diagnose.result import Diagnosis  # noqa: E402
-from identify.figures import emptied_axes  # noqa: E402
+from diagnose.residuals import COEFFS
+from diagnose.result import Diagnosis
+from identify.figures import emptied_axes, new_figure
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
 RESPONSE_CHANNELS = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
                      ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
-RESPONSE_SIZE, HISTORY_SIZE = (10, 11), (10, 7)  # [in]
+RESPONSE_SIZE, HISTORY_SIZE, RESIDUALS_SIZE = (10, 11), (10, 7), (15, 4.5)  # [in]
+
+
+def residuals_axes(fig):
+    """The axes of :func:`plot_residuals` on ``fig``."""
+    axes = fig.subplots(1, 3)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.12, top=0.9, wspace=0.28)
+    return axes
 
 
 def response_axes(fig):
@@ -37,10 +41,21 @@ def history_axes(fig):
 
 
 def plot_residuals(diag: Diagnosis, axes=None):
-    """Residual of each coefficient against the variable of its first cause, with the fit."""
+    """Residual of each coefficient against the variable of its first cause, with the fit.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+        The diagnosis (:func:`diagnose.diagnosis.diagnose`).
+    axes : array of 3 Axes, optional
+        Where to draw (CL, CD, Cm); a new pyplot figure of :data:`RESIDUALS_SIZE` if None.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     if axes is None:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.12, top=0.9, wspace=0.28)
+        axes = residuals_axes(new_figure(RESIDUALS_SIZE))
     d = diag.data
     first = {}
     for cause in diag.causes:
@@ -63,10 +78,27 @@ def plot_residuals(diag: Diagnosis, axes=None):
 
 def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None,
                   band: dict | None = None):
-    """Measured response against the model (and the extended model), same inputs and start;
-    ``band`` (channel -> (t_s, lo, hi)) shades the extended model's Monte Carlo band."""
+    """Measured response against the model (and the extended model), same inputs and start.
+
+    Parameters
+    ----------
+    data, before : DataFrame
+        The measured log and the model's replay of it (``t_s`` [s] and the channels of
+        :data:`RESPONSE_CHANNELS`, units in their names).
+    after : DataFrame or None
+        The extended model's replay.
+    title : str
+    axes : array of 5 Axes, optional
+        Where to draw (:func:`response_axes`); a new pyplot figure of :data:`RESPONSE_SIZE` if None.
+    band : dict, optional
+        Channel -> (t_s, lo, hi): the extended model's Monte Carlo band, shaded.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     if axes is None:
-        axes = response_axes(plt.figure(figsize=RESPONSE_SIZE))
+        axes = response_axes(new_figure(RESPONSE_SIZE))
     for ax, (ch, label) in zip(axes, RESPONSE_CHANNELS):
         if band and ch in band:
             t, lo, hi = band[ch]
@@ -84,9 +116,24 @@ def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame 
 
 
 def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None):
-    """Residual time histories of a held-out log, before and after the extension."""
+    """Residual time histories of a held-out log, before and after the extension.
+
+    Parameters
+    ----------
+    log_frame : DataFrame
+        The model's residual data of the log (``t_s`` [s], ``r_CL``, ``r_CD``, ``r_Cm`` [-]).
+    after : DataFrame or None
+        The extended model's residual data of the same log.
+    title : str
+    axes : array of 3 Axes, optional
+        Where to draw (:func:`history_axes`); a new pyplot figure of :data:`HISTORY_SIZE` if None.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     if axes is None:
-        axes = history_axes(plt.figure(figsize=HISTORY_SIZE))
+        axes = history_axes(new_figure(HISTORY_SIZE))
     for ax, c in zip(axes, COEFFS):
         ax.plot(log_frame.t_s, log_frame[f"r_{c}"], "r-", lw=1, label="model")
         if after is not None:
@@ -103,9 +150,8 @@ def plot_residual_history(log_frame: pd.DataFrame, after: pd.DataFrame | None, t
 def save_overview(diag: Diagnosis, folder: Path) -> None:
     """``residuals_vs_cause.png`` in ``folder``: the residuals of each coefficient against its first
     cause's variable."""
-    fig = plot_residuals(diag)
+    fig = plot_residuals(diag, axes=residuals_axes(Figure(figsize=RESIDUALS_SIZE)))
     fig.savefig(folder / "residuals_vs_cause.png", dpi=100)
-    plt.close(fig)
 
 
 def save_log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from diagnose.result import Diagnosis
+from infra.provenance import tool
 
 
 def document(diag: Diagnosis, data: dict, model: str) -> dict:
@@ -15,7 +16,7 @@ def document(diag: Diagnosis, data: dict, model: str) -> dict:
     model : str
         The model aircraft folder.
     """
-    return {"discrepancy": diag.discrepancy,
+    return {"tool": tool(), "discrepancy": diag.discrepancy,
             "verdict": ("discrepancy" if diag.causes else "discrepancy, cause not confirmed" if diag.discrepancy
                         else "no significant discrepancy"),
             "causes": [c.to_dict() for c in diag.causes],

@@ -12,6 +12,21 @@ from matplotlib.figure import Figure
 _made: dict = {}  # (name, figsize) -> axes, in this process
 
 
+def new_figure(figsize: tuple[float, float]):
+    """A new pyplot figure, for a plotting function called without ``ax=``: it belongs to the
+    caller's backend (a notebook's inline one, a window, Agg where there is no display), which
+    this package never chooses. The files the package writes are drawn on figures of their own
+    (:func:`emptied_axes`, ``matplotlib.figure.Figure``), outside pyplot.
+
+    Parameters
+    ----------
+    figsize : tuple of float
+        Width and height [in].
+    """
+    import matplotlib.pyplot as plt
+    return plt.figure(figsize=figsize)
+
+
 def emptied_axes(name: str, figsize: tuple[float, float], layout: Callable[[Figure], np.ndarray]) -> np.ndarray:
     """This process's axes for figure ``name``, without the artists of their last use.
 

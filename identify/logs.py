@@ -149,6 +149,28 @@ def _derive(meta: dict, df: pd.DataFrame) -> dict:
     return meta
 
 
+def checked(path: str, data: pd.DataFrame, meta: dict) -> Log:
+    """A log made in memory, checked as a file's would be: metadata fields, schema columns, finite
+    and plausible values (:data:`REQUIRED_META`, :data:`REQUIRED_COLUMNS`, :data:`PLAUSIBLE`).
+
+    Parameters
+    ----------
+    path : str
+        What names the log in messages and results (a file name, or a label).
+    data : DataFrame
+        Columns of the log schema, units in their names.
+    meta : dict
+        The metadata (:data:`REQUIRED_META` and what else the log's file would hold).
+
+    Raises
+    ------
+    LogError
+        One line naming the log, and the field, column and row.
+    """
+    _validate(path, data, meta)
+    return Log(path, data.astype({c: float for c in REQUIRED_COLUMNS}), _derive(meta, data))
+
+
 def read_table(path: str | Path):
     """One Parquet file as a ``pyarrow.Table`` (without ``pq.read_table``'s dataset discovery,
     which takes longer than the read of a log)."""

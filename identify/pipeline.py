@@ -19,6 +19,7 @@ from identify.compat import CompatResult, estimate
 from identify.export import merge_into_aircraft, write_effects
 from identify.logs import Log, LogError, LogHead, read_heads
 from infra.model import folder_hash
+from infra.provenance import tool
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
@@ -251,6 +252,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
                          **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
+        "tool": tool(),
         "method": ident.method,
         "points": _LATER[0],
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
@@ -316,16 +318,18 @@ def _plots(ident: Identification, out: Path, which: str, jobs: int = 1) -> dict[
 
 
 def _draw(kind: str, args: tuple, path: Path) -> None:
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
+    from identify import plots
     from identify.figures import emptied_axes
-    from identify.plots import FIT_SIZE, fit_axes, plot_alpha_transitions, plot_fit, plot_increments
     if kind == "fit":  # drawn for every point: on one figure per process
-        plot_fit(*args, axes=emptied_axes("fit", FIT_SIZE, fit_axes)).savefig(path, dpi=110)
+        plots.plot_fit(*args, axes=emptied_axes("fit", plots.FIT_SIZE, plots.fit_axes)).savefig(path, dpi=110)
         return
-    fig = {"alpha_during_gear_transitions": plot_alpha_transitions, "gear_increments": plot_increments}[kind](*args)
+    if kind == "alpha_during_gear_transitions":
+        fig = plots.plot_alpha_transitions(*args, ax=plots.alpha_axes(Figure(figsize=plots.ALPHA_SIZE)))
+    else:
+        fig = plots.plot_increments(*args, axes=plots.increments_axes(Figure(figsize=plots.INCREMENTS_SIZE)))
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
@@ -337,11 +341,7 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
     mixture.
     """
     results = Path(results)
-    final = (Path(out) if out else results / "identification").resolve()
-    recover(final)
-    if final.exists() and (not final.is_dir() or (any(final.iterdir())
-                                                  and not (final / "identification.json").exists())):
-        raise LogError(f"{final}: exists and holds no identification; will not overwrite (choose another --out)")
+    final = _writable((Path(out) if out else results / "identification").resolve())
     logs = read_heads(results)
     if not logs:
         raise LogError(f"{results}: no logs of flown points to identify from")
@@ -349,13 +349,38 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
-    stamp = source_stamp(results, model_dir, plots, method)
+    return identify_into(logs, final, model_dir, plots, jobs, method, source_stamp(results, model_dir, plots, method))[0]
+
+
+def _writable(final: Path) -> Path:
+    """``final``, once what a killed identification left there is undone, if it may be (re)written."""
+    recover(final)
+    if final.exists() and (not final.is_dir() or (any(final.iterdir())
+                                                  and not (final / "identification.json").exists())):
+        raise LogError(f"{final}: exists and holds no identification; will not overwrite (choose another --out)")
+    return final
+
+
+def identify_into(logs: list[Log | LogHead], out: Path, model_dir: str | Path | None = None, plots: str = "paper",
+                  jobs: int = 1, method: str = "ee", stamp: dict | None = None) -> tuple[dict[str, str], Identification]:
+    """:func:`identify_logs` and :func:`write_outputs` into ``out``, written into a staging folder beside
+    it and swapped in when complete (a killed identification leaves the previous results, never a
+    mixture); ``stamp`` (:func:`source_stamp`) is kept beside them as ``source.json``.
+
+    Returns
+    -------
+    files : dict
+        What was written, by kind (``json``, ``summary``, ``xml_linear``...), as paths in ``out``.
+    identification : Identification
+    """
+    final = _writable(Path(out).resolve())
     ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS), method=method)
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
-    (stage / SOURCE).write_text(json.dumps(stamp, indent=1) + "\n")
+    if stamp is not None:
+        (stage / SOURCE).write_text(json.dumps(stamp, indent=1) + "\n")
     _swap(stage, final)
-    return {k: str(final / Path(v).relative_to(stage)) for k, v in files.items()}
+    return {k: str(final / Path(v).relative_to(stage)) for k, v in files.items()}, ident
 
 
 #: What an identification was made from (:func:`source_stamp`), in its folder.
@@ -364,14 +389,15 @@ SOURCE = "source.json"
 
 def source_stamp(results: Path, model_dir: str | Path | None, plots: str, method: str) -> dict:
     """What an identification of ``results`` depends on: the SHA-256 of the campaign's manifest and of
-    every log file beside it (names and bytes), of the model folder merged into, and the options.
-    Paths are left out: a copy of the folder has the same stamp."""
+    every log file beside it (names and bytes), of the model folder merged into, the options and the
+    tool's version (another version identifies again). Paths are left out: a copy of the folder has
+    the same stamp."""
     h = hashlib.sha256()
     for f in sorted(p for p in Path(results).iterdir() if p.is_file() and (p.name == "manifest.json"
                                                                             or p.suffix in LOG_SUFFIXES)):
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
     model = folder_hash(Path(model_dir)) if model_dir is not None and Path(model_dir).is_dir() else None
-    return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method}
+    return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method, "tool": tool()}
 
 
 #: The files of a campaign folder an identification reads.

@@ -4,15 +4,15 @@ Fixed margins rather than a layout engine: constrained layout took half of their
 from __future__ import annotations
 
 import matplotlib
+import numpy as np
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from identify.models import COEFFS, Increments, PointFit  # noqa: E402
+from identify.figures import new_figure
+from identify.models import COEFFS, Increments, PointFit
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$"}
-FIT_SIZE = (12, 8)  # [in]
+FIT_SIZE, ALPHA_SIZE, INCREMENTS_SIZE = (12, 8), (8, 5), (15, 4.5)  # [in]
 
 
 def fit_axes(fig):
@@ -22,18 +22,38 @@ def fit_axes(fig):
     return axes
 
 
+def alpha_axes(fig):
+    """The axes of :func:`plot_alpha_transitions` on ``fig``."""
+    ax = fig.subplots()
+    fig.subplots_adjust(left=0.1, right=0.97, bottom=0.12, top=0.92)
+    return ax
+
+
+def increments_axes(fig):
+    """The axes of :func:`plot_increments` on ``fig``."""
+    axes = fig.subplots(1, 3)
+    fig.subplots_adjust(left=0.06, right=0.94, bottom=0.13, top=0.88, wspace=0.3)
+    return axes
+
+
 def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
     """Measured vs fitted coefficients and residuals of one 2-3-1-1 (Figs. 6-9).
 
     Parameters
     ----------
     fit : PointFit
+        A per-point fit that kept its series (``identify_logs(..., series=...)``).
     t_s : ndarray
         Time of the samples [s].
     axes : array of 3x2 Axes, optional
+        Where to draw (:func:`fit_axes`); a new pyplot figure of :data:`FIT_SIZE` if None.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
     if axes is None:
-        axes = fit_axes(plt.figure(figsize=FIT_SIZE))
+        axes = fit_axes(new_figure(FIT_SIZE))
     fig = axes[0][0].figure
     for i, c in enumerate(COEFFS):
         res = fit.fits[c]
@@ -53,18 +73,29 @@ def plot_fit(fit: PointFit, t_s: np.ndarray, axes=None):
 
 
 def plot_alpha_transitions(incs: list[Increments], ax=None):
-    """Angle of attack against normalized gear position during the extensions (Fig. 11)."""
+    """Angle of attack against normalized gear position during the transitions (Fig. 11).
+
+    Parameters
+    ----------
+    incs : list of Increments
+        The gear increments of each transition (``Identification.increments``).
+    ax : Axes, optional
+        Where to draw; a new pyplot figure of :data:`ALPHA_SIZE` if None.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     if ax is None:
-        fig, ax = plt.subplots(figsize=(8, 5))
-        fig.subplots_adjust(left=0.1, right=0.97, bottom=0.12, top=0.92)
-    cmap = plt.get_cmap("viridis")
+        ax = alpha_axes(new_figure(ALPHA_SIZE))
+    cmap = matplotlib.colormaps["viridis"]
     trims = np.array([i.alpha_trim_deg for i in incs])
     lo, hi = trims.min(), max(trims.max(), trims.min() + 1e-9)
     for inc in incs:
         moving = (inc.gear_norm > 0.0) & (inc.gear_norm < 1.0)
         ax.plot(inc.gear_norm[moving], inc.alpha_deg[moving] - inc.alpha_trim_deg, lw=0.8,
                 color=cmap((inc.alpha_trim_deg - lo) / (hi - lo)))
-    ax.figure.colorbar(plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi)), ax=ax,
+    ax.figure.colorbar(ScalarMappable(cmap=cmap, norm=Normalize(lo, hi)), ax=ax,
                        label=r"trim $\alpha$ [deg]")
     ax.set_xlabel(r"normalized gear position $\delta_{LG}$ [-]")
     ax.set_ylabel(r"$\alpha - \alpha_{trim}$ [deg]")
@@ -74,11 +105,22 @@ def plot_alpha_transitions(incs: list[Increments], ax=None):
 
 
 def plot_increments(incs: list[Increments], axes=None):
-    """Gear increments of CL, CD, Cm against delta_LG at each point (Fig. 12)."""
+    """Gear increments of CL, CD, Cm against delta_LG at each point (Fig. 12).
+
+    Parameters
+    ----------
+    incs : list of Increments
+        The gear increments of each transition (``Identification.increments``).
+    axes : array of 3 Axes, optional
+        Where to draw (CL, CD, Cm); a new pyplot figure of :data:`INCREMENTS_SIZE` if None.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     if axes is None:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-        fig.subplots_adjust(left=0.06, right=0.94, bottom=0.13, top=0.88, wspace=0.3)
-    cmap = plt.get_cmap("viridis")
+        axes = increments_axes(new_figure(INCREMENTS_SIZE))
+    cmap = matplotlib.colormaps["viridis"]
     alphas = np.array([i.alpha_trim_deg for i in incs])
     lo, hi = (alphas.min(), alphas.max()) if len(alphas) else (0, 1)
     for inc in incs:
@@ -89,7 +131,7 @@ def plot_increments(incs: list[Increments], axes=None):
         ax.set_xlabel(r"$\delta_{LG}$ [-]")
         ax.set_ylabel(rf"$\Delta${LABEL[c]}")
         ax.grid(alpha=0.3)
-    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
+    sm = ScalarMappable(cmap=cmap, norm=Normalize(lo, hi))
     axes[-1].figure.colorbar(sm, ax=list(axes), label=r"trim $\alpha$ [deg]", fraction=0.02, pad=0.02)
     axes[0].figure.suptitle("Gear increments (eq. 8), one curve per status point")
     return axes[0].figure

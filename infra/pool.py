@@ -8,6 +8,13 @@ its own serial work meanwhile); each worker is a fork of that server, ready in
 milliseconds, sharing the imported code's pages. Where ``forkserver`` does not exist
 (Windows) the workers are spawned.
 
+The workers import what they run by module name and never import the caller's ``__main__``
+(:class:`LibraryForkServer`); a function defined there travels by value instead (cloudpickle,
+:func:`portable`). The standard library's workers would run ``__main__`` again, which breaks a
+caller that is a script without an ``if __name__ == "__main__"`` guard (each worker would
+start the script's work again, and multiprocessing refuses that), a script read from standard
+input (``python -``: ``<stdin>`` is no file) and a notebook's kernel alike.
+
 The pool is kept for the life of the process, so a worker's caches (its JSBSim
 evaluator, :func:`diagnose.evaluate.evaluator_for`) serve the next call; it is made
 again if a worker died. Each worker does its linear algebra on one BLAS thread: the
@@ -19,6 +26,7 @@ futures); a folder the tasks read travels with them as data (:func:`ship`, :func
 from __future__ import annotations
 
 import hashlib
+import io
 import multiprocessing as mp
 import os
 import re
@@ -31,6 +39,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import context, process, spawn, util
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,8 +49,54 @@ _CLUSTER: list = []  # the Dask client of the innermost on_cluster, if any
 _WARMED: list = []  # not empty once :func:`warm` has started the fork server
 
 
+#: What the standard library's start-up data tells a new process to import as ``__main__``.
+MAIN_KEYS = ("init_main_from_name", "init_main_from_path")
+
+
+if "forkserver" in mp.get_all_start_methods():
+    from multiprocessing import forkserver, popen_forkserver
+
+    class _LibraryPopen(popen_forkserver.Popen):
+        """The fork server's ``Popen`` (``multiprocessing.popen_forkserver``), its start-up data
+        without :data:`MAIN_KEYS`: the new worker keeps the fork server's own ``__main__``."""
+
+        def _launch(self, process_obj) -> None:
+            prep = {k: v for k, v in spawn.get_preparation_data(process_obj._name).items() if k not in MAIN_KEYS}
+            buf = io.BytesIO()
+            context.set_spawning_popen(self)
+            try:
+                context.reduction.dump(prep, buf)
+                context.reduction.dump(process_obj, buf)
+            finally:
+                context.set_spawning_popen(None)
+            self.sentinel, w = forkserver.connect_to_new_process(self._fds)
+            parent_w = os.dup(w)  # the child's sentinel of this process, as the standard library keeps it
+            self.finalizer = util.Finalize(self, util.close_fds, (parent_w, self.sentinel))
+            with open(w, "wb", closefd=True) as f:
+                f.write(buf.getbuffer())
+            self.pid = forkserver.read_signed(self.sentinel)
+
+    class _LibraryProcess(process.BaseProcess):
+        _start_method = "forkserver"
+
+        @staticmethod
+        def _Popen(process_obj):
+            return _LibraryPopen(process_obj)
+
+    class LibraryForkServer(context.ForkServerContext):
+        """The ``forkserver`` start method for workers that run library functions only: they import
+        what they run by module name, never the caller's ``__main__`` (a script without a guard,
+        ``python -``, a notebook's kernel)."""
+
+        Process = _LibraryProcess
+
+    _LIBRARY = LibraryForkServer()
+else:  # Windows: spawned workers import ``__main__`` again, which then needs its guard
+    _LIBRARY = None
+
+
 def _context():
-    return mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+    return _LIBRARY if _LIBRARY is not None else mp.get_context("spawn")
 
 
 def warm(modules: Iterable[str]) -> None:
@@ -107,6 +162,24 @@ def executor(jobs: int) -> ProcessPoolExecutor:
     return pool
 
 
+class _ByValue:
+    """A function of the caller's ``__main__``, pickled by value: the workers do not import ``__main__``."""
+
+    def __init__(self, func: Callable) -> None:
+        import cloudpickle
+        self.blob = cloudpickle.dumps(func)
+
+    def __call__(self, *args):
+        import cloudpickle
+        return cloudpickle.loads(self.blob)(*args)
+
+
+def portable(func: Callable) -> Callable:
+    """``func`` as a worker can call it: itself (pickled by reference to its module), or, if the
+    caller's ``__main__`` defines it (a script, ``python -``, a notebook cell), pickled by value."""
+    return _ByValue(func) if getattr(func, "__module__", None) == "__main__" else func
+
+
 def _in(cwd: str, func: Callable, args: tuple):
     os.chdir(cwd)  # a worker is forked from the server: relative paths mean the caller's
     return func(*args)
@@ -156,6 +229,7 @@ def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
     if client is not None:
         return [client.submit(_on_cluster_worker, func, args, pure=False) for args in calls]
     cwd = os.getcwd()
+    func = portable(func)
 
     def start() -> list[Future]:
         return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
@@ -230,7 +304,7 @@ class Ahead:
 
     def _collect(self, ctx, func: Callable, calls: list[tuple]) -> None:
         recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), func, calls), daemon=True)
+        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls), daemon=True)
         proc.start()
         send.close()
         try:
@@ -285,7 +359,7 @@ def alone(func: Callable, args: tuple):
     _warm_as_imported()
     ctx = _context()
     recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_alone, args=(send, os.getcwd(), func, args))
+    proc = ctx.Process(target=_alone, args=(send, os.getcwd(), portable(func), args))
     proc.start()
     send.close()
     try:

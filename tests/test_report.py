@@ -83,8 +83,47 @@ def test_campaign_report_is_one_self_contained_page_in_part_60_form(campaign):
         verdicts = [s.text for s in page.iter("span") if s.get("class") in ("pass", "fail")]
         assert verdicts == ["PASS" if ok else "FAIL" for ok in rows[rows.model != "reference"].qtg_pass]
         assert page.find(".//img") is not None
-    # traceable: the settings' hashes from the manifest, and the logs' hash recomputed
+    # the first page is the summary: each case and loop with each model's PASS/FAIL and smallest margin,
+    # the test identifiers and a blank sign-off block; the navigation shows each case with its result
+    first = tree.find(".//main/section")
+    assert first.get("id") == "summary"
+    summary = first.find(".//table")
+    head = ["".join(th.itertext()) for th in summary.find(".//thead").iter("th")]
+    assert head == ["case", "loop", "linear model", "linear: smallest margin", "nonlinear model",
+                    "nonlinear: smallest margin"]
+    shown = {}
+    for tr in summary.find(".//tbody").iter("tr"):
+        cells = ["".join(td.itertext()).strip() for td in tr.iter("td")]
+        shown[cells[0], cells[1]] = cells[2:]
+    expected = {}
+    for r in metrics[metrics.model != "reference"].itertuples():
+        margin = min((3.0 - r.max_err_tas_kt) / 3.0, (100.0 - r.max_err_alt_ft) / 100.0,
+                     (r.tol_theta_deg - r.max_err_theta_deg) / r.tol_theta_deg)
+        expected.setdefault((r.case, r.loop), {})[r.model] = ("PASS" if r.qtg_pass else "FAIL", 100 * margin)
+    assert set(shown) == set(expected)
+    for key, cells in shown.items():
+        for i, model in enumerate(("linear", "nonlinear")):
+            verdict, margin = expected[key][model]
+            assert cells[2 * i] == verdict, (key, model, cells)
+            assert abs(int(cells[2 * i + 1].split(" %")[0]) - margin) < 1, (key, model, cells)
+            assert (verdict == "PASS") == (margin >= 0)
+    nav = "".join(tree.find(".//nav").itertext())
+    for (case, loop), got in expected.items():
+        assert f"{case} ({loop}) linear {got['linear'][0]} nonlinear {got['nonlinear'][0]}" in nav, nav
+    identifiers = dict(zip(["".join(d.itertext()) for d in first.iter("dt")], ["".join(d.itertext()) for d in first.iter("dd")]))
     man = json.loads((campaign / "manifest.json").read_text())
+    assert identifiers["campaign"] == man["campaign"] == "report"
+    assert man["settings"]["matrix_sha256"][:16] in identifiers["matrix"]
+    assert man["settings"]["aircraft_sha256"][:16] in identifiers["aircraft"]
+    from infra.provenance import version
+    assert man["tool"] == {"name": "gear-aero-id", "version": version()}
+    assert identifiers["flown by"] == identifiers["report written by"] == f"gear-aero-id {version()}"
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", identifiers["report written"])
+    sign = first.find(".//table[@class='signoff']")
+    rows = [["".join(td.itertext()).strip() for td in tr.iter("td")] for tr in sign.find(".//tbody").iter("tr")]
+    assert rows == [["Prepared", "", "", ""], ["Checked", "", "", ""], ["Approved", "", "", ""]]
+    assert ["".join(th.itertext()) for th in sign.iter("th")] == ["", "name", "signature", "date"]
+    # traceable: the settings' hashes from the manifest, and the logs' hash recomputed
     assert man["settings"]["aircraft_sha256"] in text and man["settings"]["matrix_sha256"] in text
     assert sha256_files(sorted(campaign.glob("*.parquet"))) in text
 

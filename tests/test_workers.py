@@ -270,3 +270,28 @@ def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_pa
     (tmp_path / f"gearid-{dead.pid}-abc").mkdir()
     w.owned_tmpdir()  # once per process
     assert (tmp_path / f"gearid-{dead.pid}-abc").exists()
+
+
+UNGUARDED = """
+import operator
+from infra.pool import alone, pmap
+
+def own(x):  # defined in the caller's __main__: travels by value
+    return x + 100
+
+print(pmap(operator.add, [(1, 2), (3, 4)], 2), pmap(own, [(1,), (2,)], 2), alone(own, (3,)))
+"""
+
+
+@pytest.mark.parametrize("how", ["file", "stdin", "-c"])
+def test_a_script_without_a_main_guard_fans_out_from_a_file_stdin_or_c(tmp_path, how):
+    """The workers never import the caller's ``__main__``: a script without an ``if __name__ ==
+    "__main__"`` guard, run as a file, read from standard input (``python -``) or given with ``-c``,
+    runs its pool once, and its own functions travel to the workers by value."""
+    script = tmp_path / "unguarded.py"
+    script.write_text(UNGUARDED)
+    argv = {"file": [str(script)], "stdin": ["-"], "-c": ["-c", UNGUARDED]}[how]
+    out = subprocess.run([sys.executable, *argv], input=UNGUARDED if how == "stdin" else None, capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines() == ["[3, 7] [101, 102] 103"], out.stdout

@@ -37,10 +37,10 @@ def _jobs(text: str) -> int:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--matrix", help="test-matrix TOML (default: the paper's Fig. 3 matrix)")
     p.add_argument("--aircraft", metavar="DIR",
-                   help="JSBSim aircraft folder holding DIR/<name>.xml (default: aircraft/737)")
+                   help="JSBSim aircraft folder holding DIR/<name>.xml (default: the shipped 737-800)")
     p.add_argument("--effects", metavar="FILE",
                    help="effect overlay XML, or 'none' for the bare model "
-                        "(default: aircraft/737/effects/reference.xml, the 'real aeroplane')")
+                        "(default: the shipped 737-800's effects/reference.xml, the 'real aeroplane')")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--noise", choices=shipped(), default=None,
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--no-identify", action="store_true", help="fly only: no identification, no replays")
     run.add_argument("--no-replay", action="store_true", help="fly and identify, but no replays")
-    run.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
+    run.add_argument("--cases", metavar="FILE", help="replay cases TOML (default: the five shipped cases)")
 
     ident = sub.add_parser("identify", help="identify the aerodynamic models from a campaign's logs",
                            description="Eq. (1) coefficients, eq. (3) fits per 2-3-1-1, linear (eq. 4) and "
@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "metrics and plots into RESULTS_DIR/replays.")
     rep.add_argument("results", metavar="RESULTS_DIR", help="campaign folder, already identified")
     rep.add_argument("--case", action="append", metavar="NAME", help="case name or part of it (repeatable)")
-    rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default campaign/cases/replays.toml)")
+    rep.add_argument("--cases", metavar="FILE", help="replay cases TOML (default: the five shipped cases)")
     rep.add_argument("--jobs", type=_jobs, default=1, help="parallel workers (default 1)")
     rep.add_argument("--cluster", metavar="tcp://HOST:PORT",
                      help="fly the replays on the Dask cluster whose scheduler is there")
@@ -182,79 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _config(args):
-    from campaign.simulation.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
-                                   check_aircraft_folder, load_effects)
-    from campaign.simulation.engine import FlightConfig, check_flaps
-    from campaign.simulation.instruments import load_profile
-    from campaign.simulation.matrix import load_matrix
-
-    matrix = load_matrix(args.matrix)
-    folder = check_aircraft_folder(args.aircraft or DEFAULT_AIRCRAFT)
-    effects = load_effects(DEFAULT_EFFECTS if args.effects is None else args.effects)
-    config = FlightConfig(AircraftSource(str(folder), effects), args.seed,
-                          load_profile(args.instruments or args.noise or "none"),
-                          matrix.maneuver_params, matrix.clmax_by_flap)
-    points = [matrix.point(args.point_id)] if args.command == "fly" else matrix.points
-    check_flaps(config.aircraft, [(f"{matrix.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
-    return matrix, config
-
-
-def _identify(results: Path, out: Path | None, model: str | None, plots: str, jobs: int = 1,
-              method: str = "ee") -> int:
-    from campaign.simulation.aircraft import check_aircraft_folder
-    from identify.logs import LogError
-    from identify.pipeline import identify_campaign
-    if model:
-        check_aircraft_folder(model)
-    try:
-        files = identify_campaign(results, out, Path(model) if model else None, plots, jobs, method)
-    except LogError as exc:
-        raise UserError(str(exc)) from None
-    print(f"identification ({method}) in {Path(files['json']).parent}: "
-          f"{sum(1 for k in files if k.startswith('plot'))} plots, "
-          f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")
-    return 0
-
-
-def _html_report(folder: Path) -> None:
-    """Write or refresh ``folder/report.html`` (:mod:`campaign.reports.report`) and say where it is. At the
-    end of a run, a replay or a diagnosis, a report that cannot be written is said, not fatal:
-    the results are on disk (``campaign report`` tries again)."""
-    from campaign.reports.report import write_report
-    try:
-        print(f"report: {write_report(folder)}")
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        sys.stderr.write(f"campaign: warning: {folder}: report.html not written ({type(exc).__name__}: {exc})\n")
-
-
-def _replay(results: Path, names: list[str] | None, cases_file: str | None, jobs: int,
-            cluster: str | None = None, bands: int | None = None, resume: bool = False) -> int:
-    from campaign.replays.replay import LOOPS, MODELS, load_cases, replayed_already, run_replays, select
-    from campaign.replays.bands import check_draws, load_surfaces, replay_bands
-    from campaign.replays.report import drop_bands, write_report
-    if not (results / "manifest.json").exists():
-        raise UserError(f"{results}: no manifest.json (not a campaign folder)")
-    cases = select(load_cases(cases_file), names)
-    if bands is not None:
-        check_draws(bands)
-        load_surfaces(results)
-    kept = replayed_already(results, cases) if resume else set()
-    # bands were drawn about the replays about to be replaced
-    drop_bands(results, [c.name for c in cases if not all((c.name, m, lp) in kept for m in MODELS for lp in LOOPS)])
-    if kept:
-        print(f"replays: {len(kept)} flights kept, flown already about this identification")
-    failures = run_replays(results, cases, jobs, cases_file, cluster, kept)
-    for why in failures:
-        print(f"replay failed: {why}")
-    if bands is not None and failures:
-        print(f"bands not drawn: {len(failures)} replay(s) failed")
-    elif bands is not None:
-        replay_bands(results, cases, bands, jobs)
-    files = write_report(results, names, jobs)
-    print(files.pop("table"))
-    print(f"replay logs, metrics and plots in {results / 'replays'}")
-    _html_report(results)
-    return 1 if failures else 0
+    from campaign.orchestration.job import flight_config
+    return flight_config(args.matrix, args.aircraft, args.effects, args.seed, args.noise, args.instruments,
+                         args.point_id if args.command == "fly" else None)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -311,7 +241,8 @@ def _main(args) -> int:
                                 refine=args.refine, bands=args.bands)
             print(doc["summary"])
             print(f"report in {args.out}")
-            _html_report(Path(args.out))
+            from campaign.orchestration.job import html_report
+            html_report(Path(args.out))
             return 0
         if args.command == "plan":
             from campaign.design.plan import plan
@@ -330,16 +261,18 @@ def _main(args) -> int:
             results = Path(args.results)
             if not (results / "manifest.json").exists():
                 raise UserError(f"{results}: no manifest.json (not a campaign folder)")
+            from campaign.orchestration.job import replay_job
             with holding(results, "replay"):
-                return _replay(results, args.case, args.cases, args.jobs, args.cluster, args.bands)
+                return 1 if replay_job(results, args.case, args.cases, args.jobs, args.cluster, args.bands) else 0
         if args.command == "identify":
+            from campaign.orchestration.job import identify_job
             results = Path(args.results)
             if not results.is_dir():
-                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs,
-                                 args.method)
+                identify_job(results, args.out and Path(args.out), args.model, args.plots, args.jobs, args.method)
+                return 0
             with holding(results, "identify"):
-                return _identify(results, args.out and Path(args.out), args.model, args.plots, args.jobs,
-                                 args.method)
+                identify_job(results, args.out and Path(args.out), args.model, args.plots, args.jobs, args.method)
+            return 0
         matrix, config = _config(args)
         if args.command == "run":
             out = Path(args.out) if args.out else Path("results") / matrix.name
@@ -379,38 +312,10 @@ def _main(args) -> int:
 
 def _run(args, matrix, config, out: Path) -> int:
     """Fly, identify and replay a campaign into ``out`` (held by the caller)."""
-    from campaign.orchestration.runner import run_campaign
-    if args.cases and not (args.no_identify or args.no_replay):  # a bad cases file is refused before anything flies
-        from campaign.simulation.engine import check_flaps
-        from campaign.replays.replay import load_cases
-        check_flaps(config.aircraft, [(f"{args.cases}: case {c.name}.flap_deg", c.flap_deg)
-                                      for c in load_cases(args.cases)])
-    summary = run_campaign(matrix, config, out, jobs=args.jobs,
-                           progress=not args.quiet and sys.stderr.isatty(), cluster=args.cluster)
-    print(summary.text())
-    print(f"logs and manifest in {out}")
-    if summary.all_failed:
-        print("no point flew: nothing to identify")
-        _html_report(out)
-        return 1
-    if args.no_identify:
-        _html_report(out)
-        return 0
-    from identify.pipeline import up_to_date
-    kept = up_to_date(out)
-    if kept:
-        print(f"identification in {kept}: made from these logs already, kept")
-    else:
-        _identify(out, None, None, "paper", args.jobs)
-    if args.no_replay:
-        _html_report(out)
-        return 0
-    if not (out / "identification" / "aircraft_nonlinear").is_dir():
-        print("replays skipped: no gear models were identified (the matrix needs a condition flown "
-              "gear up and gear down, with a gear extension)")
-        _html_report(out)
-        return 0
-    return _replay(out, None, args.cases, args.jobs, args.cluster, resume=True)
+    from campaign.orchestration.job import run_job
+    return run_job(matrix, config, out, args.jobs, progress=not args.quiet and sys.stderr.isatty(),
+                   cluster=args.cluster, identify=not args.no_identify, replay=not args.no_replay,
+                   cases_file=args.cases)
 
 
 if __name__ == "__main__":

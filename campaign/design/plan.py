@@ -40,6 +40,7 @@ from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
 from campaign.orchestration.store import read_manifest
 from diagnose import separation as sep
 from identify.logs import Log
+from infra.provenance import tool
 
 #: Flights are added until every rival is predicted this far from its cause [standard errors]: the
 #: measured separation scatters about the prediction by about one, and must clear
@@ -441,6 +442,7 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
                for lg, s in zip(flown, sums)]
     chosen, reached = choose(old, flights, budget, base)
     result = {
+        "tool": tool(),
         "diagnosis": str(diagnosis), "model": str(model), "budget_min": budget, "old_minutes": old_minutes,
         "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
         "settled_se": sep.SETTLED_SE, "candidates": len(flights),

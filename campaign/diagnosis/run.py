@@ -239,16 +239,41 @@ def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | None:
     return replay(log, unpack_source(shipment, effects))
 
 
+#: How a set of logs given in memory (not read from a path) is named in ``diagnosis.json``.
+IN_MEMORY = "logs given in memory"
+
+
+def _data_sets(data_path) -> list[tuple[object, list[Log]]]:
+    """``(where, logs)`` of each set of measured logs: a path read (:func:`load_data`), or a list of
+    :class:`identify.logs.Log` given in memory (named :data:`IN_MEMORY`)."""
+    items = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
+    if not items:
+        raise UserError("data: no logs given")
+    if all(isinstance(x, Log) for x in items):
+        items = [items]
+    sets = []
+    for x in items:
+        if isinstance(x, (list, tuple)):
+            if not x or not all(isinstance(lg, Log) for lg in x):
+                raise UserError("data: a list of logs must hold identify.logs.Log objects only, and one at least")
+            sets.append((IN_MEMORY if len(items) == 1 else f"{IN_MEMORY} ({len(sets) + 1})", list(x)))
+        else:
+            p = Path(x).resolve()
+            sets.append((p, load_data(p)))
+    return sets
+
+
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
                   progress: bool = False, cluster: str | None = None, refine: str | None = None,
-                  bands: int = 0) -> dict:
+                  bands: int = 0, settings=None) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
     ----------
-    data_path : Path or list of Path
+    data_path : Path, list of Path, or list of Log
         Measured logs (:func:`load_data`), several read together (a campaign and the flights
-        ``campaign plan`` designed).
+        ``campaign plan`` designed); a list of :class:`identify.logs.Log` is one set given in memory
+        (a list of such lists, several).
     model_dir, out : Path
         The model aircraft folder, a new report folder.
     plots : {"key", "all", "none"} or bool
@@ -269,6 +294,9 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     bands : int
         Monte Carlo draws of the extension for bands on the held-out replays where the cause
         acts, and their Part 60 pass probability (:mod:`campaign.diagnosis.bands`; 0: none).
+    settings : optional
+        The diagnosis's decision settings, handed to :func:`diagnose.diagnosis.diagnose` (None: its
+        defaults).
     """
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
@@ -282,9 +310,8 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
-    paths = [Path(p).resolve() for p in (data_path if isinstance(data_path, (list, tuple)) else [data_path])]
     try:
-        sets = [load_data(p) for p in paths]
+        paths, sets = map(list, zip(*_data_sets(data_path)))
         logs = [lg for s in sets for lg in s]
         where = {}
         for p, s in zip(paths, sets):
@@ -301,14 +328,16 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise
     try:
         with on_cluster(client):
-            return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands)
+            return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands,
+                              settings)
     finally:
         if client is not None:
             client.close()
 
 
 def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
-               train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0) -> dict:
+               train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0,
+               settings=None) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
@@ -328,7 +357,8 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
         bar.set_description(name)
 
     try:
-        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage)
+        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage,
+                        **({} if settings is None else {"settings": settings}))
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
         evaluator.close()
         bar.close()

@@ -24,6 +24,7 @@ import pandas as pd
 from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
 from campaign.simulation.instruments import POSITIONED
+from infra.provenance import tool
 
 FORMATS = {".csv": "csv", ".txt": "whitespace", ".dat": "whitespace", ".asc": "whitespace", ".mat": "mat",
            ".parquet": "parquet"}
@@ -365,6 +366,74 @@ def _maneuver(gear: np.ndarray) -> str:
     return "excitation"
 
 
+def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dict[str, float],
+               positions=(), step: float | None = None, extra: dict | None = None) -> tuple[pd.DataFrame, dict]:
+    """A log in the schema and its metadata, from channels in the schema's units.
+
+    What the channels lack is filled in: ``mass_slug`` from ``air["mass"]``; Mach, calibrated
+    airspeed and dynamic pressure from true airspeed and pressure altitude (:func:`air_data`); the
+    pitch acceleration is left to the identification. The status point is the first second's mean
+    (altitude snapped to :data:`ALT_GRID_FT`, Mach to :data:`MACH_GRID`; gear from the first
+    sample), the manoeuvre a gear extension or retraction if the gear moves from one end to the
+    other, else an excitation.
+
+    Parameters
+    ----------
+    name : str
+        The log's name (its status point's id and its file's stem).
+    t_s : ndarray
+        Time from the start [s].
+    cols : dict of str to ndarray
+        Schema columns (``t_s`` excluded), units as in their names.
+    air : dict
+        ``mass`` [slug], ``ixx``, ``iyy``, ``izz``, ``ixz`` [slug ft^2], ``S`` [ft^2], ``cbar``, ``b``,
+        ``thrust_z_arm`` [ft], ``cg_x``, ``cg_z``, ``aerorp_x``, ``aerorp_z`` [in], ``latitude`` [deg];
+        ``S`` and ``cbar`` are needed, the inertias 0 and the arms 0 when absent, the positions absent.
+    positions : iterable of (channel, (x, y, z))
+        Documented sensor positions from the CG [ft].
+    step : float, optional
+        Sampling interval [s] (default: the median of ``t_s``'s).
+    extra : dict, optional
+        More metadata (where the log came from).
+    """
+    cols = dict(cols)
+    n = len(t_s)
+    if "mass_slug" not in cols:
+        cols["mass_slug"] = np.full(n, air["mass"])
+    derived = {}
+    need = [c for c in DERIVABLE if c not in cols]
+    if need:
+        ad = air_data(cols["alt_ft"], cols["tas_kt"])
+        for c in need:
+            cols[c] = ad[c]
+            derived[c] = "from tas_kt and alt_ft (pressure altitude) through the ISA standard atmosphere"
+    if "qdot_dps2" not in cols:
+        derived["qdot_dps2"] = ("not written: the identification derives it from q_dps (quintic spline "
+                                "derivative, low-passed at 3 Hz with the coefficients)")
+    order = [c for c in LOG_COLUMNS if c in cols]
+    log = pd.DataFrame({"t_s": t_s, **{c: cols[c] for c in order if c != "t_s"}})
+    head = log[log.t_s < 1.0]
+    gear0 = float(log.gear_norm.iloc[0])
+    alt = round(float(head.alt_ft.mean()) / ALT_GRID_FT) * ALT_GRID_FT
+    mach = round(float(head.mach.mean()) / MACH_GRID) * MACH_GRID
+    meta = {
+        "point": name,
+        "maneuver": _maneuver(log.gear_norm.to_numpy()),
+        "status_point": {"id": name, "alt_ft": alt, "mach": round(mach, 4), "flap_deg": float(head.flap_deg.mean()),
+                         "gear": "down" if gear0 >= 0.5 else "up"},
+        "inertia_slugft2": {k: air.get(k, 0.0) for k in ("ixx", "iyy", "izz", "ixz")},
+        "geometry": {"S_ft2": air["S"], "cbar_ft": air["cbar"], "b_ft": air.get("b", 0.0),
+                     "thrust_z_arm_ft": air.get("thrust_z_arm", 0.0),
+                     **{f"{k}_in": air[k] for k in ("cg_x", "cg_z", "aerorp_x", "aerorp_z") if k in air}},
+        "dt_s": float(np.median(np.diff(t_s))) if step is None else step,
+        "sensor_positions_ft": {c: list(r) for c, r in positions},
+        "derived_channels": derived,
+        **(extra or {}),
+        **({"latitude_deg": air["latitude"]} if "latitude" in air else {}),
+    }
+    return log, meta
+
+
 def convert(path: str | Path, m: ImportMap) -> Imported:
     """One source file in the log schema, with its metadata and report entry."""
     path = Path(path)
@@ -388,41 +457,11 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
         report["constants"][col] = v
     air = dict(m.aircraft)
     if "mass_slug" not in cols:
-        cols["mass_slug"] = np.full(n, air["mass"])
         report["constants"]["mass_slug"] = air["mass"]
-    derived = {}
-    need = [c for c in DERIVABLE if c not in cols]
-    if need:
-        ad = air_data(cols["alt_ft"], cols["tas_kt"])
-        for c in need:
-            cols[c] = ad[c]
-            derived[c] = "from tas_kt and alt_ft (pressure altitude) through the ISA standard atmosphere"
-    if "qdot_dps2" not in cols:
-        derived["qdot_dps2"] = ("not written: the identification derives it from q_dps (quintic spline "
-                                "derivative, low-passed at 3 Hz with the coefficients)")
-    report["derived"] = derived
-    order = [c for c in LOG_COLUMNS if c in cols]
-    log = pd.DataFrame({"t_s": t0, **{c: cols[c] for c in order if c != "t_s"}})
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem)
-    head = log[log.t_s < 1.0]
-    gear0 = float(log.gear_norm.iloc[0])
-    alt = round(float(head.alt_ft.mean()) / ALT_GRID_FT) * ALT_GRID_FT
-    mach = round(float(head.mach.mean()) / MACH_GRID) * MACH_GRID
-    meta = {
-        "point": name,
-        "maneuver": _maneuver(log.gear_norm.to_numpy()),
-        "status_point": {"id": name, "alt_ft": alt, "mach": round(mach, 4), "flap_deg": float(head.flap_deg.mean()),
-                         "gear": "down" if gear0 >= 0.5 else "up"},
-        "inertia_slugft2": {k: air.get(k, 0.0) for k in ("ixx", "iyy", "izz", "ixz")},
-        "geometry": {"S_ft2": air["S"], "cbar_ft": air["cbar"], "b_ft": air.get("b", 0.0),
-                     "thrust_z_arm_ft": air.get("thrust_z_arm", 0.0),
-                     **{f"{k}_in": air[k] for k in ("cg_x", "cg_z", "aerorp_x", "aerorp_z") if k in air}},
-        "dt_s": step,
-        "sensor_positions_ft": {c: list(r) for c, r in m.positions},
-        "derived_channels": derived,
-        "imported": {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256},
-        **({"latitude_deg": air["latitude"]} if "latitude" in air else {}),
-    }
+    log, meta = schema_log(name, t0, cols, air, m.positions, step,
+                           {"imported": {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256}})
+    report["derived"] = meta["derived_channels"]
     report.update({"log": f"{name}.parquet", "rows": n, "rate_hz": round(1.0 / step, 4),
                    "duration_s": round(float(t0[-1]), 3), "maneuver": meta["maneuver"],
                    "status_point": meta["status_point"]})
@@ -459,7 +498,7 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
     report = {"maps": {m.path: m.sha256}, "logs": [d.report for d in done]}
     previous = out / "import.json"
     whole = json.loads(previous.read_text()) if previous.exists() else {"maps": {}, "logs": []}
-    whole = {"maps": {**whole["maps"], **report["maps"]}, "logs": whole["logs"] + report["logs"]}
+    whole = {"tool": tool(), "maps": {**whole["maps"], **report["maps"]}, "logs": whole["logs"] + report["logs"]}
     write_json(out / "import.json", whole)  # several imports into one folder: one report
     (out / "import.txt").write_text(report_text(whole))
     return report

@@ -17,13 +17,14 @@ from tqdm import tqdm
 from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.simulation.matrix import Matrix, StatusPoint
+from infra.provenance import NAME, tool
 from campaign.orchestration.store import (MANIFEST, clean_temporaries, failed_record, log_name, read_manifest, readable_log,
                             write_json, write_log)
 
 
 def _versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
-    for pkg in ("jsbsim", "numpy", "pandas", "pyarrow", "gear-aero-id"):
+    for pkg in ("jsbsim", "numpy", "pandas", "pyarrow", NAME):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
@@ -253,6 +254,7 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
         recs = sorted(done.values(), key=lambda r: order[r["id"]])
         return {
             "campaign": matrix.name,
+            "tool": tool(),
             "settings": want,
             "matrix": matrix.to_json(),
             "versions": _versions(),

@@ -11,17 +11,14 @@ import hashlib
 import json
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from campaign.errors import UserError  # noqa: E402
-from campaign.orchestration.store import atomic_write, clean_temporaries, read_log  # noqa: E402
-from identify.figures import emptied_axes  # noqa: E402
-from infra.pool import pmap  # noqa: E402
+from campaign.errors import UserError
+from campaign.orchestration.store import atomic_write, clean_temporaries, read_log
+from identify.figures import emptied_axes, new_figure
+from infra.pool import pmap
+from infra.provenance import tool_text
 
 CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
             ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
@@ -123,7 +120,7 @@ def plot_case(replays: dict, case: str, loop: str, axes=None, bands: dict | None
     bands = bands or {}
     ref = replays[(case, "reference", loop)]
     if axes is None:
-        axes = _case_axes(plt.figure(figsize=FIGSIZE))
+        axes = _case_axes(new_figure(FIGSIZE))
     fig = axes[0][0].figure
     g = ref.gear_norm.to_numpy()
     moving = np.flatnonzero(np.diff(g) != 0)
@@ -185,8 +182,9 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     summary, bands = load_bands(results)
     df = metrics(load_replays(results) if names else replays, summary)
     clean_temporaries(out)
-    atomic_write(out / "metrics.csv", lambda tmp: df.to_csv(tmp, index=False))
-    atomic_write(out / "metrics.txt", lambda tmp: Path(tmp).write_text(metrics_text(df)))
+    written = tool_text()  # the provenance: a column of the table, a line of the text
+    atomic_write(out / "metrics.csv", lambda tmp: df.assign(tool=written).to_csv(tmp, index=False))
+    atomic_write(out / "metrics.txt", lambda tmp: Path(tmp).write_text(metrics_text(df) + f"\nWritten by {written}.\n"))
     files = {"metrics_csv": str(out / "metrics.csv"), "metrics_txt": str(out / "metrics.txt")}
     plots = out / "plots"
     plots.mkdir(exist_ok=True)

@@ -16,6 +16,8 @@ from collections.abc import Iterable, Sequence
 from html import escape
 from pathlib import Path
 
+from infra.provenance import tool_text
+
 STYLE = """
 body { font: 14px/1.45 system-ui, -apple-system, "Segoe UI", sans-serif; color: #1d2329; margin: 0; }
 header { background: #14324f; color: #fff; padding: 18px 32px; }
@@ -23,6 +25,10 @@ header h1 { margin: 0 0 4px; font-size: 22px; }
 header p { margin: 0; opacity: 0.85; }
 nav { position: sticky; top: 0; background: #eef2f6; padding: 8px 32px; border-bottom: 1px solid #cfd8e2; z-index: 1; }
 nav a { margin-right: 14px; color: #14324f; text-decoration: none; font-weight: 600; }
+nav .cases { margin-top: 4px; font-size: 12px; }
+nav .cases a { font-weight: 500; white-space: nowrap; }
+nav small { color: #4a5560; }
+table.signoff td { min-width: 150px; height: 26px; }
 main { padding: 8px 32px 40px; max-width: 1200px; }
 section { margin-top: 28px; }
 h2 { border-bottom: 2px solid #14324f; padding-bottom: 4px; font-size: 19px; }
@@ -75,11 +81,9 @@ def png(path: Path, alt: str, caption: str = "") -> str:
 
 
 def svg(fig, caption: str = "") -> str:
-    """A matplotlib figure as inline SVG (the figure is closed)."""
-    import matplotlib.pyplot as plt
+    """A matplotlib figure as inline SVG."""
     buf = io.StringIO()
     fig.savefig(buf, format="svg", bbox_inches="tight")
-    plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg"):]
     cap = f"<figcaption>{escape(caption)}</figcaption>" if caption else ""
@@ -130,8 +134,12 @@ def section(anchor: str, title: str, body: str, page: bool = False) -> tuple[str
     return anchor, title, f'<section id="{anchor}"{" class=page" if page else ""}><h2>{escape(title)}</h2>{body}</section>'
 
 
-def document(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]]) -> str:
-    nav = "".join(f'<a href="#{a}">{escape(t)}</a>' for a, t, _ in sections)
+def document(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]], nav_extra: str = "",
+             nav_skip: Iterable[str] = ()) -> str:
+    """The page: a header, the navigation (each section but those of ``nav_skip``'s anchors, then
+    ``nav_extra``'s raw HTML) and the sections."""
+    skip = set(nav_skip)
+    nav = "".join(f'<a href="#{a}">{escape(t)}</a>' for a, t, _ in sections if a not in skip) + nav_extra
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>"
             f"<header><h1>{escape(title)}</h1><p>{escape(subtitle)}</p></header><nav>{nav}</nav><main>"
@@ -152,13 +160,19 @@ def now() -> str:
 
 
 def software_commit() -> str:
-    """The git commit of this software, if it runs from a checkout ("" otherwise)."""
+    """The git commit of this software if it runs from its own source checkout (the work tree whose
+    top holds these packages), "" otherwise: an installed copy reports its version alone, never the
+    commit of a repository it happens to sit in."""
+    here = Path(__file__).resolve().parents[2]  # the folder holding the campaign package
     try:
-        out = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "HEAD"],
+        out = subprocess.run(["git", "-C", str(here), "rev-parse", "--show-toplevel", "HEAD"],
                              capture_output=True, text=True, timeout=5)
     except (OSError, subprocess.SubprocessError):
         return ""
-    return out.stdout.strip() if out.returncode == 0 else ""
+    lines = out.stdout.split()
+    if out.returncode != 0 or len(lines) != 2 or Path(lines[0]).resolve() != here:
+        return ""
+    return lines[1]
 
 
 def traceability(folder: Path, man: dict | None, extra: dict[str, Path]) -> str:
@@ -175,7 +189,10 @@ def traceability(folder: Path, man: dict | None, extra: dict[str, Path]) -> str:
         if path.exists():
             rows.append((name, path.relative_to(folder) if path.is_relative_to(folder) else path,
                          sha256_file(path)))
-    versions = dict(man.get("versions", {})) if man else {}
+    versions = {"report written by": tool_text()}
+    if man and man.get("tool"):
+        versions["campaign flown by"] = f"{man['tool']['name']} {man['tool']['version']}"
+    versions.update(man.get("versions", {}) if man else {})
     commit = software_commit()
     if commit:
         versions["software commit"] = commit

@@ -21,16 +21,20 @@ from campaign.reports import html
 from campaign.errors import UserError
 from campaign.reports.diagnosis import diagnosis_report
 from campaign.replays.report import TOL_ALT_FT, TOL_TAS_KT, TOL_THETA_DEG
+from infra.provenance import tool_text
 
+#: The replayed models a campaign report sums up, in this order.
+REPLAYED = ("linear", "nonlinear")
+#: The sign-off block's roles.
+SIGN_OFF = ("Prepared", "Checked", "Approved")
 POINT_ID = re.compile(r"h(?P<alt>\d+)_m(?P<mach>[\d.]+)_f(?P<flap>\d+)_g(?P<gear>up|dn)")
 REPORT = "report.html"
 
 
 def _coverage_figure(man: dict) -> str:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(9.0, 4.2))
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(9.0, 4.2))
+    ax = fig.subplots()
     flaps: dict = {}
     failed = []
     for p in man["points"]:
@@ -104,6 +108,88 @@ def _identification(folder: Path) -> str:
     return "".join(body)
 
 
+def part60_results(folder: Path) -> list[dict]:
+    """Each replay case, loop and identified model of a campaign folder with its Part 60 result, as the
+    report's summary shows them (``replays/metrics.csv``; empty without replays).
+
+    Returns
+    -------
+    list of dict
+        ``case``, ``loop``, ``model``, ``result`` (``"PASS"`` or ``"FAIL"``), ``smallest_margin_pct``
+        (the smallest of the airspeed, altitude and pitch margins, each as a share of its tolerance
+        [%]; negative outside it) and ``limited_by`` (the channel of that margin).
+    """
+    f = Path(folder) / "replays" / "metrics.csv"
+    if not f.exists():
+        return []
+    rows = []
+    for r in pd.read_csv(f).sort_values(["case", "loop"], kind="stable").itertuples():
+        if r.model == "reference":
+            continue
+        tol_theta = float(getattr(r, "tol_theta_deg", TOL_THETA_DEG))
+        margins = {"airspeed": (TOL_TAS_KT - r.max_err_tas_kt) / TOL_TAS_KT,
+                   "altitude": (TOL_ALT_FT - r.max_err_alt_ft) / TOL_ALT_FT,
+                   "pitch": (tol_theta - r.max_err_theta_deg) / tol_theta}
+        limit = min(margins, key=margins.get)
+        rows.append({"case": r.case, "loop": r.loop, "model": r.model, "result": "PASS" if r.qtg_pass else "FAIL",
+                     "smallest_margin_pct": round(100.0 * margins[limit], 1), "limited_by": limit})
+    return rows
+
+
+def _verdict(result: str) -> str:
+    return f'<span class="{result.lower()}">{result}</span>'
+
+
+def _summary(folder: Path, man: dict, results: list[dict]) -> tuple[str, str]:
+    """The first page: Part 60 results per case and loop, the test identifiers and the sign-off block;
+    and the navigation's list of cases with their results."""
+    models = [m for m in REPLAYED if any(r["model"] == m for r in results)]
+    by_case: dict = {}
+    for r in results:
+        by_case.setdefault((r["case"], r["loop"]), {})[r["model"]] = r
+    if results:
+        counts = "; ".join(f"the {m} gear model passes {sum(r['result'] == 'PASS' for r in results if r['model'] == m)} "
+                           f"of {sum(r['model'] == m for r in results)}" for m in models)
+        head = (f"<p>FAA 14 CFR Part 60, Appendix A, test 2.c.4 (gear change dynamics), {len(by_case)} case and loop "
+                f"pairs: {escape(counts)}. Margin: the smallest of the airspeed, altitude and pitch margins, each as "
+                "a share of its tolerance (negative: outside it).</p>")
+        rows = []
+        for (case, loop), got in by_case.items():
+            cells = [f'<a href="#{html.anchor(f"case-{case}-{loop}")}">{escape(case)}</a>', escape(loop)]
+            for m in models:
+                r = got.get(m)
+                cells += ([_verdict(r["result"]), f"{r['smallest_margin_pct']:.0f} % ({r['limited_by']})"] if r
+                          else ["not flown", ""])
+            rows.append(cells)
+        table = html.table(["case", "loop", *[h for m in models for h in (f"{m} model", f"{m}: smallest margin")]],
+                           rows, left=2, raw=True)
+    else:
+        head, table = ("<p>No Part 60 results: no replays in this campaign (<code>campaign replay</code> flies "
+                       "them once the gear models are identified).</p>"), ""
+    s = man.get("settings", {})
+    logs = sorted(folder.glob("*.parquet"))
+    flown = dt.datetime.fromtimestamp((folder / "manifest.json").stat().st_mtime, dt.timezone.utc)
+    tool = man.get("tool") or {}
+    ids = [("campaign", man.get("campaign", folder.name)),
+           ("matrix", f"{Path(s['matrix']).name if s.get('matrix') else 'default'} (sha256 {s.get('matrix_sha256', '')[:16]})"),
+           ("aircraft", f"{Path(s.get('aircraft', '')).name} (sha256 {s.get('aircraft_sha256', '')[:16]})"),
+           ("effects", f"{Path(s['effects']).name} (sha256 {s.get('effects_sha256', '')[:16]})" if s.get("effects")
+            else "none (the bare model)"),
+           ("instruments", f"{s.get('instruments')} (sha256 {s.get('instruments_sha256', '')[:16]})"),
+           ("seed", s.get("seed")), ("flight logs", f"{len(logs)} (sha256 {html.sha256_files(logs)[:16] if logs else ''})"),
+           ("flown by", f"{tool.get('name', '')} {tool.get('version', 'unknown')}".strip()),
+           ("report written by", tool_text()),
+           ("campaign written", flown.strftime("%Y-%m-%d %H:%M UTC")), ("report written", html.now())]
+    sign = html.table(["", "name", "signature", "date"], [(r, "", "", "") for r in SIGN_OFF], left=4)
+    body = (head + table + "<h3>Test identifiers</h3>" + html.definitions(ids)
+            + '<p class="note">Hashes: the first 16 hex digits of each SHA-256; the traceability section gives them '
+              "whole.</p><h3>Sign-off</h3>" + sign.replace("<table>", '<table class="signoff">', 1))
+    nav = " ".join(f'<a href="#{html.anchor(f"case-{case}-{loop}")}">{escape(case)} ({escape(loop)}) '
+                  + " ".join(f'<small>{m}</small> {_verdict(got[m]["result"])}' for m in models if m in got) + "</a>"
+                  for (case, loop), got in by_case.items()) + " "
+    return body, nav
+
+
 def _replay_pages(folder: Path) -> list[tuple[str, str, str]]:
     rep = folder / "replays"
     if not (rep / "metrics.csv").exists():
@@ -171,7 +257,9 @@ def campaign_report(folder: Path) -> str:
     failed = [(p["id"], p["reason"]) for p in man["points"] if p["status"] != "ok"]
     coverage = _coverage_figure(man) + (html.table(["point", "why it failed"], failed, left=2) if failed
                                         else "<p>Every point flew.</p>")
-    sections = [html.section("coverage", "Matrix coverage", f"<p>{ok} of {len(man['points'])} status points flown"
+    summary, cases_nav = _summary(folder, man, part60_results(folder))
+    sections = [html.section("summary", "Summary", summary),
+                html.section("coverage", "Matrix coverage", f"<p>{ok} of {len(man['points'])} status points flown"
                              f"{'' if man.get('complete') else ' (campaign incomplete)'}.</p>" + coverage),
                 html.section("holds", "Trim and hold quality", _holds(man)),
                 html.section("identification", "Identification", _identification(folder), page=True),
@@ -181,7 +269,8 @@ def campaign_report(folder: Path) -> str:
                                   "replay metrics": folder / "replays" / "metrics.csv"}), page=True)]
     return html.document(f"Campaign {man.get('campaign', folder.name)}",
                          f"{folder.resolve()} · instruments {man.get('settings', {}).get('instruments')} · {html.now()}",
-                         sections)
+                         sections, nav_extra=f'<div class="cases">Part 60: {cases_nav}</div>' if cases_nav else "",
+                         nav_skip=[a for a, _, _ in sections if a.startswith("case-")] if cases_nav else ())
 
 
 def write_report(folder: Path) -> Path:

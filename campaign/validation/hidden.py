@@ -3,6 +3,7 @@ diagnosis never sees these files)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -162,6 +163,11 @@ def discrepancies(doc: dict) -> list[dict]:
                   key=lambda c: rank(c["verdict"]))
 
 
+#: The hidden effects of the tests and benchmarks (``tests/data`` of the source checkout; an installed
+#: copy of the package has none: give an overlay's absolute path there).
+TEST_DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
+
+
 def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: int, sigma_fps: float = 3.0,
                      channels: str = "") -> dict:
     """Fly ``matrix`` on ``aircraft`` with the effects overlay ``tests/data/<overlay>`` hidden (None: the
@@ -172,7 +178,7 @@ def diagnose_overlay(workdir, overlay: str | None, aircraft, matrix: str, seed: 
     from campaign.diagnosis.run import run_diagnosis
     from campaign.validation.support import run_matrix
     workdir = Path(workdir)
-    fx = str(Path(__file__).parent / "data" / overlay) if overlay else None
+    fx = str(Path(overlay) if Path(overlay).is_absolute() else TEST_DATA / overlay) if overlay else None
     (workdir / "turbulence.toml").write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma_fps}\n'
                                              + channels)
     data = run_matrix(workdir, matrix, str(aircraft), fx, noise=str(workdir / "turbulence.toml"), seed=seed)
