@@ -5,7 +5,8 @@
 Clones the repository's committed HEAD into a temporary folder and runs there, in order, every line
 of the README's ```sh blocks (a line ending in a backslash continues on the next; comments and blank
 lines are skipped), each in its own shell from the clone's root with the clone's ``.venv/bin`` first on
-the PATH, as `. .venv/bin/activate` would put it. A block whose fence is preceded by a line starting with
+the PATH, as `. .venv/bin/activate` would put it, and every ```python block whole, by the clone's
+``python``, where it stands among them. A block whose fence is preceded by a line starting with
 ``<!-- readme-check: skip`` is not run (the test suite's own command: ``.ci/run`` runs it). The first
 block is the install and the main job, so the clone gets its own environment exactly as a new user's.
 Exit 1 at the first command that fails, with its output.
@@ -26,10 +27,17 @@ SKIP = "<!-- readme-check: skip"
 
 
 def commands(text: str) -> list[str]:
-    """The README's runnable shell commands, in order."""
+    """The README's runnable shell commands, in order (a Python block as one ``python -`` command)."""
     out, lines, i = [], text.splitlines(), 0
     while i < len(lines):
-        if lines[i].strip() == "```sh":
+        if lines[i].strip() == "```python" and not (i > 0 and lines[i - 1].strip().startswith(SKIP)):
+            i += 1
+            block = []
+            while i < len(lines) and lines[i].strip() != "```":
+                block.append(lines[i])
+                i += 1
+            out.append("python - <<'PYTHON'\n" + "\n".join(block) + "\nPYTHON")
+        elif lines[i].strip() == "```sh":
             skip = i > 0 and lines[i - 1].strip().startswith(SKIP)
             i += 1
             block = []
@@ -72,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"README command {k} of {len(cmds)} exited with {r.returncode} after {dt:.0f} s: {cmd}\n"
                       f"--- stdout (end)\n{r.stdout[-3000:]}\n--- stderr (end)\n{r.stderr[-3000:]}", file=sys.stderr)
                 return 1
-            print(f"README command {k} of {len(cmds)} ran in {dt:5.1f} s: {cmd}", flush=True)
+            print(f"README command {k} of {len(cmds)} ran in {dt:5.1f} s: {cmd.splitlines()[0]}", flush=True)
         print(f"README commands: all {len(cmds)} exited with 0, {time.perf_counter() - t0:.0f} s in a fresh clone")
         return 0
     finally:
