@@ -16,7 +16,7 @@ from infra.model import captured_stdout
 
 THRUST = "external_reactions/thrust/magnitude"
 PAYLOAD = "inertia/pointmass-weight-lbs[0]"
-#: Pitch controls in order of preference: command, position, position units per command unit.
+#: The pitch controls: command and position [deg] properties.
 PITCH = {"elevator": ("fcs/elevator-cmd-norm", "fcs/elevator-pos-deg"),
          "stabilizer": ("fcs/pitch-trim-cmd-norm", "fcs/stabilizer-pos-deg")}
 #: Converged when the body accelerations are below these [ft/s^2, ft/s^2, rad/s^2].
