@@ -64,11 +64,12 @@ class ModelBuild:
             if "error" in t:
                 out.append(f"  trim at {t['point']}'s start: {t['error']}")
                 continue
+            pitch = t["pitch_control"]
             out.append(f"  trim at {t['point']}'s start ({t['alt_ft']:.0f} ft, {t['tas_kt']:.1f} kt, flight path "
-                       f"{t['gamma_deg']:+.2f} deg, {t['pitch_control']} trims): alpha {t['alpha_deg']:.2f} deg "
-                       f"(logged {t['logged']['alpha_deg']:.2f}), {t['pitch_control']} "
-                       f"{t[t['pitch_control'] + '_deg']:.2f} deg (logged {t['logged'][t['pitch_control'] + '_deg']:.2f}),"
-                       f" thrust {t['thrust_lbf']:.0f} lbf (logged {t['logged']['thrust_lbf']:.0f})")
+                       f"{t['gamma_deg']:+.2f} deg, {pitch} trims): alpha {t['alpha_deg']:.2f} deg "
+                       f"(logged {t['logged']['alpha_deg']:.2f}), {pitch} {t[pitch + '_deg']:.2f} deg "
+                       f"(logged {t['logged'][pitch + '_deg']:.2f}), thrust {t['thrust_lbf']:.0f} lbf "
+                       f"(logged {t['logged']['thrust_lbf']:.0f})")
         return out
 
 
