@@ -34,11 +34,12 @@ from __future__ import annotations
 
 from aircraft import SHIPPED_737
 from campaign.errors import UserError
-from gearaero.jobs import diagnose, fly, identify, plan, report
+from gearaero.jobs import diagnose, fly, identify, model, plan, report
 from gearaero.logs import FRAME_COLUMNS, log_from_frame, read_logs, write_logs
 from gearaero.plots import (plot_alpha_transitions, plot_fit, plot_increments, plot_replay, plot_residual_history,
                             plot_residuals, plot_response)
-from gearaero.results import CampaignResult, DiagnosisResult, IdentificationResult, PlanResult, ReportResult
+from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, ModelResult, PlanResult,
+                              ReportResult)
 from identify.logs import Log, LogError
 from infra.provenance import version as _version
 
@@ -48,8 +49,8 @@ __version__ = _version()
 __all__ = [
     "__version__", "SHIPPED_737", "UserError", "LogError", "Log", "FRAME_COLUMNS",
     "read_logs", "log_from_frame", "write_logs",
-    "fly", "identify", "diagnose", "plan", "report",
-    "CampaignResult", "IdentificationResult", "DiagnosisResult", "PlanResult", "ReportResult",
+    "fly", "identify", "model", "diagnose", "plan", "report",
+    "CampaignResult", "IdentificationResult", "ModelResult", "DiagnosisResult", "PlanResult", "ReportResult",
     "plot_fit", "plot_increments", "plot_alpha_transitions", "plot_residuals", "plot_response",
     "plot_residual_history", "plot_replay",
 ]

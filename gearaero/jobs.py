@@ -1,7 +1,8 @@
-"""The everyday jobs from Python: fly, identify, diagnose, plan, report.
+"""The everyday jobs from Python: fly, identify, model, diagnose, plan, report.
 
 Each is the ``campaign`` command of the same name (the same code: :mod:`campaign.orchestration.job`,
-:func:`identify.pipeline.identify_campaign`, :func:`campaign.diagnosis.run.run_diagnosis`,
+:func:`identify.pipeline.identify_campaign`, :func:`campaign.modelling.build.build_model`,
+:func:`campaign.diagnosis.run.run_diagnosis`,
 :func:`campaign.design.plan.plan`, :mod:`campaign.reports.report`) and returns a results object
 with ``summary()`` and ``to_dict()``. What a command prints, a job logs (the ``gearaero``
 logger, level INFO). Bad input raises :class:`UserError` with one line naming the file and the
@@ -14,7 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from campaign.errors import UserError
-from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, PlanResult, ReportResult)
+from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, ModelResult, PlanResult,
+                              ReportResult)
 from identify.logs import Log, LogError
 
 LOG = logging.getLogger("gearaero")
@@ -157,6 +159,36 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
     except ValueError as exc:  # an estimator's option
         raise UserError(f"identify: {exc}") from None
     return IdentificationResult(Path(files["json"]).parent, files, ident)
+
+
+def model(identification, out: str | Path, *, name: str | None = None) -> ModelResult:
+    """A whole JSBSim aircraft from an identification (``campaign model``): metrics, mass and inertia
+    from the logs' metadata, flight controls that take the logged surface positions through the standard
+    ``fcs/`` properties, the identified eq. (3) aerodynamics (blended over Mach and flap between the
+    conditions identified) and gear models, nominal lateral-directional terms, and the thrust as an
+    external force along the body x axis (``external_reactions/thrust/magnitude`` [lbf]). The aircraft
+    is loaded by JSBSim and trimmed at the start of each identified record.
+
+    Parameters
+    ----------
+    identification : str, Path or IdentificationResult
+        An identification folder (``identification.json``); the logs it was made from must be readable.
+    out : str or Path
+        The new aircraft folder (refused if it holds anything).
+    name : str, optional
+        The aircraft's name: the folder's name, which JSBSim needs (default).
+
+    Returns
+    -------
+    ModelResult
+        ``folder``, ``xml``, ``summary()`` (what was built, what is nominal, the trims) and
+        ``to_dict()`` (``model.json``).
+    """
+    from campaign.modelling.build import build_model
+    folder = identification.folder if isinstance(identification, IdentificationResult) else Path(identification)
+    said: list[str] = []
+    built = build_model(folder, Path(out), name, say=_say(said))
+    return ModelResult(built.folder, built.name, said)
 
 
 def diagnose(data, model: str | Path, out: str | Path, settings=None, *, plots: str = "key", jobs: int = 1,

@@ -237,3 +237,43 @@ class ReportResult:
         for r in self.first_page:
             lines.append("  " + ", ".join(f"{k} {v}" for k, v in r.items()))
         return "\n".join(lines) + "\n"
+
+
+@dataclass
+class ModelResult:
+    """A JSBSim aircraft written from an identification (``campaign model``).
+
+    Attributes
+    ----------
+    folder : Path
+        The aircraft folder: ``<name>.xml`` (load it with ``--model folder`` or as JSBSim aircraft
+        ``name``) and ``model.json``.
+    name : str
+    lines : list of str
+        What the command prints: what the aircraft is made of, how it interpolates, what is nominal,
+        and its trim at the start of each identified record beside the logged values.
+    """
+
+    folder: Path
+    name: str
+    lines: list = field(default_factory=list)
+
+    @property
+    def xml(self) -> Path:
+        """The aircraft file."""
+        return self.folder / f"{self.name}.xml"
+
+    def to_dict(self) -> dict:
+        """``model.json``: the tool, the name, the identification it came from, the notes, and each
+        trim (``alpha_deg``, ``elevator_deg``, ``stabilizer_deg`` [deg], ``thrust_lbf``, the logged
+        values beside them, or the reason it failed)."""
+        return _json(self.folder / "model.json")
+
+    @property
+    def trims(self) -> list[dict]:
+        """The trim at the start of each identified record (:meth:`to_dict`'s ``trims``)."""
+        return self.to_dict()["trims"]
+
+    def summary(self) -> str:
+        """What the command printed."""
+        return "\n".join(self.lines) + "\n"

@@ -249,7 +249,10 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
         files["surfaces"] = str(out / "gear_surfaces.json")
 
     points = ((f.point, {"gear": "down" if f.gear_down else "up",
+                         "condition": dict(zip(("alt_ft", "mach", "flap_deg"), map(float, f.condition))),
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
+                         # the log, from this folder (it is staged beside its final place): campaign model reads it
+                         **({"log": os.path.relpath(f.path, out)} if Path(f.path).is_file() else {}),
                          **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
         "tool": tool(),

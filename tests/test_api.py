@@ -189,11 +189,11 @@ def test_a_jupyter_kernel_fans_out_and_keeps_its_inline_backend(flown, tmp_path,
 def test_help_shows_the_documented_api():
     text = subprocess.run([sys.executable, "-c", "import gearaero; help(gearaero)"], capture_output=True, text=True,
                           env={**ENV, "PAGER": "cat"}, timeout=120).stdout
-    for name in ("read_logs", "log_from_frame", "fly", "identify", "diagnose", "plan", "report", "__version__"):
+    for name in ("read_logs", "log_from_frame", "fly", "identify", "model", "diagnose", "plan", "report", "__version__"):
         assert name in text, name
-    for f in (ga.read_logs, ga.log_from_frame, ga.write_logs, ga.fly, ga.identify, ga.diagnose, ga.plan, ga.report,
-              ga.plot_replay, ga.CampaignResult, ga.IdentificationResult, ga.DiagnosisResult, ga.PlanResult,
-              ga.ReportResult):
+    for f in (ga.read_logs, ga.log_from_frame, ga.write_logs, ga.fly, ga.identify, ga.model, ga.diagnose, ga.plan,
+              ga.report, ga.plot_replay, ga.CampaignResult, ga.IdentificationResult, ga.ModelResult,
+              ga.DiagnosisResult, ga.PlanResult, ga.ReportResult):
         doc = f.__doc__ or ""
         assert doc.strip(), f
         if callable(f) and not isinstance(f, type):

@@ -1,4 +1,4 @@
-"""Command line: ``campaign run | fly | identify | replay | plots | diagnose | report | import | points``."""
+"""Command line: ``campaign run | fly | identify | replay | plots | diagnose | report | import | model | points``."""
 from __future__ import annotations
 
 import argparse
@@ -161,6 +161,18 @@ def build_parser() -> argparse.ArgumentParser:
                                                                        "aircraft data (see docs/guide/import.md)")
     imp.add_argument("--out", required=True, metavar="DIR", help="folder for the logs and the import report")
 
+    mdl = sub.add_parser("model", help="a whole JSBSim aircraft from an identification",
+                         description="Write a JSBSim aircraft folder from an identification: metrics, mass and "
+                                     "inertia from the logs, flight controls taking the logged surface positions, "
+                                     "the identified eq. (3) aerodynamics (blended over the conditions identified) "
+                                     "and gear models, nominal lateral-directional terms, and the thrust as an "
+                                     "external force; then trim it at the start of each identified record.")
+    mdl.add_argument("identification", metavar="IDENTIFICATION_DIR",
+                     help="an identification folder (identification.json; the logs it was made from readable)")
+    mdl.add_argument("--out", required=True, metavar="DIR", help="new aircraft folder: DIR/NAME.xml")
+    mdl.add_argument("--name", metavar="NAME", help="the aircraft's name (default and only choice: DIR's name, "
+                                                     "as JSBSim finds NAME/NAME.xml)")
+
     pla = sub.add_parser("plan", help="design the flights that separate a diagnosis's rival explanations",
                          description="Fly candidate status points and manoeuvres on the model, predict how far each "
                                      "would separate each rival explanation the diagnosis could not tell apart, and "
@@ -243,6 +255,10 @@ def _main(args) -> int:
             print(f"report in {args.out}")
             from campaign.orchestration.job import html_report
             html_report(Path(args.out))
+            return 0
+        if args.command == "model":
+            from campaign.modelling.build import build_model
+            build_model(Path(args.identification), Path(args.out), args.name, say=print)
             return 0
         if args.command == "plan":
             from campaign.design.plan import plan

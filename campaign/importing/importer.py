@@ -15,7 +15,7 @@ import hashlib
 import json
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -253,6 +253,9 @@ def _mat(path: Path, m: ImportMap) -> pd.DataFrame:
                             f"{len(m.columns)}")
         return pd.DataFrame(arr, columns=list(m.columns))
     vectors = {k: np.ravel(doc[k]) for k in names if np.ndim(doc[k]) == 1 and np.size(doc[k]) > 1}
+    arrays = [k for k in names if np.ndim(doc[k]) == 2 and np.asarray(doc[k]).dtype.kind in "fiu"]
+    if not vectors and len(arrays) == 1 and m.columns:  # one record per file, each named after its file
+        return _mat(path, replace(m, variable=arrays[0]))
     if not vectors:
         raise UserError(f"{path}: source.variable: no vectors at the top of the file; name the array or struct")
     return pd.DataFrame(vectors)
@@ -440,8 +443,8 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
     df = read_source(path, m)
     t = _time(path, df, m)
     cols, report = {}, {"mapped": {}, "constants": {}, "derived": {}, "source": str(path)}
-    for col, src, k in m.channels:
-        cols[col] = _numeric(path, df, src, f"channels.{col}") * k
+    for col, src, k in m.channels:  # "A+B": the sum of source columns (two engines' thrust)
+        cols[col] = sum(_numeric(path, df, s, f"channels.{col}") for s in src.split("+")) * k
         report["mapped"][col] = f"{src} [{m.units.get(col) or '-'}]"
     step = float(np.median(np.diff(t)))
     jitter = float(np.max(np.abs(np.diff(t) - step)) / step)
