@@ -263,6 +263,18 @@ def _data_sets(data_path) -> list[tuple[object, list[Log]]]:
     return sets
 
 
+def _paths(data_path) -> list[Path]:
+    """The folders and files among the data given (logs given in memory are neither)."""
+    given = data_path if isinstance(data_path, (list, tuple)) else [data_path]
+    return [Path(p) for p in given if isinstance(p, (str, Path))]
+
+
+def _within(out: Path, folder: Path) -> bool:
+    """Whether ``out`` is ``folder`` or below it (links resolved)."""
+    o, f = out.resolve(), folder.resolve()
+    return o == f or f in o.parents
+
+
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
                   progress: bool = False, cluster: str | None = None, refine: str | None = None,
                   bands: int = 0, settings=None) -> dict:
@@ -306,8 +318,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     if bands < 0 or 0 < bands < 20:
         raise UserError(f"--bands: {bands} draws; a band needs 20 or more (50 is usual), or 0 for none")
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: is a file, not a folder (--out names a new folder for the report)")
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
+    for flag, given in [("--data", p) for p in _paths(data_path)] + [("--model", Path(model_dir))]:
+        if _within(out, given):
+            raise UserError(f"{out}: inside {flag} {given}; the report goes in a folder of its own (choose another "
+                            f"--out)")
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
     try:

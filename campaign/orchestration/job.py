@@ -48,6 +48,7 @@ def flight_config(matrix: str | Path | None = None, aircraft: str | Path | None 
     """
     from campaign.simulation.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
                                               check_aircraft_folder, load_effects)
+    from campaign.simulation.checks import check_overlay, check_weights
     from campaign.simulation.engine import FlightConfig, check_flaps
     from campaign.simulation.instruments import load_profile
     from campaign.simulation.matrix import load_matrix
@@ -60,7 +61,10 @@ def flight_config(matrix: str | Path | None = None, aircraft: str | Path | None 
     config = FlightConfig(AircraftSource(str(folder), fx), seed, load_profile(instruments or noise or "none"),
                           m.maneuver_params, m.clmax_by_flap)
     points = [m.point(point_id)] if point_id is not None else m.points
+    check_overlay(config.aircraft)
     check_flaps(config.aircraft, [(f"{m.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
+    check_weights(config.aircraft, [(f"{m.path}: {p.entry}.weight_lb", p.weight_lb) for p in points
+                                    if p.weight_lb is not None])
     return m, config
 
 
