@@ -181,8 +181,11 @@ def stop_workers() -> None:
     """End this process's workers now, their tasks unfinished (the caller was interrupted: what they
     were writing is a temporary file that the next run removes)."""
     for pool in _POOL.values():
-        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for proc in procs:
             proc.terminate()
+        for proc in procs:
+            proc.join(5.0)
         pool.shutdown(wait=False, cancel_futures=True)
     _POOL.clear()
 

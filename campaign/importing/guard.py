@@ -79,13 +79,13 @@ def check_columns(path: Path, n: int) -> None:
         raise UserError(f"{path}: {n:,} columns, more than {MAX_FIELDS:,}")
 
 
-def check_rate(path: Path, step_s: float, time_unit: str) -> None:
+def check_rate(path: Path, step_s: float, m) -> None:
     """Refuse samples whose spacing says the map's time unit is wrong."""
     lo, hi = RATE_RANGE_HZ
     rate = 1.0 / step_s
     if not lo <= rate <= hi:
-        raise UserError(f"{path}: time.unit: samples {step_s:g} s apart ({rate:g} Hz), outside {lo:g}..{hi:g} Hz "
-                        f"(is the time in {time_unit or 's'}?)")
+        raise UserError(f"{path}: samples {step_s:g} s apart ({rate:g} Hz), outside {lo:g}..{hi:g} Hz: is the time in "
+                        f"{m.units.get('t_s') or 's'}? (time.unit of {Path(m.path).name})")
 
 
 def where_in_map(m, column: str) -> str:
@@ -112,5 +112,5 @@ def check_log(source: Path, m, log, meta) -> None:
         text = str(exc)[len(str(source)) + 2:]
         hit = re.match(r"column '([^']+)', (.*)", text)
         if hit:
-            raise UserError(f"{source}: {where_in_map(m, hit.group(1))}: {hit.group(2)}") from None
+            raise UserError(f"{source}: {where_in_map(m, hit.group(1))} of {Path(m.path).name}: {hit.group(2)}") from None
         raise UserError(f"{source}: {text}") from None

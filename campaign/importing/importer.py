@@ -468,7 +468,7 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
         cols[col] = _numeric(path, df, src, f"channels.{col}") * k
         report["mapped"][col] = f"{src} [{m.units.get(col) or '-'}]"
     step = float(np.median(np.diff(t)))
-    check_rate(path, step, m.units.get("t_s", "s"))
+    check_rate(path, step, m)
     jitter = float(np.max(np.abs(np.diff(t) - step)) / step)
     t0 = t - t[0]
     if jitter > JITTER:

@@ -95,6 +95,10 @@ def identify_job(results: Path, out: Path | None = None, model: str | Path | Non
         files = identify_campaign(Path(results), out, Path(model) if model else None, plots, jobs, method)
     except LogError as exc:
         raise UserError(str(exc)) from None
+    except KeyboardInterrupt:  # the staging folder goes now, not at the next identification
+        from identify.pipeline import recover
+        recover(Path(out) if out else Path(results) / "identification")
+        raise
     say(f"identification ({method}) in {Path(files['json']).parent}: "
         f"{sum(1 for k in files if k.startswith('plot'))} plots, "
         f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")
