@@ -104,6 +104,12 @@ def validation_table() -> str:
         ["Filter error on real flight data in turbulence (HFB-320)", "1 record",
          f"within {worst(hfb):.1f} % (4 main derivatives)", "`tests/test_estimators.py`"],
     ]
+    if (RESULTS / "bad_input_sweep.json").exists():
+        bad = _json("bad_input_sweep.json")
+        rows.append(["Bad input refused in one line naming the file and field, exit code 2, nothing on disk changed",
+                     f"{bad['inputs_tried']:,} generated bad matrices, maps, data files, instrument profiles, "
+                     f"overlays and command lines", f"{bad['clean']:,} of {bad['inputs_tried']:,}, "
+                     f"{bad['tracebacks']} tracebacks", "`benchmarks/bad_input_sweep.py`"])
     return _table(["what", "on", "result", "measured by"], rows)
 
 

@@ -86,8 +86,28 @@ def unsafe_xml(path: Path) -> str | None:
     return None
 
 
+def outside_links(folder: Path) -> tuple[Path, str] | None:
+    """The first symbolic link in a folder (at any depth) that leads outside it or nowhere, and why."""
+    top = Path(folder).resolve()
+    for base, dirs, files in os.walk(folder):
+        for name in sorted(dirs + files):
+            link = Path(base) / name
+            if not link.is_symlink():
+                continue
+            target = link.resolve()
+            if not target.exists():
+                return link, "a symbolic link to nothing (refused)"
+            if top != target and top not in target.parents:
+                return link, f"a symbolic link to {target}, outside the aircraft folder (refused)"
+    return None
+
+
 def unsafe_folder(folder: Path) -> tuple[Path, str] | None:
-    """The first XML file of an aircraft folder that :func:`unsafe_xml` refuses, and why."""
+    """The first file of an aircraft folder that leads outside it (:func:`outside_links`) or XML file
+    that :func:`unsafe_xml` refuses, and why."""
+    link = outside_links(folder)
+    if link:
+        return link
     for path in sorted(Path(folder).rglob("*.xml")):
         why = unsafe_xml(path)
         if why:
@@ -169,14 +189,39 @@ def load_fdm(root: Path, name: str):
     with captured_stdout(said):
         ok = fdm.load_model(name)
     if not ok:
-        # never destroyed (a reference nothing releases, not even the interpreter's exit): a half-loaded
-        # model reads, as it is destroyed, a property the rest of its files would have defined, and the
-        # exception JSBSim then throws from its destructor aborts the process (a Short S23 missing one of
-        # its system files)
-        ctypes.pythonapi.Py_IncRef(ctypes.py_object(fdm))
-        why = next((s for s in said if "rror" in s), "")
-        raise ValueError(f"{folder}: JSBSim could not load the aircraft{': ' + why if why else ''}")
+        # a half-loaded model reads, as it is destroyed, a property the rest of its files would have
+        # defined (a Short S23 missing one of its system files)
+        abandon(fdm)
+        raise ModelLoadError(folder, next((s for s in said if "rror" in s), ""))
     return fdm
+
+
+class ModelLoadError(ValueError):
+    """JSBSim could not load a model; ``reason`` is what JSBSim said (or "")."""
+
+    def __init__(self, folder: Path, reason: str) -> None:
+        super().__init__(f"{folder}: JSBSim could not load the aircraft{': ' + reason if reason else ''}")
+        self.folder, self.reason = folder, reason
+
+
+def abandon(fdm) -> None:
+    """Never destroy ``fdm`` (a reference nothing releases, not even the interpreter's exit).
+
+    For a model JSBSim gave up on, loading or running: destroying it evaluates its functions once
+    more, JSBSim throws from the destructor (a property nothing defines), and that aborts the process.
+    """
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(fdm))
+
+
+def abandon_models(tb) -> None:
+    """:func:`abandon` every ``FGFDMExec`` held by the frames of a traceback ``tb``."""
+    import jsbsim
+
+    while tb is not None:
+        for value in list(tb.tb_frame.f_locals.values()):
+            if isinstance(value, jsbsim.FGFDMExec):
+                abandon(value)
+        tb = tb.tb_next
 
 
 

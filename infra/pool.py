@@ -109,7 +109,15 @@ def warm(modules: Iterable[str]) -> None:
         return
     from multiprocessing import forkserver
     ctx.set_forkserver_preload(sorted(set(modules)))
-    forkserver.ensure_running()
+    # the server and its forks ignore Ctrl-C (an ignored signal stays ignored across exec): the
+    # terminal sends it to the whole process group, and the caller ends its workers itself
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        forkserver.ensure_running()
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
 
 
 #: The packages whose modules a library caller has imported are what its worker processes need.
@@ -158,8 +166,28 @@ def executor(jobs: int) -> ProcessPoolExecutor:
         for old in _POOL.values():
             old.shutdown(wait=False, cancel_futures=True)
         _POOL.clear()
-        pool = _POOL[jobs] = ProcessPoolExecutor(jobs, mp_context=_context(), initializer=one_blas_thread)
+        pool = _POOL[jobs] = ProcessPoolExecutor(jobs, mp_context=_context(), initializer=_worker)
     return pool
+
+
+def _worker() -> None:
+    """A worker's set-up: one BLAS thread; Ctrl-C, which the terminal sends to the whole process group,
+    left to the caller (it ends the workers, :func:`stop_workers`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_blas_thread()
+
+
+def stop_workers() -> None:
+    """End this process's workers now, their tasks unfinished (the caller was interrupted: what they
+    were writing is a temporary file that the next run removes)."""
+    for pool in _POOL.values():
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.join(5.0)
+        pool.shutdown(wait=False, cancel_futures=True)
+    _POOL.clear()
 
 
 class _ByValue:
@@ -267,6 +295,7 @@ def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
 
 
 def _ahead(send, stop, cwd: str, func: Callable, calls: list[tuple]) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller ends this process (a daemon) as it exits
     os.chdir(cwd)
     one_blas_thread()
     for i, args in enumerate(calls):
@@ -340,6 +369,7 @@ class WorkerDied(RuntimeError):
 
 
 def _alone(send, cwd: str, func: Callable, args: tuple) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller, interrupted, ends this process
     try:
         answer = (True, _in(cwd, func, args))
     except BaseException as exc:  # handed back to the caller, raised there

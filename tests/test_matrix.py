@@ -48,10 +48,10 @@ def test_bad_matrix_names_file_and_field(tmp_path, text, field):
 def test_a_left_turn_is_a_negative_bank_and_its_size_is_still_checked(tmp_path):
     head = 'name = "t"\n[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["level_turn"]\n'
     f = tmp_path / "m.toml"
-    f.write_text(head + "[maneuvers.level_turn]\nbank_deg = -20.0\nturn_s = 0\n")
-    assert load_matrix(f).params_for("level_turn") == {"bank_deg": -20.0, "turn_s": 0.0}
+    f.write_text(head + "[maneuvers.level_turn]\nbank_deg = -20.0\n")
+    assert load_matrix(f).params_for("level_turn") == {"bank_deg": -20.0}  # the time at full bank from the trim
     for bad, said in (("bank_deg = -40.0", "bank_deg must be within"), ("bank_deg = 0", "bank_deg must be within"),
-                      ("turn_s = -5", "turn_s: must be >= 0")):
+                      ("turn_s = -5", "turn_s: must be > 0"), ("turn_s = 0", "turn_s: must be > 0")):
         f.write_text(head + f"[maneuvers.level_turn]\n{bad}\n")
         with pytest.raises(UserError, match=said):
             load_matrix(f)

@@ -313,14 +313,18 @@ def _main(args) -> int:
         if type(exc).__module__ != "_jsbsim":
             raise
         # a model JSBSim loads but cannot run (it reads a property nothing defines, such as
-        # FlightGear's /sim/... tree)
+        # FlightGear's /sim/... tree); destroying it would throw again, and abort
+        from infra.model import abandon_models
+        abandon_models(exc.__traceback__)
         folder = getattr(args, "model", None) or getattr(args, "aircraft", None) or "the aircraft"
-        sys.stderr.write(f"campaign: error: {folder}: JSBSim cannot run the model: {str(exc).strip()}\n")
+        sys.stderr.write(f"campaign: error: {folder}: JSBSim cannot run the model: {' '.join(str(exc).split())}\n")
         return 2
     except BrokenPipeError:  # e.g. `campaign points | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except KeyboardInterrupt:
+        from infra.pool import stop_workers
+        stop_workers()
         sys.stderr.write("campaign: interrupted; run the same command again to resume\n")
         return 130
     return 0

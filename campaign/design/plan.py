@@ -70,8 +70,16 @@ def read_diagnosis(folder: Path) -> dict:
         doc = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise UserError(f"{path}: does not read as JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise UserError(f"{path}: not a diagnosis (a JSON object is expected)")
     if "rivals" not in doc:
         raise UserError(f"{path}: rivals: missing (written before rivals were measured); diagnose again")
+    if not isinstance(doc["rivals"], list) or not all(
+            isinstance(r, dict) and isinstance(r.get("separation_se"), (int, float)) for r in doc["rivals"]):
+        raise UserError(f"{path}: rivals: expected a list of rivals, each with its separation_se")
+    for key in ("model", "data"):
+        if key not in doc:
+            raise UserError(f"{path}: {key}: missing; diagnose again")
     return doc
 
 
@@ -384,14 +392,17 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     """The whole plan; returns what ``plan.json`` holds (see the module's docstring)."""
     import shutil
     diagnosis = Path(diagnosis)
-    doc = read_diagnosis(diagnosis)
+    doc = read_diagnosis(diagnosis)  # the arguments in the order a user gives them, before the rivals
     where = diagnosis / "diagnosis.json"
-    rivals = open_rivals(doc, where)
     if budget_min is not None and not 0 < budget_min < float("inf"):
         raise UserError(f"--budget-min: {budget_min:g} minutes; the plan needs a finite budget of more than 0")
+    given = load_matrix(matrix) if matrix else None
     out = Path(out) if out else diagnosis / "plan"
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: is a file, not a folder (--out names a new folder for the plan)")
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
+    rivals = open_rivals(doc, where)
     model = check_aircraft_folder(Path(doc["model"]))
     paths = data_paths(doc)
     logs = []
@@ -405,7 +416,6 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     old_minutes = sum(minutes(lg) for lg in logs)
     budget = BUDGET_SHARE * old_minutes if budget_min is None else float(budget_min)
     like = _old_matrix(paths)
-    given = load_matrix(matrix) if matrix else None
     source = AircraftSource(str(model), load_effects(None))
     turns = (any(airspeed_rival(r) for r in rivals)
              and all(c in lg.columns for lg in logs for c in TURN_NEEDS))

@@ -8,6 +8,7 @@ held-out manoeuvres on both aircraft (same trimmed start, recorded inputs) and h
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from identify.kinematics import measured_wind
 from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from campaign.orchestration.cluster import connect, pack, unpack_source
+from campaign.orchestration.store import atomic_write
 from campaign.diagnosis.bands import replay_bands
 from campaign.diagnosis.refine import REFINE, refine_extension
 from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
@@ -263,6 +265,18 @@ def _data_sets(data_path) -> list[tuple[object, list[Log]]]:
     return sets
 
 
+def _paths(data_path) -> list[Path]:
+    """The folders and files among the data given (logs given in memory are neither)."""
+    given = data_path if isinstance(data_path, (list, tuple)) else [data_path]
+    return [Path(p) for p in given if isinstance(p, (str, Path))]
+
+
+def _within(out: Path, folder: Path) -> bool:
+    """Whether ``out`` is ``folder`` or below it (links resolved)."""
+    o, f = out.resolve(), folder.resolve()
+    return o == f or f in o.parents
+
+
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
                   progress: bool = False, cluster: str | None = None, refine: str | None = None,
                   bands: int = 0, settings=None) -> dict:
@@ -306,8 +320,14 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     if bands < 0 or 0 < bands < 20:
         raise UserError(f"--bands: {bands} draws; a band needs 20 or more (50 is usual), or 0 for none")
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: is a file, not a folder (--out names a new folder for the report)")
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
+    for flag, given in [("--data", p) for p in _paths(data_path)] + [("--model", Path(model_dir))]:
+        if _within(out, given):
+            raise UserError(f"{out}: inside {flag} {given}; the report goes in a folder of its own (choose another "
+                            f"--out)")
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
     try:
@@ -326,10 +346,21 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         if client is not None:
             client.close()
         raise
+    fresh = not out.exists()
     try:
         with on_cluster(client):
             return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands,
                               settings)
+    except BaseException:  # interrupted or failed: no half report, and the same command runs again
+        if fresh:
+            shutil.rmtree(out, ignore_errors=True)
+        elif out.is_dir():
+            for p in out.iterdir():
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink()
+        raise
     finally:
         if client is not None:
             client.close()
@@ -415,8 +446,9 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = summary(diag, doc)
-    (out / "diagnosis.json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
-    (out / "diagnosis.txt").write_text(doc["summary"])
+    text = json.dumps(doc, indent=1, default=float) + "\n"
+    atomic_write(out / "diagnosis.txt", lambda tmp: Path(tmp).write_text(doc["summary"]))
+    atomic_write(out / "diagnosis.json", lambda tmp: Path(tmp).write_text(text))  # last: the diagnosis is whole
     evaluator.close()
     if extended_eval:
         extended_eval.close()

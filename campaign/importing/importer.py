@@ -20,9 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 
 from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
+from campaign.importing.guard import (MAX_POSITION_FT, bounded, check_columns, check_log, check_rate, check_text,
+                                      shown)
 from campaign.simulation.instruments import POSITIONED
 from infra.provenance import tool
 
@@ -105,6 +108,8 @@ def _quantity(path: str, where: str, value, target: str) -> float:
     if isinstance(value, bool):
         raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
     if isinstance(value, (int, float)):
+        if not np.isfinite(value):
+            raise UserError(f"{path}: {where}: {value!r} is not a finite number")
         return float(value)
     if not isinstance(value, str):
         raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
@@ -112,8 +117,11 @@ def _quantity(path: str, where: str, value, target: str) -> float:
     try:
         x = float(num)
     except ValueError:
-        raise UserError(f"{path}: {where}: {value!r} does not start with a number") from None
-    return x * factor(path, where, unit, target) if unit else x
+        raise UserError(f"{path}: {where}: {shown(value)} does not start with a number") from None
+    x = x * factor(path, where, unit, target) if unit else x
+    if not np.isfinite(x):
+        raise UserError(f"{path}: {where}: {shown(value)} is not a finite number")
+    return x
 
 
 @dataclass(frozen=True)
@@ -184,7 +192,7 @@ def load_map(path: str | Path) -> ImportMap:
     if not isinstance(tim.get("column"), str) or not tim.get("column"):
         raise UserError(f"{ps}: time.column: missing (the source column holding time)")
     t_factor = factor(ps, "time.unit", str(tim.get("unit", "s")), "second")
-    channels, units = [], {}
+    channels, units = [], {"t_s": str(tim.get("unit", "s"))}
     for col, spec in doc.get("channels", {}).items():
         where = f"channels.{col}"
         if col not in LOG_COLUMNS or col == "t_s":
@@ -204,7 +212,9 @@ def load_map(path: str | Path) -> ImportMap:
         constants.append((col, _quantity(ps, where, value, schema_unit(col))))
     aircraft = []
     for key, value in doc.get("aircraft", {}).items():
-        aircraft.append((key, _quantity(ps, f"aircraft.{key}", value, AIRCRAFT_UNITS[key])))
+        unit = AIRCRAFT_UNITS[key]
+        aircraft.append((key, bounded(ps, f"aircraft.{key}", key, _quantity(ps, f"aircraft.{key}", value, unit),
+                                      unit)))
     positions = []
     for col, value in doc.get("positions", {}).items():
         where = f"positions.{col}"
@@ -213,7 +223,11 @@ def load_map(path: str | Path) -> ImportMap:
         if not isinstance(value, list) or len(value) != 3:
             raise UserError(f"{ps}: {where}: expected [x, y, z] from the CG, body axes (numbers in ft, or "
                             f"\"number unit\" strings)")
-        positions.append((col, tuple(_quantity(ps, where, v, "foot") for v in value)))
+        xyz = tuple(_quantity(ps, where, v, "foot") for v in value)
+        if max(abs(x) for x in xyz) > MAX_POSITION_FT:
+            raise UserError(f"{ps}: {where}: {max(abs(x) for x in xyz):g} ft from the CG; a sensor is within "
+                            f"{MAX_POSITION_FT:g} ft")
+        positions.append((col, xyz))
     have = {c for c, *_ in channels} | {c for c, _ in constants}
     if "mass_slug" not in have and "mass" not in dict(aircraft):
         raise UserError(f"{ps}: aircraft.mass: missing (or map mass_slug)")
@@ -270,6 +284,14 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
     if fmt is None:
         raise UserError(f"{path}: cannot tell the format from {path.suffix!r}; set source.format in {m.path}")
     names = list(m.columns) or None
+    if fmt in ("csv", "whitespace"):
+        check_text(path, fmt)
+    elif fmt == "parquet":
+        try:
+            check_columns(path, len(pq.read_schema(path).names))
+        except (OSError, ValueError) as exc:
+            raise UserError(f"{path}: not readable as parquet ({type(exc).__name__}: "
+                            f"{str(exc).splitlines()[0][:120]})") from None
     try:
         if fmt == "csv":
             df = pd.read_csv(path, header=None if names else "infer", names=names, skipinitialspace=True)
@@ -282,7 +304,8 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
     except UserError:
         raise
     except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not readable as {fmt} ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
+        raise UserError(f"{path}: not readable as {fmt} ({type(exc).__name__}: "
+                        f"{(str(exc).splitlines() or [''])[0][:120]})") from None
     if names and fmt in ("parquet",):
         missing = [c for c in names if c not in df.columns]
         if missing:
@@ -293,12 +316,13 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
 
 def _numeric(path: Path, df: pd.DataFrame, col: str, where: str) -> np.ndarray:
     if col not in df.columns:
-        raise UserError(f"{path}: {where}: source column {col!r} not in the file (it has "
-                        f"{', '.join(map(str, df.columns[:12]))}{'...' if len(df.columns) > 12 else ''})")
+        raise UserError(f"{path}: {where}: source column {shown(col)} not in the file (it has "
+                        f"{', '.join(shown(str(c), 24) for c in df.columns[:12])}{'...' if len(df.columns) > 12 else ''})")
     values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
-        raise UserError(f"{path}: column {col!r}, row {bad[0] + 1}: not a finite number ({df[col].iloc[bad[0]]!r})")
+        raise UserError(f"{path}: column {shown(col)}, row {bad[0] + 1}: not a finite number "
+                        f"({shown(df[col].iloc[bad[0]])})")
     return values
 
 
@@ -447,6 +471,7 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
         cols[col] = sum(_numeric(path, df, s, f"channels.{col}") for s in src.split("+")) * k
         report["mapped"][col] = f"{src} [{m.units.get(col) or '-'}]"
     step = float(np.median(np.diff(t)))
+    check_rate(path, step, m)
     jitter = float(np.max(np.abs(np.diff(t) - step)) / step)
     t0 = t - t[0]
     if jitter > JITTER:
@@ -474,10 +499,15 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
 def import_files(files: list[str | Path], map_path: str | Path, out: str | Path) -> dict:
     """Convert every file, check them all, then write the logs and the report into ``out``.
 
-    Nothing is written if any file or the map is bad, and no existing log is overwritten.
+    Nothing is written if any file or the map is bad (each log is checked as identify and diagnose
+    will read it first), no existing log is overwritten, and a write that fails half way takes back
+    what it wrote: the mended command then runs as if the first had not.
     """
-    from campaign.orchestration.store import write_json, write_log
-    from identify.logs import read_parquet
+    from campaign.orchestration.store import atomic_write, write_json, write_log
+    from identify.logs import LogError, read_parquet
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: is a file, not a folder (--out names the folder for the logs)")
     m = load_map(map_path)
     if not files:
         raise UserError("campaign import: no input files")
@@ -486,25 +516,51 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
     dup = next((n for n in names if names.count(n) > 1), None)
     if dup:
         raise UserError(f"{done[names.index(dup)].source}: two input files make the log {dup}.parquet")
-    out = Path(out)
+    for d in done:
+        check_log(Path(d.source), m, d.log, d.meta)
     clash = [out / f"{n}.parquet" for n in names if (out / f"{n}.parquet").exists()]
     if clash or (out / "manifest.json").exists():
         raise UserError(f"{clash[0] if clash else out / 'manifest.json'}: exists; will not overwrite (choose "
                         f"another --out)")
-    out.mkdir(parents=True, exist_ok=True)
-    for d in done:
-        write_log(out / f"{d.name}.parquet", d.log, d.meta)
-    for d in done:  # what identify and diagnose will read
-        read_parquet(out / f"{d.name}.parquet")
     for d in done:
         d.report["map"] = m.path
     report = {"maps": {m.path: m.sha256}, "logs": [d.report for d in done]}
     previous = out / "import.json"
     whole = json.loads(previous.read_text()) if previous.exists() else {"maps": {}, "logs": []}
     whole = {"tool": tool(), "maps": {**whole["maps"], **report["maps"]}, "logs": whole["logs"] + report["logs"]}
-    write_json(out / "import.json", whole)  # several imports into one folder: one report
-    (out / "import.txt").write_text(report_text(whole))
+    created = not out.exists()
+    kept = {f: (out / f).read_bytes() for f in ("import.json", "import.txt") if (out / f).exists()}
+    written: list[Path] = []
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for d in done:
+            written.append(out / f"{d.name}.parquet")
+            write_log(written[-1], d.log, d.meta)
+            read_parquet(written[-1])  # what identify and diagnose will read
+        write_json(out / "import.json", whole)  # several imports into one folder: one report
+        text = report_text(whole)
+        atomic_write(out / "import.txt", lambda tmp: Path(tmp).write_text(text))
+    except BaseException as exc:
+        _take_back(out, created, written, kept)
+        if isinstance(exc, LogError):
+            raise UserError(str(exc)) from None
+        raise
     return report
+
+
+def _take_back(out: Path, created: bool, written: list[Path], kept: dict[str, bytes]) -> None:
+    """Undo a half-done import: the logs it wrote, its reports, the folder if it made it."""
+    import shutil
+    if created:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for f in written:
+        f.unlink(missing_ok=True)
+    for name in ("import.json", "import.txt"):
+        if name in kept:
+            (out / name).write_bytes(kept[name])
+        else:
+            (out / name).unlink(missing_ok=True)
 
 
 def report_text(report: dict) -> str:

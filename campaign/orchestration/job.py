@@ -48,6 +48,7 @@ def flight_config(matrix: str | Path | None = None, aircraft: str | Path | None 
     """
     from campaign.simulation.aircraft import (DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource,
                                               check_aircraft_folder, load_effects)
+    from campaign.simulation.checks import check_overlay, check_weights
     from campaign.simulation.engine import FlightConfig, check_flaps
     from campaign.simulation.instruments import load_profile
     from campaign.simulation.matrix import load_matrix
@@ -60,7 +61,10 @@ def flight_config(matrix: str | Path | None = None, aircraft: str | Path | None 
     config = FlightConfig(AircraftSource(str(folder), fx), seed, load_profile(instruments or noise or "none"),
                           m.maneuver_params, m.clmax_by_flap)
     points = [m.point(point_id)] if point_id is not None else m.points
+    check_overlay(config.aircraft)
     check_flaps(config.aircraft, [(f"{m.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
+    check_weights(config.aircraft, [(f"{m.path}: {p.entry}.weight_lb", p.weight_lb) for p in points
+                                    if p.weight_lb is not None])
     return m, config
 
 
@@ -91,6 +95,10 @@ def identify_job(results: Path, out: Path | None = None, model: str | Path | Non
         files = identify_campaign(Path(results), out, Path(model) if model else None, plots, jobs, method)
     except LogError as exc:
         raise UserError(str(exc)) from None
+    except KeyboardInterrupt:  # the staging folder goes now, not at the next identification
+        from identify.pipeline import recover
+        recover(Path(out) if out else Path(results) / "identification")
+        raise
     say(f"identification ({method}) in {Path(files['json']).parent}: "
         f"{sum(1 for k in files if k.startswith('plot'))} plots, "
         f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")

@@ -8,6 +8,7 @@ so any folder (the stock JSBSim 737 included) flies without opening ports.
 from __future__ import annotations
 
 import hashlib
+import math
 import shutil
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from aircraft import SHIPPED_737
 from campaign.errors import UserError
-from infra.model import folder_hash, unsafe_folder, unsafe_xml
+from infra.model import PROPERTY_TAGS, folder_hash, reads, unsafe_folder, unsafe_xml
 from infra.pool import owned_tmpdir
 
 DEFAULT_AIRCRAFT = SHIPPED_737
@@ -85,12 +86,44 @@ def load_effects(path: str | Path | None) -> Effects:
                 raise UserError(f"{p}: <axis name=\"{name}\"> function {j + 1}: missing name attribute")
             if len([c for c in fn if c.tag != "description"]) != 1:
                 raise UserError(f"{p}: function {fn.get('name')}: needs exactly one operation or table inside")
+            _check_function(p, fn)
             functions.append((name, ET.tostring(fn, encoding="unicode")))
     names = [ET.fromstring(f).get("name") for _, f in functions]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise UserError(f"{p}: function name {sorted(dup)[0]!r} appears twice")
     return Effects(str(p.resolve()), tuple(functions))
+
+
+def _finite(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
+def _check_function(path: Path, fn: ET.Element) -> None:
+    """Every number of an overlay function finite, every property it reads named: JSBSim refuses the
+    whole aircraft otherwise, without naming the overlay."""
+    where = f"{path}: <function name=\"{fn.get('name')}\">"
+    for el in fn.iter():
+        text = (el.text or "").strip()
+        if el.tag in ("value", "v"):
+            if not _finite(text):
+                raise UserError(f"{where}: <{el.tag}>{text[:40]}</{el.tag}>: not a finite number")
+        elif el.tag == "tableData":
+            bad = next((t for t in text.split() if not _finite(t)), None)
+            if bad is not None or not text:
+                raise UserError(f"{where}: <tableData>: {bad[:40] if bad else 'empty'!r} is not a finite number")
+        elif el.tag in PROPERTY_TAGS and (not text or any(c.isspace() for c in text)):
+            raise UserError(f"{where}: <{el.tag}>{text[:40]}</{el.tag}>: not a property name")
+
+
+def overlay_reads(effects: Effects) -> list[tuple[str, str]]:
+    """(function name, property) for each property an overlay's functions read but do not define."""
+    fns = [ET.fromstring(text) for _, text in effects.functions]
+    defined = {fn.get("name") for fn in fns}
+    return [(fn.get("name"), prop) for fn in fns for prop in sorted(reads(fn)) if prop not in defined]
 
 
 @dataclass(frozen=True)

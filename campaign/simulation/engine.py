@@ -30,7 +30,7 @@ from campaign.errors import UserError  # noqa: E402
 from campaign.simulation.matrix import StatusPoint  # noqa: E402
 from campaign.simulation.instruments import InstrumentProfile, load_profile, record  # noqa: E402
 from campaign.simulation.turbulence import dryden_gusts  # noqa: E402
-from infra.model import Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
+from infra.model import ModelLoadError, Schedule, captured_stdout, control_schedules, load_fdm  # noqa: E402
 from maneuvers.autopilot import HoldAutopilot, HoldGains, bank_hold  # noqa: E402
 from maneuvers.library import GearTransition, Maneuver, make_maneuver  # noqa: E402
 from maneuvers.signals import Constant  # noqa: E402
@@ -116,8 +116,10 @@ def new_fdm(source: AircraftSource):
         _ROOTS.move_to_end(source)
         try:
             return load_fdm(Path(held[0]), source.name)
-        except ValueError:
-            raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}") from None
+        except ModelLoadError as exc:  # what JSBSim said, of the user's folder rather than its copy
+            why = exc.reason.replace(str(exc.folder), source.folder)
+            raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}"
+                            f"{': ' + why if why else ''}") from None
 
 
 def engine_count(names: set[str]) -> int:

@@ -40,6 +40,16 @@ REQUIRED = ("t_s", "alt_ft", "tas_kt", "alpha_deg", "theta_deg", "q_dps", "ax_fp
 SAMPLED = ("gear_norm", "flap_deg", "mass_slug", "xcg_in")
 D2R = np.pi / 180.0
 FT_PER_KT = 1.6878098571011957
+#: The simulation's rate, 1 / :data:`campaign.simulation.engine.DT_S` [Hz]: a logging rate at most this.
+SIM_RATE_HZ = 120.0
+#: The slowest logging rate [Hz]: below it a 2-3-1-1's unit step is a sample or two.
+MIN_RATE_HZ = 5.0
+#: Bounds of what a sensor can be: lag and delay [s], scale factor [-], distance from the CG [ft],
+#: turbulence [ft/s].
+MAX_LAG_S, MAX_DELAY_S = 5.0, 5.0
+SCALE_RANGE = (0.5, 2.0)
+MAX_POSITION_FT = 500.0
+MAX_SIGMA_FPS = 30.0
 
 
 @dataclass(frozen=True)
@@ -106,14 +116,22 @@ def shipped() -> list[str]:
     return sorted(p.stem for p in SHIPPED.glob("*.toml"))
 
 
-def _num(path: str, where: str, value, lo: float | None = None, positive: bool = False) -> float:
+def _num(path: str, where: str, value, lo: float | None = None, positive: bool = False,
+         hi: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise UserError(f"{path}: {where}: expected a number, found {value!r}")
+        raise UserError(f"{path}: {where}: expected a number, found {str(value)[:40]!r}")
     if positive and value <= 0:
         raise UserError(f"{path}: {where}: must be > 0, found {value!r}")
     if lo is not None and value < lo:
         raise UserError(f"{path}: {where}: must be >= {lo:g}, found {value!r}")
+    if hi is not None and value > hi:
+        raise UserError(f"{path}: {where}: must be <= {hi:g}, found {value!r}")
     return float(value)
+
+
+#: Per-channel keys: (lowest, highest) value, None where unbounded.
+SENSOR_BOUNDS = {"noise": (0.0, None), "bias": (None, None), "scale": SCALE_RANGE, "lag_s": (0.0, MAX_LAG_S),
+                 "delay_s": (0.0, MAX_DELAY_S)}
 
 
 def _read(path: Path, seen: tuple[str, ...] = ()) -> dict:
@@ -128,6 +146,9 @@ def _read(path: Path, seen: tuple[str, ...] = ()) -> dict:
     extra = sorted(set(doc) - TOP_KEYS)
     if extra:
         raise UserError(f"{ps}: {extra[0]}: unknown key (allowed: {', '.join(sorted(TOP_KEYS))})")
+    for key in ("turbulence", "channels"):
+        if not isinstance(doc.get(key, {}), dict):
+            raise UserError(f"{ps}: {key}: expected a table [{key}]")
     parent = doc.pop("extends", None)
     if parent is None:
         return doc
@@ -159,6 +180,9 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
     rate = doc.get("rate_hz")
     if rate is not None:
         rate = _num(ps, "rate_hz", rate, positive=True)
+        if not MIN_RATE_HZ <= rate <= SIM_RATE_HZ:
+            raise UserError(f"{ps}: rate_hz: {rate:g} Hz is outside {MIN_RATE_HZ:g}..{SIM_RATE_HZ:g} Hz (the "
+                            f"simulation runs at {SIM_RATE_HZ:g} Hz: a recorder logs at most that)")
     omit = doc.get("omit", [])
     if not isinstance(omit, list) or not all(isinstance(c, str) for c in omit):
         raise UserError(f"{ps}: omit: expected a list of log channels")
@@ -172,7 +196,7 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
         raise UserError(f"{ps}: turbulence: expected a table")
     if set(turb) - {"sigma_fps"}:
         raise UserError(f"{ps}: turbulence.{sorted(set(turb) - {'sigma_fps'})[0]}: unknown key (allowed: sigma_fps)")
-    sigma = _num(ps, "turbulence.sigma_fps", turb.get("sigma_fps", 0.0), lo=0.0)
+    sigma = _num(ps, "turbulence.sigma_fps", turb.get("sigma_fps", 0.0), lo=0.0, hi=MAX_SIGMA_FPS)
     sensors = []
     channels = doc.get("channels", {})
     if not isinstance(channels, dict):
@@ -186,13 +210,14 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
         extra = sorted(set(spec_c) - CHANNEL_KEYS)
         if extra:
             raise UserError(f"{ps}: {where}.{extra[0]}: unknown key (allowed: {', '.join(sorted(CHANNEL_KEYS))})")
-        kw = {k: _num(ps, f"{where}.{k}", spec_c[k], lo=0.0 if k in ("noise", "lag_s", "delay_s") else None)
-              for k in ("noise", "bias", "scale", "lag_s", "delay_s") if k in spec_c}
+        kw = {k: _num(ps, f"{where}.{k}", spec_c[k], *SENSOR_BOUNDS[k][:1], hi=SENSOR_BOUNDS[k][1])
+              for k in SENSOR_BOUNDS if k in spec_c}
         if "position_ft" in spec_c:
             pos = spec_c["position_ft"]
             if not isinstance(pos, list) or len(pos) != 3:
                 raise UserError(f"{ps}: {where}.position_ft: expected [x, y, z] in feet")
-            kw["position_ft"] = tuple(_num(ps, f"{where}.position_ft", v) for v in pos)
+            kw["position_ft"] = tuple(_num(ps, f"{where}.position_ft", v, -MAX_POSITION_FT, hi=MAX_POSITION_FT)
+                                      for v in pos)
             if any(kw["position_ft"]) and c not in POSITIONED:
                 raise UserError(f"{ps}: {where}.position_ft: a position applies only to {', '.join(POSITIONED)}")
         s = Sensor(**kw)

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import hashlib
+import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -94,20 +96,45 @@ class Matrix:
         }
 
 
-#: Manoeuvre parameters for which 0 means "leave it out" (no stabilizer 2-3-1-1) or "from the trim"
-#: (a level turn's time at full bank).
-MAY_BE_ZERO = ("stabilizer_amplitude_deg", "turn_s")
+#: Manoeuvre parameters for which 0 means "leave it out" (no stabilizer 2-3-1-1). A level turn's
+#: ``turn_s`` is left out of the matrix to take it from the trim; given, it is a time at full bank.
+MAY_BE_ZERO = ("stabilizer_amplitude_deg",)
 #: Manoeuvre parameters whose sign means something (a level turn's bank: negative turns left); the
 #: manoeuvre checks their size.
 SIGNED = ("bank_deg",)
 
 
+#: The longest a manoeuvre's time parameter (``*_s``) may be [s].
+MAX_DURATION_S = 600.0
+#: Gross weights a point may ask for [lb].
+WEIGHT_RANGE_LB = (100.0, 2.0e6)
+
+
 def _number(path: str, where: str, value, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{path}: {where}: expected a number, found {value!r}")
+    if not math.isfinite(value):
+        raise UserError(f"{path}: {where}: expected a finite number, found {value!r}")
     if positive and value <= 0:
         raise UserError(f"{path}: {where}: must be > 0, found {value!r}")
     return float(value)
+
+
+def _weight(path: str, where: str, value) -> float:
+    w = _number(path, where, value, positive=True)
+    lo, hi = WEIGHT_RANGE_LB
+    if not lo <= w <= hi:
+        raise UserError(f"{path}: {where}: {w:g} lb is outside {lo:g}..{hi:g} lb")
+    return w
+
+
+def _values(path: str, where: str, value) -> list:
+    """A number or a non-empty list of them, as a list."""
+    if isinstance(value, list):
+        if not value:
+            raise UserError(f"{path}: {where}: an empty list (give at least one value)")
+        return value
+    return [value]
 
 
 def _unknown(path: str, where: str, keys, allowed) -> None:
@@ -119,6 +146,11 @@ def _unknown(path: str, where: str, keys, allowed) -> None:
 def _maneuver_list(path: str, where: str, value) -> tuple[str, ...]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise UserError(f"{path}: {where}: expected a list of manoeuvre names")
+    if not value:
+        raise UserError(f"{path}: {where}: an empty list (a point flies at least one manoeuvre)")
+    dup = next((v for v in value if value.count(v) > 1), None)
+    if dup:
+        raise UserError(f"{path}: {where}: {dup!r} appears twice")
     for name in value:
         if name not in MANEUVERS:
             raise UserError(f"{path}: {where}: unknown manoeuvre {name!r} (known: {', '.join(MANEUVERS)})")
@@ -147,6 +179,13 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
         raise UserError(f"{p}: TOML does not parse: {exc}") from None
     ps = str(p)
     _unknown(ps, "", doc.keys(), TOP_KEYS)
+    for key in ("defaults", "maneuvers", "stall"):
+        if not isinstance(doc.get(key, {}), dict):
+            raise UserError(f"{ps}: {key}: expected a table [{key}]")
+    title = doc.get("name", p.stem)
+    if not isinstance(title, str) or not re.fullmatch(r"[^./\\\x00-\x1f][^/\\\x00-\x1f]{0,99}", title):
+        raise UserError(f"{ps}: name: {str(title)[:40]!r} is not a folder name (the default results folder is "
+                        f"results/<name>: no '/', no leading '.', at most 100 characters)")
     defaults = doc.get("defaults", {})
     _unknown(ps, "defaults.", defaults.keys(), DEFAULT_KEYS)
     man_up = _maneuver_list(ps, "defaults.maneuvers_gear_up", defaults.get("maneuvers_gear_up", ["doublet"]))
@@ -154,7 +193,7 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                             defaults.get("maneuvers_gear_down", ["doublet", "gear_extension"]))
     weight0 = defaults.get("weight_lb")
     if weight0 is not None:
-        weight0 = _number(ps, "defaults.weight_lb", weight0, positive=True)
+        weight0 = _weight(ps, "defaults.weight_lb", weight0)
 
     params = []
     for name, table in doc.get("maneuvers", {}).items():
@@ -174,6 +213,9 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                 x = _number(ps, f"maneuvers.{name}.{k}", v, positive=k not in MAY_BE_ZERO + SIGNED)
                 if x < 0 and k not in SIGNED:
                     raise UserError(f"{ps}: maneuvers.{name}.{k}: must be >= 0, found {v!r}")
+                if k.endswith("_s") and x > MAX_DURATION_S:
+                    raise UserError(f"{ps}: maneuvers.{name}.{k}: {x:g} s is longer than a manoeuvre's "
+                                    f"{MAX_DURATION_S:g} s")
                 items.append((k, x))
         try:
             from maneuvers.library import make_maneuver
@@ -185,12 +227,19 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
     stall = doc.get("stall", {})
     _unknown(ps, "stall.", stall.keys(), STALL_KEYS)
     clmax = []
+    if not isinstance(stall.get("clmax_by_flap", {}), dict):
+        raise UserError(f"{ps}: stall.clmax_by_flap: expected a table of flap angle = CLmax")
     for k, v in stall.get("clmax_by_flap", {}).items():
         try:
             flap = float(k)
         except ValueError:
             raise UserError(f"{ps}: stall.clmax_by_flap.{k}: key must be a flap angle [deg]") from None
-        clmax.append((flap, _number(ps, f"stall.clmax_by_flap.{k}", v, positive=True)))
+        if not math.isfinite(flap):
+            raise UserError(f"{ps}: stall.clmax_by_flap.{k}: key must be a flap angle [deg]")
+        c = _number(ps, f"stall.clmax_by_flap.{k}", v, positive=True)
+        if c > 5.0:
+            raise UserError(f"{ps}: stall.clmax_by_flap.{k}: CLmax {c:g} is beyond any wing's (at most 5)")
+        clmax.append((flap, c))
 
     entries = doc.get("points", [])
     if not isinstance(entries, list) or not entries:
@@ -210,8 +259,8 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
         flap = _number(ps, f"{where}.flap_deg", e["flap_deg"])
         if not -90.0 <= flap <= 90.0:
             raise UserError(f"{ps}: {where}.flap_deg: {flap:g} is not a flap angle in degrees")
-        machs = e["mach"] if isinstance(e["mach"], list) else [e["mach"]]
-        alts = e["alt_ft"] if isinstance(e["alt_ft"], list) else [e["alt_ft"]]
+        machs = _values(ps, f"{where}.mach", e["mach"])
+        alts = _values(ps, f"{where}.alt_ft", e["alt_ft"])
         machs = [_number(ps, f"{where}.mach", m, positive=True) for m in machs]
         for m in machs:
             if m >= 1.0:
@@ -222,7 +271,7 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
                 raise UserError(f"{ps}: {where}.alt_ft: {a} outside -1000..45000 ft")
         weight = e.get("weight_lb", weight0)
         if weight is not None:
-            weight = _number(ps, f"{where}.weight_lb", weight, positive=True)
+            weight = _weight(ps, f"{where}.weight_lb", weight)
         mans = (_maneuver_list(ps, f"{where}.maneuvers", e["maneuvers"]) if "maneuvers" in e
                 else (man_dn if gear == "down" else man_up))
         for m in machs:
@@ -232,5 +281,5 @@ def load_matrix(path: str | Path | None = None) -> Matrix:
     dup = sorted({x for x in ids if ids.count(x) > 1})
     if dup:
         raise UserError(f"{ps}: points: status point {dup[0]} appears twice")
-    return Matrix(str(p.resolve()), str(doc.get("name", p.stem)), tuple(points), tuple(params),
+    return Matrix(str(p.resolve()), title, tuple(points), tuple(params),
                   tuple(sorted(clmax)), hashlib.sha256(raw).hexdigest())
