@@ -77,7 +77,7 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
 #: at 4.7, and an effect changing in that gap would fit a level per Mach number as well. Our 737 also flies
 #: flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's 175 kt flap-30 placard): with
 #: Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle would be a function of Mach
-#: over the data (:mod:`diagnose.settings`), and an effect in Mach below 0.3 the flap's.
+#: over the data (:mod:`diagnose.flap_mach`), and an effect in Mach below 0.3 the flap's.
 OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000), (30, 0.3, 10000),
                             (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
 STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),

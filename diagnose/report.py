@@ -30,7 +30,7 @@ def document(diag: Diagnosis, data: dict, model: str) -> dict:
             "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
             "flown_together": diag.together, "held_out_check": diag.held_out_check,
             "rivals": diag.rivals, "whole_readings": diag.whole_readings, "data": data, "model": model,
-            "plotted_logs": []}
+            "plotted_logs": [], "settings": diag.settings.to_dict()}
 
 
 def _names(files: list[str], n: int = 3) -> str:

@@ -43,7 +43,8 @@ def in_alpha_for_mach(term: Term, pool: list[Term]) -> list[Term]:
 def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
     """The candidates of ``pool`` in alpha and Mach together, for a term in CL alone (none otherwise).
     Trimmed lift is the weight over the dynamic pressure: across the conditions CL follows Mach as
-    well as alpha, and a shape in alpha that Mach scales fits as one in CL (:data:`diagnose.separation.STATE_SE`)."""
+    well as alpha, and a shape in alpha that Mach scales fits as one in CL (``state_se`` of
+    :class:`diagnose.config.DiagnosisSettings`)."""
     if term.variables != ("CL",):
         return []
     return [t for t in pool if set(t.variables) == {"alpha_deg", "mach"}]
@@ -80,7 +81,7 @@ def widened(term: Term, pool: list[Term]) -> list[Term]:
     floor, was named "Cm vs alpha_deg" when smooth(alpha) removed 96.1 % of the residual and
     smooth(alpha) x Mach 96.5 % (fresh seed 9,402,104). Such a rival contains the term, so the data
     never prefer the term to it; they prefer the rival by what the other variable adds
-    (:data:`diagnose.separation.WIDER_SE`)."""
+    (``wider_se`` of :class:`diagnose.config.DiagnosisSettings`)."""
     if term.variables not in (("alpha_deg",), ("mach",)):
         return []
     return [t for t in pool if set(t.variables) == set(FLOW_STATES)]

@@ -157,8 +157,9 @@ class DiagnosisResult:
     def unsettled(self) -> list[dict]:
         """The rival explanations these data do not reject (separation below the settled level, in
         standard errors): what :func:`gearaero.plan` designs flights for."""
-        from diagnose.separation import SETTLED_SE
-        return [r for r in self.document.get("rivals", []) if r["separation_se"] < SETTLED_SE]
+        from diagnose.config import recorded
+        settled_se = recorded(self.document).settled_se
+        return [r for r in self.document.get("rivals", []) if r["separation_se"] < settled_se]
 
     @property
     def extended_aircraft(self) -> Path | None:

@@ -303,7 +303,8 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
     percentile, and the knots stay 10 % of the range apart."""
     import pandas as pd
 
-    from diagnose.terms import MIN_KNOT_SPACING, candidate_terms
+    from diagnose.config import DEFAULTS
+    from diagnose.terms import candidate_terms
     from campaign.validation.shapes import SHAPES, shape
     rng = np.random.default_rng(0)
     trims = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 8.0, 12.0]
@@ -311,7 +312,7 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
                             for t in trims])
     frame = pd.DataFrame({"alpha_deg": alpha})
     smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(alpha_deg)"]
-    assert np.diff(smooth.knots).min() >= MIN_KNOT_SPACING * np.ptp(alpha) - 1e-9
+    assert np.diff(smooth.knots).min() >= DEFAULTS.min_knot_spacing * np.ptp(alpha) - 1e-9
     x = np.column_stack([np.ones(len(alpha)), smooth.design(frame)])
     left = []
     for i in range(180):
@@ -342,7 +343,8 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     twin keeps the quantile knots and stays 2 % of the range apart."""
     import pandas as pd
 
-    from diagnose.terms import TAIL_SPACING, candidate_terms, tail_twin
+    from diagnose.config import DEFAULTS
+    from diagnose.terms import candidate_terms, tail_twin
     from campaign.validation.shapes import SHAPES, shape
     rng = np.random.default_rng(0)
     elev = _elevator_as_the_a320_flies_it(rng)
@@ -350,7 +352,7 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(elevator_deg)"]
     twin = tail_twin(smooth, frame)
     assert twin.label == smooth.label and set(smooth.knots) < set(twin.knots)
-    assert np.diff(twin.knots).min() >= TAIL_SPACING * np.ptp(elev) - 1e-9
+    assert np.diff(twin.knots).min() >= DEFAULTS.tail_spacing * np.ptp(elev) - 1e-9
     left = {}
     for term in (smooth, twin):
         x = np.column_stack([np.ones(len(elev)), term.design(frame)])
@@ -628,7 +630,7 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
 def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two():
     """A vane scale the kinematics measure at 1.19 +- 0.75 % (not applied); Cm, CL and CD need 4.04, 4.47
     and 3.04 % (null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
-    the 5.3 three may refine (:data:`AGREE_ALL_SE`) and past the 3.5 two may (:data:`AGREE_SE`)."""
+    the 5.3 three may refine (``agree_all_se``) and past the 3.5 two may (``agree_se``)."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.01192, 0.0075)])
@@ -921,7 +923,8 @@ def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry()
     """A CL slope in alpha fitted on three logs: on held-out logs that carry the same slope nothing is told;
     an offset of 0.002 on one of them, which the fit does not carry, is told there, with its size. Without
     the fit taken off, the slope (0.017 RMS) would hide the offset from the ratio."""
-    from diagnose.held_out import HELD_OUT_RATIO, held_out_check
+    from diagnose.config import DEFAULTS
+    from diagnose.held_out import held_out_check
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     rng = np.random.default_rng(0)
@@ -938,7 +941,7 @@ def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry()
     assert told["told"] and told["worst_log"] == "e.parquet", told
     assert told["held_out_rms"]["e.parquet"] == pytest.approx(0.002, rel=0.05)
     assert told["ratio"] == pytest.approx(told["held_out_rms"]["e.parquet"] / told["fitted_worst_rms"])
-    assert told["ratio"] > 5 * HELD_OUT_RATIO
+    assert told["ratio"] > 5 * DEFAULTS.held_out_ratio
     assert held_out_check(data, None, fit, fitted, []) == {}
 
 

@@ -16,6 +16,7 @@ from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from campaign.design.plan import PLAN_SE
 from diagnose import sensor_rivals
+from diagnose.config import DEFAULTS
 from diagnose import separation as sep
 from diagnose import state_twins
 from diagnose.terms import Term
@@ -160,7 +161,7 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     w, data, fx, doc = narrow
     first = doc["causes"][0]
     assert first["coefficient"] == "Cm" and "gear_norm" in first["variables"]
-    open_ = [r for r in doc["rivals"] if r["separation_se"] < sep.SETTLED_SE]
+    open_ = [r for r in doc["rivals"] if r["separation_se"] < DEFAULTS.settled_se]
     assert open_, [(r["rival"], r["separation_se"]) for r in doc["rivals"]]
     assert "campaign plan" in (w / "d1" / "diagnosis.txt").read_text()
     html = (w / "d1" / "report.html").read_text()
@@ -185,11 +186,11 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     first = after["causes"][0]
     assert first["coefficient"] == "Cm" and first["variables"][:2] == ["gear_norm", "alpha_deg"], first["variables"]
     rivals = {r["rival"]: r["separation_se"] for r in first["evidence"]["rivals"]}
-    assert all(v >= sep.SETTLED_SE for v in rivals.values()), rivals
+    assert all(v >= DEFAULTS.settled_se for v in rivals.values()), rivals
     # what was open is settled, not dropped: the open rival's term is now the cause's or a rival
     # rejected at 5 se, and so is each term of the earlier cause the new one does not hold
     before = doc["causes"][0]
-    opened = {r["term"] for r in before["evidence"]["rivals"] if r["separation_se"] < sep.SETTLED_SE}
+    opened = {r["term"] for r in before["evidence"]["rivals"] if r["separation_se"] < DEFAULTS.settled_se}
     now, judged = set(first["evidence"]["terms"]), {r["term"] for r in first["evidence"]["rivals"]}
     assert opened and opened <= now | judged, (opened, now, judged)
     assert set(before["evidence"]["terms"]) - now <= judged, (before["evidence"]["terms"], now, judged)
@@ -238,7 +239,7 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     first = doc["causes"][0]
     assert first["kind"] == "aero" and first["coefficient"] == "CL" and first["variables"] == ["alpha_deg"]
     vane = [r for r in first["evidence"]["rivals"] if r["rival"] == "alpha_deg scale"]
-    assert vane and vane[0]["separation_se"] >= sep.SETTLED_SE, first["evidence"].get("rivals")
+    assert vane and vane[0]["separation_se"] >= DEFAULTS.settled_se, first["evidence"].get("rivals")
     assert "not a sensor: alpha_deg scale" in (tmp_path / "d" / "diagnosis.txt").read_text()
     capsys.readouterr()
     assert main(["plan", "--diagnosis", str(tmp_path / "d")]) == 2
@@ -266,7 +267,7 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert not any(c["coefficient"] == "Cm" and "qhat_rad" in c["variables"] for c in doc["causes"]), doc["summary"]
     assert "tas_kt scale" in doc["summary"] and "cause not confirmed" in doc["summary"], doc["summary"]
     airspeed = [r for r in doc["rivals"] if r["rival"] == "tas_kt scale"]
-    assert airspeed and airspeed[0]["separation_se"] <= -sep.SETTLED_SE, [(r["rival"], r["separation_se"])
+    assert airspeed and airspeed[0]["separation_se"] <= -DEFAULTS.settled_se, [(r["rival"], r["separation_se"])
                                                                            for r in doc["rivals"]]
     capsys.readouterr()
     # the conditions flown, where a multisine or a level turn could fly next (the default candidates,
@@ -432,13 +433,13 @@ def test_a_term_in_alpha_gives_way_to_one_in_alpha_and_mach_only_if_mach_fits_be
     assert sep.cause_rivals([cause], results, {"Cm": pool, "CL": [], "CD": []}, frame, None, None, lags) == []
     wider = {r["term"]: r for r in cause.evidence["wider_rivals"]}
     assert set(wider) == {"smooth(alpha_deg) x mach", "smooth(mach) x alpha_deg", "alpha_deg x mach"}
-    assert wider["smooth(alpha_deg) x mach"]["separation_se"] <= -sep.WIDER_SE  # more columns in alpha, either way
+    assert wider["smooth(alpha_deg) x mach"]["separation_se"] <= -DEFAULTS.wider_se  # more columns in alpha, either way
     swaps = sep.preferred_aero_rivals([cause], {"Cm": pool}, frame)
     if with_mach:
-        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] <= -sep.WIDER_SE
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] <= -DEFAULTS.wider_se
         assert {a.label: b.label for a, b in swaps["Cm"].items()} == {"smooth(alpha_deg)": "smooth(alpha_deg) x mach"}
     else:
-        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] >= sep.SETTLED_SE
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] >= DEFAULTS.settled_se
         assert swaps == {}
 
 
