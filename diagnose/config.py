@@ -181,7 +181,7 @@ class DiagnosisSettings:
         "On 3,466 simulated case records (680 nulls) the single-condition candidates `strong_over_floor` "
         "times their floor that were not the effect were four drags in flap or gear x flap in 3 ft/s at an F "
         "of 29-46 (one on a null), 11-26 times their floor; the 12 that were the effect (Cm in flap or gear "
-        "x flap) had an F of 80-498. On two sets of fresh records it fired on no case; one such drag at the "
+        "x flap) had an F of 80-498. On two further sets of records it fired on no case; one such drag at the "
         "A320's flap 15 in 3 ft/s had an F of 250. That class was eq. (1)'s: the drag measured without the "
         "share of the side force sideslip turbulence makes, which identify.coefficients takes into account; "
         "this bound and `refuted_gain` were measured on records whose drag left that share out.")
