@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.validation.hidden import fly_data, make  # noqa: E402
-from campaign.validation.support import NARROW  # noqa: E402
+from campaign.validation.hidden import fly_data, make
+from campaign.validation.support import NARROW
 
 
 def case(seed: int, work: Path) -> dict:
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from diagnose.config import recorded
     hidden = make("gear_x_alpha", np.random.default_rng(seed), "Cm")
     data, fx = fly_data(work, hidden, seed=seed, matrix=NARROW)

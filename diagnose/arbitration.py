@@ -211,7 +211,7 @@ def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
     kinematics' own estimate (biased by the aircraft's answer to the gusts, but a better
     start: from none, an 82-ms alpha delay the kinematics put at 94 ms was timed at -371 ms
     beside a lift change with gear, and "CL vs adothat" was the first discrepancy, 68 times its
-    floor; development seed 5,200,118). The timing the residuals agree with best is applied,
+    floor). The timing the residuals agree with best is applied,
     only if they get at least ``corroborated_gain`` times smaller with it, on the fitted logs
     and on the held-out ones. A model whose own rate derivatives are wrong leaves a similar
     signature: then the delay and the derivative cannot be told apart, and the
@@ -274,7 +274,7 @@ def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
     or less of the same correction than the others (its cause partly another) does not veto what they
     agree on; one that needs the opposite still does. An A320 null's 7.2 % vane scale, corrected as
     5.7 +- 2.2 %: CL and Cm each needed 1.7 % more, CD 2.8 % (its cause a drag change with elevator), 1.7
-    times as much, and no refinement was made (validation seed 4,300,078)."""
+    times as much, and no refinement was made."""
     v = np.array(list(by.values()))
     if not (np.all(v > 0) or np.all(v < 0)):
         return []
@@ -303,7 +303,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
     Nor does a cause its own held-out logs refute veto what the others agree on (:func:`_held_out_refutes`;
-    it may still support them, as before): on our 737's null 6,700,233, a "CD vs qhat" 3 times its floor,
+    it may still support them): on a null of our 737, a "CD vs qhat" 3 times its floor,
     x1.012 on held-out logs, needed -1.75 % of vane scale, and kept CL's and Cm's +4.9 and +4.5 % (the truth
     +4.8 %) from refining it; "CL vs alpha" and "Cm vs alpha" were named.
 
@@ -366,7 +366,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
 def _follow(compat: CompatResult, p: Parameter, total: float) -> dict[str, float]:
     """The other errors the kinematics estimated with ``p``, given ``p`` at ``total``: each moves by its
     regression on ``p`` in their joint estimate (the conditional mean), its standard error kept. A vane's
-    bias and scale estimated together trade at the trim alphas: on our 737's null 7,900,339 the kinematics
+    bias and scale estimated together trade at the trim alphas: on a null of our 737 the kinematics
     measured +3.0 +- 0.54 % of scale and -0.090 +- 0.015 deg of bias in 1.5 ft/s turbulence, the residuals
     of CL and Cm refined the scale to none, and the bias left alone made a "CD vs flap, alpha" 3.4 times
     its floor (x0.20 on held-out logs with the bias)."""
@@ -395,7 +395,7 @@ def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.Da
     CL by its slope, an offset the stepwise search takes up in its intercept and names nothing for:
     a stock-737 null's vane bias, corrected 0.079 deg too far (2.5 standard errors), left a "CD vs
     alpha" 5.7 times its floor that only CD's causes showed, and CL's residual RMS 4.8 times larger
-    than with the correction the CD residual needed (development seed 5,000,150). A drag change with
+    than with the correction the CD residual needed. A drag change with
     alpha that a vane bias would mimic in CD grows CL's residual instead.
     """
     def rms(data: pd.DataFrame, c: str, about_mean: bool = False) -> float:
@@ -424,7 +424,7 @@ def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) ->
     scale undid the scale at the trim alphas; a +0.21 deg vane bias, chosen by the CL residual where a
     +4.8 % scale was measured at -0.16 +- 2.7 %, stood in for the scale at the trim alphas, and beside the
     scale refined to +4.7 % doubled it there (CD's residual RMS grew 1.5-fold about its mean, and "CL vs
-    alpha" and "Cm vs alpha" were named on our 737's null 6,700,233). Chosen again, it is not."""
+    alpha" and "Cm vs alpha" were named on a null of our 737). Chosen again, it is not."""
     changed = {q.channel for p, q in zip(before.parameters, refined.parameters)
                if (p.applied != q.applied or q.estimate != p.estimate) and "residuals" in q.sources}
     again = [q.name for q in refined.parameters if q.channel in changed and q.chosen and "residuals" not in q.sources]

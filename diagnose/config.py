@@ -19,11 +19,11 @@ from contextvars import ContextVar
 from dataclasses import dataclass, field
 
 from identify.compat.config import CompatSettings
-from infra.settings import documented, setting
+from infra.settings import doc, documented, setting
 
 #: The simulated flights most thresholds were calibrated on.
-NULLS = ("simulated null flights (no aerodynamic effect hidden) of our 737, the stock JSBSim 737 and the A320 in 1.5 and "
-         "3 ft/s turbulence, sensor errors in a fifth")
+NULLS = ("simulated null flights (no aerodynamic effect hidden) of our 737, the stock JSBSim 737 and the A320 "
+         "in 1.5 and 3 ft/s turbulence, sensor errors in a fifth")
 
 
 @documented
@@ -50,11 +50,12 @@ class DiagnosisSettings:
         "A significant candidate in other variables whose F statistic is at least this share of the entering "
         "term's is that term's rival (``hardly_separated_from``): fitted in its place when the rivals are "
         "separated.")
-    min_std: dict = setting(
-        {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
-         "stabilizer_deg": 0.1, "qhat_rad": 1e-5, "adothat_rad": 1e-5, "CL": 0.01}, "variable unit",
+    min_std: dict = field(default_factory=lambda: {
+        "gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
+        "stabilizer_deg": 0.1, "qhat_rad": 1e-5, "adothat_rad": 1e-5, "CL": 0.01}, metadata=doc(
+        "variable unit",
         "A variable must vary at least this much (standard deviation over the fitted data) to be a candidate; "
-        "a held-out log exercises a cause where one of its variables varies this much (the gain).")
+        "a held-out log exercises a cause where one of its variables varies this much (the gain)."))
     knot_quantiles: int = setting(
         21, "-",
         "A smooth term's knot candidates are its variable's quantiles at this many evenly spaced levels, 0 "
@@ -229,9 +230,9 @@ class DiagnosisSettings:
         5.0, "standard errors",
         "... if the size it needs is within this many of the data compatibility's standard errors of what the "
         "logs hold as measured.")
-    unmeasured_plausible: dict = setting(
-        {"delay": 0.2, "scale": 0.1, "bias": 1.0}, "s, -, channel unit",
-        "... or, for an error the data compatibility could not measure, if the size it needs is within these.")
+    unmeasured_plausible: dict = field(default_factory=lambda: {"delay": 0.2, "scale": 0.1, "bias": 1.0}, metadata=doc(
+        "s, -, channel unit",
+        "... or, for an error the data compatibility could not measure, if the size it needs is within these."))
 
     # ---- sensor causes and the arbitration between instrument errors and aerodynamic causes
     sensor_effect: float = setting(

@@ -33,22 +33,32 @@ from types import SimpleNamespace
 
 import pandas as pd
 
-from diagnose.arbitration import (arbitrate, compat_causes, rearbitrate, refinement_stands, residual_delays,
-                                  residual_refinement)
+from diagnose.arbitration import (
+    arbitrate,
+    compat_causes,
+    rearbitrate,
+    refinement_stands,
+    residual_delays,
+    residual_refinement,
+)
 from diagnose.causes import merge_sensors, name_causes
 from diagnose.config import DiagnosisSettings, using
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.sensor_rivals import instrument_verdict
-from diagnose.separation import cause_rivals, compose_swaps, noise_weights, preferred_aero_rivals
 from diagnose.result import Diagnosis
+from diagnose.sensor_rivals import instrument_verdict
+from diagnose.separation import (
+    cause_rivals,
+    compose_swaps,
+    noise_weights,
+    preferred_aero_rivals,
+)
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
 from diagnose.verdict import contribution, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
-
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",

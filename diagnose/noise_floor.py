@@ -17,18 +17,27 @@ cause's own terms are fitted to it. The sizes these fits reach are the floor.
 """
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pandas as pd
 
-from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
 from diagnose.config import current
 from diagnose.evaluate import by_log_chunks, in_chunks
+from diagnose.residuals import (
+    COEFFS,
+    FILTERED,
+    kept,
+    measured_about,
+    measured_arrays,
+    signature_arrays,
+    variable_arrays,
+)
+from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
 from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.lsq import solve_normal
 from identify.models import lowpass
-from diagnose.residuals import (COEFFS, FILTERED, kept, measured_about, measured_arrays, signature_arrays,
-                                variable_arrays)
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
@@ -177,7 +186,7 @@ class _Channels:
         self.values, self.at, self.columns, self.replaced = values, at, columns, replaced or {}
 
     @classmethod
-    def of(cls, frame: pd.DataFrame) -> "_Channels":
+    def of(cls, frame: pd.DataFrame) -> _Channels:
         """A frame of numbers' channels (each column a contiguous array, as the frame's own)."""
         return cls(np.asfortranarray(frame.to_numpy(dtype=float)), {c: j for j, c in enumerate(frame.columns)},
                    frame.columns)
@@ -188,7 +197,7 @@ class _Channels:
     def __contains__(self, name: str) -> bool:
         return name in self.at
 
-    def __getitem__(self, name: str) -> "_Column":
+    def __getitem__(self, name: str) -> _Column:
         x = self.replaced.get(name)
         return _Column(self.values[:, self.at[name]] if x is None else x)
 
@@ -304,7 +313,7 @@ class NoiseFloor:
         for v in noisy:
             x = base[v].to_numpy(float)
             s2 = float(np.nanvar(fresh[v].to_numpy(float) - x))
-            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in zip(starts, starts[1:])
+            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in pairwise(starts)
                                                       if b > a]) ** 2))
             v_true = max(within - s2, 0.0)
             out[v] = (v_true + 2.0 * s2) / (v_true + s2) if v_true + s2 > 0 else 1.0
@@ -502,11 +511,11 @@ class NoiseFloor:
             ff = float(f @ f)
             x = design_matrix(terms, data)
 
-            def through_terms(cols: np.ndarray) -> np.ndarray:
+            def through_terms(cols: np.ndarray, x: np.ndarray = x) -> np.ndarray:
                 seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
                 return seen - seen.mean(axis=0)
 
-            def alone(one: np.ndarray) -> tuple[float, float]:
+            def alone(one: np.ndarray, f: np.ndarray = f, ff: float = ff) -> tuple[float, float]:
                 nn = float(one @ one)
                 if nn <= 0 or ff <= 0:
                     return 0.0, -np.inf

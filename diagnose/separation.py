@@ -25,7 +25,13 @@ import pandas as pd
 from diagnose.config import current
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
-from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_alpha_for_mach, in_flow_states, widened
+from diagnose.state_twins import (
+    in_alpha,
+    in_alpha_and_mach,
+    in_alpha_for_mach,
+    in_flow_states,
+    widened,
+)
 from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
@@ -85,7 +91,7 @@ class Hypothesis:
                 "prior": None if self.prior is None else [float(x) for x in self.prior]}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Hypothesis":
+    def from_dict(cls, d: dict) -> Hypothesis:
         return cls(d["name"], d["kind"], d.get("coefficient", ""), tuple(term_from_dict(t) for t in d["terms"]),
                    d.get("channel", ""), d.get("error", ""), None if d.get("prior") is None else tuple(d["prior"]))
 
@@ -315,12 +321,11 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
     alpha (:func:`diagnose.state_twins.in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
     (:func:`diagnose.state_twins.in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
-    named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival: fresh seed
-    7,500,265), and for a term in Mach, the same in alpha (:func:`diagnose.state_twins.in_alpha_for_mach`).
+    named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival), and for a term
+    in Mach, the same in alpha (:func:`diagnose.state_twins.in_alpha_for_mach`).
     In place of a smooth term the search refined with the tails' knots (:func:`diagnose.terms.tail_twin`),
     a rival is refined alike if it can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times
-    its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed
-    2,000,229)."""
+    its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined."""
     out = []
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
@@ -411,8 +416,8 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
         mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
         for h, fine in wider[id(c)]:
             c.evidence.setdefault("wider_rivals", []).append(
-                {"rival": h.name, "kind": "aero", "term": [t.label for t in h.terms if t not in c.terms][0],
-                 "replaces": [t.label for t in c.terms if t not in h.terms][0],
+                {"rival": h.name, "kind": "aero", "term": next(t.label for t in h.terms if t not in c.terms),
+                 "replaces": next(t.label for t in c.terms if t not in h.terms),
                  "separation_se": pair(stack, mine, h)["separation_se"],
                  "finer_separation_se": pair(stack, fine, h)["separation_se"]})
         for h in rivals[id(c)]:
@@ -440,12 +445,12 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     has such a rival gives way with the first (a stock-737 drag dip in gear times alpha, 14 times its floor,
     entered as linear(CL) and smooth(gear) x CL; only the first gave way, to quadratic(alpha), and the cause
     fell apart into "CD vs alpha" and "CD vs gear_norm, CL", with gear x alpha 0.3 standard errors behind
-    the second: fresh seed 7,100,139), to the variable the first took in place of CL where it has such a
+    the second), to the variable the first took in place of CL where it has such a
     rival (one lift stood for one state: gear x elevator fitted 0.95 better than gear x CL there). In
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`). A term in CL alone gives way to one in alpha and Mach together
     only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
-    times a dip in gear was named in Mach too (fresh seed 7,100,139). A term in the elevator (or the
+    times a dip in gear was named in Mach too. A term in the elevator (or the
     stabilizer) times another variable gives way to the same term in alpha or Mach as a term in CL does
     (:func:`diagnose.state_twins.in_flow_states`)."""
     s = current()
@@ -458,13 +463,15 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         by_label = {t.label: t for t in pool}
         own = {t.label: t for t in c.terms}
 
-        def in_states(r: dict) -> bool:  # the term in CL or a trimmed control, the rival in the model's own states
+        def in_states(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
+            # the term in CL or a trimmed control, the rival in the model's own states
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return (old is not None and new is not None and ("CL" in old.variables and "CL" not in new.variables
                                                              and set(old.variables) - {"CL"} <= set(new.variables)
                                                              or new in in_flow_states(old, pool)))
 
-        def and_mach(r: dict) -> bool:  # a rival in alpha and Mach together for a term in CL alone
+        def and_mach(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
+            # a rival in alpha and Mach together for a term in CL alone
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return old is not None and new is not None and new in in_alpha_and_mach(old, pool)
 
@@ -479,7 +486,8 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         r = min(better, key=lambda r: r["separation_se"])
         chosen = [r]
 
-        def put(x: dict) -> set[str]:  # the variables a rival puts in place of the term's
+        def put(x: dict, own: dict = own, by_label: dict = by_label) -> set[str]:
+            # the variables a rival puts in place of the term's
             return set(by_label[x["term"]].variables) - set(own[x["replaces"]].variables) if x["term"] in by_label \
                 and x.get("replaces") in own else set()
 

@@ -189,11 +189,11 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     removes the effect leaves the slow errors beside it (a thrust error, the gusts' low frequencies), few
     independent samples, and ranked below a worse fit whose misfit follows the manoeuvres and looks
     white: an A320 drag in gear x Mach, 29 times its floor, left 1.1 % of the residual by gear x Mach and
-    1.9 % by gear x CL, whose own test was 10^160 times stronger (fresh seed 9,400,050). With as many
+    1.9 % by gear x CL, whose own test was 10^160 times stronger. With as many
     columns, on any one effective sample size the better fit is the stronger; the test a term must pass to
     enter is still its own. Between widths the own tests still decide: ranked on one sample size (the
     least of the passing candidates'), terms in alpha or Mach alone came before the interactions of the
-    two that were the effects (development seeds 9,300,254 and 9,300,282).
+    two that were the effects in two simulated cases.
     """
     rows.sort(key=lambda r: (r["p_value"], -r["F"]))
     if rows and rows[0]["p_value"] < alpha_in:
@@ -355,7 +355,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             for t in list(chosen[:-1]):  # backward step
                 rest = [c for c in chosen if c != t]
                 small = gram.fit(rest, coefficient)
-                f, p = f_test(small, current, t.width, lags.n_eff(current.resid),
+                _, p = f_test(small, current, t.width, lags.n_eff(current.resid),
                                1 + sum(c.width for c in chosen))
                 if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
                     chosen.remove(t)

@@ -359,8 +359,8 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                    and max(replicate, departs if np.isfinite(departs) else -np.inf) < s.refuted_gain)
         weak = cause.evidence.get("F", 0.0) < s.one_condition_f
         if alone and clear and not refuted and weak and len(reasons) == 1:
-            reasons[0] += (f"; F = {cause.evidence.get('F', 0.0):.3g}, below the {s.one_condition_f:g} a discrepancy at one "
-                           f"condition needs")
+            reasons[0] += (f"; F = {cause.evidence.get('F', 0.0):.3g}, below the {s.one_condition_f:g} a discrepancy "
+                           "at one condition needs")
         unseen = (cause.kind == "aero" and beyond >= s.clear_over_floor * floor
                   and cause.evidence.get("F", 0.0) >= s.held_out_f and not repeated)
         if unseen and len(reasons) == 1:

@@ -9,10 +9,8 @@
 from __future__ import annotations
 
 import importlib.util
-import io
 import os
 import sys
-from contextlib import redirect_stdout
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]

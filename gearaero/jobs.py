@@ -14,7 +14,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from campaign.errors import UserError
-from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, PlanResult, ReportResult)
+from gearaero.results import (
+    CampaignResult,
+    DiagnosisResult,
+    IdentificationResult,
+    PlanResult,
+    ReportResult,
+)
 from identify.logs import Log, LogError
 
 LOG = logging.getLogger("gearaero")

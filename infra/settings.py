@@ -1,9 +1,9 @@
 """Decision thresholds documented where they are defined.
 
-Each threshold is a field of a frozen dataclass made by :func:`setting`, whose metadata holds its unit,
-what it guards and how its value was calibrated. :func:`documented` writes the class's ``Attributes``
-section from them, and :func:`rows` and :func:`markdown_table` give the documentation's table: each
-field is described once.
+Each threshold is a field of a frozen dataclass made by :func:`setting` (or ``dataclasses.field`` with
+:func:`doc`, for a default that needs a factory), whose metadata holds its unit, what it guards and how its
+value was calibrated. :func:`documented` writes the class's ``Attributes`` section from them, and
+:func:`rows` and :func:`markdown_table` give the documentation's table: each field is described once.
 """
 from __future__ import annotations
 
@@ -11,17 +11,16 @@ import dataclasses
 import textwrap
 from typing import Any
 
-#: The metadata every field made by :func:`setting` carries.
+#: The metadata every documented field carries (:func:`doc`).
 KEYS = ("unit", "guards", "calibration")
 
 
-def setting(default: Any, unit: str, guards: str, calibration: str = "") -> Any:
-    """A dataclass field with its documentation.
+def doc(unit: str, guards: str, calibration: str = "") -> dict[str, str]:
+    """A settings field's documentation, as its metadata: ``dataclasses.field(default_factory=...,
+    metadata=doc(...))`` for a default that needs a factory (a dict).
 
     Parameters
     ----------
-    default : object
-        The value; a dict is copied for each instance.
     unit : str
         Its unit, ``"-"`` for a ratio or a count.
     guards : str
@@ -29,10 +28,20 @@ def setting(default: Any, unit: str, guards: str, calibration: str = "") -> Any:
     calibration : str
         How the value was chosen and on which data ("" where none was recorded).
     """
-    meta = {"unit": unit, "guards": " ".join(guards.split()), "calibration": " ".join(calibration.split())}
-    if isinstance(default, dict):
-        return dataclasses.field(default_factory=lambda: dict(default), metadata=meta)
-    return dataclasses.field(default=default, metadata=meta)
+    return {"unit": unit, "guards": " ".join(guards.split()), "calibration": " ".join(calibration.split())}
+
+
+def setting(default: Any, unit: str, guards: str, calibration: str = "") -> Any:
+    """A dataclass field with an immutable ``default`` (a number, a tuple) and its documentation (:func:`doc`).
+
+    Raises
+    ------
+    TypeError
+        For a mutable default: that one needs ``dataclasses.field(default_factory=..., metadata=doc(...))``.
+    """
+    if isinstance(default, (dict, list, set)):
+        raise TypeError("setting: a mutable default needs dataclasses.field(default_factory=..., metadata=doc(...))")
+    return dataclasses.field(default=default, metadata=doc(unit, guards, calibration))
 
 
 def _value(field: dataclasses.Field) -> Any:

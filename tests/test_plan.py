@@ -12,17 +12,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from campaign.design.plan import PLAN_SE
-from diagnose import sensor_rivals
-from diagnose.config import DEFAULTS
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+from campaign.validation.hidden import Hidden, fly_data, make, wrap
+from campaign.validation.support import NARROW, matrix_toml
+from diagnose import sensor_rivals, state_twins
 from diagnose import separation as sep
-from diagnose import state_twins
+from diagnose.config import DEFAULTS
 from diagnose.terms import Term
-from campaign.validation.hidden import Hidden, wrap, fly_data, make
-from campaign.validation.support import NARROW, matrix_toml, pairs
-
 
 
 def _frame(rng, n=400):
@@ -111,7 +109,7 @@ def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
     from campaign.diagnosis.run import split
     old = [SimpleNamespace(condition=(5000.0, m, 5.0)) for m in (0.25, 0.3, 0.35, 0.4)]
     new = [SimpleNamespace(condition=c) for c in ((5000.0, 0.3, 15.0), (1500.0, 0.3, 5.0), (5000.0, 0.35, 5.0))]
-    train, held = split(old)
+    _, held = split(old)
     train2, held2 = split(old + new, first=old)
     assert {lg.condition for lg in held2} == {lg.condition for lg in held} == {(5000.0, 0.35, 5.0)}
     assert new[0] in train2 and new[1] in train2 and new[2] in held2
@@ -125,9 +123,9 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
     below 1,500 ft is not offered, and one within 250 ft of a condition flown at its Mach number is that one."""
     from types import SimpleNamespace
 
-    from campaign.simulation.aircraft import AircraftSource, load_effects
-    from campaign.importing.importer import isa
     from campaign.design.plan import candidates
+    from campaign.importing.importer import isa
+    from campaign.simulation.aircraft import AircraftSource, load_effects
     logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
     source = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
     points = candidates(logs, source, None, None)
@@ -197,7 +195,7 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
 
 
 def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsys):
-    w, data, fx, doc = narrow
+    w, _, _, doc = narrow
     capsys.readouterr()
     before = {p: p.read_bytes() for p in (w / "d1").iterdir() if p.is_file()}
     cases = []
@@ -282,7 +280,7 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
     assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
     assert not any(f["maneuver"] == "multisine" for f in result["flights"]), result["flights"]
-    measured = [r for r in result["rivals"] if r["rival"] == "tas_kt scale"][0]
+    measured = next(r for r in result["rivals"] if r["rival"] == "tas_kt scale")
     assert measured["to_measure"] and measured["planned_se"] >= PLAN_SE, measured
     assert main(["run", "--matrix", str(tmp_path / "plan" / "plan.toml"), *truth, "--seed", "22",
                  "--out", str(tmp_path / "new"), "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
@@ -447,6 +445,7 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
     """In place of smooth(CL) refined with the tails' knots, smooth(alpha) goes in with its own tails'
     knots, as the rivals were judged; in place of an unrefined term, unrefined."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms, tail_twin
     rng = np.random.default_rng(7)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 400)) + 0.05 * rng.standard_normal(400)
@@ -474,6 +473,7 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
     to Mach alone, which drops the gear). A term in neither has no twin, and a rival to it, or one in CL
     itself, needs 3 standard errors."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(8)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
@@ -507,6 +507,7 @@ def test_a_term_in_cl_alone_has_every_candidate_in_alpha_and_mach_together_as_a_
     alpha and Mach together as rivals (an A320 Cm table in alpha growing with Mach, named "Cm vs CL" with
     only quadratic(alpha) beside it); a term in CL and another variable keeps its own rivals only."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(9)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
@@ -567,6 +568,7 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     same term in alpha and in Mach as rivals, and gives way to one unless the data prefer the elevator by
     2 standard errors. The elevator alone (a control derivative) has no such rival."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(4)
     n = 900
@@ -620,6 +622,7 @@ def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condi
     same term in alpha: the step in alpha, which the manoeuvres cross, is then named in alpha. A ramp in
     Mach keeps its name: no candidate in alpha fits it 3 standard errors better."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     step = _alpha_and_mach(5, lambda a, m: 0.02 * (a > 4.0))
     ramp = _alpha_and_mach(6, lambda a, m: 0.05 * np.clip(m - 0.35, 0.0, None))

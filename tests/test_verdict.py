@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
-from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies, score
+from campaign.validation.hidden import (
+    DIAG_MATRIX,
+    diagnose_overlay,
+    discrepancies,
+    score,
+)
 from campaign.validation.shapes import draw
 from campaign.validation.support import matrix_toml
 
@@ -90,8 +95,8 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     pooled held-out gain of x8.8; a strong cause is no longer vetoed by one condition."""
     import json
 
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     fx = tmp_path / "step.xml"
     fx.write_text(MACH_STEP)
     assert main(["run", "--effects", str(fx), "--noise", "flight-test", "--seed", "13", "--out", str(tmp_path / "d"),
@@ -99,7 +104,7 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     assert main(["diagnose", "--data", str(tmp_path / "d"), "--model", str(DEFAULT_AIRCRAFT), "--out",
                  str(tmp_path / "r"), "--jobs", "2", "--no-plots", "--quiet"]) == 0
     doc = json.loads((tmp_path / "r" / "diagnosis.json").read_text())
-    first = [c for c in doc["causes"] if c["kind"] == "aero"][0]
+    first = next(c for c in doc["causes"] if c["kind"] == "aero")
     assert (first["coefficient"], first["variables"][0]) == ("CL", "mach"), doc["summary"]
     assert first["verdict"]["holdout_gain"] >= 1.5 and first["verdict"]["size_over_floor"] >= 10
 
@@ -162,11 +167,11 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
     1,000 or more: a weaker one is refuted by extrapolation as before."""
     from diagnose.verdict import holdout_gain
     cause, res, data = _mach_step(1e4)
-    gain, acting, by = holdout_gain(res, cause, data)
+    gain, _, by = holdout_gain(res, cause, data)
     assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
     assert gain > 1.25
     weak, res, data = _mach_step(100.0)
-    gain, acting, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
+    gain, _, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
     assert by["10000/0.5/0"] < 1.0 and gain < 1.02
 
 
@@ -231,9 +236,9 @@ def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_
     import pandas as pd
 
     from diagnose.causes import Cause
+    from diagnose.config import DEFAULTS
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
-    from diagnose.config import DEFAULTS
     from diagnose.verdict import judge
     rng = np.random.default_rng(4)
     conds = [("2000/0.2/30", 0.2, 0.0), ("2000/0.3/0", 0.3, 0.0), ("10000/0.3/0", 0.3, 0.0)]
@@ -368,7 +373,8 @@ def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
         cause, res, data = _repeats(0.0, seed)
         judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
         v = cause.verdict
-        assert v["replicate_gain"] < DEFAULTS.replicate_gain and not v["accepted"], (seed, v["replicate_gain"], v["reason"])
+        assert v["replicate_gain"] < DEFAULTS.replicate_gain and not v["accepted"], (seed, v["replicate_gain"],
+                                                                                      v["reason"])
 
 
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):

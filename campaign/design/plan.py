@@ -32,12 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
 from campaign.diagnosis.run import load_data
-from campaign.simulation.engine import FlightConfig, check_flaps
 from campaign.errors import UserError
-from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
 from campaign.orchestration.store import read_manifest
+from campaign.simulation.aircraft import (
+    AircraftSource,
+    check_aircraft_folder,
+    load_effects,
+)
+from campaign.simulation.engine import FlightConfig, check_flaps
+from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
 from diagnose import separation as sep
 from diagnose.config import recorded
 from identify.logs import Log
@@ -217,8 +221,8 @@ def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, 
                    progress: bool, rate_hz: float | None = None) -> list[Log]:
     """Fly the candidates on the model, noise-free, recorded at ``rate_hz`` (the old data's: the
     residuals are thinned per second, and the weights count rows), into ``out``; the logs flown."""
-    from campaign.simulation.instruments import load_profile
     from campaign.orchestration.runner import run_campaign
+    from campaign.simulation.instruments import load_profile
     from identify.logs import read_campaign
     profile = "none"
     if rate_hz is not None:
@@ -443,7 +447,8 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     old = [measurement(0.0) if to_measure(r, settled_se) else
            [{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
            for r in rivals]
-    base = [(0.0 if to_measure(r, settled_se) else float(r["separation_se"]), sep.separation(o)) for r, o in zip(rivals, old)]
+    base = [(0.0 if to_measure(r, settled_se) else float(r["separation_se"]), sep.separation(o))
+            for r, o in zip(rivals, old)]
     flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s}
                for lg, s in zip(flown, sums)]
     chosen, reached = choose(old, flights, budget, base)
@@ -513,10 +518,10 @@ def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Ma
 def report(r: dict) -> str:
     """``plan.txt``."""
     lines = ["Flight plan", "===========", "", f"diagnosis: {r['diagnosis']}", f"model: {r['model']}",
-             f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
-             f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model", "",
-             "Rivals (separation in standard errors; settled at "
-             f"{r['settled_se']:g}, planned to {r['target_se']:g}):"]
+             (f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
+              f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model"), "",
+             (f"Rivals (separation in standard errors; settled at {r['settled_se']:g}, planned to "
+              f"{r['target_se']:g}):")]
     for x in r["rivals"]:
         if x.get("to_measure"):
             lines.append(f"  {x['cause']}  against  {x['rival']}: the residuals prefer the instrument error "

@@ -15,9 +15,16 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.simulation.engine import FlightConfig, TrimError, fly
+from campaign.diagnosis.bands import replay_bands
+from campaign.diagnosis.refine import REFINE, refine_extension
 from campaign.errors import UserError
+from campaign.orchestration.cluster import connect, pack, unpack_source
+from campaign.simulation.aircraft import (
+    AircraftSource,
+    check_aircraft_folder,
+    load_effects,
+)
+from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.simulation.matrix import StatusPoint
 from diagnose.config import DiagnosisSettings
 from diagnose.diagnosis import STAGES, diagnose
@@ -29,11 +36,8 @@ from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
-from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from campaign.orchestration.cluster import connect, pack, unpack_source
-from campaign.diagnosis.bands import replay_bands
-from campaign.diagnosis.refine import REFINE, refine_extension
+from identify.models import lowpass
 from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
 
@@ -435,7 +439,10 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
            flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None, bands: dict | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
     drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
-    from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
+    from diagnose.plots import (  # matplotlib: only when plots are drawn
+        save_log_plots,
+        save_overview,
+    )
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],

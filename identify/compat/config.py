@@ -7,9 +7,9 @@ them wherever the result goes, worker processes included.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from infra.settings import documented, setting
+from infra.settings import doc, documented, setting
 
 
 @documented
@@ -39,33 +39,35 @@ class CompatSettings:
         "estimated with its partner held at 0, and the partner with it held at 0 (neither applied unless "
         "other evidence chooses one).",
         "A variance inflation of 100 makes a standard error 10 times that of the error estimated alone.")
-    matters: dict = setting(
-        {"deg": 0.005, "kt": 0.5, "ft/s^2": 0.01, "deg/s": 0.005, "-": 0.005, "s": 0.01, "ft": 2.0},
+    matters: dict = field(default_factory=lambda: {
+        "deg": 0.005, "kt": 0.5, "ft/s^2": 0.01, "deg/s": 0.005, "-": 0.005, "s": 0.01, "ft": 2.0}, metadata=doc(
         "channel unit",
         "The smallest correction worth applying, by the error's unit (a scale factor's is -, a time shift's "
         "s): below it, what the data hold is the kinematic model's own mismatch, not an instrument error.",
         "The mismatch perfect JSBSim logs leave: the Earth's rotation, 0.004 deg/s in the roll gyro; "
-        "JSBSim's half-frame timing, 4 ms; 0.2 % in airspeed.")
-    plausible: dict = setting(
-        {"deg": 5.0, "kt": 20.0, "ft/s^2": 1.0, "deg/s": 1.0, "-": 0.3, "s": 0.5, "ft": 200.0},
+        "JSBSim's half-frame timing, 4 ms; 0.2 % in airspeed."))
+    plausible: dict = field(default_factory=lambda: {
+        "deg": 5.0, "kt": 20.0, "ft/s^2": 1.0, "deg/s": 1.0, "-": 0.3, "s": 0.5, "ft": 200.0}, metadata=doc(
         "channel unit",
         "The largest plausible instrument error, by unit: a larger estimate is a reconstruction gone wrong "
         "and is not applied, and the errors the diagnosis takes as possibly left in the corrected data are "
         "capped here.",
         "The kinematics hardly measure a sideslip vane's bias in longitudinal manoeuvres (+- 10 deg): "
         "uncapped, a -19 deg bias within 2 of those standard errors made, through the wind axes, all of a "
-        "drag onset with flap 5.9 times its noise floor on our 737 in 3 ft/s, and nothing was named.")
-    scale_span: dict = setting(
-        {"theta_deg": 2.0, "alpha_deg": 1.0, "tas_kt": 5.0}, "channel unit",
+        "drag onset with flap 5.9 times its noise floor on our 737 in 3 ft/s, and nothing was named."))
+    scale_span: dict = field(default_factory=lambda: {
+        "theta_deg": 2.0, "alpha_deg": 1.0, "tas_kt": 5.0}, metadata=doc(
+        "channel unit",
         "The span a longitudinal channel's reconstruction must cover in the manoeuvres before its scale "
         "factor is estimated; its time shift needs the channel's rate to vary (standard deviation) by a "
-        "quarter of it per second. Turbulence moves the measured signal, not the reconstruction.")
-    lateral_span_deg: dict = setting(
-        {"beta_deg": 4.0, "phi_deg": 10.0}, "deg",
+        "quarter of it per second. Turbulence moves the measured signal, not the reconstruction."))
+    lateral_span_deg: dict = field(default_factory=lambda: {
+        "beta_deg": 4.0, "phi_deg": 10.0}, metadata=doc(
+        "deg",
         "The span sideslip and bank must cover (a lateral manoeuvre) before their scale factors and time "
         "shifts are estimated, and before a sideslip bias is told from a lateral velocity offset and a bank "
         "bias from the lateral accelerometer's bias through gravity.",
-        "Light turbulence alone moves sideslip and bank by about 2 deg.")
+        "Light turbulence alone moves sideslip and bank by about 2 deg."))
     theta_bias_span_deg: float = setting(
         15.0, "deg",
         "The span of pitch attitude a pitch-angle bias needs to be told from the longitudinal "

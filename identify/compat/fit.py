@@ -8,12 +8,36 @@ import numpy as np
 import pandas as pd
 
 from identify.compat.config import CompatSettings
-from identify.compat.reconstruction import (ESSENTIAL, INS, integrated_attitude, body_to_ned, unexcited_parameters,
-                                            gauss_newton, gust_basis, noise_level, prepare, velocity_responses, body_rotations,
-                                            select, delayed, shift_columns, heading_change)
-from identify.compat.result import (BLOCK_S, D2R, DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS,
-                                    PRUNE_FIRST, CompatResult, instrument_parameters, at_cg, columns_of,
-                                    documented_positions)
+from identify.compat.reconstruction import (
+    ESSENTIAL,
+    INS,
+    body_rotations,
+    body_to_ned,
+    delayed,
+    gauss_newton,
+    gust_basis,
+    heading_change,
+    integrated_attitude,
+    noise_level,
+    prepare,
+    select,
+    shift_columns,
+    unexcited_parameters,
+    velocity_responses,
+)
+from identify.compat.result import (
+    BLOCK_S,
+    D2R,
+    DRYDEN_LENGTH_FT,
+    FT_PER_KT,
+    GUST_PRIOR_FLOOR_FPS,
+    PRUNE_FIRST,
+    CompatResult,
+    at_cg,
+    columns_of,
+    documented_positions,
+    instrument_parameters,
+)
 from identify.logs import Log
 from infra.pool import pmap
 

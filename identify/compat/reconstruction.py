@@ -9,9 +9,19 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from identify.compat.config import CompatSettings
-from identify.compat.result import (D2R, EARTH_RADIUS_FT, EARTH_RATE, FT_PER_KT, G0_FPS2, GUST_KNOT_S, MAX_LOGS,
-                                    NEEDS_TURN, RATE_HZ)
+from identify.compat.result import (
+    D2R,
+    EARTH_RADIUS_FT,
+    EARTH_RATE,
+    FT_PER_KT,
+    G0_FPS2,
+    GUST_KNOT_S,
+    MAX_LOGS,
+    NEEDS_TURN,
+    RATE_HZ,
+)
 from identify.logs import CALIBRATION, Log
+
 # ----------------------------------------------------------------------------- data
 
 
@@ -63,7 +73,7 @@ def prepare(logs: list[Log]) -> _Data:
     for lg in logs:
         d = lg.data
         dt = float(np.median(np.diff(d["t_s"])))
-        k = max(1, int(round(1.0 / (RATE_HZ * dt))))
+        k = max(1, round(1.0 / (RATE_HZ * dt)))
         frames.append((d.iloc[::k], dt * k, float(lg.meta.get("gravity_fps2", G0_FPS2))))
     n = max(len(f) for f, *_ in frames)
     L = len(frames)
@@ -390,7 +400,8 @@ def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray],
     out = {}
     m = data.mask
     lateral, span_of = s.lateral_span_deg, s.scale_span
-    for c, need, unit, k in (("theta_deg", span_of["theta_deg"], "deg", D2R), ("phi_deg", lateral["phi_deg"], "deg", D2R),
+    for c, need, unit, k in (("theta_deg", span_of["theta_deg"], "deg", D2R),
+                             ("phi_deg", lateral["phi_deg"], "deg", D2R),
                              ("alpha_deg", span_of["alpha_deg"], "deg", D2R),
                              ("beta_deg", lateral["beta_deg"], "deg", D2R),
                              ("tas_kt", span_of["tas_kt"], "kt", FT_PER_KT)):

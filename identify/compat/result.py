@@ -143,8 +143,7 @@ class CompatResult:
         standard error that would put the plausible bound nearer than ``plausible_at`` standard errors
         is shrunk to it, its correlations kept. The kinematics hardly measure a sideslip vane's bias in
         longitudinal manoeuvres (+- 10 deg): within 2 of those, a -19 deg bias, through the wind axes,
-        made all of a 5.9-times-its-floor drag onset with flap, and nothing was named (development seed
-        5,000,001).
+        made all of a 5.9-times-its-floor drag onset with flap, and nothing was named.
         """
         names, blocks = [], []
         ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
@@ -170,12 +169,12 @@ class CompatResult:
             total = total * np.outer(shrink, shrink)
         return names, total
 
-    def choose(self, name: str, why: str, beside_aero: bool = False) -> "CompatResult":
+    def choose(self, name: str, why: str, beside_aero: bool = False) -> CompatResult:
         """The same result with a confounded parameter applied (its partner held at 0), and why."""
         return replace(self, parameters=[replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p
                                          for p in self.parameters])
 
-    def note(self, name: str, text: str) -> "CompatResult":
+    def note(self, name: str, text: str) -> CompatResult:
         """The same result with a note added to one parameter's reason."""
         return replace(self, parameters=[replace(p, reason=f"{p.reason}; {text}") if p.name == name else p
                                          for p in self.parameters])
@@ -187,7 +186,7 @@ class CompatResult:
         return [p for p in self.parameters if p.correctable and not p.applied
                 and (p.confounded_with or not p.reason)]
 
-    def without(self, name: str) -> "CompatResult":
+    def without(self, name: str) -> CompatResult:
         """The same result with one parameter's correction not applied."""
         params = [replace(p, identifiable=False, reason="undone") if p.name == name else p
                   for p in self.parameters]
@@ -209,7 +208,7 @@ class CompatResult:
         one not applied (if plausible), 0 for one applied. The errors within the reach are centred
         there: a +0.265 deg vane bias measured as +0.257 +- 0.10 deg (2.5 standard errors, too few to
         apply) stays in the logs, and its drag, which the reach centred at 0 put 2.6 standard errors
-        away, was named "CD vs alpha, mach" on a stock-737 null (seed 5,800,160)."""
+        away, was named "CD vs alpha, mach" on a stock-737 null."""
         out = []
         for channel, error in names:
             p = self.get(f"{channel}.{error}")
