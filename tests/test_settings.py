@@ -100,7 +100,7 @@ def test_a_threshold_changed_in_the_settings_changes_the_decision(narrow, tmp_pa
     assert result.verdict == "discrepancy, cause not confirmed" and not result.causes
     first = result.to_dict()["unconfirmed"][0]
     assert "needs x100.0" in first["verdict"]["reason"] and first["verdict"]["replicate_gain"] == v["replicate_gain"]
-    assert recorded(json.loads((tmp_path / "strict" / "diagnosis.json").read_text())) == strict
+    assert recorded(json.loads((tmp_path / "strict" / "diagnosis.json").read_text())) == strict == result.settings
     with pytest.raises(TypeError, match="DiagnosisSettings"):
         ga.diagnose(narrow, ga.SHIPPED_737, tmp_path / "wrong", settings={"replicate_gain": 100.0})
     assert not (tmp_path / "wrong").exists()
