@@ -8,6 +8,7 @@ value was calibrated. :func:`documented` writes the class's ``Attributes`` secti
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import textwrap
 from typing import Any
 
@@ -95,7 +96,7 @@ def documented(cls: type) -> type:
         lines.append(f"{f.name} : {type(value).__name__}, default {_shown(value)}")
         text = f"[{m['unit']}] {m['guards']}" + (f" Calibration: {m['calibration']}" if m["calibration"] else "")
         lines += textwrap.wrap(text, 100, initial_indent="    ", subsequent_indent="    ")
-    cls.__doc__ = (cls.__doc__ or "").rstrip() + "\n" + "\n".join(lines) + "\n"
+    cls.__doc__ = inspect.cleandoc(cls.__doc__ or "") + "\n" + "\n".join(lines) + "\n"
     return cls
 
 
