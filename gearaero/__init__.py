@@ -41,20 +41,20 @@ from diagnose.config import DiagnosisSettings
 from gearaero.jobs import diagnose, fly, identify, plan, report
 from gearaero.logs import FRAME_COLUMNS, log_from_frame, read_logs, write_logs
 from gearaero.plots import (
-                            plot_alpha_transitions,
-                            plot_fit,
-                            plot_increments,
-                            plot_replay,
-                            plot_residual_history,
-                            plot_residuals,
-                            plot_response,
+    plot_alpha_transitions,
+    plot_fit,
+    plot_increments,
+    plot_replay,
+    plot_residual_history,
+    plot_residuals,
+    plot_response,
 )
 from gearaero.results import (
-                            CampaignResult,
-                            DiagnosisResult,
-                            IdentificationResult,
-                            PlanResult,
-                            ReportResult,
+    CampaignResult,
+    DiagnosisResult,
+    IdentificationResult,
+    PlanResult,
+    ReportResult,
 )
 from identify.compat import CompatSettings
 from identify.logs import Log, LogError
@@ -63,33 +63,12 @@ from infra.provenance import version as _version
 #: The installed version (single-sourced in ``pyproject.toml``).
 __version__ = _version()
 
-__all__ = [
-                            "FRAME_COLUMNS",
-                            "SHIPPED_737",
-                            "CampaignResult",
-                            "CompatSettings",
-                            "DiagnosisResult",
-                            "DiagnosisSettings",
-                            "IdentificationResult",
-                            "Log",
-                            "LogError",
-                            "PlanResult",
-                            "ReportResult",
-                            "UserError",
-                            "__version__",
-                            "diagnose",
-                            "fly",
-                            "identify",
-                            "log_from_frame",
-                            "plan",
-                            "plot_alpha_transitions",
-                            "plot_fit",
-                            "plot_increments",
-                            "plot_replay",
-                            "plot_residual_history",
-                            "plot_residuals",
-                            "plot_response",
-                            "read_logs",
-                            "report",
-                            "write_logs",
+__all__ = [  # noqa: RUF022 (grouped as the API reads: help() shows the start of it)
+    "__version__", "SHIPPED_737", "UserError", "LogError", "Log", "FRAME_COLUMNS", "DiagnosisSettings",
+    "CompatSettings",
+    "read_logs", "log_from_frame", "write_logs",
+    "fly", "identify", "diagnose", "plan", "report",
+    "CampaignResult", "IdentificationResult", "DiagnosisResult", "PlanResult", "ReportResult",
+    "plot_fit", "plot_increments", "plot_alpha_transitions", "plot_residuals", "plot_response",
+    "plot_residual_history", "plot_replay",
 ]

@@ -34,14 +34,14 @@ The compatibility never reads an instrument profile; it sees the logs only.
 from identify.compat.config import CompatSettings
 from identify.compat.fit import estimate
 from identify.compat.result import (
-                                    D2R,
-                                    EARTH_RATE,
-                                    FT_PER_KT,
-                                    CompatResult,
-                                    Parameter,
-                                    at_cg,
-                                    columns_of,
-                                    documented_positions,
+    D2R,
+    EARTH_RATE,
+    FT_PER_KT,
+    CompatResult,
+    Parameter,
+    at_cg,
+    columns_of,
+    documented_positions,
 )
 
 __all__ = ["D2R", "EARTH_RATE", "FT_PER_KT", "CompatResult", "CompatSettings", "Parameter", "at_cg", "columns_of",
