@@ -47,15 +47,21 @@ import functools
 import json
 import sys
 import tempfile
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.validation.hidden import (SENSOR_FAMILIES, differences, discrepancies,  # noqa: E402
-                          make_sensor, shape_error)
-from campaign.validation.shapes import FLOOR, PAIRS, VARIABLES, Effect, draw  # noqa: E402
-from campaign.validation.support import matrix_toml, pairs, run_matrix  # noqa: E402
+from campaign.validation.hidden import (
+    SENSOR_FAMILIES,
+    differences,
+    discrepancies,
+    make_sensor,
+    shape_error,
+)
+from campaign.validation.shapes import FLOOR, PAIRS, VARIABLES, Effect, draw
+from campaign.validation.support import matrix_toml, pairs, run_matrix
 
 BINS = (0.3, 1.0, 3.0, 10.0, 30.0)
 
@@ -77,7 +83,7 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
 #: at 4.7, and an effect changing in that gap would fit a level per Mach number as well. Our 737 also flies
 #: flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's 175 kt flap-30 placard): with
 #: Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle would be a function of Mach
-#: over the data (:mod:`diagnose.settings`), and an effect in Mach below 0.3 the flap's.
+#: over the data (:mod:`diagnose.flap_mach`), and an effect in Mach below 0.3 the flap's.
 OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000), (30, 0.3, 10000),
                             (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
 STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),
@@ -103,7 +109,7 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     return every[AIRCRAFT.index(only)] if only else drawn
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def flown_ranges(folder: str, matrix: str) -> dict[str, tuple[float, float]]:
     """The range [own units] each of the grammar's variables is flown over on an aircraft's matrix: the
     1st to 99th percentile of its logged channel, the bare aircraft flown through the flight-test profile
@@ -193,7 +199,7 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
     if not null:
         ranges = flown_ranges(folder, matrix)
         allowed = [v for v in VARIABLES if ranges[v][1] > ranges[v][0]]
-        pick = ((PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(allowed)),)))
+        pick = (PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(allowed)),))
         if not set(pick) <= set(allowed):
             pick = (pick[0],)
         effect = draw(rng, variables=pick, ranges=ranges)
@@ -252,9 +258,9 @@ def _said(text) -> bool:
 def table(rows: list[dict]) -> str:
     effects = [r for r in rows if _said(r["effect"])]
     nulls = [r for r in rows if not _said(r["effect"])]
-    lines = ["| size / floor | effects | hits | hit rate | hits as flown | shape error of the hits (median, 90th "
-             "percentile) | invented causes | strong candidates rejected |", "|---|---|---|---|---|---|---|---|"]
-    for lo, hi in zip(BINS[:-1], BINS[1:]):
+    lines = [("| size / floor | effects | hits | hit rate | hits as flown | shape error of the hits (median, 90th "
+              "percentile) | invented causes | strong candidates rejected |"), "|---|---|---|---|---|---|---|---|"]
+    for lo, hi in pairwise(BINS):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         hits = sum(r["hit"] for r in b)
         rate = f"{100 * hits / len(b):.0f} %" if b else "-"
@@ -280,7 +286,7 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
     effects = [r for r in rows if _said(r["effect"])]
     centres, rates, counts = [], [], []
-    for lo, hi in zip(BINS[:-1], BINS[1:]):
+    for lo, hi in pairwise(BINS):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         if b:
             centres.append(np.sqrt(lo * hi))

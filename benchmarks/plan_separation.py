@@ -23,14 +23,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.validation.hidden import fly_data, make  # noqa: E402
-from campaign.validation.support import NARROW  # noqa: E402
+from campaign.validation.hidden import fly_data, make
+from campaign.validation.support import NARROW
 
 
 def case(seed: int, work: Path) -> dict:
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
-    from diagnose.separation import SETTLED_SE
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from diagnose.config import recorded
     hidden = make("gear_x_alpha", np.random.default_rng(seed), "Cm")
     data, fx = fly_data(work, hidden, seed=seed, matrix=NARROW)
     quiet = ["--no-plots", "--jobs", "2"]
@@ -39,7 +39,7 @@ def case(seed: int, work: Path) -> dict:
     d1 = json.loads((work / "d1" / "diagnosis.json").read_text())
     row = {"seed": seed, "effect": hidden.description, "coefficient": hidden.coefficient,
            "before": _first(d1), "open": [f"{r['rival']} {r['separation_se']:.1f}" for r in d1["rivals"]
-                                          if r["separation_se"] < SETTLED_SE]}
+                                          if r["separation_se"] < recorded(d1).settled_se]}
     if not row["open"]:
         return row
     if main(["plan", "--diagnosis", str(work / "d1"), "--out", str(work / "plan"), "--jobs", "2", "--quiet"]):
@@ -60,7 +60,7 @@ def case(seed: int, work: Path) -> dict:
                           and first.get("variables", [])[:2] == ["gear_norm", "alpha_deg"])
     seps = [r["separation_se"] for r in first.get("evidence", {}).get("rivals", [])]
     row["measured"] = [f"{r['rival']} {r['separation_se']:.1f}" for r in first.get("evidence", {}).get("rivals", [])]
-    row["settled"] = row["right_after"] and all(s >= SETTLED_SE for s in seps)
+    row["settled"] = row["right_after"] and all(s >= recorded(d2).settled_se for s in seps)
     return row
 
 

@@ -1,6 +1,8 @@
 """Instrument errors against aerodynamic causes: the corrections the kinematics leave undecided
 chosen by the aerodynamic residuals, the vanes' delays timed by them, a loosely measured air-data
-error refined by them, and the corrections made named as sensor causes with their verdict."""
+error refined by them, and the corrections made named as sensor causes with their verdict. The
+thresholds (``corroborated_gain``, ``refined_worse``, ``agree_*``, ``sensor_*``) are
+:class:`diagnose.config.DiagnosisSettings`', read from :func:`diagnose.config.current`."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -11,24 +13,14 @@ import numpy as np
 import pandas as pd
 
 from diagnose.causes import Cause
+from diagnose.config import current
 from diagnose.corrected import Corrected
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
 from diagnose.stepwise import fit_terms, stepwise
 from diagnose.terms import Term, candidate_terms
-from diagnose.verdict import DEPARTS_GAIN, REPLICATE_GAIN
-from identify.compat import APPLY_Z, CompatResult, Parameter
-#: A corrected instrument error is named when it moves a coefficient at least this much.
-SENSOR_EFFECT = 1e-4
-#: ... and its estimate is this many standard errors from 0 (the kinematics alone say so), or the
-#: aerodynamic residuals chose it (:func:`arbitrate`: two independent lines of evidence).
-SENSOR_Z = APPLY_Z
-#: ... and the held-out residuals get this much smaller (RMS ratio) corrected. Not the aerodynamic
-#: causes' :data:`diagnose.verdict.REPLICATE_GAIN`: its calibration on nulls covered those only.
-SENSOR_MIN_GAIN = 1.02
-#: A correction the kinematics leave undecided is applied if the residuals get this much smaller
-#: (RMS ratio) with it, on the fitted and on the held-out logs.
-CORROBORATED_GAIN = 1.1
+from identify.compat import CompatResult, Parameter
+
 
 def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None = None) -> CompatResult:
     """Let the aerodynamic residuals decide the corrections the kinematics leave undecided.
@@ -38,10 +30,10 @@ def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None =
     are each estimated with the other held at 0, and only one may be applied. An estimate
     3 to 5 standard errors from 0 may be real or a clustered standard error come out small.
     Each candidate is tried: the one that brings the model closest to the data is applied
-    if the residuals get at least :data:`CORROBORATED_GAIN` times smaller (RMS) with it,
+    if the residuals get at least ``corroborated_gain`` times smaller (RMS) with it,
     on the fitted logs and on the held-out ones, as they are or beside the aerodynamic
     terms the stepwise search fits (:func:`_trial`), and no other coefficient's residual grows
-    about its mean by more than :data:`REFINED_WORSE` (:func:`_agrees`); the others keep what
+    about its mean by more than ``refined_worse`` (:func:`_agrees`); the others keep what
     the residuals said.
     With ``channels``, only those channels' corrections are decided.
     """
@@ -114,21 +106,22 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
 
 def _agrees(gains: dict[str, tuple[float, float]]) -> str:
     """The way the residuals agree with a correction ("" if neither). As is: at least
-    :data:`CORROBORATED_GAIN` on the fitted logs and (if any) on the held-out ones. Beside aero
+    ``corroborated_gain`` on the fitted logs and (if any) on the held-out ones. Beside aero
     terms the fitted logs say little (the terms were fitted to them, and can mimic the correction
-    there): the held-out logs must gain :data:`CORROBORATED_GAIN`, and the fitted ones not lose.
-    Neither if another coefficient's residual grows about its mean by more than :data:`REFINED_WORSE`
+    there): the held-out logs must gain ``corroborated_gain``, and the fitted ones not lose.
+    Neither if another coefficient's residual grows about its mean by more than ``refined_worse``
     with it: an instrument error moves every coefficient along its own derivative, and its correction
     shrinks each one's shape or leaves it (an offset the stepwise search's intercept takes up says
     nothing). An A320 lift change in alpha times Mach, with no instrument error, had the CL residual
     take a -1.8 % vane scale beside the aerodynamic terms (x1.48, x1.92 held out) while Cm's residual
-    grew 2.1-fold about its mean with it, and "Cm vs alpha" was named first (fresh seed 7,100,074)."""
+    grew 2.1-fold about its mean with it, and "Cm vs alpha" was named first."""
+    s = current()
     if _others_worse(gains):
         return ""
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
-    return ("as is" if g >= CORROBORATED_GAIN and not h < CORROBORATED_GAIN else
-            "beside aero terms" if gb >= 1.0 and hb >= CORROBORATED_GAIN else "")
+    return ("as is" if g >= s.corroborated_gain and not h < s.corroborated_gain else
+            "beside aero terms" if gb >= 1.0 and hb >= s.corroborated_gain else "")
 
 
 def _score(gains: dict[str, tuple[float, float]]) -> float:
@@ -146,8 +139,8 @@ def _said(gains: dict[str, tuple[float, float]]) -> str:
 
 
 def _others_worse(gains: dict[str, tuple[float, float]]) -> bool:
-    """Another coefficient's residual grows about its mean by more than :data:`REFINED_WORSE` with the correction."""
-    return gains[OTHERS][0] < 1.0 / REFINED_WORSE
+    """Another coefficient's residual grows about its mean by more than ``refined_worse`` with the correction."""
+    return gains[OTHERS][0] < 1.0 / current().refined_worse
 
 
 #: Gauss-Newton iterations of a time shift timed by the residuals (each evaluates the model twice per log).
@@ -218,8 +211,8 @@ def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
     kinematics' own estimate (biased by the aircraft's answer to the gusts, but a better
     start: from none, an 82-ms alpha delay the kinematics put at 94 ms was timed at -371 ms
     beside a lift change with gear, and "CL vs adothat" was the first discrepancy, 68 times its
-    floor; development seed 5,200,118). The timing the residuals agree with best is applied,
-    only if they get at least :data:`CORROBORATED_GAIN` times smaller with it, on the fitted logs
+    floor). The timing the residuals agree with best is applied,
+    only if they get at least ``corroborated_gain`` times smaller with it, on the fitted logs
     and on the held-out ones. A model whose own rate derivatives are wrong leaves a similar
     signature: then the delay and the derivative cannot be told apart, and the
     report says so beside the aerodynamic cause.
@@ -257,26 +250,6 @@ def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
     return compat
 
 
-#: An instrument error the significant aero causes of at least two coefficients each owe this
-#: share of their variance to [%] ...
-AGREE_PCT = 80.0
-#: ... at sizes this close (largest over smallest, same sign) ...
-AGREE_RATIO = 1.5
-#: ... and within this many of the data compatibility's standard errors of its own estimate, is
-#: an instrument error: the residuals refine the correction instead of naming aero causes. The
-#: 99th percentile of the kinematics' own alpha-vane errors in standard errors, on 373 simulated
-#: campaigns in 1.5 and 3 ft/s (3.3 for the bias, 3.6 for the scale; 2.5 was their 95th). At 2.5 an
-#: A320 vane scale of 5.3 %, corrected as 8.6 +- 1.1 %, was not refined to the 5.5 % all three
-#: residuals needed (2.8 standard errors away), and "Cm vs alpha" was named on a null (the reserved
-#: seeds' one false positive, seen there first).
-AGREE_SE = 3.5
-#: ... or within this many when all three coefficients agree: the 99.9th percentile of those errors. A
-#: jackknife over about a dozen logs makes them t-distributed: the 95th and 99th percentiles (2.5 and
-#: 3.6) fit 9 degrees of freedom, scaled by 1.1. Three aerodynamic errors that each mimic the same
-#: instrument error at the same size are far rarer than two: a 4.2 % A320 vane scale in 3 ft/s, measured
-#: 1.2 +- 0.75 %, that CL, CD and Cm each put at 3.0-4.5 % (3.8 standard errors away, median 4.0 %),
-#: named "Cm vs alpha" on a null (development seed 4,100,188).
-AGREE_ALL_SE = 5.3
 
 
 class Refinement(NamedTuple):
@@ -290,9 +263,9 @@ class Refinement(NamedTuple):
 def _held_out_refutes(cause: Cause) -> bool:
     """The cause's own held-out logs refute it: tested there, it gained less than the verdict needs
     (:func:`diagnose.verdict.judge`: neither ``replicate_gain`` nor ``replicate_gain_where_departs``)."""
-    v = cause.verdict
-    return bool(np.isfinite(v.get("replicate_gain", np.nan)) and not v["replicate_gain"] >= REPLICATE_GAIN
-                and not v.get("replicate_gain_where_departs", np.nan) >= DEPARTS_GAIN)
+    s, v = current(), cause.verdict
+    return bool(np.isfinite(v.get("replicate_gain", np.nan)) and not v["replicate_gain"] >= s.replicate_gain
+                and not v.get("replicate_gain_where_departs", np.nan) >= s.departs_gain)
 
 
 def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
@@ -301,7 +274,7 @@ def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
     or less of the same correction than the others (its cause partly another) does not veto what they
     agree on; one that needs the opposite still does. An A320 null's 7.2 % vane scale, corrected as
     5.7 +- 2.2 %: CL and Cm each needed 1.7 % more, CD 2.8 % (its cause a drag change with elevator), 1.7
-    times as much, and no refinement was made (validation seed 4,300,078)."""
+    times as much, and no refinement was made."""
     v = np.array(list(by.values()))
     if not (np.all(v > 0) or np.all(v < 0)):
         return []
@@ -310,28 +283,27 @@ def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
     return [{k: by[k] for k in ks} for n in sizes for ks in combinations(keys, n)]
 
 
-def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict],
-                        alpha_in: float = 1e-6) -> Refinement | None:
+def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[dict]) -> Refinement | None:
     """An air-data error the kinematics measured loosely and the aerodynamic residuals pin down.
 
     A vane's scale or bias error moves the model's CL, CD and Cm together, each along its
     own derivative; an aerodynamic error moves one coefficient. When one instrument
-    error explains the causes of two coefficients or more (each at least :data:`AGREE_PCT`
+    error explains the causes of two coefficients or more (each at least ``agree_pct``
     % of its variance; significant and above the noise floor, whether or not the held-out
     checks accepted them), at consistent sizes (those of two or more, if a third needs the same
     sign at another size: :func:`_subsets`), and the correction it
-    adds lands within :data:`AGREE_SE` standard errors of the kinematics' own estimate
-    (:data:`AGREE_ALL_SE` when all three coefficients agree; for a correction the data carry,
+    adds lands within ``agree_se`` standard errors of the kinematics' own estimate
+    (``agree_all_se`` when all three coefficients agree; for a correction the data carry,
     from anywhere between the estimate and none: :func:`_gap`), the two independent
     measurements agree: the correction is refined to what the residuals need (the median over
     the coefficients), and the diagnosis runs again on the refined data. The causes of one coefficient
     alone may only adjust a correction the kinematics made, never add one, and the refinement then
     needs another coefficient's whole residual as its second witness (:func:`refinement_stands`).
-    A cause that would need a correction further than :data:`AGREE_ALL_SE` from the kinematics'
+    A cause that would need a correction further than ``agree_all_se`` from the kinematics'
     estimate neither supports nor refutes it (an A320 null's "CD vs CL" that a 48-standard-error
     vane scale of the opposite sign would make kept the CL and Cm residuals' 3.7 % from refining it).
     Nor does a cause its own held-out logs refute veto what the others agree on (:func:`_held_out_refutes`;
-    it may still support them, as before): on our 737's null 6,700,233, a "CD vs qhat" 3 times its floor,
+    it may still support them): on a null of our 737, a "CD vs qhat" 3 times its floor,
     x1.012 on held-out logs, needed -1.75 % of vane scale, and kept CL's and Cm's +4.9 and +4.5 % (the truth
     +4.8 %) from refining it; "CL vs alpha" and "Cm vs alpha" were named.
 
@@ -341,18 +313,19 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
         The refined data compatibility, the parameter refined and the coefficients that needed it;
         None if no instrument error qualifies.
     """
+    s = current()
     needs: dict[tuple[str, str], dict[str, float]] = {}
     refuted: dict[tuple[str, str], set[str]] = {}
     for cause, rc in zip(causes, reach):
-        if (cause.kind != "aero" or not cause.evidence["p_value"] < alpha_in
+        if (cause.kind != "aero" or not cause.evidence["p_value"] < s.alpha_in
                 or not cause.size > cause.verdict["noise_floor"]):
             continue
         for a in rc["alternatives"]:
-            if a.get("unmeasured") or a["explains_pct"] < AGREE_PCT:
+            if a.get("unmeasured") or a["explains_pct"] < s.agree_pct:
                 continue
             p = compat.get(f"{a['channel']}.{a['error']}")
             # a cause that would need a correction the kinematics rule out is some other cause's
-            if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= AGREE_ALL_SE:
+            if p.se > 0 and _gap(p, (p.estimate if p.applied else 0.0) + a["needs"]) <= s.agree_all_se:
                 key = (a["channel"], a["error"])
                 if cause.coefficient not in needs.setdefault(key, {}):
                     needs[key][cause.coefficient] = a["needs"]
@@ -366,11 +339,11 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
             every = {c: v for c, v in every.items() if c not in refuted.get((ch, err), ()) or np.sign(v) == firm[0]}
         for by in _subsets(every):
             v = np.array(list(by.values()))
-            if (len(v) < 2 and not p.applied) or np.max(np.abs(v)) > AGREE_RATIO * np.min(np.abs(v)):
+            if (len(v) < 2 and not p.applied) or np.max(np.abs(v)) > s.agree_ratio * np.min(np.abs(v)):
                 continue
             total = (p.estimate if p.applied else 0.0) + float(np.median(v))
             gap = _gap(p, total) if p.se > 0 else np.inf
-            if (gap <= (AGREE_ALL_SE if len(v) == len(COEFFS) else AGREE_SE)
+            if (gap <= (s.agree_all_se if len(v) == len(COEFFS) else s.agree_se)
                     and (best is None or (-len(v), gap) < (-len(best[3]), best[0]))):
                 best = (gap, p, total, by)
     if best is None:
@@ -393,7 +366,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
 def _follow(compat: CompatResult, p: Parameter, total: float) -> dict[str, float]:
     """The other errors the kinematics estimated with ``p``, given ``p`` at ``total``: each moves by its
     regression on ``p`` in their joint estimate (the conditional mean), its standard error kept. A vane's
-    bias and scale estimated together trade at the trim alphas: on our 737's null 7,900,339 the kinematics
+    bias and scale estimated together trade at the trim alphas: on a null of our 737 the kinematics
     measured +3.0 +- 0.54 % of scale and -0.090 +- 0.015 deg of bias in 1.5 ft/s turbulence, the residuals
     of CL and Cm refined the scale to none, and the bias left alone made a "CD vs flap, alpha" 3.4 times
     its floor (x0.20 on held-out logs with the bias)."""
@@ -410,46 +383,35 @@ def _follow(compat: CompatResult, p: Parameter, total: float) -> dict[str, float
     return {}
 
 
-#: An instrument error the residuals refined moves every coefficient along its own derivative: the
-#: refinement stands only if no coefficient's residual RMS grows by more than this factor (about its
-#: mean when two coefficients or more needed it: :func:`refinement_stands`). A lift change with alpha on
-#: a model whose drag follows CL squared looks like a vane scale in CL and CD; corrected as one, it cut
-#: CL's residual 3-fold and grew CD's 6-fold. About its mean: a constant the stepwise search's intercept
-#: takes up names nothing, and a wrong correction can mask one. A stock-737 lift offset of +0.033 with a
-#: notch during the gear's travel, 21.7 times its floor, had the residuals choose a -4.95 +- 1.27 % vane
-#: scale (the truth: none; :func:`arbitrate`). CL, CD and Cm each needed it undone (to -0.07 %); undone,
-#: CL's residual RMS grew 1.7-fold with its mean (the offset, unmasked) and shrank 2.6-fold about it,
-#: CD's and Cm's shrank 6.6- and 1.9-fold. Refused, "Cm vs alpha", "CL vs alpha" and "CD vs CL" were
-#: named for the scale's remainder (fresh seed 6,700,032; 6,700,079 alike, 10.1 times its floor).
-REFINED_WORSE = 1.1
 
 
 def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.DataFrame) -> CompatResult | None:
     """The refined data compatibility if the residuals over all the data agree with it, else None.
 
-    No coefficient's residual RMS may grow by more than :data:`REFINED_WORSE`: about its mean when two
+    No coefficient's residual RMS may grow by more than ``refined_worse``: about its mean when two
     coefficients or more needed the refinement, its mean included when one did (its offset is then
     evidence: below). A refinement only one coefficient's causes needed also needs a second witness:
-    another coefficient's residual RMS at least :data:`CORROBORATED_GAIN` times smaller. A vane bias moves
+    another coefficient's residual RMS at least ``corroborated_gain`` times smaller. A vane bias moves
     CL by its slope, an offset the stepwise search takes up in its intercept and names nothing for:
     a stock-737 null's vane bias, corrected 0.079 deg too far (2.5 standard errors), left a "CD vs
     alpha" 5.7 times its floor that only CD's causes showed, and CL's residual RMS 4.8 times larger
-    than with the correction the CD residual needed (development seed 5,000,150). A drag change with
+    than with the correction the CD residual needed. A drag change with
     alpha that a vane bias would mimic in CD grows CL's residual instead.
     """
     def rms(data: pd.DataFrame, c: str, about_mean: bool = False) -> float:
         r = data[f"r_{c}"].to_numpy()
         return float(np.sqrt(np.mean((r - np.mean(r) if about_mean else r) ** 2)))
 
+    s = current()
     agreed = len(refinement.coefficients) > 1
-    if any(rms(after, c, agreed) > REFINED_WORSE * rms(before, c, agreed) for c in COEFFS):
+    if any(rms(after, c, agreed) > s.refined_worse * rms(before, c, agreed) for c in COEFFS):
         return None
     gain = {c: rms(before, c) / max(rms(after, c), 1e-300) for c in COEFFS}
     compat = refinement.compat
     if agreed:
         return compat
     witness = max((c for c in COEFFS if c not in refinement.coefficients), key=gain.get)
-    if not gain[witness] >= CORROBORATED_GAIN:
+    if not gain[witness] >= s.corroborated_gain:
         return None
     return replace(compat, parameters=[
         replace(q, chosen=f"{q.chosen}; {witness}'s residual RMS x{gain[witness]:.2f} smaller with it")
@@ -462,7 +424,7 @@ def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) ->
     scale undid the scale at the trim alphas; a +0.21 deg vane bias, chosen by the CL residual where a
     +4.8 % scale was measured at -0.16 +- 2.7 %, stood in for the scale at the trim alphas, and beside the
     scale refined to +4.7 % doubled it there (CD's residual RMS grew 1.5-fold about its mean, and "CL vs
-    alpha" and "Cm vs alpha" were named on our 737's null 6,700,233). Chosen again, it is not."""
+    alpha" and "Cm vs alpha" were named on a null of our 737). Chosen again, it is not."""
     changed = {q.channel for p, q in zip(before.parameters, refined.parameters)
                if (p.applied != q.applied or q.estimate != p.estimate) and "residuals" in q.sources}
     again = [q.name for q in refined.parameters if q.channel in changed and q.chosen and "residuals" not in q.sources]
@@ -496,6 +458,7 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
     their own word is not: with few conditions, fitted terms leave offsets between them
     that any correction shaped like 1/qbar can seem to explain.
     """
+    s = current()
     causes = []
     aero = aero or {}
 
@@ -521,13 +484,13 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
             if aero.get(c) and p.beside_aero:
                 gain = max(gain, rms(beside(r, h, c)) / max(rms(beside(data, held_data, c)), 1e-300))
         reasons = []
-        if p.z < SENSOR_Z and not p.chosen:
-            reasons.append(f"only {p.z:.1f} standard errors (needs {SENSOR_Z:g}, or the residuals to agree)")
-        if effect[c] < SENSOR_EFFECT:
-            reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {SENSOR_EFFECT:g})")
-        if not gain >= SENSOR_MIN_GAIN:
+        if p.z < s.compat.apply_z and not p.chosen:
+            reasons.append(f"only {p.z:.1f} standard errors (needs {s.compat.apply_z:g}, or the residuals to agree)")
+        if effect[c] < s.sensor_effect:
+            reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {s.sensor_effect:g})")
+        if not gain >= s.sensor_min_gain:
             reasons.append("no held-out data" if not np.isfinite(gain) else
-                           f"does not improve held-out data (gain x{gain:.3f}, needs x{SENSOR_MIN_GAIN})")
+                           f"does not improve held-out data (gain x{gain:.3f}, needs x{s.sensor_min_gain})")
         cause = Cause(c, [p.channel], [], p.error, {"z": p.z, "F": p.z ** 2, "p_value": 0.0, "dof": [1, 0],
                                                   "rss_reduction_pct": float("nan"), "method": "data compatibility",
                                                   "methods": {k: {"estimate": e, "se": se}
@@ -538,7 +501,7 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
                       effect[c], size=effect[c], kind="sensor", channel=p.channel, error=p.error,
                       estimate=p.estimate, se=p.se)
         cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "holdout_gain": gain,
-                         "noise_floor": SENSOR_EFFECT, "size_over_floor": effect[c] / SENSOR_EFFECT,
+                         "noise_floor": s.sensor_effect, "size_over_floor": effect[c] / s.sensor_effect,
                          "unit": p.unit}
         causes.append(cause)
     return causes

@@ -8,6 +8,8 @@ import pandas as pd
 
 from diagnose.stepwise import Fit, Lags, StepwiseResult, f_logsf, f_test, fit_terms
 from diagnose.terms import Term, connected, hats, sensor_of
+
+
 @dataclass
 class Cause:
     """One candidate cause: a coefficient, the variables, a shape, the evidence, the verdict.
@@ -101,7 +103,7 @@ def held_constant(contrib: np.ndarray) -> float:
     is larger than the contribution's whole range over the data, else 0. Terms whose columns nearly hold
     a constant between them (smooth(elevator) beside elevator x Mach, where each condition trims at its
     own elevator) split it with the intercept arbitrarily: "CL vs elevator_deg, mach" was reported with a
-    peak of 83,000 (seed 7,500,038 of the detection curve), five of 806 causes so in the detection curve's records."""
+    peak of 83,000, and five of 806 causes in the detection curve's records were so."""
     contrib = np.asarray(contrib, dtype=float)
     med = float(np.median(contrib)) if contrib.size else 0.0
     return med if abs(med) > float(np.ptp(contrib)) else 0.0

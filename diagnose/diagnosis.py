@@ -33,21 +33,32 @@ from types import SimpleNamespace
 
 import pandas as pd
 
-from diagnose.arbitration import (arbitrate, compat_causes, rearbitrate, refinement_stands, residual_delays,
-                                  residual_refinement)
+from diagnose.arbitration import (
+    arbitrate,
+    compat_causes,
+    rearbitrate,
+    refinement_stands,
+    residual_delays,
+    residual_refinement,
+)
 from diagnose.causes import merge_sensors, name_causes
+from diagnose.config import DiagnosisSettings, using
 from diagnose.corrected import Corrected
-from diagnose.noise_floor import REACH_SE, NoiseFloor, channel_noise, model_sensitivities
+from diagnose.noise_floor import NoiseFloor, channel_noise, model_sensitivities
 from diagnose.residuals import COEFFS
-from diagnose.sensor_rivals import instrument_verdict
-from diagnose.separation import SWAP_ROUNDS, cause_rivals, compose_swaps, noise_weights, preferred_aero_rivals
 from diagnose.result import Diagnosis
+from diagnose.sensor_rivals import instrument_verdict
+from diagnose.separation import (
+    cause_rivals,
+    compose_swaps,
+    noise_weights,
+    preferred_aero_rivals,
+)
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
 from diagnose.verdict import contribution, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
-
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
@@ -85,16 +96,12 @@ def _whole_stands(causes, coefficient: str, split: list) -> bool:
     return any(map(_passes, _parts(causes, coefficient, split)))
 
 
-#: Rounds of :func:`_dropped`: a cause judged again without its coefficient's fallen terms may fall in turn.
-DROP_ROUNDS = 2
-
-
 def _dropped(causes, dropped: dict) -> tuple[dict, list]:
     """``dropped`` and the terms of each aero cause that fell where a cause of its coefficient stands
     (coefficient -> frozenset of terms), and those causes. The report fits each coefficient with the terms
     of the causes named only, so each is judged on that fit: two terms alike share a residual between them
     with contributions of either sign, each larger than the residual itself. An A320 null with a 0.23 deg
-    vane bias in 3 ft/s turbulence (fresh seed 9,402,865) named "CD vs alpha_deg" at 0.0076, 15 times its
+    vane bias in 3 ft/s turbulence named "CD vs alpha_deg" at 0.0076, 15 times its
     floor and past the instrument errors' reach, beside a "CD vs CL, flap_deg" that fell on held-out data;
     the CD residual spans 0.0014, which the bias makes."""
     out, fell = dict(dropped), []
@@ -111,8 +118,8 @@ def _with_reach(fell: list, causes: list, reach: list) -> list[tuple]:
     return [(f, next(r for c, r in zip(causes, reach) if c is f)) for f in fell]
 
 
-def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, realizations: int = 20,
-             compatibility: bool = True, jobs: int = 1, progress=None, **kw) -> Diagnosis:
+def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, compatibility: bool = True,
+             jobs: int = 1, progress=None, settings: DiagnosisSettings | None = None) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
 
     Parameters
@@ -124,8 +131,6 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         Logs not fitted on; the verdict's leave-one-condition-out check uses them too.
     step : int or None
         Thinning of the residual data (default: about 60 samples per second).
-    realizations : int
-        Noise realizations of the instrument-noise floor.
     compatibility : bool
         Estimate the instrument errors first and correct the logs (:mod:`identify.compat`,
         :class:`diagnose.corrected.Corrected`).
@@ -133,12 +138,28 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         Worker processes for the residuals and the noise floor's realizations (sets ``evaluator.jobs``).
     progress : callable, optional
         Called with the name of each stage as it starts (:data:`STAGES`).
+    settings : DiagnosisSettings, optional
+        Every decision threshold (None: the defaults), the data compatibility's among them
+        (``settings.compat``); :func:`diagnose.config.current` while the diagnosis runs, and kept in
+        the result (``Diagnosis.settings``).
+
+    Raises
+    ------
+    TypeError
+        If ``settings`` is not a :class:`diagnose.config.DiagnosisSettings`.
     """
+    with using(settings) as s:
+        return _diagnose(logs, evaluator, held, step, compatibility, jobs, progress, s)
+
+
+def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,
+              progress, s: DiagnosisSettings) -> Diagnosis:
+    """:func:`diagnose` within its settings ``s``."""
     stage = progress or (lambda name: None)
     evaluator.jobs = jobs
     corrected = Corrected(logs, held, evaluator, step)
     stage("data compatibility")
-    compat = estimate(corrected.train, jobs=jobs) if compatibility else None
+    compat = estimate(corrected.train, jobs=jobs, settings=s.compat) if compatibility else None
     if compat is not None:
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
@@ -157,13 +178,13 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         lags = Lags(data["log"].to_numpy())
         terms = {c: candidate_terms(data, c) for c in COEFFS}
         shared = candidate_gram(data, terms)
-        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, split=c not in whole, **kw) for c in COEFFS}
+        results = {c: stepwise(data, c, terms[c], lags=lags, gram=shared, split=c not in whole) for c in COEFFS}
         del shared
         for c, swap in (swaps or {}).items():
             if not set(swap.values()) & set(results[c].terms):
                 results[c] = refit(results[c], [swap.get(t, t) for t in results[c].terms], data)
         dropped, fallen, floor = dict(dropped or {}), list(fallen), None  # fallen: (cause, its reach) as it fell
-        for round_ in range(DROP_ROUNDS + 1):  # each cause judged on the fit it is reported with
+        for round_ in range(s.drop_rounds + 1):  # each cause judged on the fit it is reported with
             for c, gone in dropped.items():
                 if gone & set(results[c].terms):
                     results[c] = refit(results[c], [t for t in results[c].terms if t not in gone], data)
@@ -173,8 +194,8 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
                 held_data = held_data() if callable(held_data) else held_data
                 if jobs > 1:
                     sensitivities()  # wanted or not: the workers are then free for what comes next
-                uncertain = compat.uncertainty(REACH_SE) if compat else None
-                floor = (NoiseFloor(logs, evaluator, noise, step, realizations, uncertain=uncertain,
+                uncertain = compat.uncertainty(s.reach_se) if compat else None
+                floor = (NoiseFloor(logs, evaluator, noise, step, s.noise_realizations, uncertain=uncertain,
                                     left=compat.left_in_logs(uncertain[0]) if compat else None,
                                     unmeasured=compat.unmeasured if compat else (), jobs=jobs,
                                     sensitivities=sensitivities) if causes else None)
@@ -191,9 +212,9 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
             factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
             eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
             stage("verdict")
-            judge(causes, results, data_all, floors, eiv, reach, kw.get("alpha_in", 1e-6), data)
+            judge(causes, results, data_all, floors, eiv, reach, data)
             more, fell = _dropped(causes, dropped)
-            if more == dropped or round_ == DROP_ROUNDS:
+            if more == dropped or round_ == s.drop_rounds:
                 break
             dropped, fallen = more, fallen + _with_reach(fell, causes, reach)
         return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
@@ -203,8 +224,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     p = one_pass(compat)
     # the refinement reads every cause, accepted or not: those dropped for falling too, as they fell
     refined = None if compat is None else residual_refinement(compat, p.causes + [c for c, _ in p.fallen],
-                                                              p.reach + [r for _, r in p.fallen],
-                                                              kw.get("alpha_in", 1e-6))
+                                                              p.reach + [r for _, r in p.fallen])
     if refined is not None:
         refined = refined._replace(compat=rearbitrate(compat, refined.compat, corrected))
         q = one_pass(refined.compat)
@@ -224,7 +244,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         whole = stands if stands != whole else set()
     rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     swaps, rounds = {}, []
-    for _ in range(SWAP_ROUNDS):  # the search's term at entry, with the others in, fits worse than a rival:
+    for _ in range(s.swap_rounds):  # the search's term at entry, with the others in, fits worse than a rival:
         rounds.append(preferred_aero_rivals(p.causes, p.terms, p.data))  # the rival is the cause
         more = compose_swaps(rounds)
         if more == swaps:
@@ -234,7 +254,7 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         rivals = cause_rivals(p.causes, p.results, p.terms, p.data, p.floor, p.compat, p.lags) if p.causes else []
     for c in p.causes:
         instrument_verdict(c)
-    for _ in range(DROP_ROUNDS):  # ... and the instrument errors that fit better than a cause drop it too
+    for _ in range(s.drop_rounds):  # ... and the instrument errors that fit better than a cause drop it too
         more, fell = _dropped(p.causes, p.dropped)
         if more == p.dropped:
             break
@@ -259,4 +279,4 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
     corrected.forget()
     return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
-                     logs, held, rivals, kept_whole)
+                     logs, held, rivals, kept_whole, s)

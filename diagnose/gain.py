@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from diagnose.config import current
 from diagnose.residuals import COEFFS
 from diagnose.result import Diagnosis
-from diagnose.terms import MIN_STD
 from identify.logs import Log
 
 #: The channels a replay is compared on.
@@ -86,9 +86,12 @@ def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool) -> di
     return out
 
 
-def exercised(frame: pd.DataFrame, variables: list[str]) -> list[int]:
-    """Held-out logs (``log`` values of a residual frame) in which any of the cause's variables varies."""
-    out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= MIN_STD[v] for v in variables)]
+def exercised(frame: pd.DataFrame, variables: list[str], min_std: dict | None = None) -> list[int]:
+    """Held-out logs (``log`` values of a residual frame) in which any of the cause's variables varies, by
+    ``min_std`` (variable -> standard deviation in its unit; None: the settings', :func:`diagnose.config.current`;
+    a diagnosis's are ``diag.settings.min_std``)."""
+    min_std = current().min_std if min_std is None else min_std
+    out = [int(i) for i, g in frame.groupby("log") if any(float(g[v].std()) >= min_std[v] for v in variables)]
     return out or sorted(int(i) for i in frame.log.unique())
 
 
@@ -127,7 +130,7 @@ def measure_gain(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: 
         Log path -> (replay on the model, replay on the extended model), frames or None.
     """
     first = diag.aero_causes[0]
-    acting = exercised(before, first.variables)
+    acting = exercised(before, first.variables, diag.settings.min_std)
     rms_acting = residual_rms(before[before.log.isin(acting)], after[after.log.isin(acting)])
     replays = {}
     for lg in held:

@@ -5,9 +5,10 @@ where the cause departs from the model: where no named cause does, what the held
 looked at. They can hold what the fitted logs cannot show: an effect that the fitted conditions fly as a
 function of another variable (an A320 drag step in the elevator, on at Mach 0.5
 and off at Mach 0.3 and 0.4 over the fitted logs, named "CD vs mach" while the held-out Mach 0.4 logs,
-flown where the step is on, kept all of it: fresh seed 9,404,595), or one that acts at the held-out
-condition alone. Each coefficient's residual, less what the fit predicts there, is compared log by log
-with the most any fitted log leaves. It decides nothing: the report says where the held-out data disagree.
+flown where the step is on, kept all of it), or one that acts at the held-out condition alone. Each
+coefficient's residual, less what the fit predicts there, is compared log by log with the most any fitted
+log leaves (``held_out_ratio`` of :class:`diagnose.config.DiagnosisSettings`). It decides nothing: the
+report says where the held-out data disagree.
 """
 from __future__ import annotations
 
@@ -15,16 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from diagnose.config import current
 from diagnose.stepwise import StepwiseResult
-
-#: A held-out log leaving this many times the residual RMS of the fitted log that leaves most is told. On 180
-#: cases of the detection curve (9,404,680-9,405,039 flown again, every one naming what it had named) the 60
-#: nulls' ratios were at most 1.02 in any coefficient; a held-out condition at a lower dynamic pressure than
-#: every fitted one leaves more noise (1.3 on the stock 737's null of `tests/test_foreign_models.py`, at 0.74
-#: of the lowest fitted dynamic pressure). Of 120 effects, 2 hits were told (3.05 and 4.41: a drag bump in
-#: Mach whose fitted shape did not carry to the held-out Mach, and an invented "CL vs alpha_deg, mach"), and
-#: 2 more came between 2 and 3 (a miss at 2.72, a hit at 2.18). 9,404,595's held-out logs: 25.4.
-HELD_OUT_RATIO = 3.0
 
 
 def left_per_log(frame: pd.DataFrame, res: StepwiseResult) -> pd.Series:
@@ -35,7 +28,7 @@ def left_per_log(frame: pd.DataFrame, res: StepwiseResult) -> pd.Series:
 
 
 def held_out_check(data: pd.DataFrame, held: pd.DataFrame | None, results: dict[str, StepwiseResult],
-                   fitted_names: list[str], held_names: list[str]) -> dict:
+                   fitted_names: list[str], held_names: list[str], ratio: float | None = None) -> dict:
     """Per coefficient: the residual RMS each held-out log leaves once the fit's prediction is taken off,
     against the most any fitted log leaves.
 
@@ -48,24 +41,27 @@ def held_out_check(data: pd.DataFrame, held: pd.DataFrame | None, results: dict[
         Coefficient -> the stepwise fit of the causes named (:class:`diagnose.stepwise.StepwiseResult`).
     fitted_names, held_names : list of str
         The files of the fitted and of the held-out logs.
+    ratio : float, optional
+        The ratio that tells (None: the settings' ``held_out_ratio``, :func:`diagnose.config.current`).
 
     Returns
     -------
     dict
         Coefficient -> ``fitted_worst_rms`` [-] and its log ``fitted_worst_log``, ``held_out_rms`` (held-out log
         file -> RMS [-]), ``ratio`` (the largest held-out RMS over ``fitted_worst_rms``) and its log
-        ``worst_log``, and ``told`` (``ratio`` of :data:`HELD_OUT_RATIO` or more). Empty without held-out data.
+        ``worst_log``, and ``told`` (``ratio`` of the ``ratio`` given or more). Empty without held-out data.
     """
     if held is None or not len(held):
         return {}
+    told = current().held_out_ratio if ratio is None else ratio
     out = {}
     for c, res in results.items():
         fit, out_ = left_per_log(data, res), left_per_log(held, res)
         worst = int(out_.idxmax())
-        ratio = float(out_.max() / fit.max()) if fit.max() > 0 else float("inf")
+        worse = float(out_.max() / fit.max()) if fit.max() > 0 else float("inf")
         out[c] = {"fitted_worst_rms": float(fit.max()), "fitted_worst_log": Path(fitted_names[int(fit.idxmax())]).name,
                   "held_out_rms": {Path(held_names[int(i)]).name: float(v) for i, v in out_.items()},
-                  "ratio": ratio, "worst_log": Path(held_names[worst]).name, "told": bool(ratio >= HELD_OUT_RATIO)}
+                  "ratio": worse, "worst_log": Path(held_names[worst]).name, "told": bool(worse >= told)}
     return out
 
 

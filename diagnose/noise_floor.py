@@ -17,17 +17,27 @@ cause's own terms are fitted to it. The sizes these fits reach are the floor.
 """
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pandas as pd
 
-from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
+from diagnose.config import current
 from diagnose.evaluate import by_log_chunks, in_chunks
+from diagnose.residuals import (
+    COEFFS,
+    FILTERED,
+    kept,
+    measured_about,
+    measured_arrays,
+    signature_arrays,
+    variable_arrays,
+)
+from identify.coefficients import coefficient_arrays, coefficients, lift_coefficient
 from identify.kinematics import pitch_rate_derivative
 from identify.logs import Log
 from identify.lsq import solve_normal
 from identify.models import lowpass
-from diagnose.residuals import (COEFFS, FILTERED, kept, measured_about, measured_arrays, signature_arrays,
-                                variable_arrays)
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
 NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
@@ -47,8 +57,6 @@ SENSITIVITY_EVERY_S = 0.5
 #: Below this a coefficient change is beyond the evaluation's own resolution (it reproduces
 #: noise-free logs to about 1e-7).
 RESOLUTION = 1e-5
-#: Instrument errors are taken as plausible up to this many standard errors of the data compatibility.
-REACH_SE = 2.0
 #: Realizations a worker computes together (they share per-log work; each holds its residual data).
 #: On the paper matrix the noise floor is where a diagnosis worker peaks: 285 MB RSS with 4, of which
 #: 200 MB are the shared pages every worker starts with (290-310 MB with 5, 0.07 s faster per worker).
@@ -178,7 +186,7 @@ class _Channels:
         self.values, self.at, self.columns, self.replaced = values, at, columns, replaced or {}
 
     @classmethod
-    def of(cls, frame: pd.DataFrame) -> "_Channels":
+    def of(cls, frame: pd.DataFrame) -> _Channels:
         """A frame of numbers' channels (each column a contiguous array, as the frame's own)."""
         return cls(np.asfortranarray(frame.to_numpy(dtype=float)), {c: j for j, c in enumerate(frame.columns)},
                    frame.columns)
@@ -189,7 +197,7 @@ class _Channels:
     def __contains__(self, name: str) -> bool:
         return name in self.at
 
-    def __getitem__(self, name: str) -> "_Column":
+    def __getitem__(self, name: str) -> _Column:
         x = self.replaced.get(name)
         return _Column(self.values[:, self.at[name]] if x is None else x)
 
@@ -223,7 +231,8 @@ class NoiseFloor:
         Channel -> noise level (:func:`channel_noise`).
     step : int or None
         Thinning of the residual data (None: :func:`diagnose.residuals.kept`'s default).
-    realizations : int
+    realizations : int, optional
+        Noise realizations (None: the settings' ``noise_realizations``, :func:`diagnose.config.current`).
     seed : int
     uncertain : (list of (channel, error), covariance), optional
         Instrument errors the data compatibility could not pin down (bias and scale
@@ -244,7 +253,7 @@ class NoiseFloor:
     """
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
-                 realizations: int = 20, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
+                 realizations: int | None = None, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
                  sensitivities=None, left=None) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
@@ -255,7 +264,8 @@ class NoiseFloor:
         self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.uncertain_left = np.zeros(len(ok)) if left is None else np.asarray(left, float)[ok]
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
-        self.realizations, self.seed = realizations, seed
+        self.realizations = current().noise_realizations if realizations is None else realizations
+        self.seed = seed
         pending = sensitivities or model_sensitivities(logs, evaluator, self.noise, jobs)
         self._meas = [_columns(_measured(log.data, log.meta, self.ref), COEFFS) for log in logs]
         numbers = [log.data.select_dtypes("number") for log in logs]
@@ -303,7 +313,7 @@ class NoiseFloor:
         for v in noisy:
             x = base[v].to_numpy(float)
             s2 = float(np.nanvar(fresh[v].to_numpy(float) - x))
-            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in zip(starts, starts[1:])
+            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in pairwise(starts)
                                                       if b > a]) ** 2))
             v_true = max(within - s2, 0.0)
             out[v] = (v_true + 2.0 * s2) / (v_true + s2) if v_true + s2 > 0 else 1.0
@@ -454,13 +464,14 @@ class NoiseFloor:
         return v[:, keep] * np.sqrt(w[keep])
 
     def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
-              radius: float = REACH_SE, weights=None, beside: dict | None = None) -> list[dict]:
+              radius: float | None = None, weights=None, beside: dict | None = None) -> list[dict]:
         """What the remaining instrument errors can make of each cause's fitted shape.
 
         For a cause on coefficient ``c`` with terms ``T`` and fitted contribution ``f``
         over ``data``, the residuals the instrument errors make are seen through ``T``
         (projected on its span, as a fit would see them), and the errors within
-        ``radius`` standard errors (Mahalanobis, the data compatibility's covariance)
+        ``radius`` standard errors (Mahalanobis, the data compatibility's covariance; None: the
+        settings' ``reach_se``, :func:`diagnose.config.current`)
         that come closest to ``f`` are found (a trust-region least-squares problem, centred at the
         errors the logs still hold as measured, :attr:`uncertain_left`). The
         part of ``f`` left is what no plausible instrument error can make. With ``weights`` (one
@@ -482,6 +493,7 @@ class NoiseFloor:
             size needed in the channel's units and in standard errors from what the logs hold as
             measured, the share of the cause's variance it explains [%]), best first.
         """
+        radius = current().reach_se if radius is None else radius
         unit = {"delay": 0.01, "scale": 0.01, "bias": 0.1}
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
         axes = self.instrument_axes()
@@ -499,11 +511,11 @@ class NoiseFloor:
             ff = float(f @ f)
             x = design_matrix(terms, data)
 
-            def through_terms(cols: np.ndarray) -> np.ndarray:
+            def through_terms(cols: np.ndarray, x: np.ndarray = x) -> np.ndarray:
                 seen = x @ np.linalg.lstsq(x, cols, rcond=None)[0]
                 return seen - seen.mean(axis=0)
 
-            def alone(one: np.ndarray) -> tuple[float, float]:
+            def alone(one: np.ndarray, f: np.ndarray = f, ff: float = ff) -> tuple[float, float]:
                 nn = float(one @ one)
                 if nn <= 0 or ff <= 0:
                     return 0.0, -np.inf

@@ -30,7 +30,7 @@ def document(diag: Diagnosis, data: dict, model: str) -> dict:
             "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
             "flown_together": diag.together, "held_out_check": diag.held_out_check,
             "rivals": diag.rivals, "whole_readings": diag.whole_readings, "data": data, "model": model,
-            "plotted_logs": []}
+            "plotted_logs": [], "settings": diag.settings.to_dict()}
 
 
 def _names(files: list[str], n: int = 3) -> str:
@@ -39,16 +39,16 @@ def _names(files: list[str], n: int = 3) -> str:
 
 def summary(diag: Diagnosis, doc: dict) -> str:
     """``diagnosis.txt``: the diagnosis's summary, the data compatibility and the gain."""
-    lines = ["Diagnosis", "=========", "", f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
-             f"{len(doc['data']['held_out'])} held out)", f"model: {doc['model']}", ""]
+    lines = ["Diagnosis", "=========", "", (f"data: {doc['data']['path']} ({doc['data']['logs']} logs, "
+                                            f"{len(doc['data']['held_out'])} held out)"), f"model: {doc['model']}", ""]
     lines.append(diag.summary())
     if diag.compat is not None:
         lines += ["", diag.compat.summary()]
     g = doc.get("gain")
     if g:
         lines += ["", f"Gain on {len(g['held_out_logs'])} held-out manoeuvres ({_names(g['held_out_logs'])}).",
-                  f"Residual RMS where the first aerodynamic cause ({g['cause']}) acts, {len(g['cause_exercised_in'])} of them "
-                  f"({_names(g['cause_exercised_in'])}):"]
+                  (f"Residual RMS where the first aerodynamic cause ({g['cause']}) acts, "
+                   f"{len(g['cause_exercised_in'])} of them ({_names(g['cause_exercised_in'])}):")]
         for c, v in g["residual_rms"].items():
             w = g["residual_rms_all_held_out"][c]
             lines.append(f"  {c}: {v['before']:.3g} -> {v['after']:.3g}  (x{v['gain']:.1f}); over every held-out "
@@ -67,8 +67,8 @@ def summary(diag: Diagnosis, doc: dict) -> str:
     if r and r.get("error"):
         lines += ["", f"Refinement by output error failed: {r['error']}"]
     elif r:
-        lines += ["", f"Refined by output error through replays of {len(r['fitted_logs'])} fitted logs "
-                  f"({r['iterations']} iterations{'' if r['converged'] else ', not converged'}); term scales:"]
+        lines += ["", (f"Refined by output error through replays of {len(r['fitted_logs'])} fitted logs "
+                       f"({r['iterations']} iterations{'' if r['converged'] else ', not converged'}); term scales:")]
         lines += [f"  {k}: {v:.3f} +- {r['se_coloured'][k]:.3f}" for k, v in r["scales"].items()]
         gr = r["gain"]
         lines.append(f"Gain where the cause acts, equation-error extension -> refined: residual x{g['residual_gain']:.2f}"
@@ -93,8 +93,8 @@ def summary(diag: Diagnosis, doc: dict) -> str:
             lines.append(f"  {ch}: {m:.3g}" + (f" -> {max(x):.3g}" if x else ""))
     b = doc.get("bands")
     if b:
-        lines += ["", f"Monte Carlo bands ({next(iter(b.values()))['draws']} draws of the extension from its covariance), "
-                  "held-out replays where the cause acts:"]
+        lines += ["", (f"Monte Carlo bands ({next(iter(b.values()))['draws']} draws of the extension from its "
+                       "covariance), held-out replays where the cause acts:")]
         lines += [f"  {k}: Part 60 pass probability {v['pass_probability']:.2f}; a held-back draw inside the band "
                   f"{100 * v['held_back_draw_inside']:.0f} % of the time" for k, v in b.items()]
     n = len(doc["plotted_logs"])

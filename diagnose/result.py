@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 
 from diagnose.causes import Cause
+from diagnose.config import DiagnosisSettings, using
+from diagnose.flap_mach import flown_together, level_share
 from diagnose.held_out import held_out_check, told_text
-from diagnose.separation import SETTLED_SE
-from diagnose.settings import flown_together, level_share
 from diagnose.stepwise import StepwiseResult
 from diagnose.verdict import rank
 from identify.compat import CompatResult
@@ -61,6 +61,8 @@ class Diagnosis:
     whole_readings : dict
         Coefficient -> the terms a replacement split into causes that did not all stand, for the
         coefficients searched again without splitting and read whole.
+    settings : DiagnosisSettings
+        The decision thresholds it was made with; its text and checks read them too.
     """
 
     data: pd.DataFrame
@@ -76,6 +78,7 @@ class Diagnosis:
     held_logs: list = field(default_factory=list)
     rivals: list = field(default_factory=list)
     whole_readings: dict = field(default_factory=dict)
+    settings: DiagnosisSettings = field(default_factory=DiagnosisSettings)
 
     @property
     def discrepancy(self) -> bool:
@@ -85,13 +88,13 @@ class Diagnosis:
     @property
     def unconfirmed(self) -> list[Cause]:
         """Aero candidates significant and beyond what instrument noise and errors make that held-out data
-        cannot confirm (they act at a single condition) or do not, strong ones (:data:`diagnose.verdict.HELD_OUT_F`)."""
+        cannot confirm (they act at a single condition) or do not, strong ones (``held_out_f`` of :attr:`settings`)."""
         return [c for c in self.rejected if c.verdict.get("unconfirmed")]
 
     @property
     def together(self) -> dict | None:
         """The flap angles and Mach numbers if the logs fitted on never vary them apart
-        (:func:`diagnose.settings.flown_together`), else None."""
+        (:func:`diagnose.flap_mach.flown_together`), else None."""
         return flown_together([lg.condition for lg in self.logs])
 
     @property
@@ -99,7 +102,7 @@ class Diagnosis:
         """What each held-out log leaves of each coefficient beside the fitted logs
         (:func:`diagnose.held_out.held_out_check`); empty without held-out logs."""
         return held_out_check(self.data, self.held, self.results, [lg.path for lg in self.logs],
-                              [lg.path for lg in self.held_logs])
+                              [lg.path for lg in self.held_logs], self.settings.held_out_ratio)
 
     def _level_note(self, c: Cause, together: dict) -> str:
         """For a cause in the flap angle or in Mach (not both) over logs that fly them together: how much of
@@ -135,12 +138,18 @@ class Diagnosis:
         if best is None:
             return {}
         c, a = best
-        why = (f"not significant (p = {a['p_value']:.2g}, needs < 1e-06)" if a["p_value"] >= 1e-6 else
-               f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs 1 %)")
+        s = self.settings
+        why = (f"not significant (p = {a['p_value']:.2g}, needs < {s.alpha_in:g})" if a["p_value"] >= s.alpha_in else
+               f"removes only {a['rss_reduction_pct']:.2f} % of the residual (needs {100 * s.min_reduction:g} %)")
         return {"candidate": f"{c} vs {a['term']}", "reason": why,
                 "evidence": {k: a[k] for k in ("F", "p_value", "log10_p", "rss_reduction_pct")}}
 
     def summary(self) -> str:
+        """The diagnosis in words (``diagnosis.txt``), by :attr:`settings`."""
+        with using(self.settings):
+            return self._summary()
+
+    def _summary(self) -> str:
         lines = []
         if self.compat is not None and self.compat.applied:
             lines.append("Data corrected for instrument errors (data compatibility): " + ", ".join(
@@ -192,7 +201,7 @@ class Diagnosis:
             note = self._level_note(c, together) if together else ""
             lines += [note] if note else []
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
-            settled = {k: r for k, r in rivals.items() if r["separation_se"] >= SETTLED_SE}
+            settled = {k: r for k, r in rivals.items() if r["separation_se"] >= self.settings.settled_se}
             for a in e.get("hardly_separated_from", []):
                 if a["term"] in rivals:  # judged below, on the final fits
                     continue
@@ -215,7 +224,7 @@ class Diagnosis:
                              f"{a['explains_pct']:.0f} % of it; the data compatibility puts that error at "
                              f"{_left(a)} ({abs(a['needs_se']):.1f} standard errors away)")
             for r in e.get("rivals", []):
-                if r["separation_se"] < SETTLED_SE:
+                if r["separation_se"] < self.settings.settled_se:
                     lines.append(f"   rival {r['rival']}: these data separate it from the cause by only "
                                  f"{r['separation_se']:+.1f} standard errors (`campaign plan` designs the flights "
                                  f"that would settle it)")

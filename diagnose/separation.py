@@ -22,45 +22,21 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from diagnose.config import current
 from diagnose.noise_floor import design_matrix
 from diagnose.residuals import COEFFS
-from diagnose.state_twins import in_alpha, in_alpha_and_mach, in_alpha_for_mach, in_flow_states, widened
+from diagnose.state_twins import (
+    in_alpha,
+    in_alpha_and_mach,
+    in_alpha_for_mach,
+    in_flow_states,
+    widened,
+)
 from diagnose.terms import Term, tail_twin
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
 #: units, scale [-], delay [s]); the signature is linear in it (the model's answer is linearised).
 UNIT = {"bias": 0.1, "scale": 0.01, "delay": 0.01}
-#: A rival is settled when the data separate it from the cause by this many standard errors.
-SETTLED_SE = 5.0
-#: An aerodynamic rival the data prefer by this many standard errors replaces the cause's term
-#: (:func:`preferred_aero_rivals`), settled or not: the better-fitting of two explanations is named, the
-#: other stays its rival. Two terms that fit equally well are this far apart by chance about once in
-#: 700 (one-sided normal). At 5, a CD step in gear times Mach on the stock 737, beside a thrust-deck
-#: error, stayed "CD vs gear, CL" though gear x Mach fitted 4.4 standard errors better in its place
-#: (development seed 5,100,139); on 750 case records of the detection curve the most a named cause
-#: that was right had an aerodynamic rival ahead of it was 1.9.
-SWAP_SE = 3.0
-#: A term in the lift coefficient gives way to the same term in alpha, or to a rival that keeps the term's
-#: other variables and puts the model's own in place of CL, unless the data prefer CL by this many
-#: standard errors (:func:`preferred_aero_rivals`). Within one configuration CL follows alpha, and across
-#: the conditions it follows Mach (trimmed lift is the weight over the dynamic pressure), so the terms fit
-#: alike: a Cm bump in gear times alpha on the stock 737, 24 times its floor, was named "Cm vs gear_norm,
-#: CL" with gear x alpha 0.7 standard errors behind (fresh seed 6,000,109); an A320 Cm dip in gear times
-#: Mach, 17 times its floor, was named "Cm vs mach" and "Cm vs gear_norm, CL" with gear x Mach 1.8
-#: behind (fresh seed 6,500,129). The model's tables are written in alpha and Mach, its independent
-#: variables; CL is its output, computed here from the measured accelerations. Two terms that fit equally
-#: well are 2 apart by chance about once in 40. On the detection curve's case records (about 4,000, many
-#: code versions), eleven named terms in CL had such a rival within 2 standard errors: nine hid an effect
-#: with a variable the rival names and the term does not (seven in gear x Mach or alpha x Mach), two one
-#: they name alike; none was a null. A term in a control the trim sets times another variable gives way
-#: alike to the same term in alpha or Mach (:func:`diagnose.state_twins.in_flow_states`).
-STATE_SE = 2.0
-#: A term in alpha alone or Mach alone gives way to one in both (:func:`diagnose.state_twins.widened`)
-#: if the data prefer that by this many standard errors, to the term and to the term with twice its knots
-#: (:func:`wider_hypotheses`). The rival's extra columns fit noise too: :func:`pair` takes their number off,
-#: but what is left scatters as a chi-square with that many degrees of freedom (12 to 24 here), which passes
-#: 3 standard errors about once in 20 and 5 about once in 1,000 to 5,000.
-WIDER_SE = 5.0
 
 
 def term_to_dict(t: Term) -> dict:
@@ -115,7 +91,7 @@ class Hypothesis:
                 "prior": None if self.prior is None else [float(x) for x in self.prior]}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Hypothesis":
+    def from_dict(cls, d: dict) -> Hypothesis:
         return cls(d["name"], d["kind"], d.get("coefficient", ""), tuple(term_from_dict(t) for t in d["terms"]),
                    d.get("channel", ""), d.get("error", ""), None if d.get("prior") is None else tuple(d["prior"]))
 
@@ -345,12 +321,11 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
     alpha (:func:`diagnose.state_twins.in_alpha`), and for a term in CL alone every candidate in alpha and Mach together
     (:func:`diagnose.state_twins.in_alpha_and_mach`: an A320 Cm table in alpha growing with Mach, 14 times its floor, was
-    named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival: fresh seed
-    7,500,265), and for a term in Mach, the same in alpha (:func:`diagnose.state_twins.in_alpha_for_mach`).
+    named "Cm vs CL" when only quadratic(alpha), 12.5 standard errors behind, was its rival), and for a term
+    in Mach, the same in alpha (:func:`diagnose.state_twins.in_alpha_for_mach`).
     In place of a smooth term the search refined with the tails' knots (:func:`diagnose.terms.tail_twin`),
     a rival is refined alike if it can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times
-    its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined (reserved seed
-    2,000,229)."""
+    its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined."""
     out = []
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
@@ -358,7 +333,7 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     by_label = {t.label: t for t in pool}
     for t in cause.terms:
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
-        twin = in_alpha(t, pool)  # always rivals: they fit alike (:data:`STATE_SE`)
+        twin = in_alpha(t, pool)  # always rivals: they fit alike (``state_se``)
         states = (([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
                   + in_alpha_for_mach(t, pool))
         for r in close + [u for u in states if u not in close]:
@@ -387,7 +362,7 @@ def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) 
     (:func:`diagnose.state_twins.widened`, refined alike), each beside the cause with that term
     :func:`finer` instead. They are kept apart from its rivals: each holds the cause, so no flight
     separates them the other way (`campaign plan`), and they replace a term only when the data prefer
-    them by :data:`WIDER_SE` to both. A smooth term times the other variable adds knots' worth of columns
+    them by ``wider_se`` to both. A smooth term times the other variable adds knots' worth of columns
     in the term's own variable too (trimmed alpha falls as Mach rises, and within one knot interval each
     condition visits its own part): a synthetic Cm dead band in alpha alone, fitted by smooth(alpha),
     preferred smooth(alpha) x Mach by 6-9 standard errors, and smooth(alpha) with twice the knots by about
@@ -441,8 +416,8 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
         mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
         for h, fine in wider[id(c)]:
             c.evidence.setdefault("wider_rivals", []).append(
-                {"rival": h.name, "kind": "aero", "term": [t.label for t in h.terms if t not in c.terms][0],
-                 "replaces": [t.label for t in c.terms if t not in h.terms][0],
+                {"rival": h.name, "kind": "aero", "term": next(t.label for t in h.terms if t not in c.terms),
+                 "replaces": next(t.label for t in c.terms if t not in h.terms),
                  "separation_se": pair(stack, mine, h)["separation_se"],
                  "finer_separation_se": pair(stack, fine, h)["separation_se"]})
         for h in rivals[id(c)]:
@@ -461,23 +436,24 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
 
 def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None) -> dict[str, dict[Term, Term]]:
     """The terms to swap: for each named cause, the aerodynamic rival (one of its terms swapped for one
-    nearly as strong when it entered) that the data prefer by :data:`SWAP_SE` or more, as coefficient ->
+    nearly as strong when it entered) that the data prefer by ``swap_se`` or more, as coefficient ->
     {the cause's term: the rival's}. The stepwise search takes the strongest term at each step; with the
     others in, another can fit better (sequential replacement). A Cm rise in alpha that saturates, on the
     A320, entered as "Cm vs CL" (quadratic in CL); alpha x Mach then fitted Cm 9.6 standard errors better.
     A term in CL gives way to the same term in alpha, or in the model's own variables in place of CL (its
-    other variables kept), unless the data prefer CL by :data:`STATE_SE`; every term of the cause in CL that
+    other variables kept), unless the data prefer CL by ``state_se``; every term of the cause in CL that
     has such a rival gives way with the first (a stock-737 drag dip in gear times alpha, 14 times its floor,
     entered as linear(CL) and smooth(gear) x CL; only the first gave way, to quadratic(alpha), and the cause
     fell apart into "CD vs alpha" and "CD vs gear_norm, CL", with gear x alpha 0.3 standard errors behind
-    the second: fresh seed 7,100,139), to the variable the first took in place of CL where it has such a
+    the second), to the variable the first took in place of CL where it has such a
     rival (one lift stood for one state: gear x elevator fitted 0.95 better than gear x CL there). In
     place of a term refined with the tails' knots, the rival goes in refined alike (on ``data``), as it
     was judged (:func:`rival_hypotheses`). A term in CL alone gives way to one in alpha and Mach together
     only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
-    times a dip in gear was named in Mach too (fresh seed 7,100,139). A term in the elevator (or the
+    times a dip in gear was named in Mach too. A term in the elevator (or the
     stabilizer) times another variable gives way to the same term in alpha or Mach as a term in CL does
     (:func:`diagnose.state_twins.in_flow_states`)."""
+    s = current()
     out: dict[str, dict[Term, Term]] = {}
     taken: dict[str, set[str]] = {}  # each rival goes in once
     for c in causes:
@@ -487,20 +463,22 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         by_label = {t.label: t for t in pool}
         own = {t.label: t for t in c.terms}
 
-        def in_states(r: dict) -> bool:  # the term in CL or a trimmed control, the rival in the model's own states
+        def in_states(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
+            # the term in CL or a trimmed control, the rival in the model's own states
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return (old is not None and new is not None and ("CL" in old.variables and "CL" not in new.variables
                                                              and set(old.variables) - {"CL"} <= set(new.variables)
                                                              or new in in_flow_states(old, pool)))
 
-        def and_mach(r: dict) -> bool:  # a rival in alpha and Mach together for a term in CL alone
+        def and_mach(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
+            # a rival in alpha and Mach together for a term in CL alone
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return old is not None and new is not None and new in in_alpha_and_mach(old, pool)
 
         better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
-                  and (r["separation_se"] <= -SWAP_SE or in_states(r) and r["separation_se"] < STATE_SE)]
+                  and (r["separation_se"] <= -s.swap_se or in_states(r) and r["separation_se"] < s.state_se)]
         better += [r for r in c.evidence.get("wider_rivals", [])
-                   if max(r["separation_se"], r["finer_separation_se"]) <= -WIDER_SE]
+                   if max(r["separation_se"], r["finer_separation_se"]) <= -s.wider_se]
         plain = {r.get("replaces") for r in better if not and_mach(r)}
         better = [r for r in better if not and_mach(r) or r.get("replaces") not in plain]  # Mach if alpha will not do
         if not better:
@@ -508,7 +486,8 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         r = min(better, key=lambda r: r["separation_se"])
         chosen = [r]
 
-        def put(x: dict) -> set[str]:  # the variables a rival puts in place of the term's
+        def put(x: dict, own: dict = own, by_label: dict = by_label) -> set[str]:
+            # the variables a rival puts in place of the term's
             return set(by_label[x["term"]].variables) - set(own[x["replaces"]].variables) if x["term"] in by_label \
                 and x.get("replaces") in own else set()
 
@@ -523,13 +502,6 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
                 out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[x["term"]], old[0],
                                                                           pools[c.coefficient], data)
     return out
-
-
-#: Rounds of :func:`preferred_aero_rivals` at most: a term that gave way is judged again against its own
-#: rivals, which its predecessor did not have (an A320 Cm table in alpha growing with Mach entered as
-#: linear(mach), gave way to quadratic(CL) 8.0 standard errors better, and alpha x Mach then fitted
-#: 6.4 better than that: fresh seed 7,500,299).
-SWAP_ROUNDS = 3
 
 
 def compose_swaps(rounds: list[dict[str, dict[Term, Term]]]) -> dict[str, dict[Term, Term]]:

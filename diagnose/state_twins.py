@@ -28,10 +28,10 @@ def in_alpha_for_mach(term: Term, pool: list[Term]) -> list[Term]:
     variation lies mostly between the conditions fits nearly as well in Mach with fewer columns, so the
     search enters it in Mach; only the variation within each manoeuvre, where alpha moves and Mach does
     not, tells them apart (:func:`diagnose.separation.pair`). An A320 CL table in alpha, 18.7 times its
-    floor, was named "CL vs mach" (fresh seed 8,400,045), and is named in alpha with this rival. Where
+    floor, was named "CL vs mach", and is named in alpha with this rival. Where
     the manoeuvres do not tell them apart the data may prefer Mach, and Mach stays: an A320 CL step in
     alpha between the conditions' alphas, 17 times its floor, with smooth(alpha) 22.9 standard errors
-    behind (8,300,204)."""
+    behind."""
     if "mach" not in term.variables or "alpha_deg" in term.variables:
         return []
     if term.variables == ("mach",):
@@ -43,7 +43,8 @@ def in_alpha_for_mach(term: Term, pool: list[Term]) -> list[Term]:
 def in_alpha_and_mach(term: Term, pool: list[Term]) -> list[Term]:
     """The candidates of ``pool`` in alpha and Mach together, for a term in CL alone (none otherwise).
     Trimmed lift is the weight over the dynamic pressure: across the conditions CL follows Mach as
-    well as alpha, and a shape in alpha that Mach scales fits as one in CL (:data:`diagnose.separation.STATE_SE`)."""
+    well as alpha, and a shape in alpha that Mach scales fits as one in CL (``state_se`` of
+    :class:`diagnose.config.DiagnosisSettings`)."""
     if term.variables != ("CL",):
         return []
     return [t for t in pool if set(t.variables) == {"alpha_deg", "mach"}]
@@ -61,8 +62,8 @@ def in_flow_states(term: Term, pool: list[Term]) -> list[Term]:
     sets (:data:`TRIM_SET`), for a term in such a control and another variable (none otherwise: a control
     alone is a control derivative). An effect of the gear that grows with alpha acts only while the gear
     moves, when the hold moves the elevator with alpha: an A320 Cm bump in gear times alpha, 17 times its
-    floor, was named "Cm vs gear_norm, elevator_deg", gear x alpha 0.8 standard errors behind (fresh seed
-    7,600,328; a drag in gear times alpha alike, 1.7 behind, 7,100,107). On 1,130 case records of the
+    floor, was named "Cm vs gear_norm, elevator_deg", gear x alpha 0.8 standard errors behind (a
+    drag in gear times alpha alike, 1.7 behind). On 1,130 case records of the
     detection curve, every term in the elevator times another variable with such a rival within 3
     standard errors hid an effect in the rival's variables (three), none a null."""
     controls = [v for v in term.variables if v in TRIM_SET]
@@ -78,9 +79,9 @@ def widened(term: Term, pool: list[Term]) -> list[Term]:
     the residual the search began with (:func:`diagnose.stepwise.stepwise`), and a shape in alpha that
     Mach scales is mostly a shape in alpha: an A320 Cm dead band in alpha times Mach, 17.6 times its
     floor, was named "Cm vs alpha_deg" when smooth(alpha) removed 96.1 % of the residual and
-    smooth(alpha) x Mach 96.5 % (fresh seed 9,402,104). Such a rival contains the term, so the data
+    smooth(alpha) x Mach 96.5 %. Such a rival contains the term, so the data
     never prefer the term to it; they prefer the rival by what the other variable adds
-    (:data:`diagnose.separation.WIDER_SE`)."""
+    (``wider_se`` of :class:`diagnose.config.DiagnosisSettings`)."""
     if term.variables not in (("alpha_deg",), ("mach",)):
         return []
     return [t for t in pool if set(t.variables) == set(FLOW_STATES)]

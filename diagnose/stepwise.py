@@ -8,8 +8,11 @@ import numpy as np
 import pandas as pd
 from scipy import special, stats
 
+from diagnose.config import current as settings_now
 from diagnose.terms import Term, connected, tail_twin
 from identify.lsq import solve_normal
+
+
 class Lags:
     """Autocorrelation of a residual within each log, for lags 1..max_lag (cached per dataset).
 
@@ -186,11 +189,11 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     removes the effect leaves the slow errors beside it (a thrust error, the gusts' low frequencies), few
     independent samples, and ranked below a worse fit whose misfit follows the manoeuvres and looks
     white: an A320 drag in gear x Mach, 29 times its floor, left 1.1 % of the residual by gear x Mach and
-    1.9 % by gear x CL, whose own test was 10^160 times stronger (fresh seed 9,400,050). With as many
+    1.9 % by gear x CL, whose own test was 10^160 times stronger. With as many
     columns, on any one effective sample size the better fit is the stronger; the test a term must pass to
     enter is still its own. Between widths the own tests still decide: ranked on one sample size (the
     least of the passing candidates'), terms in alpha or Mach alone came before the interactions of the
-    two that were the effects (development seeds 9,300,254 and 9,300,282).
+    two that were the effects in two simulated cases.
     """
     rows.sort(key=lambda r: (r["p_value"], -r["F"]))
     if rows and rows[0]["p_value"] < alpha_in:
@@ -229,19 +232,25 @@ class StepwiseResult:
         return out
 
 
-def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float = 1e-6,
-             min_reduction: float = 0.01, max_terms: int = 6, lags: Lags | None = None,
+def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float | None = None,
+             min_reduction: float | None = None, max_terms: int | None = None, lags: Lags | None = None,
              gram: Gram | None = None, split: bool = True) -> StepwiseResult:
     """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
 
     A term enters if its partial F-test (on the effective sample size of the
     residual after it enters) has p < ``alpha_in`` and it removes at least
     ``min_reduction`` of the initial residual sum of squares (about its mean);
-    a term leaves when its removal test no longer passes. ``gram`` (:func:`candidate_gram`),
+    a term leaves when its removal test no longer passes. ``alpha_in``, ``min_reduction`` and
+    ``max_terms`` default to the settings' (:func:`diagnose.config.current`), and so does the share of
+    the entering term's F statistic a rival needs (``rival_f_ratio``). ``gram`` (:func:`candidate_gram`),
     if given, holds ``terms`` and this coefficient's residual, and may be shared with the others.
     With ``split`` false, no replacement may name more causes than it replaces (the whole reading,
     :func:`diagnose.diagnosis.diagnose` asks for it when a split's parts do not all pass).
     """
+    s = settings_now()
+    alpha_in = s.alpha_in if alpha_in is None else alpha_in
+    min_reduction = s.min_reduction if min_reduction is None else min_reduction
+    max_terms = s.max_terms if max_terms is None else max_terms
     y = data[f"r_{coefficient}"].to_numpy()
     lags = lags or Lags(data["log"].to_numpy())
     if gram is None:
@@ -298,7 +307,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     def rivals(best: dict, entered: dict, rows: list[dict]) -> list[dict]:
         mine = set(best["term"].variables)
         return [{"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]} for r in rows
-                if r is not entered and r["p_value"] < alpha_in and r["F"] >= 0.5 * entered["F"]
+                if r is not entered and r["p_value"] < alpha_in and r["F"] >= s.rival_f_ratio * entered["F"]
                 and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
 
     def replace() -> bool:
@@ -346,7 +355,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             for t in list(chosen[:-1]):  # backward step
                 rest = [c for c in chosen if c != t]
                 small = gram.fit(rest, coefficient)
-                f, p = f_test(small, current, t.width, lags.n_eff(current.resid),
+                _, p = f_test(small, current, t.width, lags.n_eff(current.resid),
                                1 + sum(c.width for c in chosen))
                 if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
                     chosen.remove(t)

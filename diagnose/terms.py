@@ -8,15 +8,14 @@ from itertools import combinations
 import numpy as np
 import pandas as pd
 
+from diagnose.config import current
 from diagnose.residuals import COEFFS, SIGNATURES, VARIABLES
+
 #: Rates normalised by cbar/2V: exported as linear terms (products of properties), never as tables.
 RATES = {"qhat_rad": "velocities/q-aero-rad_sec", "adothat_rad": "aero/alphadot-rad_sec"}
 #: Variables a coefficient's residual may not be regressed on: the CL residual on the model's own CL,
 #: a lift error on the lift it is an error of.
 EXCLUDED = {"CL": ("CL",)}
-#: A variable must vary at least this much (std) to be a candidate.
-MIN_STD = {"gear_norm": 0.05, "alpha_deg": 0.1, "mach": 0.002, "flap_deg": 0.5, "elevator_deg": 0.1,
-           "stabilizer_deg": 0.1, "qhat_rad": 1e-5, "adothat_rad": 1e-5, "CL": 0.01}
 GEAR_KNOTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 10))
 
 
@@ -97,26 +96,6 @@ class Term:
                 "smooth_x_linear": 2 * (len(self.knots) - 1)}[self.kind]
 
 
-#: Smooth terms' knots are at least this share of the variable's range apart: a narrow interval
-#: inside a cluster of trimmed values is excited by sensor noise alone (errors-in-variables).
-MIN_KNOT_SPACING = 0.1
-#: Smooth terms' knot candidates: the variable's quantiles at this many levels (0 and 1 included), thinned
-#: to :data:`MIN_KNOT_SPACING`.
-KNOT_QUANTILES = 21
-#: A chosen smooth term may be refined with the tails' own knots beyond the outer quantile knots,
-#: at these quantiles, each kept if it is :data:`TAIL_SPACING` of the range from every other knot
-#: (:func:`tail_twin`). In the tails the data are the manoeuvres' excursions, sparse, and one
-#: interval may span a sixth of the range: on the A320, which trims at -4 to -25 deg of elevator, a
-#: drag step above -3 deg that only the Mach 0.5 doublets' upswings reach (2 % of the samples, 50
-#: times the noise in them) left 26 % of the residual on the quantile knots and was not named. As
-#: candidates of their own the wider terms took the place of others near their floor and beside
-#: vane and thrust errors (stop 49: 4 effects lost, 1 gained, on 5,500,000).
-TAIL_LEVELS = (0.005, 0.01, 0.02, 0.03, 0.97, 0.98, 0.99, 0.995)
-#: A tail knot's least distance from the others, as a share of the variable's range. The tails hold
-#: no trimmed clusters that sensor noise alone could excite (:data:`MIN_KNOT_SPACING`).
-TAIL_SPACING = 0.02
-
-
 def connected(terms: list[Term]) -> list[list[Term]]:
     """``terms`` grouped as one cause where they share a variable, directly or through others."""
     groups: list[list[Term]] = []
@@ -127,8 +106,10 @@ def connected(terms: list[Term]) -> list[list[Term]]:
 
 
 def _spread(knots: np.ndarray) -> tuple[float, ...]:
-    """Quantile knots thinned so that neighbours are at least :data:`MIN_KNOT_SPACING` of the range apart."""
-    gap = MIN_KNOT_SPACING * float(knots[-1] - knots[0])
+    """Quantile knots thinned so that neighbours are at least ``min_knot_spacing`` of the range apart
+    (:func:`diagnose.config.current`)."""
+    s = current()
+    gap = s.min_knot_spacing * float(knots[-1] - knots[0])
     out = [float(knots[0])]
     for k in knots[1:-1]:
         if k - out[-1] >= gap and knots[-1] - k >= gap:
@@ -138,20 +119,22 @@ def _spread(knots: np.ndarray) -> tuple[float, ...]:
 
 
 def _quantile_knots(x: np.ndarray) -> tuple[float, ...]:
-    return _spread(np.unique(np.round(np.quantile(x, np.linspace(0, 1, KNOT_QUANTILES)), 6)))
+    s = current()
+    return _spread(np.unique(np.round(np.quantile(x, np.linspace(0, 1, s.knot_quantiles)), 6)))
 
 
 def tail_twin(term: Term, data: pd.DataFrame) -> Term | None:
-    """``term`` with the tails' knots added (:data:`TAIL_LEVELS`), if it is a smooth term on quantile
+    """``term`` with the tails' knots added (``tail_levels``), if it is a smooth term on quantile
     knots and the tails have room for any; else None. The stepwise search may refine a smooth term it
     chose to its twin (:func:`diagnose.stepwise.stepwise`)."""
+    s = current()
     v = term.variables[0]
     if term.kind != "smooth" or v not in data or v in ("gear_norm", "flap_deg"):
         return None
     x = data[v].to_numpy(float)
     knots = list(term.knots)
-    gap = TAIL_SPACING * (knots[-1] - knots[0])
-    for q in np.round(np.quantile(x, TAIL_LEVELS), 6):
+    gap = s.tail_spacing * (knots[-1] - knots[0])
+    for q in np.round(np.quantile(x, s.tail_levels), 6):
         if min(abs(float(q) - k) for k in knots) >= gap:
             knots.append(float(q))
     return Term(term.kind, term.variables, tuple(sorted(knots))) if len(knots) > len(term.knots) else None
@@ -165,10 +148,13 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
     scales: with only their product, a table in alpha growing with Mach was named against one).
 
     Rates normalised by cbar/2V enter linearly only. A coefficient is never
-    regressed on itself (:data:`EXCLUDED`).
+    regressed on itself (:data:`EXCLUDED`). A variable is a candidate where it varies by the settings'
+    ``min_std`` (:func:`diagnose.config.current`), smooth terms' knots are its ``knot_quantiles``
+    thinned to ``min_knot_spacing``.
     """
+    s = current()
     banned = EXCLUDED.get(coefficient, ())
-    excited = [v for v in VARIABLES if v in data and v not in banned and float(data[v].std()) >= MIN_STD[v]]
+    excited = [v for v in VARIABLES if v in data and v not in banned and float(data[v].std()) >= s.min_std[v]]
     if "CL" in excited and float(data["CL"].min()) <= 0.05:
         excited.remove("CL")  # exported through CL^2: needs a lift coefficient that stays positive
     center = {v: float(np.median(data[v])) for v in excited}

@@ -2,15 +2,15 @@
 
 - ``docs/generated/*.md`` and ``*.png``: the benchmark results' tables and figures
   (:mod:`benchmarks.tables`, from ``benchmarks/results/``);
-- ``docs/generated/cli.md``: every subcommand's ``--help``, from the command line's own parser.
+- ``docs/generated/cli.md``: every subcommand's ``--help``, from the command line's own parser;
+- ``docs/generated/settings.md``: the diagnosis's decision thresholds, from
+  :class:`diagnose.config.DiagnosisSettings` (each field's own documentation).
 """
 from __future__ import annotations
 
 import importlib.util
-import io
 import os
 import sys
-from contextlib import redirect_stdout
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,10 +37,20 @@ def cli_reference() -> str:
     return "".join(out)
 
 
+def settings_table() -> str:
+    """The table of every decision threshold of the diagnosis: default, unit, what it guards, how it was
+    calibrated."""
+    sys.path.insert(0, str(ROOT))
+    from diagnose.config import DiagnosisSettings
+    from infra.settings import markdown_table
+
+    return markdown_table(DiagnosisSettings)
+
+
 def on_pre_build(config, **kwargs) -> None:
     tables = _tables()
     tables.write_docs()
-    path = tables.GENERATED / "cli.md"
-    text = cli_reference()
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
+    for name, text in (("cli.md", cli_reference()), ("settings.md", settings_table())):
+        path = tables.GENERATED / name
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)

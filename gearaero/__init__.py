@@ -12,6 +12,9 @@ From logs to a diagnosis::
 
     diag = ga.diagnose(camp, model=ga.SHIPPED_737, out="results/small-diagnosis", jobs=2)
     print(diag.verdict)                      # "discrepancy" or "no significant discrepancy"
+    # the same with another threshold: every decision's is a field of ga.DiagnosisSettings
+    strict = ga.DiagnosisSettings(replicate_gain=1.5)
+    ga.diagnose(camp, model=ga.SHIPPED_737, out="results/strict-diagnosis", settings=strict)
     print(diag.summary())                    # the causes, their evidence and the gain
     if diag.unsettled:                       # rival explanations the data cannot tell apart
         flights = ga.plan(diag, budget_min=10)   # the flights that would, within 10 minutes
@@ -34,20 +37,36 @@ from __future__ import annotations
 
 from aircraft import SHIPPED_737
 from campaign.errors import UserError
+from diagnose.config import DiagnosisSettings
 from gearaero.jobs import diagnose, fly, identify, model, plan, report
 from gearaero.logs import FRAME_COLUMNS, log_from_frame, read_logs, write_logs
-from gearaero.plots import (plot_alpha_transitions, plot_fit, plot_increments, plot_replay, plot_residual_history,
-                            plot_residuals, plot_response)
-from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, ModelResult, PlanResult,
-                              ReportResult)
+from gearaero.plots import (
+    plot_alpha_transitions,
+    plot_fit,
+    plot_increments,
+    plot_replay,
+    plot_residual_history,
+    plot_residuals,
+    plot_response,
+)
+from gearaero.results import (
+    CampaignResult,
+    DiagnosisResult,
+    IdentificationResult,
+    ModelResult,
+    PlanResult,
+    ReportResult,
+)
+from identify.compat import CompatSettings
 from identify.logs import Log, LogError
 from infra.provenance import version as _version
 
 #: The installed version (single-sourced in ``pyproject.toml``).
 __version__ = _version()
 
-__all__ = [
-    "__version__", "SHIPPED_737", "UserError", "LogError", "Log", "FRAME_COLUMNS",
+__all__ = [  # noqa: RUF022 (grouped as the API reads: help() shows the start of it)
+    "__version__", "SHIPPED_737", "UserError", "LogError", "Log", "FRAME_COLUMNS", "DiagnosisSettings",
+    "CompatSettings",
     "read_logs", "log_from_frame", "write_logs",
     "fly", "identify", "model", "diagnose", "plan", "report",
     "CampaignResult", "IdentificationResult", "ModelResult", "DiagnosisResult", "PlanResult", "ReportResult",

@@ -15,8 +15,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from campaign.errors import UserError
-from gearaero.results import (CampaignResult, DiagnosisResult, IdentificationResult, ModelResult, PlanResult,
-                              ReportResult)
+from gearaero.results import (
+    CampaignResult,
+    DiagnosisResult,
+    IdentificationResult,
+    ModelResult,
+    PlanResult,
+    ReportResult,
+)
 from identify.logs import Log, LogError
 
 LOG = logging.getLogger("gearaero")
@@ -215,8 +221,9 @@ def diagnose(data, model: str | Path, out: str | Path, settings=None, *, plots: 
         The model aircraft folder (``<name>/<name>.xml``), any JSBSim aircraft.
     out : str or Path
         A new folder for the diagnosis (refused if it holds anything).
-    settings : optional
-        The diagnosis's decision settings (None: the documented defaults).
+    settings : DiagnosisSettings, optional
+        Every decision threshold of the diagnosis (:class:`diagnose.config.DiagnosisSettings`, also
+        ``gearaero.DiagnosisSettings``; None: the documented defaults). ``diagnosis.json`` records them.
     plots : {"key", "all", "none"}
         The overview and the held-out manoeuvres where the first cause acts, every held-out
         manoeuvre, or none.

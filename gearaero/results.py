@@ -154,11 +154,18 @@ class DiagnosisResult:
         return self.document["causes"]
 
     @property
+    def settings(self):
+        """The :class:`diagnose.config.DiagnosisSettings` the diagnosis was made with (``diagnosis.json``
+        records them)."""
+        from diagnose.config import recorded
+        return recorded(self.document)
+
+    @property
     def unsettled(self) -> list[dict]:
-        """The rival explanations these data do not reject (separation below the settled level, in
-        standard errors): what :func:`gearaero.plan` designs flights for."""
-        from diagnose.separation import SETTLED_SE
-        return [r for r in self.document.get("rivals", []) if r["separation_se"] < SETTLED_SE]
+        """The rival explanations these data do not reject (separation below the settled level of
+        :attr:`settings`, in standard errors): what :func:`gearaero.plan` designs flights for."""
+        settled_se = self.settings.settled_se
+        return [r for r in self.document.get("rivals", []) if r["separation_se"] < settled_se]
 
     @property
     def extended_aircraft(self) -> Path | None:

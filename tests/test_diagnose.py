@@ -218,7 +218,7 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
     data, _ = fly_data(tmp_path / "w", None, seed=3)
     # a CSV log with a bad value: file, column and row named
     from identify.logs import read_parquet
-    log = read_parquet(sorted(data.glob("*.parquet"))[0])
+    log = read_parquet(min(data.glob("*.parquet")))
     csv_dir = tmp_path / "csv"
     csv_dir.mkdir()
     bad = log.data.astype({"qbar_psf": object})
@@ -235,7 +235,7 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
                  str(tmp_path / "o3")]) == 2
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o3").exists()
     capsys.readouterr()
-    one = sorted(data.glob("*.parquet"))[0]  # one log: one flight condition, none to hold out
+    one = min(data.glob("*.parquet"))  # one log: one flight condition, none to hold out
     assert main(["diagnose", "--data", str(one), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "o4")]) == 2
     err = capsys.readouterr().err
     assert str(one) in err and "found 1 (" in err and err.count("\n") == 1 and not (tmp_path / "o4").exists()
@@ -243,8 +243,13 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
 
 def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
     """Same start, same recorded inputs, same aircraft: the flight comes back."""
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects
     from campaign.diagnosis.run import replay
+    from campaign.simulation.aircraft import (
+        DEFAULT_AIRCRAFT,
+        DEFAULT_EFFECTS,
+        AircraftSource,
+        load_effects,
+    )
     from campaign.simulation.engine import FlightConfig, fly
     from campaign.simulation.matrix import load_matrix
     from identify.logs import Log
@@ -263,8 +268,12 @@ def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
     """A log recorded at 50 Hz (the flight-test profile, here in still air) is replayed over its
     own 28 s at the simulation's 120 Hz, not compressed into 1400 steps (11.7 s), and follows the
     data on its own aircraft within the instruments' errors."""
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
     from campaign.diagnosis.run import replay
+    from campaign.simulation.aircraft import (
+        DEFAULT_AIRCRAFT,
+        AircraftSource,
+        load_effects,
+    )
     from campaign.simulation.engine import FlightConfig, fly
     from campaign.simulation.matrix import load_matrix
     from diagnose.gain import replay_errors
@@ -303,15 +312,16 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
     percentile, and the knots stay 10 % of the range apart."""
     import pandas as pd
 
-    from diagnose.terms import MIN_KNOT_SPACING, candidate_terms
     from campaign.validation.shapes import SHAPES, shape
+    from diagnose.config import DEFAULTS
+    from diagnose.terms import candidate_terms
     rng = np.random.default_rng(0)
     trims = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 8.0, 12.0]
     alpha = np.concatenate([t + 1.2 * np.sin(np.linspace(0, 6 * np.pi, 600)) * rng.uniform(0.3, 1, 600)
                             for t in trims])
     frame = pd.DataFrame({"alpha_deg": alpha})
     smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(alpha_deg)"]
-    assert np.diff(smooth.knots).min() >= MIN_KNOT_SPACING * np.ptp(alpha) - 1e-9
+    assert np.diff(smooth.knots).min() >= DEFAULTS.min_knot_spacing * np.ptp(alpha) - 1e-9
     x = np.column_stack([np.ones(len(alpha)), smooth.design(frame)])
     left = []
     for i in range(180):
@@ -342,15 +352,16 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     twin keeps the quantile knots and stays 2 % of the range apart."""
     import pandas as pd
 
-    from diagnose.terms import TAIL_SPACING, candidate_terms, tail_twin
     from campaign.validation.shapes import SHAPES, shape
+    from diagnose.config import DEFAULTS
+    from diagnose.terms import candidate_terms, tail_twin
     rng = np.random.default_rng(0)
     elev = _elevator_as_the_a320_flies_it(rng)
     frame = pd.DataFrame({"elevator_deg": elev})
     smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(elevator_deg)"]
     twin = tail_twin(smooth, frame)
     assert twin.label == smooth.label and set(smooth.knots) < set(twin.knots)
-    assert np.diff(twin.knots).min() >= TAIL_SPACING * np.ptp(elev) - 1e-9
+    assert np.diff(twin.knots).min() >= DEFAULTS.tail_spacing * np.ptp(elev) - 1e-9
     left = {}
     for term in (smooth, twin):
         x = np.column_stack([np.ones(len(elev)), term.design(frame)])
@@ -628,7 +639,7 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
 def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two():
     """A vane scale the kinematics measure at 1.19 +- 0.75 % (not applied); Cm, CL and CD need 4.04, 4.47
     and 3.04 % (null 4,100,188, a 4.2 % scale): the median is 3.8 standard errors away, within
-    the 5.3 three may refine (:data:`AGREE_ALL_SE`) and past the 3.5 two may (:data:`AGREE_SE`)."""
+    the 5.3 three may refine (``agree_all_se``) and past the 3.5 two may (``agree_se``)."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.01192, 0.0075)])
@@ -732,8 +743,8 @@ def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
     a spike: each level within 5 %, and only the channels some log has."""
     import pandas as pd
 
-    from identify.logs import Log
     from diagnose.noise_floor import channel_noise
+    from identify.logs import Log
     rng = np.random.default_rng(3)
     sigma = {"alpha_deg": 0.05, "q_dps": 0.2, "tas_kt": 0.5, "thrust_lbf": 40.0}
     logs = []
@@ -756,10 +767,10 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
     """The noise floor computes several realizations at once (one spline for their pitch
     accelerations: the flight-test logs have no qdot); each must be the one drawn alone, bit
     for bit, and fresh noise each."""
-    from diagnose.evaluate import ModelEvaluator
-    from identify.logs import read_campaign
-    from diagnose.noise_floor import NoiseFloor, channel_noise
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.noise_floor import NoiseFloor, channel_noise
+    from identify.logs import read_campaign
     assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
                  "--no-identify", "--quiet"]) == 0
     logs = read_campaign(tmp_path / "c")
@@ -785,10 +796,10 @@ def test_the_errors_in_variables_factor_is_measured_per_variable(tmp_path, small
     instruments' alpha, Mach and CL (their noise is small beside what the manoeuvres make them
     vary), exactly 1 for gear without noise, and near 2 for a Mach whose noise swamps its variation
     within each log."""
-    from diagnose.evaluate import ModelEvaluator
-    from identify.logs import Log, read_campaign
-    from diagnose.noise_floor import NoiseFloor, channel_noise
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+    from diagnose.evaluate import ModelEvaluator
+    from diagnose.noise_floor import NoiseFloor, channel_noise
+    from identify.logs import Log, read_campaign
     assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
                  "--no-identify", "--quiet"]) == 0
     logs = read_campaign(tmp_path / "c")
@@ -845,13 +856,17 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     the held-out replays fly in the wind measured in each log (inertial minus air-relative
     velocity) and follow the data within 0.5 deg of pitch and 30 ft over the whole log; the
     same replays in still air do not."""
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
     from campaign.diagnosis.run import log_wind, replay
+    from campaign.simulation.aircraft import (
+        DEFAULT_AIRCRAFT,
+        AircraftSource,
+        load_effects,
+    )
+    from campaign.validation.support import matrix_toml, pairs, run_matrix
     from diagnose.gain import replay_errors
     from identify.compat import estimate
     from identify.kinematics import measured_wind
     from identify.logs import read_campaign
-    from campaign.validation.support import matrix_toml, pairs, run_matrix
     prof = tmp_path / "t3.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
     data = run_matrix(tmp_path / "w", matrix_toml(pairs((0, 0.3, [2000, 10000])), "w3"), str(DEFAULT_AIRCRAFT),
@@ -921,7 +936,8 @@ def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry()
     """A CL slope in alpha fitted on three logs: on held-out logs that carry the same slope nothing is told;
     an offset of 0.002 on one of them, which the fit does not carry, is told there, with its size. Without
     the fit taken off, the slope (0.017 RMS) would hide the offset from the ratio."""
-    from diagnose.held_out import HELD_OUT_RATIO, held_out_check
+    from diagnose.config import DEFAULTS
+    from diagnose.held_out import held_out_check
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     rng = np.random.default_rng(0)
@@ -938,7 +954,7 @@ def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry()
     assert told["told"] and told["worst_log"] == "e.parquet", told
     assert told["held_out_rms"]["e.parquet"] == pytest.approx(0.002, rel=0.05)
     assert told["ratio"] == pytest.approx(told["held_out_rms"]["e.parquet"] / told["fitted_worst_rms"])
-    assert told["ratio"] > 5 * HELD_OUT_RATIO
+    assert told["ratio"] > 5 * DEFAULTS.held_out_ratio
     assert held_out_check(data, None, fit, fitted, []) == {}
 
 

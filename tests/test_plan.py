@@ -12,16 +12,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
 from campaign.cli import main
 from campaign.design.plan import PLAN_SE
-from diagnose import sensor_rivals
+from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+from campaign.validation.hidden import Hidden, fly_data, make, wrap
+from campaign.validation.support import NARROW, matrix_toml
+from diagnose import sensor_rivals, state_twins
 from diagnose import separation as sep
-from diagnose import state_twins
+from diagnose.config import DEFAULTS
 from diagnose.terms import Term
-from campaign.validation.hidden import Hidden, wrap, fly_data, make
-from campaign.validation.support import NARROW, matrix_toml, pairs
-
 
 
 def _frame(rng, n=400):
@@ -110,7 +109,7 @@ def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
     from campaign.diagnosis.run import split
     old = [SimpleNamespace(condition=(5000.0, m, 5.0)) for m in (0.25, 0.3, 0.35, 0.4)]
     new = [SimpleNamespace(condition=c) for c in ((5000.0, 0.3, 15.0), (1500.0, 0.3, 5.0), (5000.0, 0.35, 5.0))]
-    train, held = split(old)
+    _, held = split(old)
     train2, held2 = split(old + new, first=old)
     assert {lg.condition for lg in held2} == {lg.condition for lg in held} == {(5000.0, 0.35, 5.0)}
     assert new[0] in train2 and new[1] in train2 and new[2] in held2
@@ -124,9 +123,9 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
     below 1,500 ft is not offered, and one within 250 ft of a condition flown at its Mach number is that one."""
     from types import SimpleNamespace
 
-    from campaign.simulation.aircraft import AircraftSource, load_effects
-    from campaign.importing.importer import isa
     from campaign.design.plan import candidates
+    from campaign.importing.importer import isa
+    from campaign.simulation.aircraft import AircraftSource, load_effects
     logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
     source = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
     points = candidates(logs, source, None, None)
@@ -160,7 +159,7 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     w, data, fx, doc = narrow
     first = doc["causes"][0]
     assert first["coefficient"] == "Cm" and "gear_norm" in first["variables"]
-    open_ = [r for r in doc["rivals"] if r["separation_se"] < sep.SETTLED_SE]
+    open_ = [r for r in doc["rivals"] if r["separation_se"] < DEFAULTS.settled_se]
     assert open_, [(r["rival"], r["separation_se"]) for r in doc["rivals"]]
     assert "campaign plan" in (w / "d1" / "diagnosis.txt").read_text()
     html = (w / "d1" / "report.html").read_text()
@@ -185,18 +184,18 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
     first = after["causes"][0]
     assert first["coefficient"] == "Cm" and first["variables"][:2] == ["gear_norm", "alpha_deg"], first["variables"]
     rivals = {r["rival"]: r["separation_se"] for r in first["evidence"]["rivals"]}
-    assert all(v >= sep.SETTLED_SE for v in rivals.values()), rivals
+    assert all(v >= DEFAULTS.settled_se for v in rivals.values()), rivals
     # what was open is settled, not dropped: the open rival's term is now the cause's or a rival
     # rejected at 5 se, and so is each term of the earlier cause the new one does not hold
     before = doc["causes"][0]
-    opened = {r["term"] for r in before["evidence"]["rivals"] if r["separation_se"] < sep.SETTLED_SE}
+    opened = {r["term"] for r in before["evidence"]["rivals"] if r["separation_se"] < DEFAULTS.settled_se}
     now, judged = set(first["evidence"]["terms"]), {r["term"] for r in first["evidence"]["rivals"]}
     assert opened and opened <= now | judged, (opened, now, judged)
     assert set(before["evidence"]["terms"]) - now <= judged, (before["evidence"]["terms"], now, judged)
 
 
 def test_bad_plan_inputs_are_one_line_and_change_nothing(narrow, tmp_path, capsys):
-    w, data, fx, doc = narrow
+    w, _, _, doc = narrow
     capsys.readouterr()
     before = {p: p.read_bytes() for p in (w / "d1").iterdir() if p.is_file()}
     cases = []
@@ -238,7 +237,7 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     first = doc["causes"][0]
     assert first["kind"] == "aero" and first["coefficient"] == "CL" and first["variables"] == ["alpha_deg"]
     vane = [r for r in first["evidence"]["rivals"] if r["rival"] == "alpha_deg scale"]
-    assert vane and vane[0]["separation_se"] >= sep.SETTLED_SE, first["evidence"].get("rivals")
+    assert vane and vane[0]["separation_se"] >= DEFAULTS.settled_se, first["evidence"].get("rivals")
     assert "not a sensor: alpha_deg scale" in (tmp_path / "d" / "diagnosis.txt").read_text()
     capsys.readouterr()
     assert main(["plan", "--diagnosis", str(tmp_path / "d")]) == 2
@@ -266,7 +265,7 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert not any(c["coefficient"] == "Cm" and "qhat_rad" in c["variables"] for c in doc["causes"]), doc["summary"]
     assert "tas_kt scale" in doc["summary"] and "cause not confirmed" in doc["summary"], doc["summary"]
     airspeed = [r for r in doc["rivals"] if r["rival"] == "tas_kt scale"]
-    assert airspeed and airspeed[0]["separation_se"] <= -sep.SETTLED_SE, [(r["rival"], r["separation_se"])
+    assert airspeed and airspeed[0]["separation_se"] <= -DEFAULTS.settled_se, [(r["rival"], r["separation_se"])
                                                                            for r in doc["rivals"]]
     capsys.readouterr()
     # the conditions flown, where a multisine or a level turn could fly next (the default candidates,
@@ -281,7 +280,7 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
     assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
     assert not any(f["maneuver"] == "multisine" for f in result["flights"]), result["flights"]
-    measured = [r for r in result["rivals"] if r["rival"] == "tas_kt scale"][0]
+    measured = next(r for r in result["rivals"] if r["rival"] == "tas_kt scale")
     assert measured["to_measure"] and measured["planned_se"] >= PLAN_SE, measured
     assert main(["run", "--matrix", str(tmp_path / "plan" / "plan.toml"), *truth, "--seed", "22",
                  "--out", str(tmp_path / "new"), "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
@@ -432,13 +431,13 @@ def test_a_term_in_alpha_gives_way_to_one_in_alpha_and_mach_only_if_mach_fits_be
     assert sep.cause_rivals([cause], results, {"Cm": pool, "CL": [], "CD": []}, frame, None, None, lags) == []
     wider = {r["term"]: r for r in cause.evidence["wider_rivals"]}
     assert set(wider) == {"smooth(alpha_deg) x mach", "smooth(mach) x alpha_deg", "alpha_deg x mach"}
-    assert wider["smooth(alpha_deg) x mach"]["separation_se"] <= -sep.WIDER_SE  # more columns in alpha, either way
+    assert wider["smooth(alpha_deg) x mach"]["separation_se"] <= -DEFAULTS.wider_se  # more columns in alpha, either way
     swaps = sep.preferred_aero_rivals([cause], {"Cm": pool}, frame)
     if with_mach:
-        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] <= -sep.WIDER_SE
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] <= -DEFAULTS.wider_se
         assert {a.label: b.label for a, b in swaps["Cm"].items()} == {"smooth(alpha_deg)": "smooth(alpha_deg) x mach"}
     else:
-        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] >= sep.SETTLED_SE
+        assert wider["smooth(alpha_deg) x mach"]["finer_separation_se"] >= DEFAULTS.settled_se
         assert swaps == {}
 
 
@@ -446,6 +445,7 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
     """In place of smooth(CL) refined with the tails' knots, smooth(alpha) goes in with its own tails'
     knots, as the rivals were judged; in place of an unrefined term, unrefined."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms, tail_twin
     rng = np.random.default_rng(7)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 400)) + 0.05 * rng.standard_normal(400)
@@ -473,6 +473,7 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
     to Mach alone, which drops the gear). A term in neither has no twin, and a rival to it, or one in CL
     itself, needs 3 standard errors."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(8)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
@@ -506,6 +507,7 @@ def test_a_term_in_cl_alone_has_every_candidate_in_alpha_and_mach_together_as_a_
     alpha and Mach together as rivals (an A320 Cm table in alpha growing with Mach, named "Cm vs CL" with
     only quadratic(alpha) beside it); a term in CL and another variable keeps its own rivals only."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(9)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
@@ -566,6 +568,7 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     same term in alpha and in Mach as rivals, and gives way to one unless the data prefer the elevator by
     2 standard errors. The elevator alone (a control derivative) has no such rival."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     rng = np.random.default_rng(4)
     n = 900
@@ -619,6 +622,7 @@ def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condi
     same term in alpha: the step in alpha, which the manoeuvres cross, is then named in alpha. A ramp in
     Mach keeps its name: no candidate in alpha fits it 3 standard errors better."""
     from types import SimpleNamespace
+
     from diagnose.terms import candidate_terms
     step = _alpha_and_mach(5, lambda a, m: 0.02 * (a > 4.0))
     ramp = _alpha_and_mach(6, lambda a, m: 0.05 * np.clip(m - 0.35, 0.0, None))

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
-from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies, score
+from campaign.validation.hidden import (
+    DIAG_MATRIX,
+    diagnose_overlay,
+    discrepancies,
+    score,
+)
 from campaign.validation.shapes import draw
 from campaign.validation.support import matrix_toml
 
@@ -90,8 +95,8 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     pooled held-out gain of x8.8; a strong cause is no longer vetoed by one condition."""
     import json
 
-    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     fx = tmp_path / "step.xml"
     fx.write_text(MACH_STEP)
     assert main(["run", "--effects", str(fx), "--noise", "flight-test", "--seed", "13", "--out", str(tmp_path / "d"),
@@ -99,7 +104,7 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     assert main(["diagnose", "--data", str(tmp_path / "d"), "--model", str(DEFAULT_AIRCRAFT), "--out",
                  str(tmp_path / "r"), "--jobs", "2", "--no-plots", "--quiet"]) == 0
     doc = json.loads((tmp_path / "r" / "diagnosis.json").read_text())
-    first = [c for c in doc["causes"] if c["kind"] == "aero"][0]
+    first = next(c for c in doc["causes"] if c["kind"] == "aero")
     assert (first["coefficient"], first["variables"][0]) == ("CL", "mach"), doc["summary"]
     assert first["verdict"]["holdout_gain"] >= 1.5 and first["verdict"]["size_over_floor"] >= 10
 
@@ -162,11 +167,11 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
     1,000 or more: a weaker one is refuted by extrapolation as before."""
     from diagnose.verdict import holdout_gain
     cause, res, data = _mach_step(1e4)
-    gain, acting, by = holdout_gain(res, cause, data)
+    gain, _, by = holdout_gain(res, cause, data)
     assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
     assert gain > 1.25
     weak, res, data = _mach_step(100.0)
-    gain, acting, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
+    gain, _, by = holdout_gain(res, weak, data)  # below F 1000 extrapolation refutes, as it did
     assert by["10000/0.5/0"] < 1.0 and gain < 1.02
 
 
@@ -177,12 +182,13 @@ def test_extrapolation_cannot_refute_a_cause_ten_times_its_floor():
     0.5 predicted from the two below, x2.7 at the Mach 0.3 the others bracket), it can only confirm
     it. The decision, each log left out, counts rows within the others' range alone: here Mach 0.4,
     predicted half the step, names it either way."""
-    from diagnose.verdict import REPLICATE_GAIN, judge
+    from diagnose.config import DEFAULTS
+    from diagnose.verdict import judge
     for floor, strong in ((0.0027, False), (0.00125, True)):
         cause, res, data = _mach_step(100.0)
         judge([cause], {"CL": res}, data, [np.array([floor])])
         v = cause.verdict
-        assert v["accepted"] and v["replicate_gain"] >= REPLICATE_GAIN, (floor, v["reason"])
+        assert v["accepted"] and v["replicate_gain"] >= DEFAULTS.replicate_gain, (floor, v["reason"])
         assert bool(np.isnan(v["holdout_gain_by_condition"]["10000/0.5/0"])) is strong
 
 
@@ -230,9 +236,10 @@ def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_
     import pandas as pd
 
     from diagnose.causes import Cause
+    from diagnose.config import DEFAULTS
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
-    from diagnose.verdict import REFUTED_GAIN, judge
+    from diagnose.verdict import judge
     rng = np.random.default_rng(4)
     conds = [("2000/0.2/30", 0.2, 0.0), ("2000/0.3/0", 0.3, 0.0), ("10000/0.3/0", 0.3, 0.0)]
     for offsets, accepted, unconfirmed in (((0.0127,) * 3, True, False), ((0.0381, 0.0, 0.0), False, False)):
@@ -249,7 +256,7 @@ def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_
         v = cause.verdict
         assert v["accepted"] is accepted and v["unconfirmed"] is unconfirmed, (offsets, v)
         if not accepted:
-            assert "one condition only (10000/0.5/0)" in v["reason"] and v["replicate_gain"] < REFUTED_GAIN, v
+            assert "one condition only (10000/0.5/0)" in v["reason"] and v["replicate_gain"] < DEFAULTS.refuted_gain, v
 
 
 def _offsets(seed: int, f: float = 50.0, over_floor: float = 4.0, kind: str = "aero") -> dict:
@@ -281,33 +288,34 @@ def _offsets(seed: int, f: float = 50.0, over_floor: float = 4.0, kind: str = "a
 
 def test_the_held_out_decision_is_the_replicate_gain_calibrated_on_nulls():
     """One decision on held-out data: each log left out in turn, predicted from the others, its own
-    condition's repeats among them, at least REPLICATE_GAIN (x1.2, above the x1.164 the largest of
+    condition's repeats among them, at least ``replicate_gain`` (x1.2, above the x1.164 the largest of
     the candidates of 300 simulated null flights without sensor errors reached). A line in Mach fitted
     to the offsets of a few flights gains x1.11 with each condition left out, which a decision by
     conditions left out (at x1.05) would take for a cause; with each log left out it gains x1.04, and is
     not named."""
-    from diagnose.verdict import REPLICATE_GAIN
-    assert REPLICATE_GAIN == 1.2
+    from diagnose.config import DEFAULTS
+    assert DEFAULTS.replicate_gain == 1.2
     v = _offsets(11)
     assert v["holdout_gain"] > 1.1 and v["replicate_gain"] < 1.05, v
-    assert not v["accepted"] and f"needs x{REPLICATE_GAIN}" in v["reason"], v["reason"]
+    assert not v["accepted"] and f"needs x{DEFAULTS.replicate_gain}" in v["reason"], v["reason"]
 
 
 def test_a_strong_candidate_only_held_out_data_reject_is_a_discrepancy_whose_cause_is_not_confirmed():
     """Seed 8,300,209: a Cm step in the elevator hidden in the stock 737, flown in 3 ft/s, removed
     74 % of the Cm residual (F 482, 10.6 times its floor beyond instrument errors), but its shape did not
     predict the logs left out (x0.98). A candidate that held-out data alone reject, with an F of
-    HELD_OUT_F (300; the nulls' largest such was 73) and 3 times its floor, is a discrepancy, its cause
+    ``held_out_f`` (300; the nulls' largest such was 73) and 3 times its floor, is a discrepancy, its cause
     not confirmed: named so, kept out of the extension (seed 8,400,252, a CL table in the elevator at
     F 358 and 5.8 times its floor, is one).
     Below either bound it is rejected as before, and so is an instrument error's signature (seed
     8,400,184 named one so, and the benchmark took it for an aerodynamic discrepancy)."""
-    from diagnose.verdict import HELD_OUT_F
+    from diagnose.config import DEFAULTS
+    held_out_f = DEFAULTS.held_out_f
     for over in (12.0, 3.5):
-        v = _offsets(11, f=HELD_OUT_F, over_floor=over)
+        v = _offsets(11, f=held_out_f, over_floor=over)
         assert v["replicate_gain"] < 1.05 and not v["accepted"] and v["unconfirmed"], (over, v)
         assert "a discrepancy all the same (F = 300, " in v["reason"], v["reason"]
-    for f, over, kind in ((0.9 * HELD_OUT_F, 12.0, "aero"), (HELD_OUT_F, 2.5, "aero"), (HELD_OUT_F, 12.0, "sensor")):
+    for f, over, kind in ((0.9 * held_out_f, 12.0, "aero"), (held_out_f, 2.5, "aero"), (held_out_f, 12.0, "sensor")):
         v = _offsets(11, f=f, over_floor=over, kind=kind)
         assert not v["accepted"] and not v["unconfirmed"] and "all the same" not in v["reason"], (f, over, kind, v)
 
@@ -351,20 +359,22 @@ def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
     """A lift change at the one Mach number between the others flown (seeds 3,800,066
     and 3,800,124: a table and a late onset in Mach on the A320, 3 and 18 times the floor, x1.03 and
     x1.004 with each condition left out, "no significant discrepancy") is named: each log,
-    predicted from the others, its own condition's repeats among them, gains REPLICATE_GAIN, where
+    predicted from the others, its own condition's repeats among them, gains ``replicate_gain``, where
     the conditions left out in turn refute it (x0.64). Where only per-flight offsets and noise are
     there, the same term is not."""
-    from diagnose.verdict import REPLICATE_GAIN, judge
+    from diagnose.config import DEFAULTS
+    from diagnose.verdict import judge
     cause, res, data = _repeats(0.006, 1)
     judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
     v = cause.verdict
-    assert v["holdout_gain"] < 1.0 and v["replicate_gain"] >= REPLICATE_GAIN, v
+    assert v["holdout_gain"] < 1.0 and v["replicate_gain"] >= DEFAULTS.replicate_gain, v
     assert v["accepted"], v["reason"]
     for seed in range(2, 8):
         cause, res, data = _repeats(0.0, seed)
         judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
         v = cause.verdict
-        assert v["replicate_gain"] < REPLICATE_GAIN and not v["accepted"], (seed, v["replicate_gain"], v["reason"])
+        assert v["replicate_gain"] < DEFAULTS.replicate_gain and not v["accepted"], (seed, v["replicate_gain"],
+                                                                                      v["reason"])
 
 
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
@@ -387,11 +397,11 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
 
 def test_flap_and_mach_flown_together_are_told_and_the_benchmark_matrices_fly_them_apart(tmp_path):
     """Where the flap angles and the Mach numbers they are flown at fall into sets that share neither, an
-    effect of one fits as the other over the data (:mod:`diagnose.settings`); the detection curve's
+    effect of one fits as the other over the data (:mod:`diagnose.flap_mach`); the detection curve's
     matrices fly a flap angle at another's Mach number."""
     from benchmarks.detection_curve import A320, OUR_737
     from campaign.simulation.matrix import load_matrix
-    from diagnose.settings import flown_together, level_share
+    from diagnose.flap_mach import flown_together, level_share
     old = [(2000, 0.3, 0), (10000, 0.3, 0.0), (10000, 0.5, 0), (2000, 0.2, 30)]
     told = flown_together(old)
     assert told["groups"] == [{"flap_deg": [30.0], "mach": [0.2]}, {"flap_deg": [0.0], "mach": [0.3, 0.5]}]
@@ -590,13 +600,13 @@ def test_a_cause_a_vane_error_measured_whole_but_split_makes_is_that_error_whate
     """Null 9,200,256 (stock 737, 3 ft/s): a +0.282 deg vane bias was measured as +0.097 +- 0.12 deg and a
     4.0 +- 2.1 % scale, each short of 2 standard errors, together 5.5 from none; the drag in alpha x Mach it made
     was named, 1.8 times its floor beyond what the errors within reach make. When the data compatibility measured
-    a channel's errors together APPLY_Z standard errors from none, left them, and one of them alone makes 90 % of
-    the cause at a size within 2 standard errors of its measurement, the cause is that error. Re-flown effects 3-10
-    times their floor whose named cause a vane error could make (11 of 16 a margin rule would have lost) had their
-    vane's errors 0.3-1.8 from none together: those stay named."""
-    from diagnose.verdict import MEASURED_CHANNEL_SE, judge
-    from identify.compat import APPLY_Z
-    assert MEASURED_CHANNEL_SE == APPLY_Z
+    a channel's errors together ``measured_channel_se`` (``compat.apply_z``) standard errors from none, left
+    them, and one of them alone makes 90 % of the cause at a size within 2 standard errors of its measurement, the
+    cause is that error. Re-flown effects 3-10 times their floor whose named cause a vane error could make (11 of
+    16 a margin rule would have lost) had their vane's errors 0.3-1.8 from none together: those stay named."""
+    from diagnose.config import DEFAULTS
+    from diagnose.verdict import judge
+    assert DEFAULTS.measured_channel_se == DEFAULTS.compat.apply_z
     bias = {"channel": "alpha_deg", "error": "bias", "needs": 0.268, "needs_se": 1.48, "se": 0.116, "left": 0.097,
             "explains_pct": 99.1}
     verdicts = {}
@@ -644,20 +654,22 @@ def test_a_cause_that_acts_during_the_gear_travel_alone_is_judged_where_it_depar
     """A lift bump during the gear's travel (seeds 6,200,038 and 2,000,181: 6.6 and 7.2
     times the floor, x1.16 and x1.08 with each log left out, "no significant discrepancy") acts in a
     fifth of each gear extension: counted over the whole log, its held-out gain is diluted below
-    REPLICATE_GAIN. Counted where it departs from the model, it is DEPARTS_GAIN or more, and it is
+    ``replicate_gain``. Counted where it departs from the model, it is ``departs_gain`` or more, and it is
     named; the same term fitted to per-flight offsets and noise alone is not."""
-    from diagnose.verdict import DEPARTS_GAIN, REPLICATE_GAIN, judge
+    from diagnose.config import DEFAULTS
+    from diagnose.verdict import judge
+    replicate_gain, departs_gain = DEFAULTS.replicate_gain, DEFAULTS.departs_gain
     cause, res, data = _transit(0.004, 1)
     judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
     v = cause.verdict
-    assert v["replicate_gain"] < REPLICATE_GAIN <= DEPARTS_GAIN <= v["replicate_gain_where_departs"], v
+    assert v["replicate_gain"] < replicate_gain <= departs_gain <= v["replicate_gain_where_departs"], v
     assert v["accepted"], v["reason"]
     for seed in range(2, 10):
         cause, res, data = _transit(0.0, seed)
         judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
         v = cause.verdict
-        assert v["replicate_gain_where_departs"] < DEPARTS_GAIN and not v["accepted"], (seed, v)
-        assert f"where it departs, needs x{DEPARTS_GAIN}" in v["reason"], v["reason"]
+        assert v["replicate_gain_where_departs"] < departs_gain and not v["accepted"], (seed, v)
+        assert f"where it departs, needs x{departs_gain}" in v["reason"], v["reason"]
 
 
 def test_a_constant_the_intercept_takes_back_is_not_a_cause_s_peak():

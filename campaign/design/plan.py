@@ -32,19 +32,24 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
 from campaign.diagnosis.run import load_data
-from campaign.simulation.engine import FlightConfig, check_flaps
 from campaign.errors import UserError
-from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
 from campaign.orchestration.store import read_manifest
+from campaign.simulation.aircraft import (
+    AircraftSource,
+    check_aircraft_folder,
+    load_effects,
+)
+from campaign.simulation.engine import FlightConfig, check_flaps
+from campaign.simulation.matrix import Matrix, StatusPoint, load_matrix
 from diagnose import separation as sep
+from diagnose.config import recorded
 from identify.logs import Log
 from infra.provenance import tool
 
 #: Flights are added until every rival is predicted this far from its cause [standard errors]: the
-#: measured separation scatters about the prediction by about one, and must clear
-#: :data:`diagnose.separation.SETTLED_SE`.
+#: measured separation scatters about the prediction by about one, and must clear the diagnosis's
+#: ``settled_se`` (:class:`diagnose.config.DiagnosisSettings`).
 PLAN_SE = 7.0
 #: Default budget: this share of the old data's flight time.
 BUDGET_SHARE = 0.25
@@ -84,15 +89,17 @@ def read_diagnosis(folder: Path) -> dict:
 
 
 def open_rivals(doc: dict, where: Path) -> list[dict]:
-    """The rivals not yet separated; a one-line error if there is nothing to separate."""
+    """The rivals not yet separated (below the ``settled_se`` the diagnosis was made with); a one-line
+    error if there is nothing to separate."""
     rivals = doc["rivals"]
     if not rivals:
         raise UserError(f"{where}: rivals: nothing to separate (the diagnosis names no rival explanation)")
-    left = [r for r in rivals if r["separation_se"] < sep.SETTLED_SE]
+    settled_se = recorded(doc).settled_se
+    left = [r for r in rivals if r["separation_se"] < settled_se]
     if not left:
         done = "; ".join(f"{r['rival']} at {r['separation_se']:.1f}" for r in rivals)
         raise UserError(f"{where}: rivals: nothing to separate (these data already reject every rival at "
-                        f"{sep.SETTLED_SE:g} standard errors or more: {done})")
+                        f"{settled_se:g} standard errors or more: {done})")
     return left
 
 
@@ -222,8 +229,8 @@ def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, 
                    progress: bool, rate_hz: float | None = None) -> list[Log]:
     """Fly the candidates on the model, noise-free, recorded at ``rate_hz`` (the old data's: the
     residuals are thinned per second, and the weights count rows), into ``out``; the logs flown."""
-    from campaign.simulation.instruments import load_profile
     from campaign.orchestration.runner import run_campaign
+    from campaign.simulation.instruments import load_profile
     from identify.logs import read_campaign
     profile = "none"
     if rate_hz is not None:
@@ -237,9 +244,10 @@ def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, 
 
 
 def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, jobs: int,
-                turbulence_fps: float = 0.0) -> list[list[list[dict]]]:
+                turbulence_fps: float = 0.0, *, settled_se: float) -> list[list[list[dict]]]:
     """Per log, per rival: the sums each way (:func:`diagnose.separation.predicted`), and a level
-    turn's measurement of an airspeed rival (:func:`with_turn`)."""
+    turn's measurement of an airspeed rival (:func:`with_turn`); ``settled_se``: the diagnosis's
+    (:func:`to_measure`)."""
     from diagnose.evaluate import ModelEvaluator
     from diagnose.noise_floor import NoiseFloor
     from diagnose.residuals import residual_data
@@ -262,7 +270,7 @@ def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, j
         per = []
         for r in rivals:
             context = {c: [sep.unclipped(sep.term_from_dict(t)) for t in ts] for c, ts in r.get("context", {}).items()}
-            if to_measure(r):
+            if to_measure(r, settled_se):
                 turn = logs[i].maneuver == "level_turn" and airspeed_rival(r)
                 per.append(measurement(measured_se(r, logs[i], turbulence_fps) if turn else 0.0))
                 continue
@@ -294,11 +302,11 @@ def turn_se(log: Log, turbulence_fps: float) -> float:
     return sigma * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / (t[-1] - t[0])) / FT_PER_KT
 
 
-def to_measure(r: dict) -> bool:
-    """A rival the residuals already prefer to the cause (by :data:`diagnose.separation.SETTLED_SE`
-    or more), an instrument error the data compatibility could not measure: what settles it is a
-    measurement of the error, nothing the residuals can add."""
-    return unmeasured(r) and r["separation_se"] <= -sep.SETTLED_SE
+def to_measure(r: dict, settled_se: float) -> bool:
+    """A rival the residuals already prefer to the cause (by ``settled_se``, the diagnosis's, or more),
+    an instrument error the data compatibility could not measure: what settles it is a measurement of
+    the error, nothing the residuals can add."""
+    return unmeasured(r) and r["separation_se"] <= -settled_se
 
 
 def measurement(z: float) -> list[dict]:
@@ -394,6 +402,7 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     diagnosis = Path(diagnosis)
     doc = read_diagnosis(diagnosis)  # the arguments in the order a user gives them, before the rivals
     where = diagnosis / "diagnosis.json"
+    settled_se = recorded(doc).settled_se
     if budget_min is not None and not 0 < budget_min < float("inf"):
         raise UserError(f"--budget-min: {budget_min:g} minutes; the plan needs a finite budget of more than 0")
     given = load_matrix(matrix) if matrix else None
@@ -439,15 +448,17 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
             raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the "
                             f"candidate points")
         sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs,
-                           (doc.get("data_compatibility") or {}).get("vertical_gust_rms_fps") or 0.0)
+                           (doc.get("data_compatibility") or {}).get("vertical_gust_rms_fps") or 0.0,
+                           settled_se=settled_se)
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    old = [measurement(0.0) if to_measure(r) else
+    old = [measurement(0.0) if to_measure(r, settled_se) else
            [{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
            for r in rivals]
-    base = [(0.0 if to_measure(r) else float(r["separation_se"]), sep.separation(o)) for r, o in zip(rivals, old)]
+    base = [(0.0 if to_measure(r, settled_se) else float(r["separation_se"]), sep.separation(o))
+            for r, o in zip(rivals, old)]
     flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s}
                for lg, s in zip(flown, sums)]
     chosen, reached = choose(old, flights, budget, base)
@@ -455,9 +466,9 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
         "tool": tool(),
         "diagnosis": str(diagnosis), "model": str(model), "budget_min": budget, "old_minutes": old_minutes,
         "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
-        "settled_se": sep.SETTLED_SE, "candidates": len(flights),
+        "settled_se": settled_se, "candidates": len(flights),
         "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": b[0],
-                    "predicted_now_se": b[1], "planned_se": planned(n, b), "to_measure": to_measure(r),
+                    "predicted_now_se": b[1], "planned_se": planned(n, b), "to_measure": to_measure(r, settled_se),
                     "residuals_se": float(r["separation_se"])}
                    for r, b, n in zip(rivals, base, reached)],
         "flights": [{"point": flights[j]["point"], "maneuver": flights[j]["maneuver"],
@@ -517,10 +528,10 @@ def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Ma
 def report(r: dict) -> str:
     """``plan.txt``."""
     lines = ["Flight plan", "===========", "", f"diagnosis: {r['diagnosis']}", f"model: {r['model']}",
-             f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
-             f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model", "",
-             "Rivals (separation in standard errors; settled at "
-             f"{r['settled_se']:g}, planned to {r['target_se']:g}):"]
+             (f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
+              f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model"), "",
+             (f"Rivals (separation in standard errors; settled at {r['settled_se']:g}, planned to "
+              f"{r['target_se']:g}):")]
     for x in r["rivals"]:
         if x.get("to_measure"):
             lines.append(f"  {x['cause']}  against  {x['rival']}: the residuals prefer the instrument error "

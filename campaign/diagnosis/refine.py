@@ -105,7 +105,7 @@ def fitted_logs(diag: Diagnosis) -> list[Log]:
     """The training logs where the first aerodynamic cause acts, at most :data:`MAX_LOGS` of them
     (the largest residual RMS of its coefficient first)."""
     cause = diag.aero_causes[0]
-    acting = exercised(diag.data, cause.variables)
+    acting = exercised(diag.data, cause.variables, diag.settings.min_std)
     col = f"r_{cause.coefficient}"
     rms = diag.data[diag.data.log.isin(acting)].groupby("log")[col].agg(lambda r: float(np.sqrt(np.mean(r ** 2))))
     return [diag.logs[int(i)] for i in rms.sort_values(ascending=False).index[:MAX_LOGS]]

@@ -16,10 +16,19 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
-from campaign.simulation.engine import FlightConfig, TrimError, fly
+from campaign.diagnosis.bands import replay_bands
+from campaign.diagnosis.refine import REFINE, refine_extension
 from campaign.errors import UserError
+from campaign.orchestration.cluster import connect, pack, unpack_source
+from campaign.orchestration.store import atomic_write
+from campaign.simulation.aircraft import (
+    AircraftSource,
+    check_aircraft_folder,
+    load_effects,
+)
+from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.simulation.matrix import StatusPoint
+from diagnose.config import DiagnosisSettings
 from diagnose.diagnosis import STAGES, diagnose
 from diagnose.evaluate import ModelEvaluator
 from diagnose.extension import write_extension
@@ -29,12 +38,8 @@ from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
 from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
-from identify.models import lowpass
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
-from campaign.orchestration.cluster import connect, pack, unpack_source
-from campaign.orchestration.store import atomic_write
-from campaign.diagnosis.bands import replay_bands
-from campaign.diagnosis.refine import REFINE, refine_extension
+from identify.models import lowpass
 from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
 from maneuvers.library import Recorded
 
@@ -279,7 +284,7 @@ def _within(out: Path, folder: Path) -> bool:
 
 def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
                   progress: bool = False, cluster: str | None = None, refine: str | None = None,
-                  bands: int = 0, settings=None) -> dict:
+                  bands: int = 0, settings: DiagnosisSettings | None = None) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
@@ -308,10 +313,17 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     bands : int
         Monte Carlo draws of the extension for bands on the held-out replays where the cause
         acts, and their Part 60 pass probability (:mod:`campaign.diagnosis.bands`; 0: none).
-    settings : optional
-        The diagnosis's decision settings, handed to :func:`diagnose.diagnosis.diagnose` (None: its
-        defaults).
+    settings : DiagnosisSettings, optional
+        Every decision threshold, handed to :func:`diagnose.diagnosis.diagnose` (None: its defaults);
+        ``diagnosis.json`` records them (``settings``).
+
+    Raises
+    ------
+    TypeError
+        If ``settings`` is not a :class:`diagnose.config.DiagnosisSettings` (before anything is read).
     """
+    if settings is not None and not isinstance(settings, DiagnosisSettings):
+        raise TypeError(f"settings: a diagnose.config.DiagnosisSettings, not {type(settings).__name__}")
     plots = {True: "key", False: "none"}.get(plots, plots)
     if plots not in PLOTS:
         raise UserError(f"plots: {plots!r} is not one of {', '.join(PLOTS)}")
@@ -368,7 +380,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
 
 def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
                train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0,
-               settings=None) -> dict:
+               settings: DiagnosisSettings | None = None) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
@@ -388,8 +400,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
         bar.set_description(name)
 
     try:
-        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage,
-                        **({} if settings is None else {"settings": settings}))
+        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage, settings=settings)
     except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
         evaluator.close()
         bar.close()
@@ -435,12 +446,13 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     band_arrays = {}
     if bands and diag.aero_causes:
         stage("bands")
-        acting = exercised(before, diag.aero_causes[0].variables)
+        acting = exercised(before, diag.aero_causes[0].variables, diag.settings.min_std)
         with local_workers():
             doc["bands"], band_arrays = replay_bands(diag, model, out, [held[i] for i in acting], bands, replay, jobs)
     if plots != "none":
         stage("plots")
-        which = exercised(before, diag.aero_causes[0].variables) if diag.aero_causes else largest(before)
+        which = (exercised(before, diag.aero_causes[0].variables, diag.settings.min_std) if diag.aero_causes
+                 else largest(before))
         doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs, None if plots == "all" else which,
                                      band_arrays)
     bar.update(len(STAGES) - bar.n)
@@ -459,7 +471,10 @@ def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.Dat
            flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None, bands: dict | None = None) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
     drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
-    from diagnose.plots import save_log_plots, save_overview  # matplotlib: only when plots are drawn
+    from diagnose.plots import (  # matplotlib: only when plots are drawn
+        save_log_plots,
+        save_overview,
+    )
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
     calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],

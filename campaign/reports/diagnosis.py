@@ -7,8 +7,8 @@ from html import escape
 from pathlib import Path
 
 from campaign.reports import html
+from diagnose.config import recorded
 from diagnose.held_out import told_text
-from diagnose.separation import SETTLED_SE
 
 
 def label(c: dict) -> str:
@@ -71,14 +71,15 @@ def diagnosis_report(folder: Path) -> str:
         body += html.png(overview, "residuals against each cause", "Residuals against each cause's variables.")
     sections.append(html.section("causes", "Causes and evidence", body))
     if doc.get("rivals"):
+        settled_se = recorded(doc).settled_se
         rows = [(r["cause"], r["rival"], r["kind"], r["separation_se"], r["predicted_se"],
-                 "settled" if r["separation_se"] >= SETTLED_SE else "not settled: campaign plan",
+                 "settled" if r["separation_se"] >= settled_se else "not settled: campaign plan",
                  ", ".join(f"{k} {v:.3g}" for k, v in r.get("by_coefficient", {}).items() if v > 0))
                 for r in doc["rivals"]]
         sections.append(html.section("rivals", "Rival explanations", html.table(
             ["cause", "rival", "kind", "separation [se]", "expected [se]", "", "likelihood ratio from"], rows, left=3)
             + "<p>The separation is the likelihood ratio of the cause's fit and the rival's, over CL, CD and Cm "
-              f"and the data compatibility's estimate, in standard errors; at {SETTLED_SE:g} or more these data "
+              f"and the data compatibility's estimate, in standard errors; at {settled_se:g} or more these data "
               "reject the rival. <code>campaign plan</code> designs the flights that would settle the others.</p>"))
     if doc.get("gain"):
         body = _gain(doc["gain"])

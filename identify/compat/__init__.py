@@ -25,14 +25,24 @@ estimate made again with each log left out (which errors the logs excite and
 which two are confounded move with a log in turbulence). A
 parameter the logs do not excite is reported as not identifiable; two the data
 cannot tell apart are each estimated with the other held at 0. Corrections larger than a channel's
-resolution are applied at 5 standard errors; from 3, or when the kinematics
+resolution are applied at 5 standard errors; from 2.5, or when the kinematics
 cannot tell two errors apart (an accelerometer bias and an attitude bias), only
 if other evidence chooses them: the diagnosis asks the aerodynamic residuals.
+These thresholds are :class:`CompatSettings` (the defaults quoted).
 The compatibility never reads an instrument profile; it sees the logs only.
 """
-from identify.compat.result import (APPLY_Z, CANDIDATE_Z, D2R, EARTH_RATE, FT_PER_KT, CompatResult, Parameter,
-                                    at_cg, columns_of, documented_positions)
+from identify.compat.config import CompatSettings
 from identify.compat.fit import estimate
+from identify.compat.result import (
+    D2R,
+    EARTH_RATE,
+    FT_PER_KT,
+    CompatResult,
+    Parameter,
+    at_cg,
+    columns_of,
+    documented_positions,
+)
 
-__all__ = ["APPLY_Z", "CANDIDATE_Z", "D2R", "EARTH_RATE", "FT_PER_KT", "CompatResult", "Parameter", "at_cg",
-           "columns_of", "documented_positions", "estimate"]
+__all__ = ["D2R", "EARTH_RATE", "FT_PER_KT", "CompatResult", "CompatSettings", "Parameter", "at_cg", "columns_of",
+           "documented_positions", "estimate"]

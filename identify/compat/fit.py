@@ -7,17 +7,43 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from identify.compat.reconstruction import (ESSENTIAL, INS, TURN_SPAN_DEG, integrated_attitude, body_to_ned, unexcited_parameters,
-                                            gauss_newton, gust_basis, noise_level, prepare, velocity_responses, body_rotations,
-                                            select, delayed, shift_columns, heading_change)
-from identify.compat.result import (BLOCK_S, D2R, DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS, MAX_VIF,
-                                    PRUNE_FIRST, TURBULENT_FPS, CompatResult, instrument_parameters, at_cg, columns_of,
-                                    documented_positions)
+from identify.compat.config import CompatSettings
+from identify.compat.reconstruction import (
+    ESSENTIAL,
+    INS,
+    body_rotations,
+    body_to_ned,
+    delayed,
+    gauss_newton,
+    gust_basis,
+    heading_change,
+    integrated_attitude,
+    noise_level,
+    prepare,
+    select,
+    shift_columns,
+    unexcited_parameters,
+    velocity_responses,
+)
+from identify.compat.result import (
+    BLOCK_S,
+    D2R,
+    DRYDEN_LENGTH_FT,
+    FT_PER_KT,
+    GUST_PRIOR_FLOOR_FPS,
+    PRUNE_FIRST,
+    CompatResult,
+    at_cg,
+    columns_of,
+    documented_positions,
+    instrument_parameters,
+)
 from identify.logs import Log
 from infra.pool import pmap
 
 
-def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatResult:
+def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,
+             settings: CompatSettings | None = None) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
     Parameters
@@ -29,12 +55,16 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         A replicate of :func:`_whole_jackknife` (it makes none of its own).
     jobs : int
         Worker processes for those replicates.
+    settings : CompatSettings, optional
+        The decision thresholds (None: the defaults); every parameter of the result carries them, and
+        the replicates get them.
 
     Returns
     -------
     CompatResult
     """
-    params = instrument_parameters()
+    settings = settings or CompatSettings()
+    params = instrument_parameters(settings)
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
@@ -93,7 +123,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
     rows1 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs1))
     if outs1:
         x1 = _solve_stage(resid1, x1, s1, by, 3, L, rows1, outs1, sig, valid, rms, mask,
-                          lambda x: {c: model1(x)[0][c] for c in outs1}, data, covs=covs)
+                          lambda x: {c: model1(x)[0][c] for c in outs1}, data, covs=covs, settings=settings)
     v1 = dict(zip(s1, x1[:len(s1)]))
     _, (th_r, ph_r, ps_r) = model1(x1)
 
@@ -258,7 +288,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
                      data.ch["alt_ft"][:, 0]], 1)
     x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
     rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
-    turned = heading_change(data) >= TURN_SPAN_DEG if n_wind else np.zeros(L, bool)
+    turned = heading_change(data) >= settings.turn_span_deg if n_wind else np.zeros(L, bool)
     if turned.all():
         for e in ("bias", "scale"):
             by[f"tas_kt.{e}"].identifiable = False
@@ -268,8 +298,8 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         # In a turn a steady wind turns in body axes as slowly as the gusts' splines move: without a
         # prior on the gusts' size the two trade freely, and with them an airspeed scale or bias. The
         # prior is the turbulence the straight logs show (the vertical gust, as Dryden's isotropic).
-        prior["fps"] = max(estimate([lg for lg, t in zip(chosen, turned) if not t], replicate=True).turbulence_fps,
-                           GUST_PRIOR_FLOOR_FPS)
+        prior["fps"] = max(estimate([lg for lg, t in zip(chosen, turned) if not t], replicate=True,
+                                    settings=settings).turbulence_fps, GUST_PRIOR_FLOOR_FPS)
         rows2 = np.concatenate([rows2, np.repeat(np.arange(L), 3 * k_gust)])
         # one log pins the airspeed error: time blocks, not logs, are the clusters of its uncertainty
         label = (np.arange(L)[:, None] * 100_000 + np.floor(data.t / BLOCK_S)).ravel()[valid]
@@ -280,11 +310,12 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
         speed = np.array([np.median(data.ch["tas_kt"][i][mask[i]]) for i in range(L)])
         prior["offset_sd"] = prior["fps"] * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / span)
     x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
-                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None, column2)
+                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None, column2,
+                      settings)
     per = x2[len(s2):].reshape(L, n_per)
     w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
     turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
-    if turbulence > TURBULENT_FPS:
+    if turbulence > settings.turbulent_fps:
         for c in ("alpha_deg", "beta_deg", "tas_kt"):
             p = by[f"{c}.delay"]
             if p.identifiable:
@@ -298,7 +329,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1) -> CompatR
             rms[ch] = {key: v / k for key, v in rms[ch].items()}
     result = CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
     if not replicate and L >= 3 and result.applied:
-        _whole_jackknife(result, chosen, jobs)
+        _whole_jackknife(result, chosen, jobs, settings)
     return result
 
 
@@ -314,20 +345,23 @@ def _keep(kept: dict, key: bytes, value):
     return value
 
 
-def _replicate(logs: list[Log]) -> CompatResult:
-    return estimate(logs, replicate=True)
+def _replicate(logs: list[Log], settings: CompatSettings) -> CompatResult:
+    return estimate(logs, replicate=True, settings=settings)
 
 
-def _whole_jackknife(result: CompatResult, logs: list[Log], jobs: int = 1) -> None:
+def _whole_jackknife(result: CompatResult, logs: list[Log], jobs: int = 1,
+                     settings: CompatSettings | None = None) -> None:
     """The standard errors of the corrections about to be applied on the kinematics' word alone, from
     the whole estimate made again with each log left out (its decisions included: which errors the
     logs excite, which two are confounded), where that spread exceeds the one-step jackknife's. The
     one-step replicates linearise about the full fit; in turbulence the fit's own choices move with
     a log, and an A320 null's vane scale of +2.5 % came out at 10.7 one-step standard errors and 1.8
     whole ones, a stock-737 vane bias of -0.079 deg at 6.6 and 1.0. ``result`` is updated in place,
-    its stage covariances scaled alike."""
+    its stage covariances scaled alike. The replicates decide by ``settings`` (None: the defaults), as
+    the estimate did."""
     L = len(logs)
-    reps = pmap(_replicate, [(logs[:i] + logs[i + 1:],) for i in range(L)], jobs)
+    settings = settings or CompatSettings()
+    reps = pmap(_replicate, [(logs[:i] + logs[i + 1:], settings) for i in range(L)], jobs)
     for p in result.applied:
         # a replicate that cannot estimate it at all (the one log that excites it left out) says nothing
         e = np.array([q.estimate for q in (r.get(p.name) for r in reps) if q.identifiable and np.isfinite(q.estimate)])
@@ -351,9 +385,11 @@ def _covariance(blk, blocks: tuple | None) -> np.ndarray:
 
 
 def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,
-                 perlog=None, covs: list | None = None, blocks: tuple | None = None, column=None) -> np.ndarray:
+                 perlog=None, covs: list | None = None, blocks: tuple | None = None, column=None,
+                 settings: CompatSettings | None = None) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
-    errors too; parameters the data cannot tell apart (|correlation| > 0.995) are fixed at 0.
+    errors too; parameters the data cannot tell apart (variance inflation above ``settings.max_vif``)
+    are fixed at 0.
     ``blocks``: for the standard errors when a log turns (:func:`_covariance`); ``column``: see
     :func:`identify.compat.reconstruction.gauss_newton`."""
     ns = len(names)
@@ -364,7 +400,8 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
     for i, c in enumerate(outs):
         rms[c] = {"before": float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))}
     recon = {c: v for c, v in model(x).items()}
-    for name, why in unexcited_parameters(data, recon).items():
+    settings = settings or CompatSettings()
+    for name, why in unexcited_parameters(data, recon, settings).items():
         if name in by and name in names:
             by[name].identifiable, by[name].reason = False, why
     free[:] = [by[s].identifiable for s in names]
@@ -378,7 +415,7 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
             break
         corr = cov / np.maximum(np.outer(sd, sd), 1e-300)
         vif = np.diag(np.linalg.pinv(corr))
-        if vif.max() <= MAX_VIF:
+        if vif.max() <= settings.max_vif:
             break
         # the most inflated parameter goes (of near ties, the latest listed); the one it leans on is confounded
         worst = max(j for j in range(len(idx)) if vif[j] >= 0.9 * vif.max())

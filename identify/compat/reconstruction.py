@@ -8,9 +8,20 @@ from functools import cached_property
 import numpy as np
 from scipy.interpolate import BSpline
 
-from identify.compat.result import (D2R, EARTH_RADIUS_FT, EARTH_RATE, FT_PER_KT, G0_FPS2, GUST_KNOT_S, LATERAL_SPAN,
-                                    MAX_LOGS, NEEDS_TURN, RATE_HZ, THETA_BIAS_SPAN)
+from identify.compat.config import CompatSettings
+from identify.compat.result import (
+    D2R,
+    EARTH_RADIUS_FT,
+    EARTH_RATE,
+    FT_PER_KT,
+    G0_FPS2,
+    GUST_KNOT_S,
+    MAX_LOGS,
+    NEEDS_TURN,
+    RATE_HZ,
+)
 from identify.logs import CALIBRATION, Log
+
 # ----------------------------------------------------------------------------- data
 
 
@@ -62,7 +73,7 @@ def prepare(logs: list[Log]) -> _Data:
     for lg in logs:
         d = lg.data
         dt = float(np.median(np.diff(d["t_s"])))
-        k = max(1, int(round(1.0 / (RATE_HZ * dt))))
+        k = max(1, round(1.0 / (RATE_HZ * dt)))
         frames.append((d.iloc[::k], dt * k, float(lg.meta.get("gravity_fps2", G0_FPS2))))
     n = max(len(f) for f, *_ in frames)
     L = len(frames)
@@ -372,11 +383,6 @@ class _Blocks:
         return d.T @ d * ((L - 1) / L)
 
 
-#: A log whose heading turns through this much lets a steady wind be told from an airspeed scale
-#: and bias [deg].
-TURN_SPAN_DEG = 60.0
-
-
 def heading_change(data: _Data) -> np.ndarray:
     """Heading change of each log [deg] (0 without a heading channel)."""
     if "psi_deg" not in data.present:
@@ -385,14 +391,20 @@ def heading_change(data: _Data) -> np.ndarray:
     return np.array([float(np.ptp(psi[i][m])) / D2R if m.any() else 0.0 for i, m in enumerate(data.mask)])
 
 
-def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray]) -> dict[str, str]:
+def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray],
+                         settings: CompatSettings | None = None) -> dict[str, str]:
     """Parameters the logs cannot identify, with the reason. Scale factors and time shifts
-    need the reconstructed signal to move (turbulence moves the measured one too)."""
+    need the reconstructed signal to move (turbulence moves the measured one too): by the spans of
+    ``settings`` (None: the defaults)."""
+    s = settings or CompatSettings()
     out = {}
     m = data.mask
-    for c, need, unit, k in (("theta_deg", 2.0, "deg", D2R), ("phi_deg", LATERAL_SPAN["phi_deg"], "deg", D2R),
-                             ("alpha_deg", 1.0, "deg", D2R), ("beta_deg", LATERAL_SPAN["beta_deg"], "deg", D2R),
-                             ("tas_kt", 5.0, "kt", FT_PER_KT)):
+    lateral, span_of = s.lateral_span_deg, s.scale_span
+    for c, need, unit, k in (("theta_deg", span_of["theta_deg"], "deg", D2R),
+                             ("phi_deg", lateral["phi_deg"], "deg", D2R),
+                             ("alpha_deg", span_of["alpha_deg"], "deg", D2R),
+                             ("beta_deg", lateral["beta_deg"], "deg", D2R),
+                             ("tas_kt", span_of["tas_kt"], "kt", FT_PER_KT)):
         if c not in data.present:
             for e in ("bias", "scale", "delay"):
                 out[f"{c}.{e}"] = "channel not in the logs"
@@ -404,27 +416,27 @@ def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray]) -> dict[str,
         rate = (np.diff(x, axis=1) / data.dt[:, None])[m[:, 1:]] / k
         if float(np.std(rate)) < need / 4.0:
             out[f"{c}.delay"] = f"{c} hardly moves within the manoeuvres (rate std {np.std(rate):.2g} {unit}/s)"
-    if "q_dps" not in data.present or float(np.std(data.ch["q_dps"][m])) < 0.5 * D2R:
+    if "q_dps" not in data.present or float(np.std(data.ch["q_dps"][m])) < s.pitch_rate_std_dps * D2R:
         out["alpha_deg.position"] = "pitch rate hardly excited"
     # what longitudinal manoeuvres without a ground-speed reference cannot separate, whatever the data
     beta_span = float(np.ptp(recon.get("beta_deg", data.ch["beta_deg"])[m])) / D2R
     phi_span = float(np.ptp(recon.get("phi_deg", data.ch["phi_deg"])[m])) / D2R
     theta_span = float(np.ptp(recon.get("theta_deg", data.ch["theta_deg"])[m])) / D2R
-    if beta_span < LATERAL_SPAN["beta_deg"]:
+    if beta_span < lateral["beta_deg"]:
         out.setdefault("beta_deg.bias", "a sideslip offset is a lateral velocity offset without a lateral manoeuvre")
-    if phi_span < LATERAL_SPAN["phi_deg"]:
+    if phi_span < lateral["phi_deg"]:
         out.setdefault("phi_deg.bias", "confounded with the lateral accelerometer's bias through gravity without a "
                                        "bank")
-    if theta_span < THETA_BIAS_SPAN:
+    if theta_span < s.theta_bias_span_deg:
         out.setdefault("theta_deg.bias", f"confounded with the longitudinal accelerometer's bias through gravity "
-                                         f"(pitch spans {theta_span:.0f} deg, needs {THETA_BIAS_SPAN:g})")
+                                         f"(pitch spans {theta_span:.0f} deg, needs {s.theta_bias_span_deg:g})")
     ins = all(c in data.present for c in INS)
     turned = float(heading_change(data).max(initial=0.0)) if ins else 0.0
     for e in ("bias", "scale", "delay"):
-        if e != "delay" and turned >= TURN_SPAN_DEG:
+        if e != "delay" and turned >= s.turn_span_deg:
             continue  # a steady wind in the earth's axes, seen from several headings, is not an airspeed error
         out.setdefault(f"tas_kt.{e}", (f"{NEEDS_TURN} (no turn in the manoeuvres: the "
-                                       f"heading spans {turned:.0f} deg, needs {TURN_SPAN_DEG:g})") if ins else
+                                       f"heading spans {turned:.0f} deg, needs {s.turn_span_deg:g})") if ins else
                        "no inertial speed reference in the logs (ground speed): each log's own initial speed "
                        "absorbs it")
     for c in ("p_dps", "r_dps", "ay_fps2"):

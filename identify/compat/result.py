@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from identify.compat.config import CompatSettings
 from identify.logs import Log
+
 D2R = np.pi / 180.0
 FT_PER_KT = 1.6878098571011957
 G0_FPS2 = 32.174049
@@ -19,34 +21,9 @@ EARTH_RATE = 7.292115e-5
 MAX_LOGS = 12
 #: Reconstruction rate [Hz]: faster logs are thinned (the kinematics need no more).
 RATE_HZ = 50.0
-#: Smallest correction worth applying, per unit: below these, what the data hold is the
-#: kinematic model's own mismatch (on perfect JSBSim data: the Earth's rotation, 0.004 deg/s in
-#: the roll gyro; JSBSim's half-frame timing, 4 ms; 0.2 % in airspeed), not an instrument error.
-MATTERS = {"deg": 0.005, "kt": 0.5, "ft/s^2": 0.01, "deg/s": 0.005, "-": 0.005, "s": 0.01, "ft": 2.0}
-#: Corrections this many standard errors from 0 are applied on the kinematics' word alone ...
-APPLY_Z = 5.0
-#: ... from this many on, only if other evidence agrees (:meth:`CompatResult.choose`). Few logs make a
-#: clustered standard error itself uncertain: in turbulence it came out 4x too small in 1 null of 6.
-#: At 3, an A320 alpha-vane scale of 7.2 % measured as 5.7 +- 2.2 % in 3 ft/s was not tried, and the
-#: model's own lift table, steep between two breakpoints, hid it from the linearised instrument reach.
-#: About the 95th percentile of the kinematics' own alpha-vane errors on simulated campaigns: an error
-#: that is not there becomes a candidate in about 1 of 20, and the residuals must then corroborate it.
-CANDIDATE_Z = 2.5
-#: Above this variance inflation a parameter is confounded with others (its error is 10x a lone one's).
-MAX_VIF = 100.0
 #: Of a confounded pair these go first: an attitude bias does not enter eq. (1), the accelerometer
 #: bias it trades with does, and the aerodynamic residuals can then choose between them.
 PRUNE_FIRST = ("theta_deg.bias", "phi_deg.bias")
-#: Larger estimates are not instrument errors but a reconstruction gone wrong (not applied).
-PLAUSIBLE = {"deg": 5.0, "kt": 20.0, "ft/s^2": 1.0, "deg/s": 1.0, "-": 0.3, "s": 0.5, "ft": 200.0}
-#: Span a lateral channel's reconstruction needs before its scale factor and time shift can be
-#: told from turbulence [deg] (light turbulence alone moves them about 2 deg): a lateral manoeuvre.
-LATERAL_SPAN = {"beta_deg": 4.0, "phi_deg": 10.0}
-#: Span of pitch attitude a pitch-angle bias needs to be told from an accelerometer bias [deg].
-THETA_BIAS_SPAN = 15.0
-#: Above this RMS vertical gust in the reconstruction [ft/s] the air-data time shifts are not identifiable:
-#: the aircraft's answer to the gusts biases them (null flights at 1.5 ft/s: +15 to +45 ms on alpha).
-TURBULENT_FPS = 0.5
 #: Knot spacing of each log's gust [s]: Dryden turbulence has most of its power below V / (2 pi L),
 #: about 0.04 Hz at 1750 ft scale length; a 2-3-1-1 excites 0.15-1 Hz.
 GUST_KNOT_S = 3.0
@@ -79,6 +56,7 @@ class Parameter:
     chosen: str = ""  # why it is applied although confounded (the aerodynamic residuals chose it)
     beside_aero: bool = False  # the residuals agreed only beside the aerodynamic terms fitted to them
     se_one_step: float = float("nan")  # the one-step jackknife's, where the whole estimate's is larger
+    settings: CompatSettings = field(default=CompatSettings(), repr=False)  # what decides correctable, applied
 
     @property
     def name(self) -> str:
@@ -90,16 +68,17 @@ class Parameter:
 
     @property
     def correctable(self) -> bool:
-        """At least :data:`CANDIDATE_Z` standard errors (or measured by the kinematics and refined by the
-        aerodynamic residuals), larger than the channel's resolution, plausible."""
-        return bool(self.identifiable and (self.z >= CANDIDATE_Z or {"kinematics", "residuals"} <= set(self.sources))
-                    and MATTERS[self.unit] <= abs(self.estimate) <= PLAUSIBLE[self.unit])
+        """At least :attr:`settings`' ``candidate_z`` standard errors (or measured by the kinematics and
+        refined by the aerodynamic residuals), at least what ``matters`` for its unit, and ``plausible``."""
+        s = self.settings
+        return bool(self.identifiable and (self.z >= s.candidate_z or {"kinematics", "residuals"} <= set(self.sources))
+                    and s.matters[self.unit] <= abs(self.estimate) <= s.plausible[self.unit])
 
     @property
     def applied(self) -> bool:
-        """The data are corrected for it: correctable, at least :data:`APPLY_Z` standard errors and
-        not confounded, or chosen by other evidence (the aerodynamic residuals)."""
-        return self.correctable and (bool(self.chosen) or (not self.reason and self.z >= APPLY_Z))
+        """The data are corrected for it: correctable, at least :attr:`settings`' ``apply_z`` standard
+        errors and not confounded, or chosen by other evidence (the aerodynamic residuals)."""
+        return self.correctable and (bool(self.chosen) or (not self.reason and self.z >= self.settings.apply_z))
 
     def to_dict(self) -> dict:
         ok = bool(self.identifiable)
@@ -112,15 +91,17 @@ class Parameter:
                 "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()}}
 
 
-def instrument_parameters() -> list[Parameter]:
-    p = [Parameter(c, "bias", "deg/s") for c in ("p_dps", "q_dps", "r_dps")]
-    p += [Parameter(c, e, u) for c in ("theta_deg", "phi_deg") for e, u in (("scale", "-"), ("delay", "s"))]
-    p += [Parameter(c, "bias", "ft/s^2") for c in ("ax_fps2", "ay_fps2", "az_fps2")]
-    p += [Parameter(c, "bias", "deg") for c in ("theta_deg", "phi_deg")]
+def instrument_parameters(settings: CompatSettings | None = None) -> list[Parameter]:
+    """Every instrument error the data compatibility knows, at 0, judged by ``settings`` (None: the defaults)."""
+    p = [("p_dps", "bias", "deg/s"), ("q_dps", "bias", "deg/s"), ("r_dps", "bias", "deg/s")]
+    p += [(c, e, u) for c in ("theta_deg", "phi_deg") for e, u in (("scale", "-"), ("delay", "s"))]
+    p += [(c, "bias", "ft/s^2") for c in ("ax_fps2", "ay_fps2", "az_fps2")]
+    p += [(c, "bias", "deg") for c in ("theta_deg", "phi_deg")]
     for c, unit in (("alpha_deg", "deg"), ("beta_deg", "deg"), ("tas_kt", "kt")):
-        p += [Parameter(c, "bias", unit), Parameter(c, "scale", "-"), Parameter(c, "delay", "s")]
-    p.append(Parameter("alpha_deg", "position", "ft"))  # the air-data head's distance ahead of the CG
-    return p
+        p += [(c, "bias", unit), (c, "scale", "-"), (c, "delay", "s")]
+    p.append(("alpha_deg", "position", "ft"))  # the air-data head's distance ahead of the CG
+    kw = {} if settings is None else {"settings": settings}
+    return [Parameter(c, e, u, **kw) for c, e, u in p]
 
 
 @dataclass
@@ -157,12 +138,12 @@ class CompatResult:
         cannot tell it from (a 6.3 % vane scale corrected as 7.0 +- 0.8 % left a "CL vs alpha" with
         nothing hidden, and the reach gave the scale's error no share of it).
 
-        With ``plausible_at``, no error is taken as larger than plausible (:data:`PLAUSIBLE`): a
+        With ``plausible_at``, no error is taken as larger than plausible (its parameter's
+        ``settings.plausible``): a
         standard error that would put the plausible bound nearer than ``plausible_at`` standard errors
         is shrunk to it, its correlations kept. The kinematics hardly measure a sideslip vane's bias in
         longitudinal manoeuvres (+- 10 deg): within 2 of those, a -19 deg bias, through the wind axes,
-        made all of a 5.9-times-its-floor drag onset with flap, and nothing was named (development seed
-        5,000,001).
+        made all of a 5.9-times-its-floor drag onset with flap, and nothing was named.
         """
         names, blocks = [], []
         ok = {p.name for p in self.parameters if p.identifiable and "residuals" not in p.sources}
@@ -183,17 +164,17 @@ class CompatResult:
         names = names + [tuple(p.name.split(".")) for p in timed]
         if plausible_at is not None and len(names):
             se = np.sqrt(np.diag(total))
-            cap = np.array([PLAUSIBLE[self.get(".".join(n)).unit] / plausible_at for n in names])
+            cap = np.array([_plausible(self.get(".".join(n))) / plausible_at for n in names])
             shrink = np.where(se > cap, cap / np.where(se > 0, se, 1.0), 1.0)
             total = total * np.outer(shrink, shrink)
         return names, total
 
-    def choose(self, name: str, why: str, beside_aero: bool = False) -> "CompatResult":
+    def choose(self, name: str, why: str, beside_aero: bool = False) -> CompatResult:
         """The same result with a confounded parameter applied (its partner held at 0), and why."""
         return replace(self, parameters=[replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p
                                          for p in self.parameters])
 
-    def note(self, name: str, text: str) -> "CompatResult":
+    def note(self, name: str, text: str) -> CompatResult:
         """The same result with a note added to one parameter's reason."""
         return replace(self, parameters=[replace(p, reason=f"{p.reason}; {text}") if p.name == name else p
                                          for p in self.parameters])
@@ -201,11 +182,11 @@ class CompatResult:
     @property
     def undecided(self) -> list[Parameter]:
         """Correctable parameters held back: confounded with a partner the kinematics cannot tell
-        them from, or short of :data:`APPLY_Z` standard errors. Other evidence may choose them."""
+        them from, or short of their ``settings.apply_z`` standard errors. Other evidence may choose them."""
         return [p for p in self.parameters if p.correctable and not p.applied
                 and (p.confounded_with or not p.reason)]
 
-    def without(self, name: str) -> "CompatResult":
+    def without(self, name: str) -> CompatResult:
         """The same result with one parameter's correction not applied."""
         params = [replace(p, identifiable=False, reason="undone") if p.name == name else p
                   for p in self.parameters]
@@ -227,12 +208,12 @@ class CompatResult:
         one not applied (if plausible), 0 for one applied. The errors within the reach are centred
         there: a +0.265 deg vane bias measured as +0.257 +- 0.10 deg (2.5 standard errors, too few to
         apply) stays in the logs, and its drag, which the reach centred at 0 put 2.6 standard errors
-        away, was named "CD vs alpha, mach" on a stock-737 null (seed 5,800,160)."""
+        away, was named "CD vs alpha, mach" on a stock-737 null."""
         out = []
         for channel, error in names:
             p = self.get(f"{channel}.{error}")
             ok = not p.applied and p.estimate is not None and np.isfinite(p.estimate)
-            out.append(float(p.estimate) if ok and abs(p.estimate) <= PLAUSIBLE[p.unit] else 0.0)
+            out.append(float(p.estimate) if ok and abs(p.estimate) <= _plausible(p) else 0.0)
         return np.array(out)
 
     def value(self, name: str) -> float:
@@ -272,7 +253,7 @@ class CompatResult:
                 continue
             mark = ("  applied" + (f" ({p.chosen})" if p.chosen else "") if p.applied else
                     f"  {p.reason}" if p.reason else
-                    "  implausible, not applied" if abs(p.estimate) > PLAUSIBLE[p.unit] else "")
+                    "  implausible, not applied" if abs(p.estimate) > _plausible(p) else "")
             how = "; ".join(f"{k} {e:+.4g} +- {se:.2g}" for k, (e, se) in p.sources.items())
             whole = (f"  [each log left out, the whole estimate again; one-step jackknife +- {p.se_one_step:.2g}]"
                      if np.isfinite(p.se_one_step) else "")
@@ -312,6 +293,11 @@ class CompatResult:
         meta = {**log.meta, "corrections": {p.name: p.estimate for p in self.applied},
                 "positions_corrected": positions}
         return replace(log, data=pd.DataFrame(d, index=log.data.index), meta=meta)
+
+
+def _plausible(p: Parameter) -> float:
+    """The largest plausible error of ``p``'s unit (its settings')."""
+    return p.settings.plausible[p.unit]
 
 
 def documented_positions(logs: list[Log]) -> dict:

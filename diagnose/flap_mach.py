@@ -1,12 +1,12 @@
 """Settings the conditions flown never vary apart: the flap angle and the Mach number each condition sets.
 
 Join each flap angle to the Mach numbers it is flown at. Where that splits the conditions into two
-groups or more that share neither a flap angle nor a Mach number (our 737's benchmark matrix flew flap
-30 at Mach 0.2 only and flap 0 at Mach 0.3 to 0.5), the flap angle is a function of Mach over the data:
+groups or more that share neither a flap angle nor a Mach number (a matrix that flies flap 30 at Mach 0.2
+only and flap 0 at Mach 0.3 to 0.5), the flap angle is a function of Mach over the data:
 an effect of the flap angle fits as one of Mach, and an effect of Mach that is one level over each
 group's Mach numbers fits as the flap's. The diagnosis names one of them by what the other lacks, and
-the data cannot say which: effects in Mach 3.6 to 28 times their floor were named "CL vs flap_deg" or
-"Cm vs flap_deg" on four seeds of the detection curve before its matrix flew flap 30 at Mach 0.3 too.
+the data cannot say which: on such a matrix, effects in Mach 3.6 to 28 times their floor were named
+"CL vs flap_deg" or "Cm vs flap_deg" in four simulated cases.
 Within one group no effect of either is a function of the other, unless it is one level over the group.
 """
 from __future__ import annotations
