@@ -70,6 +70,9 @@ def test_the_readme_s_commands_are_found_and_their_files_exist():
     text = (ROOT / "README.md").read_text()
     cmds = check.commands(text)
     assert cmds[0].startswith("python3 -m venv .venv") and cmds[0].endswith("campaign run --jobs 2"), cmds[0]
+    python = [c for c in cmds if c.startswith("python - <<")]
+    assert len(python) == 1 and "import gearaero" in python[0]  # the Python example runs too
+    cmds = [c for c in cmds if c not in python]
     names = {shlex.split(c)[0] for c in cmds[1:]}
     assert names <= {".", "campaign"}, names
     subcommands = {shlex.split(c)[1] for c in cmds if c.startswith("campaign ")}
@@ -88,4 +91,4 @@ def test_the_commands_parser_joins_continuations_and_skips_what_is_marked():
     check = _load(ROOT / ".ci" / "readme_check.py", "readme_check")
     text = ("x\n```sh\n# a comment\ncampaign run \\\n    --jobs 2\n\ncampaign report r\n```\n"
             f"{check.SKIP} (why) -->\n```sh\ncampaign points\n```\n```python\nprint(1)\n```\n")
-    assert check.commands(text) == ["campaign run --jobs 2", "campaign report r"]
+    assert check.commands(text) == ["campaign run --jobs 2", "campaign report r", "python - <<'PYTHON'\nprint(1)\nPYTHON"]
