@@ -321,7 +321,7 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
                 or not cause.size > cause.verdict["noise_floor"]):
             continue
         for a in rc["alternatives"]:
-            if a.get("unmeasured") or a["explains_pct"] < s.agree_pct:
+            if a.get("unmeasured") or a.get("declared") or a["explains_pct"] < s.agree_pct:
                 continue
             p = compat.get(f"{a['channel']}.{a['error']}")
             # a cause that would need a correction the kinematics rule out is some other cause's

@@ -351,6 +351,60 @@ class DiagnosisSettings:
         "between 2 and 3 (a miss at 2.72, a hit at 2.18); an A320 drag step in the elevator named \"CD vs "
         "mach\" from fitted logs that fly it as a function of Mach left 25.4.")
 
+    # ---- measured data (logs not flown by a campaign)
+    default_accuracy: dict = field(default_factory=lambda: {
+        "alt_ft": {"noise": 2.0, "bias": 20.0, "scale": 0.005, "delay_s": 0.1},
+        "tas_kt": {"noise": 0.3, "bias": 2.0, "scale": 0.01, "delay_s": 0.1},
+        "alpha_deg": {"noise": 0.05, "bias": 0.3, "scale": 0.03, "delay_s": 0.05},
+        "beta_deg": {"noise": 0.05, "bias": 0.3, "scale": 0.03, "delay_s": 0.05},
+        "theta_deg": {"noise": 0.02, "bias": 0.1, "scale": 0.005, "delay_s": 0.02},
+        "phi_deg": {"noise": 0.02, "bias": 0.1, "scale": 0.005, "delay_s": 0.02},
+        "p_dps": {"noise": 0.05, "bias": 0.1, "scale": 0.01, "delay_s": 0.02},
+        "q_dps": {"noise": 0.05, "bias": 0.1, "scale": 0.01, "delay_s": 0.02},
+        "r_dps": {"noise": 0.05, "bias": 0.1, "scale": 0.01, "delay_s": 0.02},
+        "ax_fps2": {"noise": 0.03, "bias": 0.1, "scale": 0.005, "delay_s": 0.02},
+        "ay_fps2": {"noise": 0.03, "bias": 0.1, "scale": 0.005, "delay_s": 0.02},
+        "az_fps2": {"noise": 0.03, "bias": 0.1, "scale": 0.005, "delay_s": 0.02},
+        "thrust_lbf": {"scale": 0.05},
+        "elevator_deg": {"noise": 0.05, "bias": 0.2, "scale": 0.02, "delay_s": 0.02},
+        "stabilizer_deg": {"noise": 0.02, "bias": 0.1, "scale": 0.02}}, metadata=doc(
+        "channel unit, -, s",
+        "The instruments' accuracy the diagnosis takes for measured data (a log ``campaign import`` or "
+        "``log_from_frame`` made) on a channel whose map declares none (``[accuracy]``): white noise "
+        "(1 sigma), and the largest bias, scale-factor error and delay. The noise floor draws each channel's "
+        "noise at the larger of this and the logs' own estimate; every error the data compatibility did not "
+        "measure may be this large (:mod:`diagnose.accuracy`).",
+        "A stated conservative default, not a measurement: typical specifications of a transport aircraft's "
+        "flight-test instrumentation (air-data vanes calibrated to 0.3 deg and 3 %, attitude and rate gyros, "
+        "servo accelerometers of 0.003 g, an engine deck's thrust to 5 %), at the loose end. On the DLR ATTAS "
+        "and HFB-320 records the logs' own white-noise estimates are 3 to 10 times smaller (alpha 0.005 deg on "
+        "ATTAS): a floor from them alone holds none of the coloured noise and unmodelled dynamics of real data."))
+    finding_plausible: dict = field(default_factory=lambda: {
+        "scale": 0.2, "delay": 0.5, "deg": 3.0, "deg/s": 1.0, "ft/s^2": 1.0, "kt": 10.0, "ft": 100.0}, metadata=doc(
+        "-, s, channel unit",
+        "A sensor cause is named only within what an instrument of its kind can be off: a scale-factor error "
+        "within +-20 %, a delay under 0.5 s, a bias within these per unit (a vane a few degrees). Beyond, the "
+        "estimate is reported as a reading the data do not support (an engine deck 225 % wrong is not a "
+        "measurement: the thrust's signature stands in for something else).",
+        "Physical bounds, not fitted: the largest errors of installed, calibrated flight-test instruments."))
+    flown_together_corr: float = setting(
+        0.9, "-",
+        "Two candidate variables whose correlation over the fitted samples is at least this (in magnitude) are "
+        "flown together: a cause in one of them is \"confounded\", its reading in the other beside it as a "
+        "rival (a slow deceleration moves alpha and Mach together), and ``campaign plan`` designs the flight "
+        "that separates them.",
+        "On the paper matrix through the flight-test profile the largest correlation between alpha and Mach "
+        "is 0.34, between the elevator and the stabilizer 0.05; a level deceleration gives 0.99. The ATTAS "
+        "elevator records give 0.94 between the elevator and the stabilizer trim (the stabilizer too little "
+        "excited to be a candidate there).")
+    held_out_worse: float = setting(
+        0.95, "-",
+        "A cause is not named if its terms make its coefficient's residual on the held-out logs worse: the "
+        "residual RMS without its terms (the coefficient's other terms refitted) over the RMS with them below "
+        "this. The held-out logs are the test of an extension; one that makes them worse is not a finding.",
+        "A tolerance for a cause that does not act in the held-out logs (a ratio of 1 less what the refitted "
+        "offset moves); on the hidden-effect tests of the suite no named cause falls below 0.99.")
+
     # ---- the data compatibility
     compat: CompatSettings = field(default_factory=CompatSettings)
 

@@ -31,8 +31,10 @@ from __future__ import annotations
 from functools import cache
 from types import SimpleNamespace
 
+import numpy as np
 import pandas as pd
 
+from diagnose.accuracy import Instrumentation, instrumentation
 from diagnose.arbitration import (
     arbitrate,
     compat_causes,
@@ -56,7 +58,9 @@ from diagnose.separation import (
 )
 from diagnose.stepwise import Lags, candidate_gram, refit, stepwise
 from diagnose.terms import candidate_terms, sensor_of
-from diagnose.verdict import contribution, judge, rank
+from diagnose.held_out import worse_on_held_out
+from diagnose.together import confounded_note, flown_together
+from diagnose.verdict import contribution, implausible, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
 
@@ -152,12 +156,32 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
         return _diagnose(logs, evaluator, held, step, compatibility, jobs, progress, s)
 
 
+def _reach_of(compat, instruments: Instrumentation, logs: list[Log], reach_se: float):
+    """The instrument errors the reach and the floor's instrument realizations draw: those the data
+    compatibility left uncertain, and (measured data) the specified errors it did not measure
+    (:meth:`diagnose.accuracy.Instrumentation.unmeasured`); what the logs hold of each as measured; and the
+    errors it could not measure that no specification bounds. Returns ``(uncertain, left, unmeasured,
+    declared)``, the last those of ``uncertain`` the specification bounds."""
+    names, cov = compat.uncertainty(reach_se) if compat else ([], np.zeros((0, 0)))
+    left = list(compat.left_in_logs(names)) if compat else []
+    present = set().union(*(set(lg.data.columns) for lg in logs)) if logs else set()
+    extra, extra_cov = instruments.unmeasured(list(names), present, reach_se)
+    unmeasured = [u for u in (compat.unmeasured if compat else ()) if u not in extra]
+    if not names and not extra:
+        return None, None, unmeasured, []
+    total = np.zeros((len(names) + len(extra),) * 2)
+    total[:len(names), :len(names)] = cov
+    total[len(names):, len(names):] = extra_cov
+    return (list(names) + extra, total), np.array(left + [0.0] * len(extra)), unmeasured, extra
+
+
 def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,
               progress, s: DiagnosisSettings) -> Diagnosis:
     """:func:`diagnose` within its settings ``s``."""
     stage = progress or (lambda name: None)
     evaluator.jobs = jobs
     corrected = Corrected(logs, held, evaluator, step)
+    instruments = instrumentation(list(logs) + list(held))
     stage("data compatibility")
     compat = estimate(corrected.train, jobs=jobs, settings=s.compat) if compatibility else None
     if compat is not None:
@@ -169,7 +193,7 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
         stage("residuals")
         data = corrected.residuals(compat)
         held_data = corrected.residuals(compat, held=True, wait=jobs <= 1) if held else None
-        noise = channel_noise(logs + held)
+        noise = instruments.noise(channel_noise(logs + held))
         # the workers compute the held-out residuals and then the sensitivities beside the stepwise search
         # (once per correction: a later pass of the same one reads them)
         sensitivities = corrected.once(("model sensitivities", compat.correction_key() if compat else None),
@@ -194,10 +218,9 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
                 held_data = held_data() if callable(held_data) else held_data
                 if jobs > 1:
                     sensitivities()  # wanted or not: the workers are then free for what comes next
-                uncertain = compat.uncertainty(s.reach_se) if compat else None
+                uncertain, left, unmeasured, declared = _reach_of(compat, instruments, logs, s.reach_se)
                 floor = (NoiseFloor(logs, evaluator, noise, step, s.noise_realizations, uncertain=uncertain,
-                                    left=compat.left_in_logs(uncertain[0]) if compat else None,
-                                    unmeasured=compat.unmeasured if compat else (), jobs=jobs,
+                                    left=left, unmeasured=unmeasured, jobs=jobs, declared=declared,
                                     sensitivities=sensitivities) if causes else None)
                 data_all = pd.concat([_conditions(data, logs)]
                                      + ([_conditions(held_data, held, len(logs))] if held else []), ignore_index=True)
@@ -270,13 +293,28 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
     # confirmed on held-out conditions first, then the largest: an error in lift shows in drag through
     # the polar too, smaller than in lift
     causes.sort(key=lambda c: rank(c.verdict))
+    for c in sensors + causes:  # a sensor error no instrument of its kind makes is no finding
+        why = implausible(c) if c.verdict["accepted"] else ""
+        if why:
+            c.verdict.update(accepted=False, reason=why, implausible=True)
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
     rejected = [c for c in sensors + causes if not c.verdict["accepted"]] + [c for c, _ in p.fallen]
-    for c in COEFFS:
-        keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
-        if len(keep) != len(results[c].terms):
-            results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
+    for _ in range(s.drop_rounds + 1):  # the accepted causes' fits; a cause that worsens held-out data goes
+        for c in COEFFS:
+            keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
+            if len(keep) != len(results[c].terms):
+                results[c] = refit(results[c], [t for t in results[c].terms if t in keep], data)
+        worse = worse_on_held_out(accepted, results, data, held_data)
+        if not worse:
+            break
+        accepted = [c for c in accepted if c not in worse]
+        rejected += worse
+    pairs = flown_together(data)
+    for c in accepted + rejected:
+        note = confounded_note(c, pairs, s.settled_se) if c.kind == "aero" else None
+        if note:
+            c.evidence["confounded"] = note
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
     corrected.forget()
     return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
-                     logs, held, rivals, kept_whole, s)
+                     logs, held, rivals, kept_whole, s, instruments, pairs)

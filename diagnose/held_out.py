@@ -72,3 +72,39 @@ def told_text(check: dict) -> list[str]:
             f"{v['fitted_worst_log']}): a discrepancy the causes named do not carry acts there (the fitted conditions may "
             f"fly it as a function of another variable, or it acts at the held-out condition alone)"
             for c, v in check.items() if v["told"]]
+
+
+def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataFrame) -> float:
+    """The held-out logs' residual RMS of the cause's coefficient without the cause's terms (the others
+    refitted on ``data``) over the RMS with them [-]: below 1, the cause makes the held-out data worse."""
+    import numpy as np
+
+    from diagnose.stepwise import refit
+    y = held[f"r_{res.coefficient}"].to_numpy()
+    ok = np.isfinite(y)
+    without = refit(res, [t for t in res.terms if t not in cause.terms], data)
+    before = float(np.sqrt(np.mean((y - without.predict(held))[ok] ** 2)))
+    after = float(np.sqrt(np.mean((y - res.predict(held))[ok] ** 2)))
+    return before / after if after > 0 else float("inf")
+
+
+def worse_on_held_out(causes: list, results: dict[str, StepwiseResult], data: pd.DataFrame,
+                      held: pd.DataFrame | None) -> list:
+    """The accepted aerodynamic causes whose terms make their coefficient's held-out residual worse by the
+    settings' ``held_out_worse`` (:func:`held_out_gain`): each gets ``accepted`` false, the reason and
+    ``held_out_worse`` in its verdict, and is returned. ``results`` must hold the accepted causes' fits."""
+    if held is None or not len(held):
+        return []
+    s = current()
+    out = []
+    for c in causes:
+        if c.kind != "aero" or not c.verdict.get("accepted") or not set(c.terms) <= set(results[c.coefficient].terms):
+            continue
+        gain = held_out_gain(c, results[c.coefficient], data, held)
+        c.verdict["held_out_logs_gain"] = gain
+        if gain < s.held_out_worse:
+            c.verdict.update(accepted=False, held_out_worse=True,
+                             reason=f"makes the held-out logs' {c.coefficient} worse (residual RMS x{gain:.3f} with "
+                                    f"it, needs x{s.held_out_worse:g} at least)")
+            out.append(c)
+    return out

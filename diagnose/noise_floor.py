@@ -250,11 +250,14 @@ class NoiseFloor:
         Worker processes the realizations are spread over (they need no JSBSim).
     sensitivities : callable, optional
         :func:`model_sensitivities` of these logs, evaluator and noise, started earlier.
+    declared : iterable of (channel, error)
+        Those of ``uncertain`` that the instruments' specification bounds and the data compatibility did
+        not measure (:mod:`diagnose.accuracy`): their alternatives in :meth:`reach` say so.
     """
 
     def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
                  realizations: int | None = None, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
-                 sensitivities=None, left=None) -> None:
+                 sensitivities=None, left=None, declared=()) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
         self.ref = evaluator.reference
@@ -263,6 +266,7 @@ class NoiseFloor:
         self.uncertain = [names[j] for j in ok]
         self.uncertain_cov = cov[np.ix_(ok, ok)]
         self.uncertain_left = np.zeros(len(ok)) if left is None else np.asarray(left, float)[ok]
+        self.declared = set(declared)  # (channel, error) bounded by the instruments' specification, not measured
         self.noise = {ch: s for ch, s in noise.items() if s > 0}
         self.realizations = current().noise_realizations if realizations is None else realizations
         self.seed = seed
@@ -551,7 +555,8 @@ class NoiseFloor:
                     left = float(self.uncertain_left[j])
                     alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k - left / se[j],
                                  "se": float(se[j]), "left": left, "explains_pct": share,
-                                 "channel_left_se": self.channel_left_se(ch)})
+                                 "channel_left_se": self.channel_left_se(ch),
+                                 **({"declared": True} if (ch, err) in self.declared else {})})
             for ch, err, r in blind:  # errors the data compatibility could not measure: no standard error
                 k, share = alone(through_terms(r[f"r_{c}"].to_numpy()[:, None])[:, 0])
                 alts.append({"channel": ch, "error": err, "needs": k * unit[err], "needs_se": 0.0,

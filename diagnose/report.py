@@ -28,7 +28,9 @@ def document(diag: Diagnosis, data: dict, model: str) -> dict:
             "noise_estimated": diag.noise,
             "data_compatibility": diag.compat.to_dict() if diag.compat else None,
             "unset_inputs": [{"property": u.name, "held_at": u.value} for u in diag.unset],
-            "flown_together": diag.together, "held_out_check": diag.held_out_check,
+            "flown_together": diag.together, "moved_together": diag.moved_together,
+            "instrument_accuracy": diag.instruments.to_dict() if diag.instruments else None,
+            "held_out_check": diag.held_out_check,
             "rivals": diag.rivals, "whole_readings": diag.whole_readings, "data": data, "model": model,
             "plotted_logs": [], "settings": diag.settings.to_dict()}
 

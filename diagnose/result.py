@@ -6,11 +6,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from diagnose.accuracy import Instrumentation
 from diagnose.causes import Cause
 from diagnose.config import DiagnosisSettings, using
 from diagnose.flap_mach import flown_together, level_share
 from diagnose.held_out import held_out_check, told_text
 from diagnose.stepwise import StepwiseResult
+from diagnose.together import confounded_text
 from diagnose.verdict import rank
 from identify.compat import CompatResult
 
@@ -63,6 +65,10 @@ class Diagnosis:
         coefficients searched again without splitting and read whole.
     settings : DiagnosisSettings
         The decision thresholds it was made with; its text and checks read them too.
+    instruments : Instrumentation or None
+        The instruments' accuracy it took (:func:`diagnose.accuracy.instrumentation`).
+    moved_together : list of dict
+        Candidate variables the fitted logs move together (:func:`diagnose.together.flown_together`).
     """
 
     data: pd.DataFrame
@@ -79,6 +85,8 @@ class Diagnosis:
     rivals: list = field(default_factory=list)
     whole_readings: dict = field(default_factory=dict)
     settings: DiagnosisSettings = field(default_factory=DiagnosisSettings)
+    instruments: Instrumentation | None = None
+    moved_together: list = field(default_factory=list)
 
     @property
     def discrepancy(self) -> bool:
@@ -156,9 +164,16 @@ class Diagnosis:
                 f"{p.name} {p.estimate:+.4g} +- {p.se:.2g} {p.unit}" for p in self.compat.applied))
         if self.unset:
             lines.append("Not set from the logs (held, as in level flight): " + ", ".join(map(str, self.unset)))
+        if self.instruments is not None and self.instruments.source != "estimated":
+            lines.append(f"Instrument accuracy: {self.instruments.text()}.")
         together = self.together
         if together:
             lines.append(f"Caution: {together['text']}.")
+        for pair in self.moved_together:
+            a, b = pair["variables"]
+            lines.append(f"Caution: {a} and {b} flown together (correlation {pair['corr']:+.2f} over the fitted "
+                         f"samples): an effect of one fits as one of the other; a cause in either is confounded, "
+                         f"its reading in the other beside it")
         if not self.causes and not self.unconfirmed:
             lines.append("No significant discrepancy.")
             big = self.largest_rejected()
@@ -200,6 +215,8 @@ class Diagnosis:
                             if np.isfinite(v.get("replicate_gain_where_departs", np.nan)) else ""))
             note = self._level_note(c, together) if together else ""
             lines += [note] if note else []
+            if e.get("confounded"):
+                lines.append(confounded_text(e["confounded"]))
             rivals = {(r["term"] or r["rival"]): r for r in e.get("rivals", [])}
             settled = {k: r for k, r in rivals.items() if r["separation_se"] >= self.settings.settled_se}
             for a in e.get("hardly_separated_from", []):
@@ -214,6 +231,11 @@ class Diagnosis:
                                  f"{a['explains_pct']:.0f} % of it in {c.coefficient} alone; fitted to CL, CD, Cm and "
                                  f"the data compatibility together, these data reject it at {r['separation_se']:.1f} "
                                  f"standard errors ({_where(r)} of the evidence)")
+                    continue
+                if a.get("declared"):
+                    lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "
+                                 f"{a['explains_pct']:.0f} % of it; the data compatibility did not measure that error, "
+                                 f"and the instruments' accuracy allows it (up to {a['se'] * self.settings.reach_se:.3g})")
                     continue
                 if a.get("unmeasured"):
                     lines.append(f"   or a sensor: {a['channel']} {a['error']} {a['needs']:+.3g} would make "

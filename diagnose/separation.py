@@ -33,6 +33,7 @@ from diagnose.state_twins import (
     widened,
 )
 from diagnose.terms import Term, tail_twin
+from diagnose.together import flown_together, in_partner
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
 #: units, scale [-], delay [s]); the signature is linear in it (the model's answer is linearised).
@@ -327,6 +328,7 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     a rival is refined alike if it can be, on ``data``: a Cm table in alpha on the stock 737, 25.8 times
     its floor, was named "Cm vs CL" when smooth(CL), refined, met smooth(alpha) unrefined."""
     out = []
+    pairs = flown_together(data) if data is not None else []  # a variable flown with another: that one too
     for a in alternatives:
         out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
                               prior=compat_prior(compat, a["channel"], a["error"])))
@@ -335,7 +337,8 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
         twin = in_alpha(t, pool)  # always rivals: they fit alike (``state_se``)
         states = (([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
-                  + in_alpha_for_mach(t, pool))
+                  + in_alpha_for_mach(t, pool) + (in_partner(t, pool, pairs) if pairs else []))
+        states = list(dict.fromkeys(states))
         for r in close + [u for u in states if u not in close]:
             if r is None:
                 continue

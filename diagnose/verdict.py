@@ -375,3 +375,21 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
                          "holdout_logs": acting, "size_over_floor": beyond / floor,
                          "explains_pct": cause.evidence.get("rss_reduction_pct", 0.0), "replicate_gain": replicate,
                          "replicate_gain_where_departs": departs}
+
+
+def implausible(cause: Cause) -> str:
+    """Why a sensor cause's estimate is beyond what an instrument of its kind can be off (the settings'
+    ``finding_plausible``: a scale factor, a delay, a bias by its unit), or "" if it is within; the cause's
+    verdict is then refused with that reason (a reading the data do not support, not a measurement)."""
+    if cause.kind != "sensor" or cause.estimate is None or not np.isfinite(cause.estimate):
+        return ""
+    bounds = current().finding_plausible
+    unit = cause.verdict.get("unit", "")
+    key = cause.error if cause.error in ("scale", "delay") else unit
+    bound = bounds.get(key)
+    if bound is None or abs(cause.estimate) <= bound:
+        return ""
+    shown = (f"{100 * cause.estimate:+.1f} %" if cause.error == "scale" else f"{cause.estimate:+.3g} {unit or 's'}")
+    limit = f"+-{100 * bound:g} %" if cause.error == "scale" else f"+-{bound:g} {unit or 's'}"
+    return (f"a {cause.channel} {cause.error} of {shown} is beyond what an instrument of its kind can be off "
+            f"({limit}): a reading the data do not support, not a measurement")

@@ -51,12 +51,19 @@ def _number(key: str, value, positive: bool = False) -> float:
     return x
 
 
+def _accuracy_value(path: str, where: str, value, unit: str) -> float:
+    """An accuracy number given from Python: in the channel's unit (``scale`` [-], ``delay`` [s])."""
+    return _number(where, value)
+
+
 def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slugft2: float,
                    mass_slug: float | None = None, ixx_slugft2: float = 0.0, izz_slugft2: float = 0.0,
                    ixz_slugft2: float = 0.0, b_ft: float = 0.0, thrust_z_arm_ft: float = 0.0,
                    cg_x_in: float | None = None, cg_z_in: float | None = None, aerorp_x_in: float | None = None,
                    aerorp_z_in: float | None = None, latitude_deg: float | None = None,
-                   sensor_positions_ft: dict[str, Iterable[float]] | None = None, name: str | None = None,
+                   gravity_fps2: float | None = None,
+                   sensor_positions_ft: dict[str, Iterable[float]] | None = None,
+                   instrument_accuracy: dict[str, dict[str, float]] | None = None, name: str | None = None,
                    maneuver: str | None = None) -> Log:
     """A measured log from a pandas DataFrame in the log schema, checked as a file's would be.
 
@@ -88,10 +95,19 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
         CG and aerodynamic reference point, structural frame [in]; without them the moments are
         taken about the CG.
     latitude_deg : float, optional
-        Latitude [deg], for the gravity of the data compatibility.
+        Latitude [deg]: the data compatibility's Earth rate, and the local gravity (WGS84 normal gravity
+        at the log's mean altitude) when ``gravity_fps2`` is not given.
+    gravity_fps2 : float, optional
+        Local gravity [ft/s^2], 9.7 to 9.9 m/s^2; without it and without a latitude the standard
+        32.174 ft/s^2.
     sensor_positions_ft : dict, optional
         Channel -> documented position ``[x, y, z]`` from the CG, body axes [ft] (``alpha_deg``,
         ``beta_deg``, ``ax_fps2``, ``ay_fps2``, ``az_fps2``).
+    instrument_accuracy : dict, optional
+        Channel -> the instrumentation's specified accuracy: ``noise`` (1 sigma) and ``bias`` (largest)
+        in the channel's unit, ``scale`` (largest scale-factor error) [-], ``delay`` (largest) [s], as an
+        import map's ``[accuracy]`` gives it. The diagnosis draws its noise floor and the instrument
+        errors' reach from it; without it, measured data get a stated conservative default.
     name : str, optional
         The log's name: its status point's id, and the stem of its file (``log.path`` is
         ``<name>.parquet``, the file :func:`write_logs` writes). By default
@@ -116,7 +132,8 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
         One line naming the key, column or row: a missing column or key, a value that is not a
         finite number or lies outside the plausible range of its unit.
     """
-    from campaign.importing.importer import schema_log
+    from campaign.importing.declared import check_gravity, parse_accuracy
+    from campaign.importing.importer import schema_log, schema_unit
     from campaign.simulation.catalog import LOG_COLUMNS
     from campaign.simulation.instruments import POSITIONED
     from identify.logs import checked
@@ -166,7 +183,12 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
         raise UserError(f"log_from_frame: maneuver: expected a manoeuvre's name, found {maneuver!r}")
     if name is not None and (not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", name)):
         raise UserError(f"log_from_frame: name: {name!r}: letters, digits, '_', '.' and '-' only")
-    log, meta = schema_log(name or "log", t - t[0], cols, air, positions)
+    if gravity_fps2 is not None:
+        air["gravity"] = check_gravity("log_from_frame", "gravity_fps2", _number("gravity_fps2", gravity_fps2))
+    accuracy = parse_accuracy("log_from_frame", instrument_accuracy or {}, _accuracy_value, schema_unit)
+    log, meta = schema_log(name or "log", t - t[0], cols, air, positions,
+                           extra={"imported": {"source": "a pandas DataFrame"},
+                                  **({"instrument_accuracy": accuracy} if accuracy else {})})
     if maneuver is not None:
         meta["maneuver"] = maneuver
     if name is None:

@@ -24,6 +24,8 @@ import pyarrow.parquet as pq
 
 from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
+from campaign.importing.atmosphere import air_data, isa  # noqa: F401 (isa: the plan's)
+from campaign.importing.declared import check_gravity, normal_gravity_fps2, parse_accuracy, parse_records, windows
 from campaign.importing.guard import (MAX_POSITION_FT, bounded, check_columns, check_log, check_rate, check_text,
                                       shown)
 from campaign.simulation.instruments import POSITIONED
@@ -32,8 +34,9 @@ from infra.provenance import tool
 FORMATS = {".csv": "csv", ".txt": "whitespace", ".dat": "whitespace", ".asc": "whitespace", ".mat": "mat",
            ".parquet": "parquet"}
 SECTIONS = {"source": {"format", "columns", "variable"}, "time": {"column", "unit"}, "channels": None,
-            "constants": None, "positions": None, "aircraft": {"mass", "ixx", "iyy", "izz", "ixz", "S", "cbar", "b", "thrust_z_arm",
-                                            "cg_x", "cg_z", "aerorp_x", "aerorp_z", "latitude"}}
+            "constants": None, "positions": None, "accuracy": None, "records": None,
+            "aircraft": {"mass", "ixx", "iyy", "izz", "ixz", "S", "cbar", "b", "thrust_z_arm", "cg_x", "cg_z",
+                         "aerorp_x", "aerorp_z", "latitude", "gravity"}}
 #: Our channel-name suffixes and the unit each stands for (pint spells them; pint converts).
 SUFFIX_UNITS = (("_dps2", "degree / second ** 2"), ("_dps", "degree / second"), ("_fps2", "foot / second ** 2"),
                 ("_fps", "foot / second"), ("_deg", "degree"), ("_kt", "knot"), ("_ft", "foot"),
@@ -41,7 +44,8 @@ SUFFIX_UNITS = (("_dps2", "degree / second ** 2"), ("_dps", "degree / second"), 
                 ("_norm", "dimensionless"), ("_s", "second"))
 AIRCRAFT_UNITS = {"mass": "slug", "ixx": "slug * foot ** 2", "iyy": "slug * foot ** 2", "izz": "slug * foot ** 2",
                   "ixz": "slug * foot ** 2", "S": "foot ** 2", "cbar": "foot", "b": "foot", "thrust_z_arm": "foot",
-                  "cg_x": "inch", "cg_z": "inch", "aerorp_x": "inch", "aerorp_z": "inch", "latitude": "degree"}
+                  "cg_x": "inch", "cg_z": "inch", "aerorp_x": "inch", "aerorp_z": "inch", "latitude": "degree",
+                  "gravity": "foot / second ** 2"}
 #: Schema channels eq. (1) and the states need; Mach and the dynamic pressure can be derived.
 NEEDED = ("alt_ft", "tas_kt", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps", "ax_fps2", "az_fps2",
           "thrust_lbf", "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm")
@@ -147,6 +151,8 @@ class ImportMap:
     aircraft: tuple[tuple[str, float], ...] = ()
     positions: tuple[tuple[str, tuple[float, float, float]], ...] = ()  # documented sensor positions [ft]
     units: dict = field(default_factory=dict, compare=False, hash=False)  # schema column -> source unit text
+    accuracy: dict = field(default_factory=dict, compare=False, hash=False)  # channel -> declared accuracy
+    records: tuple[float, ...] = ()  # times [s] one file is cut at into records
 
 
 def load_map(path: str | Path) -> ImportMap:
@@ -212,9 +218,11 @@ def load_map(path: str | Path) -> ImportMap:
         constants.append((col, _quantity(ps, where, value, schema_unit(col))))
     aircraft = []
     for key, value in doc.get("aircraft", {}).items():
-        unit = AIRCRAFT_UNITS[key]
-        aircraft.append((key, bounded(ps, f"aircraft.{key}", key, _quantity(ps, f"aircraft.{key}", value, unit),
-                                      unit)))
+        unit, where = AIRCRAFT_UNITS[key], f"aircraft.{key}"
+        x = _quantity(ps, where, value, unit)
+        aircraft.append((key, check_gravity(ps, where, x) if key == "gravity" else bounded(ps, where, key, x, unit)))
+    accuracy = parse_accuracy(ps, doc.get("accuracy", {}), _quantity, schema_unit)
+    records = parse_records(ps, doc["records"]) if "records" in doc else ()
     positions = []
     for col, value in doc.get("positions", {}).items():
         where = f"positions.{col}"
@@ -240,7 +248,7 @@ def load_map(path: str | Path) -> ImportMap:
         if ref not in dict(aircraft):
             raise UserError(f"{ps}: aircraft.{ref}: missing (eq. 1 needs the reference area and chord)")
     return ImportMap(ps, hashlib.sha256(raw).hexdigest(), fmt, tuple(cols), var, tim["column"], t_factor,
-                     tuple(channels), tuple(constants), tuple(aircraft), tuple(positions), units)
+                     tuple(channels), tuple(constants), tuple(aircraft), tuple(positions), units, accuracy, records)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -324,33 +332,6 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, where: str) -> np.ndarray:
         raise UserError(f"{path}: column {shown(col)}, row {bad[0] + 1}: not a finite number "
                         f"({shown(df[col].iloc[bad[0]])})")
     return values
-
-
-# ----------------------------------------------------------------------------- standard atmosphere
-
-
-def isa(alt_ft: np.ndarray):
-    """ISA pressure [Pa], temperature [K], density [kg/m^3] and speed of sound [m/s] at a
-    pressure altitude (geopotential) [ft]."""
-    from ambiance import Atmosphere
-    h_geop = np.clip(np.asarray(alt_ft, float) * 0.3048, -5000.0, 80000.0)
-    atm = Atmosphere(Atmosphere.geop2geom_height(h_geop))
-    return atm.pressure, atm.temperature, atm.density, atm.speed_of_sound
-
-
-def air_data(alt_ft: np.ndarray, tas_kt: np.ndarray) -> dict[str, np.ndarray]:
-    """Mach, calibrated airspeed [kt] and dynamic pressure [psf] from true airspeed and pressure
-    altitude, in the standard atmosphere (ISA temperature: a 10 K warmer day makes Mach 1.7 %
-    smaller)."""
-    u = ureg()
-    p, t, rho, a = isa(alt_ft)
-    v = np.asarray(tas_kt, float) * u.Quantity(1.0, "knot").to("m/s").magnitude
-    mach = v / a
-    qbar = 0.5 * rho * v ** 2 * u.Quantity(1.0, "Pa").to("force_pound / foot ** 2").magnitude
-    p0, a0 = 101325.0, 340.29398803
-    qc = p * ((1.0 + 0.2 * mach ** 2) ** 3.5 - 1.0)  # subsonic pitot impact pressure
-    cas = a0 * np.sqrt(5.0 * ((qc / p0 + 1.0) ** (2.0 / 7.0) - 1.0))
-    return {"mach": mach, "qbar_psf": qbar, "ias_kt": cas / u.Quantity(1.0, "knot").to("m/s").magnitude}
 
 
 # ----------------------------------------------------------------------------- conversion
@@ -458,11 +439,15 @@ def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dic
         **(extra or {}),
         **({"latitude_deg": air["latitude"]} if "latitude" in air else {}),
     }
+    if "gravity" in air or "latitude" in air:
+        meta["gravity_fps2"] = air["gravity"] if "gravity" in air else normal_gravity_fps2(
+            air["latitude"], float(log.alt_ft.mean()))
     return log, meta
 
 
-def convert(path: str | Path, m: ImportMap) -> Imported:
-    """One source file in the log schema, with its metadata and report entry."""
+def convert(path: str | Path, m: ImportMap) -> list[Imported]:
+    """One source file in the log schema, with its metadata and report entry: one log, or one per record
+    where the map cuts the file (``[records] split_s``), each named ``<file stem>_<k>``."""
     path = Path(path)
     df = read_source(path, m)
     t = _time(path, df, m)
@@ -479,21 +464,31 @@ def convert(path: str | Path, m: ImportMap) -> Imported:
         cols = {c: np.interp(grid, t0, x) for c, x in cols.items()}
         report["resampled"] = f"onto a uniform {1 / step:.4g} Hz grid (interval jitter {jitter:.1%})"
         t0 = grid
-    n = len(t0)
     for col, v in m.constants:
-        cols[col] = np.full(n, v)
+        cols[col] = np.full(len(t0), v)
         report["constants"][col] = v
     air = dict(m.aircraft)
     if "mass_slug" not in cols:
         report["constants"]["mass_slug"] = air["mass"]
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem)
-    log, meta = schema_log(name, t0, cols, air, m.positions, step,
-                           {"imported": {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256}})
-    report["derived"] = meta["derived_channels"]
-    report.update({"log": f"{name}.parquet", "rows": n, "rate_hz": round(1.0 / step, 4),
-                   "duration_s": round(float(t0[-1]), 3), "maneuver": meta["maneuver"],
-                   "status_point": meta["status_point"]})
-    return Imported(str(path), name, log, meta, report)
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem)
+    parts = windows(path, t0, m.records) if m.records else [np.arange(len(t0))]
+    out = []
+    for k, rows in enumerate(parts, 1):
+        name = f"{stem}_{k}" if m.records else stem
+        where = {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256,
+                 **({"record": k, "from_s": float(t0[rows[0]])} if m.records else {})}
+        log, meta = schema_log(name, t0[rows] - t0[rows[0]], {c: x[rows] for c, x in cols.items()}, air,
+                               m.positions, step, {"imported": where,
+                                                   **({"instrument_accuracy": m.accuracy} if m.accuracy else {})})
+        rep = {**report, "derived": meta["derived_channels"], "log": f"{name}.parquet", "rows": len(rows),
+               "rate_hz": round(1.0 / step, 4), "duration_s": round(float(log.t_s.iloc[-1]), 3),
+               "maneuver": meta["maneuver"], "status_point": meta["status_point"]}
+        if m.records:
+            rep["record"] = f"{k} of {len(parts)}, from {where['from_s']:g} s of the file"
+        if "gravity_fps2" in meta:
+            rep["gravity_fps2"] = meta["gravity_fps2"]
+        out.append(Imported(str(path), name, log, meta, rep))
+    return out
 
 
 def import_files(files: list[str | Path], map_path: str | Path, out: str | Path) -> dict:
@@ -511,7 +506,7 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
     m = load_map(map_path)
     if not files:
         raise UserError("campaign import: no input files")
-    done = [convert(f, m) for f in files]
+    done = [x for f in files for x in convert(f, m)]
     names = [d.name for d in done]
     dup = next((n for n in names if names.count(n) > 1), None)
     if dup:
@@ -576,4 +571,8 @@ def report_text(report: dict) -> str:
             lines.append(f"  derived: {k}: {v}")
         if "resampled" in r:
             lines.append(f"  resampled {r['resampled']}")
+        if "record" in r:
+            lines.append(f"  record {r['record']}")
+        if "gravity_fps2" in r:
+            lines.append(f"  local gravity {r['gravity_fps2']:.5g} ft/s^2 ({r['gravity_fps2'] * 0.3048:.5g} m/s^2)")
     return "\n".join(lines) + "\n"

@@ -1,0 +1,99 @@
+"""Candidate variables the fitted logs move together: a cause in one of them is confounded with the other.
+
+In a slow deceleration alpha rises as Mach falls; over such data a lift effect in alpha fits as one in Mach,
+and the search names whichever its terms happen to favour. Two candidate variables whose correlation over
+the fitted samples reaches ``flown_together_corr`` (:class:`diagnose.config.DiagnosisSettings`) are flown
+together: each cause in one of them gets its reading in the other as a rival
+(:func:`diagnose.separation.rival_hypotheses`), which ``campaign plan`` designs the flights to separate, and
+is marked confounded in the report. The flap angle and Mach, set per condition, have their own test
+(:mod:`diagnose.flap_mach`).
+"""
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+import pandas as pd
+
+from diagnose.config import current
+from diagnose.terms import Term
+
+#: The continuous variables tested: the flow states, the pitch controls and the pitch rate.
+TESTED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad")
+
+
+def flown_together(data: pd.DataFrame, corr: float | None = None) -> list[dict]:
+    """The pairs of candidate variables the fitted samples move together.
+
+    Parameters
+    ----------
+    data : DataFrame
+        The fitted logs' residual data (the variables as columns).
+    corr : float, optional
+        The correlation that makes a pair (None: the settings' ``flown_together_corr``).
+
+    Returns
+    -------
+    list of dict
+        ``variables`` (the pair), ``corr`` (their correlation over the samples [-]); strongest first. A
+        variable that varies less than its ``min_std`` is no candidate and makes no pair.
+    """
+    s = current()
+    corr = s.flown_together_corr if corr is None else corr
+    live = [v for v in TESTED if v in data and float(data[v].std()) >= s.min_std.get(v, 0.0)]
+    out = []
+    for a, b in combinations(live, 2):
+        x, y = data[a].to_numpy(float), data[b].to_numpy(float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        if ok.sum() < 3:
+            continue
+        r = float(np.corrcoef(x[ok], y[ok])[0, 1])
+        if np.isfinite(r) and abs(r) >= corr:
+            out.append({"variables": [a, b], "corr": r})
+    return sorted(out, key=lambda p: -abs(p["corr"]))
+
+
+def partners(variable: str, pairs: list[dict]) -> list[str]:
+    """The variables flown together with ``variable``."""
+    return [v for p in pairs if variable in p["variables"] for v in p["variables"] if v != variable]
+
+
+def in_partner(term: Term, pool: list[Term], pairs: list[dict]) -> list[Term]:
+    """The candidates of ``pool`` that are ``term`` with one of its variables replaced by a variable flown
+    together with it (the same kind of term), none if no variable of the term has a partner."""
+    out = []
+    for v in term.variables:
+        for u in partners(v, pairs):
+            if u in term.variables:
+                continue
+            want = tuple(u if w == v else w for w in term.variables)
+            same = [t for t in pool if t.kind == term.kind and (t.variables == want or (
+                t.kind == "product" and sorted(t.variables) == sorted(want)))]
+            out += [t for t in same[:1] if t not in out]
+    return out
+
+
+def confounded_note(cause, pairs: list[dict], settled_se: float) -> dict | None:
+    """What ``diagnosis.json`` says of a cause in a variable flown together with another: the pairs, and
+    its rivals in the partner with their separation [standard errors]; None if no variable of the cause
+    has a partner."""
+    mine = [p for p in pairs if set(p["variables"]) & set(cause.variables)]
+    if not mine:
+        return None
+    others = {u for v in cause.variables for u in partners(v, mine)} - set(cause.variables)
+    rivals = [r for r in cause.evidence.get("rivals", []) if r.get("kind") == "aero" and r.get("term")
+              and any(u in r["term"] for u in others)]
+    return {"pairs": mine, "rivals": [{"rival": r["rival"], "separation_se": r["separation_se"]} for r in rivals],
+            "settled": bool(rivals) and all(r["separation_se"] >= settled_se for r in rivals)}
+
+
+def confounded_text(note: dict) -> str:
+    """The report's caution for a confounded cause."""
+    pairs = "; ".join(f"{' and '.join(p['variables'])} (correlation {p['corr']:+.2f})" for p in note["pairs"])
+    if note["rivals"]:
+        best = min(note["rivals"], key=lambda r: r["separation_se"])
+        how = (f"its reading {best['rival']} is {best['separation_se']:+.1f} standard errors behind"
+               + ("" if note["settled"] else " (`campaign plan` designs the flight that separates them)"))
+    else:
+        how = "no reading in the other variable could be fitted in its place"
+    return f"   confounded: the fitted logs fly {pairs} together: {how}"
