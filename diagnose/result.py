@@ -12,7 +12,7 @@ from diagnose.config import DiagnosisSettings, using
 from diagnose.flap_mach import flown_together, level_share
 from diagnose.held_out import held_out_check, told_text
 from diagnose.stepwise import StepwiseResult
-from diagnose.together import confounded_text
+from diagnose.together import clusters, confounded_text
 from diagnose.verdict import rank
 from identify.compat import CompatResult
 
@@ -169,11 +169,12 @@ class Diagnosis:
         together = self.together
         if together:
             lines.append(f"Caution: {together['text']}.")
-        for pair in self.moved_together:
-            a, b = pair["variables"]
-            lines.append(f"Caution: {a} and {b} flown together (correlation {pair['corr']:+.2f} over the fitted "
-                         f"samples): an effect of one fits as one of the other; a cause in either is confounded, "
-                         f"its reading in the other beside it")
+        for group in clusters(self.moved_together):
+            corr = ", ".join(f"{p['variables'][0]}/{p['variables'][1]} {p['corr']:+.2f}" for p in self.moved_together
+                             if set(p["variables"]) <= set(group))
+            lines.append(f"Caution: {', '.join(group[:-1])} and {group[-1]} flown together over the fitted logs "
+                         f"(correlation {corr}): an effect of one fits as one of the other; a cause in one is "
+                         f"confounded, its reading in the other beside it as a rival")
         if not self.causes and not self.unconfirmed:
             lines.append("No significant discrepancy.")
             big = self.largest_rejected()

@@ -75,25 +75,47 @@ def in_partner(term: Term, pool: list[Term], pairs: list[dict]) -> list[Term]:
 
 def confounded_note(cause, pairs: list[dict], settled_se: float) -> dict | None:
     """What ``diagnosis.json`` says of a cause in a variable flown together with another: the pairs, and
-    its rivals in the partner with their separation [standard errors]; None if no variable of the cause
-    has a partner."""
+    its readings in the partner (rivals whose terms are the cause's variables with one swapped for a
+    variable flown with it) with their separation [standard errors]; None if no variable of the cause has
+    a partner."""
     mine = [p for p in pairs if set(p["variables"]) & set(cause.variables)]
     if not mine:
         return None
-    others = {u for v in cause.variables for u in partners(v, mine)} - set(cause.variables)
-    rivals = [r for r in cause.evidence.get("rivals", []) if r.get("kind") == "aero" and r.get("term")
-              and any(u in r["term"] for u in others)]
-    return {"pairs": mine, "rivals": [{"rival": r["rival"], "separation_se": r["separation_se"]} for r in rivals],
-            "settled": bool(rivals) and all(r["separation_se"] >= settled_se for r in rivals)}
+    own = set(cause.variables)
+    rivals = []
+    for r in cause.evidence.get("rivals", []):
+        if r.get("kind") != "aero" or not r.get("term"):
+            continue
+        used = {v for p in mine for v in p["variables"] if v in r["term"]}
+        swapped = any(u not in own and v in own and v not in r["term"] for p in mine
+                      for u, v in (p["variables"], p["variables"][::-1]) if u in used)
+        if swapped:
+            width = sum(v in r["term"] for v in (*TESTED, "CL", "flap_deg", "gear_norm", "adothat_rad"))
+            rivals.append({"rival": r["rival"], "separation_se": r["separation_se"], "variables": width})
+    rivals.sort(key=lambda r: (r["variables"], r["separation_se"]))  # the plainest reading first
+    for r in rivals:
+        r["settled"] = r["separation_se"] >= settled_se
+    return {"pairs": mine, "rivals": rivals, "settled": bool(rivals) and all(r["settled"] for r in rivals)}
+
+
+def clusters(pairs: list[dict]) -> list[list[str]]:
+    """The variables of ``pairs`` in groups that move together (pairs sharing a variable joined)."""
+    out: list[set[str]] = []
+    for p in pairs:
+        joined = [g for g in out if g & set(p["variables"])]
+        out = [g for g in out if g not in joined] + [set(p["variables"]).union(*joined)]
+    return [sorted(g, key=TESTED.index) for g in out]
 
 
 def confounded_text(note: dict) -> str:
     """The report's caution for a confounded cause."""
     pairs = "; ".join(f"{' and '.join(p['variables'])} (correlation {p['corr']:+.2f})" for p in note["pairs"])
+    pairs = pairs.replace("; ", ", and ") if len(note["pairs"]) == 2 else pairs
     if note["rivals"]:
-        best = min(note["rivals"], key=lambda r: r["separation_se"])
+        best = note["rivals"][0]
         how = (f"its reading {best['rival']} is {best['separation_se']:+.1f} standard errors behind"
-               + ("" if note["settled"] else " (`campaign plan` designs the flight that separates them)"))
+               + (", which these data settle" if best["settled"] else
+                  " (`campaign plan` designs the flight that separates them)"))
     else:
         how = "no reading in the other variable could be fitted in its place"
     return f"   confounded: the fitted logs fly {pairs} together: {how}"

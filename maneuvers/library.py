@@ -34,7 +34,7 @@ class Program:
     max_steps : int
         Hard limit [steps].
     throttle : Signal or None
-        Throttle input added to the trim [-], when the hold does not fly.
+        Throttle input added to the trim [-]; with the hold, the hold flies the elevator only.
     wind_fps : ndarray or None
         A prescribed wind, shape (steps, 3), north, east, down [ft/s] (a replay in the wind
         measured in the data), flown instead of the instrument profile's turbulence.
@@ -350,12 +350,51 @@ class LevelTurn(Maneuver):
         return Program(Constant(0.0), Constant(0.0), None, True, len(k), None, len(k), bank_deg=bank)
 
 
+@dataclass(frozen=True)
+class Deceleration(Maneuver):
+    """A level deceleration: the throttle eased back while the altitude hold flies the elevator, so that
+    the speed decays and alpha rises with it (alpha and Mach move together: a stall approach, a speed
+    sweep). The elevator hold is the gear transitions' (:class:`maneuvers.autopilot.HoldAutopilot`); the
+    speed loop is off.
+
+    Parameters
+    ----------
+    throttle_cut : float
+        How far the throttle comes back from the trim, over ``ramp_s``, then held [-] (at most to idle).
+    lead_s : float
+        Trimmed flight before the throttle moves [s].
+    ramp_s : float
+        The throttle's ramp [s].
+    duration_s : float
+        Flight after the ramp [s].
+    """
+
+    name = "deceleration"
+    throttle_cut: float = 0.3
+    lead_s: float = 2.0
+    ramp_s: float = 2.0
+    duration_s: float = 40.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.throttle_cut <= 1.0:
+            raise ValueError(f"throttle_cut must be within 0 < cut <= 1, not {self.throttle_cut!r}")
+        if self.lead_s < 0 or self.ramp_s <= 0 or self.duration_s <= 0:
+            raise ValueError("lead_s must be >= 0, ramp_s and duration_s > 0")
+
+    def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
+        lead, ramp, rest = (_steps(x, dt) for x in (self.lead_s, self.ramp_s, self.duration_s))
+        k = np.arange(lead + ramp + rest, dtype=float)
+        throttle = Sampled(tuple(-self.throttle_cut * np.clip((k - lead) / ramp, 0.0, 1.0)))
+        return Program(Constant(0.0), Constant(0.0), None, True, len(k), None, len(k), throttle=throttle)
+
+
 MANEUVERS: dict[str, type[Maneuver]] = {
     "doublet": Doublet2311,
     "multisine": Multisine,
     "gear_extension": GearTransition,
     "gear_retraction": GearTransition,
     "level_turn": LevelTurn,
+    "deceleration": Deceleration,
 }
 
 

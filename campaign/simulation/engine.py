@@ -443,7 +443,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
                   + truth_nodes + rot_nodes)
     # the inputs as plain floats, evaluated once (a transition's tail only if it is flown)
     signals = [prog.elevator_deg, prog.stabilizer_deg if dh_gain else None,
-               prog.gear_cmd or Constant(gear0), prog.throttle if hold is None else None]
+               prog.gear_cmd or Constant(gear0), prog.throttle]
     inputs = [[] if f is not None else None for f in signals]
 
     def evaluate_inputs(upto: int) -> None:
@@ -474,6 +474,8 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
             evaluate_inputs(k + 120)
         if hold is not None:
             elevator_deg, throttle = hold.step(h, hdot_node.get_double_value(), speed(), theta, q)
+            if thr_in is not None:  # the hold flies the elevator, the manoeuvre the throttle
+                throttle = min(max(tr.throttle + thr_in[k], 0.0), 1.0)
             for t in thr_cmd:
                 t.set_double_value(throttle)
         elif thr_in is not None:

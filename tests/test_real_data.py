@@ -1,0 +1,230 @@
+"""Measured data from real aeroplanes, and the rules that keep a diagnosis of them honest.
+
+The records (``tests/data/``, see its README) are DLR's: two ATTAS elevator records (fAttasElv1/2, 16,000 ft,
+Mach 0.4) and one HFB-320 record (a 3-2-1-1 and a pulse in turbulence), from the code package of
+Jategaonkar, *Flight Vehicle System Identification*, 2nd ed. (AIAA 2015). A model identified from one
+record, built into a JSBSim aircraft (``campaign model``), must show nothing against another record of the
+same aeroplane; with one of its own terms taken out, the diagnosis must name that term first.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from campaign.cli import main
+from campaign.diagnosis.run import load_data
+from diagnose.causes import Cause
+from diagnose.config import DEFAULTS, using
+from diagnose.diagnosis import diagnose
+from diagnose.evaluate import ModelEvaluator
+from diagnose.held_out import worse_on_held_out
+from diagnose.stepwise import StepwiseResult
+from diagnose.terms import Term
+from diagnose.verdict import implausible
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA, EXAMPLES = ROOT / "tests" / "data", ROOT / "docs" / "examples"
+
+
+def _identified(folder: Path, source: Path, map_text: str, name: str) -> Path:
+    """Import ``source`` through the map, identify every log (equation error), return the folder."""
+    (folder / "map.toml").write_text(map_text)
+    assert main(["import", str(source), "--map", str(folder / "map.toml"), "--out", str(folder / name)]) == 0
+    return folder / name
+
+
+def _model(ident: Path, out: Path, change: tuple[str, str, float] | None = None) -> Path:
+    """``campaign model`` of an identification, one parameter of its first point scaled first (coefficient,
+    regressor, factor) in a copy of the identification."""
+    if change is not None:
+        copy = out.parent / f"{out.name}-identification"
+        shutil.copytree(ident, copy)
+        doc = json.loads((copy / "identification.json").read_text())
+        point = next(iter(doc["points"].values()))
+        c, reg, k = change
+        point[c]["params"][reg] *= k
+        point["log"] = str((ident / point["log"]).resolve())
+        (copy / "identification.json").write_text(json.dumps(doc))
+        ident = copy
+    assert main(["model", str(ident), "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def attas(tmp_path_factory):
+    """fAttasElv1 identified and built into an aircraft; fAttasElv2 imported beside it."""
+    d = tmp_path_factory.mktemp("attas")
+    text = (EXAMPLES / "attas-map.toml").read_text()
+    e1 = _identified(d, DATA / "fAttasElv1.mat", text, "e1")
+    _identified(d, DATA / "fAttasElv2.mat", text, "e2")
+    assert main(["identify", str(e1), "--plots", "none"]) == 0
+    return d, e1 / "identification", load_data(e1), load_data(d / "e2")
+
+
+def test_attas_model_shows_nothing_against_the_other_record(attas):
+    """Identified on fAttasElv1 and built into a JSBSim aircraft, the model diagnosed on fAttasElv1 with
+    fAttasElv2 held out names nothing: the held-out record confirms no cause. The noise floor and the
+    instruments' reach are the stated default's (the map declares no accuracy), and the report says so."""
+    d, ident, e1, e2 = attas
+    diag = diagnose(e1, ModelEvaluator(_model(ident, d / "model" / "attas")), held=e2)
+    assert not diag.causes and not diag.unconfirmed, diag.summary()
+    assert diag.instruments.source == "default"
+    assert "stated default for measured data" in diag.summary()
+    assert diag.noise["alpha_deg"] == pytest.approx(DEFAULTS.default_accuracy["alpha_deg"]["noise"])
+
+
+@pytest.mark.parametrize("change, named", [
+    (("Cm", "qhat_rad", 0.5), ("Cm", "qhat_rad")),
+    (("CL", "dalpha_rad", 0.8), ("CL", "alpha_deg")),
+    (("Cm", "delevator_rad", 0.0), ("Cm", "elevator_deg")),
+], ids=["Cmq-halved", "CLalpha-x0.8", "no-Cm-elevator"])
+def test_attas_model_with_a_term_taken_out_is_named_by_that_term(attas, change, named):
+    """The ATTAS model with its pitch damping halved, its lift slope scaled by 0.8, or without the elevator's
+    pitching moment: the first cause names that coefficient and variable, confirmed on fAttasElv2."""
+    d, ident, e1, e2 = attas
+    model = _model(ident, d / f"model-{'-'.join(map(str, change))}" / "attas", change)
+    diag = diagnose(e1, ModelEvaluator(model), held=e2)
+    first = diag.aero_causes[0]
+    assert (first.coefficient, first.variables[0]) == named, diag.summary()
+    assert first.verdict["held_out_logs_gain"] > 1.5, first.verdict
+
+
+@pytest.fixture(scope="module")
+def hfb(tmp_path_factory):
+    """The HFB-320 record cut into its two inputs (the 3-2-1-1 before 22 s, the pulse after), the first
+    identified and built into an aircraft."""
+    d = tmp_path_factory.mktemp("hfb")
+    text = (EXAMPLES / "hfb320-map.toml").read_text() + "\n[records]\nsplit_s = [22.0]\n"
+    folder = _identified(d, DATA / "hfb320_1_10.asc", text, "hfb")
+    logs = {Path(lg.path).stem: lg for lg in load_data(folder)}
+    assert sorted(logs) == ["hfb320_1_10_1", "hfb320_1_10_2"]
+    first = d / "first"
+    first.mkdir()
+    shutil.copy(folder / "hfb320_1_10_1.parquet", first)
+    assert main(["identify", str(first), "--plots", "none"]) == 0
+    return d, first / "identification", [logs["hfb320_1_10_1"]], [logs["hfb320_1_10_2"]]
+
+
+def test_the_hfb320_record_cut_in_two_is_two_logs_of_one_flight(hfb):
+    d, _, (one,), (two,) = hfb
+    assert one.meta["imported"]["record"] == 1 and two.meta["imported"]["record"] == 2
+    assert one.data.t_s.iloc[0] == 0.0 and two.data.t_s.iloc[0] == 0.0
+    assert two.meta["imported"]["from_s"] == pytest.approx(22.0, abs=0.1)
+    assert len(one.data) + len(two.data) == 601
+
+
+def test_hfb320_model_shows_nothing_against_the_pulse_and_names_a_halved_damping(hfb):
+    """Identified on the 3-2-1-1, the model shows nothing against the pulse; with its pitch damping halved,
+    the first cause is Cm vs qhat."""
+    d, ident, one, two = hfb
+    diag = diagnose(one, ModelEvaluator(_model(ident, d / "model" / "hfb")), held=two)
+    assert not diag.causes and not diag.unconfirmed, diag.summary()
+    halved = diagnose(one, ModelEvaluator(_model(ident, d / "halved" / "hfb", ("Cm", "qhat_rad", 0.5))), held=two)
+    first = halved.aero_causes[0]
+    assert (first.coefficient, first.variables[0]) == ("Cm", "qhat_rad"), halved.summary()
+
+
+def test_a_declared_accuracy_and_gravity_reach_the_log_and_the_diagnosis(tmp_path):
+    """An import map's ``[accuracy]`` goes into each log's metadata and sets the noise the floor draws; its
+    ``gravity`` replaces the standard one for the data compatibility."""
+    text = ((EXAMPLES / "attas-map.toml").read_text().replace("[aircraft]", '[aircraft]\ngravity = "9.79 m/s^2"')
+            + '\n[accuracy.alpha_deg]\nnoise = "0.1 deg"\nbias = "0.2 deg"\nscale = 0.01\ndelay = "0.04 s"\n')
+    folder = _identified(tmp_path, DATA / "fAttasElv1.mat", text, "e1")
+    log, = load_data(folder)
+    assert log.meta["gravity_fps2"] == pytest.approx(9.79 / 0.3048)
+    assert log.meta["instrument_accuracy"]["alpha_deg"] == {"noise": pytest.approx(0.1), "bias": pytest.approx(0.2),
+                                                           "scale": 0.01, "delay_s": pytest.approx(0.04)}
+    from diagnose.accuracy import instrumentation
+    with using(DEFAULTS):
+        inst = instrumentation([log])
+    assert inst.source == "declared and default" and inst.declared == ("alpha_deg",)
+    assert inst.noise({"alpha_deg": 0.005, "q_dps": 0.001})["alpha_deg"] == pytest.approx(0.1)
+    names, cov = inst.unmeasured([("alpha_deg", "bias")], set(log.data.columns), 2.0)
+    assert ("alpha_deg", "bias") not in names and ("alpha_deg", "scale") in names
+    assert cov[names.index(("alpha_deg", "scale")), names.index(("alpha_deg", "scale"))] == pytest.approx(0.005 ** 2)
+
+
+def test_a_latitude_gives_the_wgs84_gravity_at_the_logs_altitude():
+    from campaign.importing.declared import normal_gravity_fps2
+    assert normal_gravity_fps2(0.0, 0.0) * 0.3048 == pytest.approx(9.7803253359)
+    assert normal_gravity_fps2(90.0, 0.0) * 0.3048 == pytest.approx(9.8321849378, rel=1e-9)
+    assert normal_gravity_fps2(45.0, 16000.0) * 0.3048 == pytest.approx(9.8062 - 0.01503, abs=2e-4)
+
+
+@pytest.mark.parametrize("section, why", [
+    ('[accuracy.alpha_deg]\nnoise = "-0.1 deg"\n', "accuracy.alpha_deg.noise"),
+    ('[accuracy.alpha_deg]\nscale = 0.8\n', "accuracy.alpha_deg.scale"),
+    ('[accuracy.flap]\nnoise = 0.1\n', "accuracy.flap"),
+    ('[records]\nsplit_s = [30.0, 10.0]\n', "records.split_s"),
+    ('[records]\nsplit_s = [24.9]\n', "records.split_s"),
+])
+def test_a_map_with_an_implausible_declaration_is_refused_in_one_line(tmp_path, capsys, section, why):
+    text = (EXAMPLES / "attas-map.toml").read_text() + "\n" + section
+    (tmp_path / "map.toml").write_text(text)
+    assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(tmp_path / "map.toml"),
+                 "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert why in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("gravity", ['"9.5 m/s^2"', '"10.1 m/s^2"', '"-9.8 m/s^2"'])
+def test_a_gravity_outside_the_earths_is_refused_in_one_line(tmp_path, capsys, gravity):
+    text = (EXAMPLES / "attas-map.toml").read_text().replace("[aircraft]", f"[aircraft]\ngravity = {gravity}")
+    (tmp_path / "map.toml").write_text(text)
+    assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(tmp_path / "map.toml"),
+                 "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "aircraft.gravity" in err and "9.7..9.9 m/s^2" in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+
+def _sensor(error: str, estimate: float, unit: str) -> Cause:
+    c = Cause("CL", ["thrust_lbf"], [], "scale factor", {}, 0.01, size=0.01, kind="sensor", channel="thrust_lbf",
+              error=error, estimate=estimate, se=0.1)
+    c.verdict = {"accepted": True, "reason": "", "unit": unit}
+    return c
+
+
+def test_a_sensor_error_no_instrument_makes_is_no_finding():
+    """An engine deck's thrust 225 % wrong, a vane 8 deg off or a 0.9 s delay is a reading the data do not
+    support; 10 % of thrust, 1 deg and 0.1 s are findings."""
+    with using(DEFAULTS):
+        assert "beyond what an instrument of its kind can be off" in implausible(_sensor("scale", -2.245, "-"))
+        assert "-224.5 %" in implausible(_sensor("scale", -2.245, "-"))
+        assert implausible(_sensor("bias", 8.0, "deg")) and implausible(_sensor("delay", 0.9, "s"))
+        assert not implausible(_sensor("scale", 0.1, "-")) and not implausible(_sensor("bias", 1.0, "deg"))
+        assert not implausible(_sensor("delay", 0.1, "s"))
+
+
+def test_a_cause_that_makes_the_held_out_logs_worse_is_not_named():
+    """A CL slope in alpha fitted on logs where it holds, and held-out logs where the slope is the other way:
+    its terms make the held-out residual worse, and the cause is refused with the ratio; held-out logs with
+    the same slope keep it."""
+    rng = np.random.default_rng(1)
+
+    def logs(slope: float, n: int) -> pd.DataFrame:
+        a = rng.uniform(2.0, 8.0, (n, 300))
+        return pd.DataFrame({"log": np.repeat(np.arange(n), 300), "alpha_deg": a.ravel(),
+                             "r_CL": (slope * (a - 5.0) + rng.normal(0.0, 1e-4, a.shape)).ravel()})
+
+    data = logs(0.01, 3)
+    term = Term("linear", ("alpha_deg",), (), (5.0,), ((2.0, 8.0),))
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data["r_CL"], rcond=None)[0]
+    res = {"CL": StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, 900.0)}
+    for slope, refused in ((-0.01, True), (0.01, False)):
+        cause = Cause("CL", ["alpha_deg"], [term], "linear", {}, 0.03, size=0.06)
+        cause.verdict = {"accepted": True, "reason": ""}
+        with using(DEFAULTS):
+            out = worse_on_held_out([cause], res, data, logs(slope, 2))
+        assert (out == [cause]) is refused and cause.verdict["accepted"] is not refused
+        if refused:
+            assert "makes the held-out logs' CL worse" in cause.verdict["reason"]
+            assert cause.verdict["held_out_logs_gain"] < 0.95
+        else:
+            assert cause.verdict["held_out_logs_gain"] > 10
