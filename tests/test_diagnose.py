@@ -38,7 +38,7 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, see
     g = r["doc"]["gain"]
     most = g["replay_moved_most"]
     if family == "mach":
-        assert most == "trim_throttle_norm", g["replay_moved"]
+        assert most == "trim_thrust_pct", g["replay_moved"]
     if first["verdict"]["size_over_floor"] >= 20 and family != "elevator_derivative":
         assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
