@@ -313,8 +313,14 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
     try:
         if kind == "engines":
             point = StatusPoint(start.alt_ft, start.mach, start.flap_deg, start.gear_norm == 1.0, start.weight_lb)
-            fdm, names, *_, tr = trimmed_fdm(src, point, start.gear_norm, np.asarray(start.wind_fps)
-                                             if any(start.wind_fps) else None, gamma_deg=start.gamma_deg)
+            try:
+                fdm, names, *_, tr = trimmed_fdm(src, point, start.gear_norm, np.asarray(start.wind_fps)
+                                                 if any(start.wind_fps) else None, gamma_deg=start.gamma_deg)
+            except TrimError:  # JSBSim's trim in a gust fails near its alpha limits: then in the horizontal wind
+                if not start.wind_fps[2]:
+                    raise
+                fdm, names, *_, tr = trimmed_fdm(src, point, start.gear_norm, np.array([*start.wind_fps[:2], 0.0]),
+                                                 gamma_deg=start.gamma_deg)
             de_gain, dh_gain = elevator_gain_deg(src), stabilizer_gain_deg(src)
             e0, h0 = tr.elevator_cmd_norm, tr.pitch_trim_norm
             force_prop = f"external_reactions/{ADDED_FORCE}/magnitude"
@@ -368,6 +374,7 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
     if "stabilizer_deg" not in out:
         out["stabilizer_deg"] = 0.0
     out["thrust_lbf"] = thrust
+    out["psi_deg"] = np.degrees(np.unwrap(np.radians(out["psi_deg"].to_numpy())))  # no jump through north
     out.insert(0, "t_s", np.arange(n) * DT_S)
     out.attrs["offsets"] = dict(zip(("elevator_deg", "stabilizer_deg", "thrust_lbf"), map(float, offsets)))
     out.attrs["trim"] = dict(zip(("elevator_deg", "stabilizer_deg", "thrust_lbf"), map(float, trims)))
