@@ -843,8 +843,8 @@ def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path
 def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     """Our 737 in 3 ft/s turbulence through the flight-test instruments, diagnosed against itself:
     the held-out replays fly in the wind measured in each log (inertial minus air-relative
-    velocity) and follow the data within 0.5 deg of pitch and 30 ft over the whole log; the
-    same replays in still air do not."""
+    velocity) and follow the data within 0.5 deg of pitch and 50 ft (half the Part 60 gear-change
+    tolerance) over the whole log; the same replays in still air do not."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
     from campaign.diagnosis.run import log_wind, replay
     from diagnose.gain import replay_errors
@@ -863,7 +863,7 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     assert doc["wind"] and all(w["replayed_in"] == "measured wind" for w in doc["wind"].values())
     assert set(doc["replays"]) == set(doc["wind"])
     for name, r in doc["replays"].items():
-        assert r["theta_deg"]["model"] < 0.5 and r["alt_ft"]["model"] < 30.0, (name, r)
+        assert r["theta_deg"]["model"] < 0.5 and r["alt_ft"]["model"] < 50.0, (name, r)
         assert r["theta_deg"]["extended"] is None  # nothing to extend
     assert "flown in the wind measured in their log" in capsys.readouterr().out
     # the same logs replayed in still air miss by much more
