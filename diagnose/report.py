@@ -87,12 +87,7 @@ def summary(diag: Diagnosis, doc: dict) -> str:
                   + ("" if n_wind == len(wind) else
                      " (the others in still air: " + "; ".join(sorted({w['why'] for w in wind.values()
                                                                      if w['replayed_in'] == 'still air'})) + ")")
-                  + "; worst replay error per channel, model"
-                  + (" -> extended model:" if doc.get("extension") else ":")]
-        for ch in next(iter(doc["replays"].values()), {}):
-            m = max(r[ch]["model"] for r in doc["replays"].values())
-            x = [r[ch]["extended"] for r in doc["replays"].values() if r[ch]["extended"] is not None]
-            lines.append(f"  {ch}: {m:.3g}" + (f" -> {max(x):.3g}" if x else ""))
+                  + "; the replay errors and their floor below"]
     b = doc.get("bands")
     if b:
         lines += ["", (f"Monte Carlo bands ({next(iter(b.values()))['draws']} draws of the extension from its "

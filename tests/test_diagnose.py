@@ -38,7 +38,7 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, see
     g = r["doc"]["gain"]
     most = g["replay_moved_most"]
     if family == "mach":
-        assert most == "trim_throttle_norm", g["replay_moved"]
+        assert most == "trim_thrust_pct", g["replay_moved"]
     if first["verdict"]["size_over_floor"] >= 20 and family != "elevator_derivative":
         assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
@@ -854,14 +854,10 @@ def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path
 def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     """Our 737 in 3 ft/s turbulence through the flight-test instruments, diagnosed against itself:
     the held-out replays fly in the wind measured in each log (inertial minus air-relative
-    velocity) and follow the data within 0.5 deg of pitch and 30 ft over the whole log; the
-    same replays in still air do not."""
+    velocity) and follow the data within 0.5 deg of pitch and 50 ft (half the Part 60 gear-change
+    tolerance) over the whole log; the same replays in still air do not."""
     from campaign.diagnosis.run import log_wind, replay
-    from campaign.simulation.aircraft import (
-        DEFAULT_AIRCRAFT,
-        AircraftSource,
-        load_effects,
-    )
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
     from campaign.validation.support import matrix_toml, pairs, run_matrix
     from diagnose.gain import replay_errors
     from identify.compat import estimate
@@ -878,7 +874,7 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     assert doc["wind"] and all(w["replayed_in"] == "measured wind" for w in doc["wind"].values())
     assert set(doc["replays"]) == set(doc["wind"])
     for name, r in doc["replays"].items():
-        assert r["theta_deg"]["model"] < 0.5 and r["alt_ft"]["model"] < 30.0, (name, r)
+        assert r["theta_deg"]["model"] < 0.5 and r["alt_ft"]["model"] < 50.0, (name, r)
         assert r["theta_deg"]["extended"] is None  # nothing to extend
     assert "flown in the wind measured in their log" in capsys.readouterr().out
     # the same logs replayed in still air miss by much more

@@ -17,22 +17,18 @@ import pandas as pd
 from tqdm import tqdm
 
 from campaign.diagnosis.bands import replay_bands
+from campaign.diagnosis.floor import FLOOR, replay_floor
 from campaign.diagnosis.refine import REFINE, refine_extension
 from campaign.errors import UserError
 from campaign.orchestration.cluster import connect, pack, unpack_source
 from campaign.orchestration.store import atomic_write
-from campaign.simulation.aircraft import (
-    AircraftSource,
-    check_aircraft_folder,
-    load_effects,
-)
-from campaign.simulation.engine import FlightConfig, TrimError, fly
-from campaign.simulation.matrix import StatusPoint
+from campaign.simulation.aircraft import AircraftSource, check_aircraft_folder, load_effects
+from campaign.simulation.replay_log import Inputs, ReplayError, Start, estimate_start, fly_log, measured_inputs
 from diagnose.config import DiagnosisSettings
 from diagnose.diagnosis import STAGES, diagnose
 from diagnose.evaluate import ModelEvaluator
 from diagnose.extension import write_extension
-from diagnose.gain import exercised, largest, measure_gain, replay_table
+from diagnose.gain import exercised, largest, measure_gain, replay_lines, replay_table, window_table
 from diagnose.report import document, summary
 from diagnose.residuals import residual_data
 from diagnose.result import Diagnosis
@@ -41,7 +37,6 @@ from identify.kinematics import measured_wind
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from identify.models import lowpass
 from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
-from maneuvers.library import Recorded
 
 G0 = 32.174049
 
@@ -75,10 +70,13 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
     error raised when ``first`` holds one flight condition only."""
     first = first or logs
     conds = sorted({log.condition for log in first})
+    if len(_distinct(conds)) < 2 and len(first) >= 2:
+        return split_by_flight(logs, every, first)
     if len(conds) < 2:
         found = ", ".join(f"{c[0]:g} ft, Mach {c[1]:g}, flap {c[2]:g}" for c in conds) or "none"
         raise UserError(f"--data{' ' + source if source else ''}: needs logs from at least two flight conditions "
-                        f"(one is held out), found {len(conds)} ({found})")
+                        f"or two flights at one (one is held out), found {len(first)} log(s) at {len(conds)} "
+                        f"condition(s) ({found})")
     states = {c: set() for c in conds}
     alpha = {c: [] for c in conds}
     for lg in first:
@@ -96,6 +94,35 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
         if not any(_taken(fewer, conds, states, spans)):
             held = fewer
     return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
+
+
+#: How a split by flight is said in ``diagnosis.json`` (``data.split``) and ``diagnosis.txt``.
+BY_FLIGHT = ("by flight: the data hold one flight condition, so every {every}rd flight in file order is held out "
+             "(the last at least)")
+
+
+#: Conditions closer than this (altitude [ft], Mach, flap [deg]) are one for the held-out split: imported records
+#: of one test point differ in the last digits of their averaged condition.
+SAME_CONDITION = (500.0, 0.01, 0.1)
+
+
+def _distinct(conds: list[tuple]) -> list[tuple]:
+    """``conds`` with those within :data:`SAME_CONDITION` of an earlier one left out."""
+    out = []
+    for c in conds:
+        if not any(all(abs(a - b) < tol for a, b, tol in zip(c, o, SAME_CONDITION)) for o in out):
+            out.append(c)
+    return out
+
+
+def split_by_flight(logs: list[Log], every: int = 3, first: list[Log] | None = None) -> tuple[list[Log], list[Log]]:
+    """The held-out split of data that hold one flight condition (:func:`split` cannot hold a condition out):
+    every ``every``-th flight of ``first`` (default ``logs``) in file order, the last at least; logs added
+    later are fitted on."""
+    first = first or logs
+    order = sorted(first, key=lambda lg: lg.path)
+    held = {lg.path for i, lg in enumerate(order) if i % every == every - 1} or {order[-1].path}
+    return [lg for lg in logs if lg.path not in held], [lg for lg in logs if lg.path in held]
 
 
 def _least_taken(held: set, conds: list, states: dict, spans: dict) -> set:
@@ -197,43 +224,31 @@ def wind_note(log: Log) -> dict:
     return {"replayed_in": "measured wind", "rms_fps": dict(zip(("north", "east", "down"), map(float, rms)))}
 
 
-def recorded(log: Log, head_s: float = 0.5, first: int = 3, wind: bool = True) -> tuple[StatusPoint, Recorded]:
-    """The log's start as a status point and its inputs as offsets from that start, at the log's
-    own rate (the replay resamples them onto the simulation step).
-
-    The flight condition is the mean of the first ``head_s`` (trimmed flight,
-    sensor noise averaged out); the controls are referenced to their first
-    ``first`` samples, because a hold may already be moving them. With ``wind``, the wind
-    measured in the log (:func:`log_wind`) is flown too: a replay of turbulent data meets the
-    gusts the aeroplane met.
-    """
-    d = log.data
-    head = d[d.t_s < head_s].mean()
-    ref = d.iloc[:first].mean()
-    g0 = float(round(d.gear_norm.iloc[0]))
-    moving = np.flatnonzero(np.abs(d.gear_norm.to_numpy() - g0) > 1e-6)
-    gear_cmd = np.full(len(d), g0)
-    if moving.size:  # the command set before step k moves the gear in row k
-        gear_cmd[moving[0]:] = round(float(d.gear_norm.iloc[-1]))
-    flap = round(float(head.flap_deg), 3)
-    point = StatusPoint(float(head.alt_ft), float(head.mach), flap, g0 == 1.0, float(head.mass_slug) * G0)
+def recorded(log: Log, wind: bool = True) -> tuple[Start, Inputs]:
+    """Where a replay of the log starts and what it flies (:mod:`campaign.simulation.replay_log`): the start
+    estimated from the log's first seconds, the recorded surfaces and the measured thrust, and with ``wind``
+    the wind measured in the log (:func:`log_wind`): a replay of turbulent data meets the gusts the
+    aeroplane met."""
     w = log_wind(log) if wind else None
-    winds = {} if w is None else {"wind_n_fps": tuple(w[:, 0]), "wind_e_fps": tuple(w[:, 1]),
-                                  "wind_d_fps": tuple(w[:, 2])}
-    man = Recorded(g0, tuple(d.elevator_deg - ref.elevator_deg), tuple(d.stabilizer_deg - ref.stabilizer_deg),
-                   tuple(d.throttle_norm - ref.throttle_norm), tuple(gear_cmd), name=f"replay-{log.maneuver}",
-                   dt_s=float(np.median(np.diff(d.t_s))), **winds)
-    return point, man
+    start = estimate_start(log.data, w)
+    return start, measured_inputs(log.data, start, w)
+
+
+def replay_why(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame | str:
+    """Fly the log's recorded inputs and measured thrust on an aircraft from the start estimated from the log,
+    in the wind measured in the log (``wind``; still air when it has none): the flight, or why it could not
+    be flown."""
+    start, inputs = recorded(log, wind=wind)
+    try:
+        return fly_log(source, start, inputs)
+    except ReplayError as exc:
+        return str(exc)
 
 
 def replay(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame | None:
-    """Fly the log's inputs on an aircraft from a trim at the log's start, in the wind measured
-    in the log (``wind``; still air when it has none)."""
-    point, man = recorded(log, wind=wind)
-    try:
-        return fly(point, man, FlightConfig(source)).log
-    except TrimError:
-        return None
+    """:func:`replay_why`'s flight, or None if it could not be flown."""
+    out = replay_why(log, source, wind)
+    return None if isinstance(out, str) else out
 
 
 #: Which held-out logs get plots of their own: ``key`` those where the first aerodynamic cause acts
@@ -241,9 +256,14 @@ def replay(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame 
 PLOTS = ("key", "all", "none")
 
 
-def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | None:
-    """On a cluster worker: :func:`replay` on this machine's copy of the shipped aircraft."""
-    return replay(log, unpack_source(shipment, effects))
+def replay_shipped(log: Log, shipment, effects) -> pd.DataFrame | str:
+    """On a cluster worker: :func:`replay_why` on this machine's copy of the shipped aircraft."""
+    return replay_why(log, unpack_source(shipment, effects))
+
+
+def floor_shipped(log: Log, shipment, effects, seed: int) -> dict:
+    """On a cluster worker: :func:`campaign.diagnosis.floor.replay_floor` on the shipped aircraft."""
+    return replay_floor(log, unpack_source(shipment, effects), seed)
 
 
 #: How a set of logs given in memory (not read from a path) is named in ``diagnosis.json``.
@@ -354,6 +374,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
                                     f"file: each --data must hold other flights)")
                 where[name] = p
         train, held = split(logs, first=sets[0], source=str(paths[0]))
+        by_flight = len(_distinct(sorted({lg.condition for lg in sets[0]}))) < 2
     except UserError:
         if client is not None:
             client.close()
@@ -362,7 +383,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     try:
         with on_cluster(client):
             return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands,
-                              settings)
+                              settings, by_flight)
     except BaseException:  # interrupted or failed: no half report, and the same command runs again
         if fresh:
             shutil.rmtree(out, ignore_errors=True)
@@ -380,7 +401,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
 
 def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
                train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0,
-               settings: DiagnosisSettings | None = None) -> dict:
+               settings: DiagnosisSettings | None = None, by_flight: bool = False) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
@@ -391,7 +412,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
                "[{elapsed}]")
     src_model = AircraftSource(str(model), load_effects(None))
     # the data compatibility runs on one core: a process of its own flies the model's replays meanwhile
-    ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs if client is None else 1)
+    ahead = Ahead(replay_why, [(lg, src_model) for lg in held], jobs if client is None else 1)
 
     def stage(name: str) -> None:
         if name != STAGES[0]:
@@ -410,7 +431,8 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     out.mkdir(parents=True, exist_ok=True)
     doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
                           "logs": len(logs), "train": [lg.path for lg in train],
-                          "held_out": [lg.path for lg in held]}, str(model))
+                          "held_out": [lg.path for lg in held],
+                          "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition"}, str(model))
     before = diag.held
     raw_held, held = held, diag.held_logs  # as corrected for instrument errors
     extended_eval = src_ext = after = None
@@ -426,15 +448,25 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
     sources = (src_model,) if src_ext is None else (src_model, src_ext)
     calls = [(i, src) for i in range(len(held)) for src in sources if src is src_ext or i not in early]
+    seeds = [_floor_seed(lg) for lg in held]
     if client is None:
-        flown_now = dict(zip(calls, pmap(replay, [(held[i], src) for i, src in calls], jobs)))
+        flown_now = dict(zip(calls, pmap(replay_why, [(held[i], src) for i, src in calls], jobs)))
+        floors = pmap(replay_floor, [(lg, src_model, sd) for lg, sd in zip(held, seeds)], jobs)
     else:  # the aircraft travel with the tasks
         shipped = {id(s): pack(s) for s in sources}
         flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
                                                            for i, src in calls], fan)))
-    flown = {lg.path: (early[i] if i in early else flown_now[i, src_model],
-                       flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
-    doc["replays"] = replay_table(held, flown, extended=src_ext is not None)
+        floors = pmap(floor_shipped, [(lg, shipped[id(src_model)], src_model.effects, sd)
+                                      for lg, sd in zip(held, seeds)], fan)
+    raw = {lg.path: (early[i] if i in early else flown_now[i, src_model],
+                     flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
+    flown = {k: tuple(None if isinstance(f, str) else f for f in v) for k, v in raw.items()}
+    floors = {Path(lg.path).name: f for lg, f in zip(held, floors)}
+    doc["replays"] = replay_table(held, flown, extended=src_ext is not None, floors=floors)
+    doc["replay_windows"] = window_table(held)
+    doc["replay_floor"] = {"method": FLOOR, "per_log": {k: {"draws": f.get("draws"), "note": f.get("note")}
+                                                         for k, f in floors.items()}}
+    doc["replay_starts"] = {Path(lg.path).name: _start_note(lg, raw[lg.path]) for lg in held}
     doc["wind"] = {Path(lg.path).name: wind_note(lg) for lg in held}
     if diag.aero_causes:
         doc["gain"] = measure_gain(diag, held, before, after, flown)
@@ -458,6 +490,13 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = summary(diag, doc)
+    lines = replay_lines(doc)
+    unflown = {k: v["why"] for k, v in doc["replay_starts"].items() if v.get("why")}
+    if lines or unflown:
+        doc["summary"] += ("\nHeld-out replays judged over " + ("their Part 60 or manoeuvre windows; the floor: "
+                                                                  + FLOOR + "\n" + "\n".join(lines) if lines else "")
+                           + "".join(f"\n  {k}: not flown: {w}" for k, w in unflown.items())
+                           + (f"\n  held-out split {doc['data']['split']}" if by_flight else "") + "\n")
     text = json.dumps(doc, indent=1, default=float) + "\n"
     atomic_write(out / "diagnosis.txt", lambda tmp: Path(tmp).write_text(doc["summary"]))
     atomic_write(out / "diagnosis.json", lambda tmp: Path(tmp).write_text(text))  # last: the diagnosis is whole
@@ -465,6 +504,24 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     if extended_eval:
         extended_eval.close()
     return doc
+
+
+def _floor_seed(log: Log) -> int:
+    """The floor's noise seed of a log: from its file name (the same on every run and machine)."""
+    import zlib
+    return zlib.crc32(Path(log.path).name.encode())
+
+
+def _start_note(log: Log, flights: tuple) -> dict:
+    """Where a held-out log's replays started, the offsets they flew, and why a replay was not flown."""
+    start, _ = recorded(log)
+    out = {"start": start.to_dict()}
+    for kind, f in zip(("model", "extended"), flights):
+        if isinstance(f, str):
+            out.setdefault("why", {})[kind] = f
+        elif f is not None:
+            out[kind] = {"trim": f.attrs.get("trim"), "offsets": f.attrs.get("offsets")}
+    return out
 
 
 def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,

@@ -101,6 +101,8 @@ def diagnosis_report(folder: Path) -> str:
                                   [(k, v, r["se"][k], r["se_coloured"][k]) for k, v in r["scales"].items()])
                      + (f'<p class="note">{escape(r["caveat"])}</p>' if r.get("caveat") else "") + _gain(r["gain"]))
         sections.append(html.section("gain", "Before and after, held-out data", body, page=True))
+    if doc.get("replays"):
+        sections.append(html.section("replays", "Held-out replays and their floor", _replays(doc)))
     compat = doc.get("data_compatibility")
     if compat:
         rows = [(p["channel"], p["error"], p["estimate"] if p["identifiable"] else "n/i", p["se"] if p["identifiable"] else "",
@@ -124,3 +126,27 @@ def diagnosis_report(folder: Path) -> str:
     sections.append(html.section("trace", "Traceability", html.traceability(
         folder, None, {"diagnosis": folder / "diagnosis.json", **manifests, "extension": folder / "extension.xml"})))
     return html.document("Diagnosis", f"{doc['data']['path']} against {doc['model']}", sections)
+
+
+def _replays(doc: dict) -> str:
+    """Each held-out replay's error over its judged window (and the whole log) beside the floor a perfect
+    model leaves there, and the Part 60 verdict on the model."""
+    rows = []
+    windows = doc.get("replay_windows", {})
+    for name, r in doc["replays"].items():
+        w = windows.get(name, {})
+        for ch in ("theta_deg", "tas_kt", "alt_ft", "alpha_deg", "q_dps"):
+            c = r.get(ch, {})
+            win = c.get("window") or {}
+            rows.append((name, ch, f"{w.get('from_s', float('nan')):.1f}-{w.get('to_s', float('nan')):.1f} s",
+                         win.get("model", float("nan")), c.get("model", float("nan")),
+                         win.get("floor", float("nan")), c.get("floor", float("nan")),
+                         win.get("tolerance", float("nan")), (win.get("part60") or {}).get("says", "")))
+    why = {k: v["why"] for k, v in doc.get("replay_starts", {}).items() if v.get("why")}
+    body = html.table(["held-out log", "channel", "window", "error, window", "error, log", "floor, window",
+                       "floor, log", "Part 60 tolerance", "verdict (model)"], rows, left=3)
+    body += "".join(f'<p class="note">{escape(k)}: not flown: {escape(str(v))}</p>' for k, v in why.items())
+    floor = doc.get("replay_floor", {}).get("method", "")
+    return body + (f"<p>Floor: {escape(floor)}.</p>" if floor else "") + (
+        "<p>Gear transitions are judged over the Part 60 window (5 s before to 15 s after the gear starts to move), "
+        "the others over the manoeuvre; replays and data are compared low-passed at 2 Hz.</p>")

@@ -204,9 +204,9 @@ class Trim:
 TRIM_ALPHA_MAX_DEG = (30.0, 18.0, 15.0, 12.0)
 
 
-def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fps=None):
-    """A fresh FDM trimmed at ``point`` (in the gust ``gust_fps``, if given: :func:`trim`),
-    retrying narrower alpha brackets.
+def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fps=None, gamma_deg: float = 0.0):
+    """A fresh FDM trimmed at ``point`` (in the gust ``gust_fps``, if given, on the flight path
+    ``gamma_deg``: :func:`trim`), retrying narrower alpha brackets.
 
     Returns
     -------
@@ -221,27 +221,28 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fp
     for alpha_max in TRIM_ALPHA_MAX_DEG:
         fdm = new_fdm(source)
         try:
-            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max, gust_fps)
+            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max, gust_fps, gamma_deg)
         except TrimError as exc:
             reason = reason or str(exc)
     raise TrimError(reason)
 
 
 def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, names: set[str],
-         alpha_max_deg: float = 30.0, gust_fps=None) -> Trim:
+         alpha_max_deg: float = 30.0, gust_fps=None, gamma_deg: float = 0.0) -> Trim:
     """Set the initial condition and run JSBSim's full trim.
 
     ``flap_cmd`` is the ``fcs/flap-cmd-norm`` that gives the point's flap angle
     (:func:`flap_schedule`); JSBSim's trim moves the flaps there at once. With ``gust_fps``
     (north, east, down [ft/s]) the aircraft trims in that wind, at the point's Mach relative
-    to the air: a flight in turbulence starts in equilibrium with its first gust.
+    to the air: a flight in turbulence starts in equilibrium with its first gust. ``gamma_deg`` is the
+    flight-path angle relative to the Earth [deg] (a replay of a log that starts climbing or descending).
 
     Raises
     ------
     TrimError
         With the reason (JSBSim's failure or a saturated control).
     """
-    ic = {"ic/h-sl-ft": point.alt_ft, "ic/mach": point.mach, "ic/gamma-deg": 0.0,
+    ic = {"ic/h-sl-ft": point.alt_ft, "ic/mach": point.mach, "ic/gamma-deg": gamma_deg,
           "ic/beta-deg": 0.0, "ic/phi-deg": 0.0, "ic/psi-true-deg": 0.0}
     for k, v in ic.items():
         _set(fdm, names, k, v)
