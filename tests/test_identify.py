@@ -128,7 +128,7 @@ def test_flight_test_instruments_keep_95pct_of_parameters_within_3_se(tmp_path_f
     assert np.mean(z <= 1.0) < 0.95  # standard errors are not inflated into meaninglessness
 
 
-def _reference_truth(alpha_deg, gear, mach, fdm_cache={}):
+def _reference_truth(alpha_deg, gear, mach, fdm_cache={}):  # noqa: B006 (one JSBSim model for the module)
     if "fdm" not in fdm_cache:
         fdm_cache["fdm"] = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)))
     return reference_gear_truth(fdm_cache["fdm"], alpha_deg, gear, mach, ARM)
