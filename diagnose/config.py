@@ -389,14 +389,20 @@ class DiagnosisSettings:
         "Physical bounds, not fitted: the largest errors of installed, calibrated flight-test instruments."))
     flown_together_corr: float = setting(
         0.9, "-",
-        "Two candidate variables whose correlation over the fitted samples is at least this (in magnitude) are "
-        "flown together: a cause in one of them is \"confounded\", its reading in the other beside it as a "
-        "rival (a slow deceleration moves alpha and Mach together), and ``campaign plan`` designs the flight "
-        "that separates them.",
-        "On the paper matrix through the flight-test profile the largest correlation between alpha and Mach "
-        "is 0.34, between the elevator and the stabilizer 0.05; a level deceleration gives 0.99. The ATTAS "
-        "elevator records give 0.94 between the elevator and the stabilizer trim (the stabilizer too little "
-        "excited to be a candidate there).")
+        "Two candidate variables whose correlation over the fitted samples is at least this (in magnitude), "
+        "and over their variation within the logs at least `flown_together_within`, are flown together: a "
+        "cause in one of them is \"confounded\", its reading in the other beside it as a rival (a slow "
+        "deceleration moves alpha and Mach together), and ``campaign plan`` designs the flight that "
+        "separates them.",
+        "Four level decelerations of our 737 through the flight-test profile (alpha and Mach): -0.98 over "
+        "the samples; on the paper matrix the largest over the samples is 0.71 (the stabilizer and Mach).")
+    flown_together_within: float = setting(
+        0.8, "-",
+        "... and within the logs (each log's mean taken off): a pair that moves together across the logs only "
+        "(a trimmed control and the state that sets it) is separated by the manoeuvres within them.",
+        "The four decelerations: -0.87 within the logs (turbulence moves alpha at one Mach); the paper "
+        "matrix: 0.50 at most (the elevator and the pitch rate); the A320's diagnosis matrix, whose trim ties "
+        "the elevator to alpha at -0.97 over the samples: -0.29 within.")
     held_out_worse: float = setting(
         0.95, "-",
         "A cause is not named if its terms make its coefficient's residual on the held-out logs worse: the "

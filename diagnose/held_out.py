@@ -75,15 +75,17 @@ def told_text(check: dict) -> list[str]:
 
 
 def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataFrame) -> float:
-    """The held-out logs' residual RMS of the cause's coefficient without the cause's terms (the others
-    refitted on ``data``) over the RMS with them [-]: below 1, the cause makes the held-out data worse."""
+    """The held-out logs' residual RMS of the cause's coefficient against the model extended without the
+    cause's terms (the coefficient's other terms refitted on ``data``; the model alone if it has none) over
+    the RMS against the model extended with them [-]: below 1, the cause makes the held-out data worse."""
     import numpy as np
 
     from diagnose.stepwise import refit
     y = held[f"r_{res.coefficient}"].to_numpy()
     ok = np.isfinite(y)
-    without = refit(res, [t for t in res.terms if t not in cause.terms], data)
-    before = float(np.sqrt(np.mean((y - without.predict(held))[ok] ** 2)))
+    rest = [t for t in res.terms if t not in cause.terms]
+    without = refit(res, rest, data).predict(held) if rest else np.zeros(len(held))  # as the extension has it
+    before = float(np.sqrt(np.mean((y - without)[ok] ** 2)))
     after = float(np.sqrt(np.mean((y - res.predict(held))[ok] ** 2)))
     return before / after if after > 0 else float("inf")
 

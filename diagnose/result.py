@@ -172,7 +172,7 @@ class Diagnosis:
         for group in clusters(self.moved_together):
             corr = ", ".join(f"{p['variables'][0]}/{p['variables'][1]} {p['corr']:+.2f}" for p in self.moved_together
                              if set(p["variables"]) <= set(group))
-            lines.append(f"Caution: {', '.join(group[:-1])} and {group[-1]} flown together over the fitted logs "
+            lines.append(f"Caution: {', '.join(group[:-1])} and {group[-1]} flown together, across the fitted logs and within them "
                          f"(correlation {corr}): an effect of one fits as one of the other; a cause in one is "
                          f"confounded, its reading in the other beside it as a rival")
         if not self.causes and not self.unconfirmed:

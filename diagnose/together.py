@@ -2,8 +2,8 @@
 
 In a slow deceleration alpha rises as Mach falls; over such data a lift effect in alpha fits as one in Mach,
 and the search names whichever its terms happen to favour. Two candidate variables whose correlation over
-the fitted samples reaches ``flown_together_corr`` (:class:`diagnose.config.DiagnosisSettings`) are flown
-together: each cause in one of them gets its reading in the other as a rival
+the fitted samples reaches ``flown_together_corr`` (:class:`diagnose.config.DiagnosisSettings`), and within the
+logs ``flown_together_within``, are flown together: each cause in one of them gets its reading in the other as a rival
 (:func:`diagnose.separation.rival_hypotheses`), which ``campaign plan`` designs the flights to separate, and
 is marked confounded in the report. The flap angle and Mach, set per condition, have their own test
 (:mod:`diagnose.flap_mach`).
@@ -22,34 +22,46 @@ from diagnose.terms import Term
 TESTED = ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "qhat_rad")
 
 
-def flown_together(data: pd.DataFrame, corr: float | None = None) -> list[dict]:
-    """The pairs of candidate variables the fitted samples move together.
+def _corr(x: np.ndarray, y: np.ndarray) -> float:
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 3 or np.std(x[ok]) == 0 or np.std(y[ok]) == 0:
+        return 0.0
+    return float(np.corrcoef(x[ok], y[ok])[0, 1])
+
+
+def flown_together(data: pd.DataFrame, corr: float | None = None, within_corr: float | None = None) -> list[dict]:
+    """The pairs of candidate variables the fitted samples move together: over all the samples by ``corr``
+    or more in magnitude, and within the logs (each log's mean taken off) by ``within_corr``. A pair that moves together
+    across the logs only (a trimmed control and the flow state that sets it) is separated by the manoeuvres
+    within them; one that moves together within the logs only is separated by the conditions.
 
     Parameters
     ----------
     data : DataFrame
-        The fitted logs' residual data (the variables as columns).
-    corr : float, optional
-        The correlation that makes a pair (None: the settings' ``flown_together_corr``).
+        The fitted logs' residual data (the variables as columns, ``log`` the log of each sample).
+    corr, within_corr : float, optional
+        The correlations that make a pair (None: the settings' ``flown_together_corr`` and
+        ``flown_together_within``).
 
     Returns
     -------
     list of dict
-        ``variables`` (the pair), ``corr`` (their correlation over the samples [-]); strongest first. A
-        variable that varies less than its ``min_std`` is no candidate and makes no pair.
+        ``variables`` (the pair), ``corr`` (their correlation over the samples [-]) and ``corr_within_logs``;
+        strongest first. A variable that varies less than its ``min_std`` within the logs is no candidate
+        and makes no pair.
     """
     s = current()
     corr = s.flown_together_corr if corr is None else corr
-    live = [v for v in TESTED if v in data and float(data[v].std()) >= s.min_std.get(v, 0.0)]
+    within_corr = s.flown_together_within if within_corr is None else within_corr
+    live = [v for v in TESTED if v in data]
+    within = {v: data[v].to_numpy(float) - data.groupby("log")[v].transform("mean").to_numpy(float)
+              for v in live} if "log" in data else {}
+    live = [v for v in live if v in within and float(np.nanstd(within[v])) >= s.min_std.get(v, 0.0)]
     out = []
     for a, b in combinations(live, 2):
-        x, y = data[a].to_numpy(float), data[b].to_numpy(float)
-        ok = np.isfinite(x) & np.isfinite(y)
-        if ok.sum() < 3:
-            continue
-        r = float(np.corrcoef(x[ok], y[ok])[0, 1])
-        if np.isfinite(r) and abs(r) >= corr:
-            out.append({"variables": [a, b], "corr": r})
+        r, rw = _corr(data[a].to_numpy(float), data[b].to_numpy(float)), _corr(within[a], within[b])
+        if abs(r) >= corr and abs(rw) >= within_corr:
+            out.append({"variables": [a, b], "corr": r, "corr_within_logs": rw})
     return sorted(out, key=lambda p: -abs(p["corr"]))
 
 

@@ -47,7 +47,7 @@ def test_a_lift_in_alpha_flown_in_decelerations_is_confounded_and_the_plan_flies
     other = ({"alpha_deg", "mach"} - set(lift["variables"])).pop()
     assert any(other in r["rival"] and not r["settled"] for r in note["rivals"]), note
     text = (tmp_path / "d" / "diagnosis.txt").read_text()
-    assert "flown together over the fitted logs" in text and "confounded: the fitted logs fly" in text
+    assert "flown together, across the fitted logs and within them" in text and "confounded: the fitted logs fly" in text
     assert main(["plan", "--diagnosis", str(tmp_path / "d"), "--matrix", str(tmp_path / "next.toml"),
                  "--out", str(tmp_path / "plan"), "--jobs", "2", "--quiet"]) == 0
     plan = json.loads((tmp_path / "plan" / "plan.json").read_text())
