@@ -76,9 +76,10 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
     one_line_error(capsys, argv + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
     assert not (tmp_path / "c").exists()  # not even the folder, nor its lock
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
-    diag = ["diagnose", "--data", str(tmp_path), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d")]
+    out = tmp_path.parent / f"{tmp_path.name}-d"  # not inside --data
+    diag = ["diagnose", "--data", str(tmp_path), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]
     one_line_error(capsys, diag + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
-    assert not (tmp_path / "d").exists()
+    assert not out.exists()
 
 
 def test_replays_on_the_cluster_equal_local_replays_bit_for_bit(tmp_path, cluster):
