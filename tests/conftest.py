@@ -1,4 +1,6 @@
+import json
 import os
+from pathlib import Path
 
 import pytest
 
@@ -14,9 +16,47 @@ from campaign.simulation.matrix import load_matrix  # noqa: E402
 from campaign.validation.support import matrix_toml  # noqa: E402
 
 
+#: The fast tier (``pytest --fast``): tests that fly nothing, run no campaign and start no process, listed by
+#: module in ``tests/fast_tier.json``; a listed test that flies fails there (:func:`_in_tmp`).
+FAST_TIER = Path(__file__).with_name("fast_tier.json")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--fast", action="store_true",
+                     help="the fast tier only: no JSBSim flight, campaign or worker process (tests/fast_tier.json)")
+
+
+def pytest_collection_modifyitems(config, items):
+    if not config.getoption("--fast"):
+        return
+    listed = {m: set(names) for m, names in json.loads(FAST_TIER.read_text()).items()}
+    keep = [it for it in items if it.originalname in listed.get(it.module.__name__.rpartition(".")[2], ())]
+    config.hook.pytest_deselected(items=[it for it in items if it not in keep])
+    items[:] = keep
+
+
+class FlightInFastTier(AssertionError):
+    """A test of the fast tier flew, ran a campaign or started a process: take it out of tests/fast_tier.json."""
+
+
+def _refuse(what: str):
+    def refuse(*args, **kwargs):
+        raise FlightInFastTier(f"{what} in the fast tier: take this test out of {FAST_TIER.name}")
+    return refuse
+
+
 @pytest.fixture(autouse=True)
-def _in_tmp(tmp_path, monkeypatch):
+def _in_tmp(tmp_path, monkeypatch, request):
     monkeypatch.chdir(tmp_path)
+    if request.config.getoption("--fast"):
+        import subprocess
+
+        import campaign.simulation.engine as engine
+        import infra.pool as pool
+        monkeypatch.setattr(engine, "fly", _refuse("a JSBSim flight"))
+        monkeypatch.setattr(engine, "trimmed_fdm", _refuse("a JSBSim trim"))
+        monkeypatch.setattr(pool, "executor", _refuse("a worker process"))
+        monkeypatch.setattr(subprocess, "Popen", _refuse("a subprocess"))
 
 
 @pytest.fixture(scope="session")
