@@ -3,7 +3,8 @@
 The model is integrated from its initial states with the measured inputs; the parameters
 minimize ``det(R)``, ``R`` the covariance of the output residuals, by the relaxation of
 Jategaonkar (2015, ch. 4): ``R`` in closed form, then a Gauss-Newton step on the parameters
-with ``R`` held, the step halved while the cost rises. Sensitivities are forward
+with ``R`` held (the parameters scaled to a unit diagonal of the information matrix), the step
+halved while the cost rises. Sensitivities are forward
 differences, integrated as one batch with the nominal model.
 """
 from __future__ import annotations
@@ -16,6 +17,18 @@ import pandas as pd
 from identify.estimators.dynamics import Record, StateSpaceModel, simulate
 from identify.estimators.results import TimeDomainResults
 from identify.lsq import lagged_gram
+
+
+def solve_scaled(m: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step ``m^-1 g``, ``m`` scaled to a unit diagonal first (parameters of
+    very different sizes: a lift slope, a pitch damping, a process-noise level), by least
+    squares if it is singular (a parameter the data do not determine stays put)."""
+    d = np.sqrt(np.clip(np.diag(m), 1e-300, None))
+    ms = m / np.outer(d, d)
+    try:
+        return np.linalg.solve(ms, g / d) / d
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(ms, g / d, rcond=1e-12)[0] / d
 
 
 class OutputError:
@@ -124,9 +137,15 @@ class OutputError:
         """Hook: whether a trial step keeps the estimator's constraints (always, for the output error)."""
         return True
 
-    def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
-        """Hook after an accepted step; returns the parameters and the cost (log det R)."""
-        return theta, float(np.sum(np.log(self._covariance(self._residuals(theta)))))
+    def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """The cost minimized, ``log det R`` with ``R`` the residuals' covariance (diagonal), and that ``R``."""
+        r = self._covariance(self._residuals(theta))
+        return float(np.sum(np.log(r))), r
+
+    def _after_step(self, theta: np.ndarray, iteration: int, cost: float,
+                    r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """Hook after an accepted step: the parameters, the cost and ``R`` to go on from."""
+        return theta, cost, r
 
     def _information(self, res, sens, w) -> tuple[np.ndarray, np.ndarray]:
         m = sum(np.einsum("nkp,k,nkq->pq", s, w, s) for s in sens)
@@ -144,34 +163,44 @@ class OutputError:
     def _fit(self) -> TimeDomainResults:
         theta = self._start()
         self._prepare(theta)
-        res = self._residuals(theta)
-        cost = float(np.sum(np.log(self._covariance(res))))
-        history, converged, it = [float(np.exp(cost))], False, 0
+        cost, r = self._objective(theta)
+        if not np.isfinite(cost):
+            raise ValueError("the model cannot be integrated from the starting values")
+        history, costs, converged, it = [float(np.prod(r))], [cost], False, 0
+        reason = f"iteration limit ({self.max_iter}) reached"
         for it in range(1, self.max_iter + 1):
             self._prepare(theta)
             res, sens = self._sensitivities(theta)
             w = self._weights(res)
             m, g = self._information(res, sens, w)
-            delta = self._constrain(theta, np.linalg.solve(m, g), m, g)
+            delta = self._constrain(theta, solve_scaled(m, g), m, g)
             for _ in range(11):
                 trial = theta + delta
-                c = float(np.sum(np.log(self._covariance(self._residuals(trial)))))
+                c, r = self._objective(trial)
                 if np.isfinite(c) and c <= cost and self._trial_ok(trial):
                     break
                 delta = 0.5 * delta
             else:
                 # no decrease after ten halvings: at the (constrained) minimum to numerical precision
                 # when the last accepted step had nearly stopped changing the cost
-                converged = len(history) > 1 and abs(history[-1] / history[-2] - 1.0) < 10 * self.tol
+                last = abs(np.expm1(costs[-1] - costs[-2])) if len(costs) > 1 else float("nan")
+                converged = last < 10 * self.tol
+                reason = "" if converged else (f"no step lowered the cost at iteration {it} (ten halvings); the last "
+                                               f"accepted step changed it by {last:.2g}, the tolerance is {self.tol:g}")
                 break
-            theta, c = self._after_step(trial, it)
+            theta, c, r = self._after_step(trial, it, c, r)
             change = abs(np.expm1(c - cost))
             cost = c
-            history.append(float(np.exp(cost)))
+            costs.append(cost)
+            history.append(float(np.prod(r)))
             if change < self.tol:
-                converged = True
+                converged, reason = True, ""
                 break
-        return self._results(theta, history, converged, it)
+        else:
+            reason += f", the cost still changing by {abs(np.expm1(costs[-1] - costs[-2])):.2g} a step"
+        out = self._results(theta, history, converged, it)
+        out.reason = reason
+        return out
 
     def _results(self, theta, history, converged, iterations) -> TimeDomainResults:
         self._prepare(theta)
