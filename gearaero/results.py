@@ -57,6 +57,12 @@ class IdentificationResult:
         ``dCD_gear``, ``dCm_gear`` [-] and the derivatives."""
         return pd.read_csv(self.folder / "linear_gear_model.csv")
 
+    @property
+    def not_converged(self) -> list[dict]:
+        """The points whose output-error or filter-error fit did not converge: ``point``, ``method``,
+        ``reason`` (their estimates are the equation error's, labelled ``ee``); empty for equation error."""
+        return list(self.to_dict().get("not_converged", []))
+
     def summary(self) -> str:
         """The identification's summary: gear increments, eq. (9) designs, the data compatibility
         (``summary.txt`` without its per-point fits), and where the files are."""
