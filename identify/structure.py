@@ -87,10 +87,13 @@ class Structure:
         return f"{kind} ({', '.join(self.states)}) fitted to {', '.join(self.outputs)}; {terms}"
 
 
-#: The default: the longitudinal model with lift and drag in alpha and Mach (and alpha's square),
-#: the pitching moment also in pitch rate and the controls; each fit leaves out the terms its
-#: records do not excite (:func:`identify.timedomain.supported`).
-DEFAULT = Structure({"CL": ("const", "dalpha_rad", "dmach", "dalpha2_rad2"),
+#: The default: the longitudinal model with lift in alpha, Mach (and alpha's square) and the controls,
+#: drag in alpha and Mach, the pitching moment in all of eq. (3)'s terms. Lift and drag take no
+#: pitch-rate term: in turbulence it takes the gusts' and the vanes' share and bends the pitch
+#: damping. Each fit leaves out the terms its records do not excite, and the lift's control terms
+#: on which it and the equation error disagree (:func:`identify.timedomain.supported`,
+#: :func:`identify.timedomain.disagreement`).
+DEFAULT = Structure({"CL": ("const", "dalpha_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2"),
                      "CD": ("const", "dalpha_rad", "dmach", "dalpha2_rad2"),
                      "Cm": TERMS})
 

@@ -54,6 +54,10 @@ CHANNEL = {"tas_kt": ("V", FT_PER_KT), "alpha_deg": ("alpha_rad", D2R), "theta_d
 F0_SHARE = 0.2
 #: alpha's square enters a time-domain model when it varies this much apart from alpha (std) [deg^2]
 MIN_CURVATURE_DEG2 = 1.0
+#: the lift and drag terms the default structure keeps only where the time-domain and the equation-error
+#: estimates agree within AGREE_SE combined standard errors (:func:`disagreement`)
+SECONDARY = ("delevator_rad", "dstabilizer_rad")
+AGREE_SE = 3.0
 #: outputs whose bias the output error estimates (the accelerometers: the data compatibility may leave one)
 BIASED = ("ax", "az")
 
@@ -160,6 +164,30 @@ def curvature_deg2(logs: Sequence[Log], fits: Sequence[PointFit]) -> float:
     return float(np.std(rest)) / D2R ** 2
 
 
+def disagreement(res, fits: Sequence[PointFit], used: Structure) -> tuple[str, str, str] | None:
+    """The lift or drag control term (of the default structure) on which the time-domain estimate and the
+    equation error's disagree most, by more than :data:`AGREE_SE` combined standard errors (coloured):
+    (coefficient, term, why), or None. Where two methods with different error models disagree on a
+    secondary term, the record does not determine it (an elevator that moved with alpha, a vane's lag):
+    left out, it cannot bend the lift slope and the pitch damping."""
+    worst, found = AGREE_SE, None
+    for c in ("CL", "CD"):
+        for t in used.terms.get(c, ()):
+            if t not in SECONDARY:
+                continue
+            ee = [(float(f.fits[c].params[t]), float(f.fits[c].bse[t])) for f in fits if t in f.fits[c].params.index]
+            if not ee:
+                continue
+            v_ee, se_ee = np.mean([v for v, _ in ee]), np.sqrt(np.mean([se ** 2 for _, se in ee]))
+            name = param_name(c, t)
+            v, se = float(res.params[name]), float(res.bse_coloured[name])
+            z = abs(v - v_ee) / np.hypot(se, se_ee)
+            if z > worst:
+                worst, found = z, (c, t, f"equation error and {NAMES[res.method]} disagree on it ({v_ee:.3g} +- "
+                                         f"{se_ee:.2g} against {v:.3g} +- {se:.2g}): the records do not determine it")
+    return found
+
+
 def estimator(model, records, start, method: str, air: dict, max_iter: int | None = None):
     """The output-error or filter-error estimator of a point model (its own start and step control)."""
     outputs = set(model.outputs)
@@ -217,13 +245,19 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     used = supported(logs, fits, structure)
-    model, recs, start, air = group_model(logs, fits, used)
-    names = [log.point for log in logs]
-    info = {"method": method, "records": names, "structure": used.to_dict()}
-    try:
-        res = estimator(model, recs, start, method, air, max_iter).fit()
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        return [replace(f, failure={"method": method, "reason": f"the estimator failed: {exc}"}) for f in fits]
+    while True:
+        model, recs, start, air = group_model(logs, fits, used)
+        try:
+            res = estimator(model, recs, start, method, air, max_iter).fit()
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            return [replace(f, failure={"method": method, "reason": f"the estimator failed: {exc}"}) for f in fits]
+        if structure is not DEFAULT or not res.converged:
+            break
+        worst = disagreement(res, fits, used)
+        if worst is None:
+            break
+        used = used.without(*worst)
+    info = {"method": method, "records": [log.point for log in logs], "structure": used.to_dict()}
     info.update(converged=bool(res.converged), iterations=res.iterations, reason=res.reason, cost=res.cost,
                 R={k: float(v) for k, v in res.R.items()})
     if not res.converged or not np.all(np.isfinite(res.params)):

@@ -151,14 +151,21 @@ class FilterError(OutputError):
         self.r_gain = r_old
         return theta, cost, r
 
-    def _inside(self, theta: np.ndarray, shrink: float = 0.7, tries: int = 12) -> np.ndarray | None:
-        """``theta`` with the process noise of each state whose ``K C`` exceeds 1 reduced until none
-        does (with a new ``R`` the compensated gain may overshoot), or None."""
+    def _inside(self, theta: np.ndarray) -> np.ndarray | None:
+        """``theta`` with the process noise of the states whose ``K C`` exceeds 1 scaled down, by
+        bisection, until none does (with a new ``R`` the compensated gain may overshoot); None if
+        no scaling does."""
         nx = len(self.model.states)
-        theta = theta.copy()
-        for _ in range(tries):
-            kc = self._kc(theta[None])[0]
-            if np.all(kc <= 1.0):
-                return theta
-            theta[-nx:] = np.where(kc > 1.0 - KC_MARGIN, shrink * theta[-nx:], theta[-nx:])
-        return None
+        kc = self._kc(theta[None])[0]
+        if np.all(kc <= 1.0):
+            return theta
+        over = np.zeros(len(theta), dtype=bool)
+        over[len(theta) - nx:] = kc > 1.0 - KC_MARGIN
+        lo, hi = 0.0, 1.0
+        while hi - lo > 1e-3:
+            mid = 0.5 * (lo + hi)
+            if np.all(self._kc(np.where(over, mid * theta, theta)[None]) <= 1.0 - 0.5 * KC_MARGIN):
+                lo = mid
+            else:
+                hi = mid
+        return np.where(over, lo * theta, theta) if lo > 0.0 else None

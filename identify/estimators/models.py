@@ -164,11 +164,12 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
     kept = {}  # the parameters of the last call, spread over (coefficient, regressor): one batch's are reused
 
     def weights(p):
-        if "p" not in kept or kept["p"].shape != p.shape or not np.array_equal(kept["p"], p):
+        key = (p.shape, p.tobytes())
+        if kept.get("key") != key:
             w = np.zeros((len(p), 3, len(used)))
             for k, (sl, ix) in enumerate(slices.values()):
                 w[:, k, ix] = p[:, sl]
-            kept.update(p=p.copy(), w=w)
+            kept.update(key=key, w=w)
         return kept["w"]
 
     def coefficients(v, a, q, u, p):
@@ -189,14 +190,17 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
     def f(x, u, p):
         v, a, th, q, qs, c, thrust = forces(x, u, p)
         m = af.mass
-        qdot = (qs * af.chord * c["Cm"] + af.thrust_arm * thrust) / af.iyy
+        out = np.empty_like(x)
+        out[:, -1] = (qs * af.chord * c["Cm"] + af.thrust_arm * thrust) / af.iyy
         if short:
-            adot = q + (af.g * np.cos(off.get("gamma_rad", 0.0)) - thrust * np.sin(a_ref + af.thrust_angle_rad) / m
-                        - qs * c["CL"] / m) / v
-            return np.stack([adot, qdot], axis=1)
-        vdot = (-qs * c["CD"] + thrust * np.cos(a + af.thrust_angle_rad)) / m + af.g * np.sin(a - th)
-        adot = (-qs * c["CL"] - thrust * np.sin(a + af.thrust_angle_rad)) / (m * v) + q + af.g * np.cos(a - th) / v
-        return np.stack([vdot, adot, q, qdot], axis=1)
+            out[:, 0] = q + (af.g * np.cos(off.get("gamma_rad", 0.0)) - thrust * np.sin(a_ref + af.thrust_angle_rad) / m
+                             - qs * c["CL"] / m) / v
+            return out
+        ath = a - th
+        out[:, 0] = (-qs * c["CD"] + thrust * np.cos(a + af.thrust_angle_rad)) / m + af.g * np.sin(ath)
+        out[:, 1] = (-qs * c["CL"] - thrust * np.sin(a + af.thrust_angle_rad)) / (m * v) + q + af.g * np.cos(ath) / v
+        out[:, 2] = q
+        return out
 
     def g(x, u, p):
         v, a, th, q, qs, c, thrust = forces(x, u, p)

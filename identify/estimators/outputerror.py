@@ -19,6 +19,17 @@ from identify.estimators.results import TimeDomainResults
 from identify.lsq import lagged_gram
 
 
+#: A fit has converged when a step moves no estimate by more than this share of its Cramér-Rao bound
+#: (or changes the cost by less than the tolerance).
+STILL_SE = 0.1
+
+
+def bounds(m: np.ndarray) -> np.ndarray:
+    """Cramér-Rao bounds of an information matrix (scaled before it is inverted)."""
+    d = np.sqrt(np.clip(np.diag(m), 1e-300, None))
+    return np.sqrt(np.clip(np.diag(np.linalg.pinv(m / np.outer(d, d))), 1e-300, None)) / d
+
+
 def solve_scaled(m: np.ndarray, g: np.ndarray) -> np.ndarray:
     """The Gauss-Newton step ``m^-1 g``, ``m`` scaled to a unit diagonal first (parameters of
     very different sizes: a lift slope, a pitch damping, a process-noise level), by least
@@ -49,7 +60,8 @@ class OutputError:
     biases : collection of str
         Outputs with an estimated bias, per record.
     tol : float
-        Convergence: relative change of ``det(R)`` between iterations.
+        Convergence: relative change of ``det(R)`` between iterations (or a step that moves no
+        estimate by more than :data:`STILL_SE` of its Cramér-Rao bound).
     max_iter : int
     step : float
         Relative finite-difference step (absolute for parameters at zero).
@@ -137,6 +149,18 @@ class OutputError:
         """Hook: whether a trial step keeps the estimator's constraints (always, for the output error)."""
         return True
 
+    def _line_search(self, theta: np.ndarray, delta: np.ndarray, cost: float,
+                     halvings: int) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """The first of ``theta + delta``, ``theta + delta / 2``, ... that lowers the cost and keeps the
+        constraints: (parameters, cost, R), or None."""
+        for _ in range(halvings):
+            trial = theta + delta
+            c, r = self._objective(trial)
+            if np.isfinite(c) and c <= cost and self._trial_ok(trial):
+                return trial, c, r
+            delta = 0.5 * delta
+        return None
+
     def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         """The cost minimized, ``log det R`` with ``R`` the residuals' covariance (diagonal), and that ``R``."""
         r = self._covariance(self._residuals(theta))
@@ -166,34 +190,41 @@ class OutputError:
         cost, r = self._objective(theta)
         if not np.isfinite(cost):
             raise ValueError("the model cannot be integrated from the starting values")
-        history, costs, converged, it = [float(np.prod(r))], [cost], False, 0
+        history, costs, converged, it, last_step = [float(np.prod(r))], [cost], False, 0, None
         reason = f"iteration limit ({self.max_iter}) reached"
         for it in range(1, self.max_iter + 1):
             self._prepare(theta)
             res, sens = self._sensitivities(theta)
             w = self._weights(res)
             m, g = self._information(res, sens, w)
-            delta = self._constrain(theta, solve_scaled(m, g), m, g)
-            for _ in range(11):
-                trial = theta + delta
-                c, r = self._objective(trial)
-                if np.isfinite(c) and c <= cost and self._trial_ok(trial):
+            step = None
+            # the Gauss-Newton step, then, if no halving of it lowers the cost (a poor quadratic model: a
+            # constraint nearly active, inaccurate sensitivities), steps damped toward the gradient
+            for damping, halvings in ((0.0, 11), (1e-2, 6), (1.0, 6), (1e2, 6)):
+                md = m + damping * np.diag(np.diag(m))
+                step = self._line_search(theta, self._constrain(theta, solve_scaled(md, g), md, g), cost, halvings)
+                if step is not None:
                     break
-                delta = 0.5 * delta
-            else:
-                # no decrease after ten halvings: at the (constrained) minimum to numerical precision
-                # when the last accepted step had nearly stopped changing the cost
+            if step is None:
+                # no step lowers the cost: at the (constrained) minimum to numerical precision when the
+                # last accepted step had nearly stopped changing the cost, or moved no estimate by more
+                # than a small part of its Cramér-Rao bound
                 last = abs(np.expm1(costs[-1] - costs[-2])) if len(costs) > 1 else float("nan")
-                converged = last < 10 * self.tol
-                reason = "" if converged else (f"no step lowered the cost at iteration {it} (ten halvings); the last "
-                                               f"accepted step changed it by {last:.2g}, the tolerance is {self.tol:g}")
+                moved = float(np.max(np.abs(last_step) / bounds(m))) if last_step is not None else float("nan")
+                converged = last < 10 * self.tol or moved < STILL_SE
+                reason = "" if converged else (
+                    f"no step lowered the cost at iteration {it} (Gauss-Newton and damped steps, each halved); the last "
+                    f"accepted step changed it by {last:.2g} (tolerance {self.tol:g}) and moved an estimate by "
+                    f"{moved:.2g} of its Cramér-Rao bound")
                 break
+            trial, c, r = step
+            last_step = trial - theta
             theta, c, r = self._after_step(trial, it, c, r)
             change = abs(np.expm1(c - cost))
             cost = c
             costs.append(cost)
             history.append(float(np.prod(r)))
-            if change < self.tol:
+            if change < self.tol or np.max(np.abs(last_step) / bounds(m)) < STILL_SE:
                 converged, reason = True, ""
                 break
         else:
