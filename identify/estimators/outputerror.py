@@ -125,12 +125,23 @@ class OutputError:
         return [r.z - y[0] for r, y in zip(self.records, self.predict(theta[None]))]
 
     def _sensitivities(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Residuals and output sensitivities ``dy/dtheta`` (N, ny, n) per record."""
-        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)
-        batch = np.vstack([theta, theta + np.diag(h)])
+        """Residuals and output sensitivities ``dy/dtheta`` (N, ny, n) per record; an output bias's is
+        one on its record's output, the others' are finite differences."""
+        n, first = len(theta), len(self.i_free) + len(self.records) * len(self.i_x0)
+        nbias = len(self.records) * len(self.i_bias)
+        moved = [i for i in range(n) if not first <= i < first + nbias]
+        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)[moved]
+        batch = np.repeat(theta[None], len(moved) + 1, axis=0)
+        batch[1 + np.arange(len(moved)), moved] += h
         ys = self.predict(batch)
         res = [r.z - y[0] for r, y in zip(self.records, ys)]
-        sens = [np.transpose((y[1:] - y[:1]) / h[:, None, None], (1, 2, 0)) for y in ys]
+        sens = []
+        for j, y in enumerate(ys):
+            s = np.zeros((y.shape[1], y.shape[2], n))
+            s[:, :, moved] = np.transpose((y[1:] - y[:1]) / h[:, None, None], (1, 2, 0))
+            for k, out in enumerate(self.i_bias):
+                s[:, out, first + j * len(self.i_bias) + k] = 1.0
+            sens.append(s)
         return res, sens
 
     @staticmethod
