@@ -195,7 +195,7 @@ def _cli_result(r: dict) -> str:
     if r["method"] == "oe" and r["record"] == "HFB-320":
         ref = "independent_oe"
     if ref is None or r["method"] == "ee" and ref != "published_fe":
-        return values
+        return values if r["record"] != "ATTAS" else f"{values} (nothing published in these terms)"
     worst = max(abs(v["ours"] / v[ref] - 1) for v in d.values() if v["ours"] is not None) * 100
     against = {"published_fe": "the published filter-error estimates",
                "independent_oe": "an output-error run of the data set's own model",

@@ -48,7 +48,8 @@ class IdentificationResult:
     @property
     def parameters(self) -> pd.DataFrame:
         """Every point's eq. (3) parameters: ``point``, ``gear``, ``coefficient``, ``parameter``,
-        ``estimate``, ``std_error``, ``identifiable``, ``note`` (regressors in rad, [1/rad])."""
+        ``estimate``, ``std_error``, ``identifiable``, ``note``, ``method`` (the estimator the number came
+        from; regressors in rad, [1/rad])."""
         return pd.read_csv(self.folder / "baseline_parameters.csv")
 
     @property

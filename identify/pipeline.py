@@ -243,13 +243,13 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                 yield {"point": f.point, "gear": "down" if f.gear_down else "up", "coefficient": c,
                        "parameter": f"{c}{PARAM_SUFFIX[r]}", "estimate": float(res.params[r]) if ok else np.nan,
                        "std_error": float(res.bse[r]) if ok else np.nan,
-                       "identifiable": ok, "note": "" if ok else res.unexcited.get(r, "")}
+                       "identifiable": ok, "note": "" if ok else res.unexcited.get(r, ""), "method": res.method}
 
     def statistics_rows(f: PointFit) -> Iterator[dict]:
         for c, res in f.fits.items():
             yield {"point": f.point, "coefficient": c, "r2": res.rsquared, "resid_max": res.resid_max,
                    "resid_rms": res.resid_rms, "rel_error_pct": res.rel_error_pct, "nobs": res.nobs,
-                   "not_identifiable": ";".join(res.unexcited)}
+                   "not_identifiable": ";".join(res.unexcited), "method": res.method}
 
     _csv_in_chunks(out / "baseline_parameters.csv", (r for f in ident.fits for r in parameter_rows(f)))
     _csv_in_chunks(out / "baseline_fit_statistics.csv", (r for f in ident.fits for r in statistics_rows(f)))

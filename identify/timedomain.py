@@ -70,7 +70,7 @@ def param_name(coeff: str, term: str) -> str:
 def _channel(d: pd.DataFrame, name: str) -> np.ndarray:
     if name == "qdot_dps2":
         return pitch_acceleration(d) * D2R
-    col, k = CHANNEL[name]
+    _, k = CHANNEL[name]
     return d[name].to_numpy(dtype=float) * k
 
 
@@ -229,6 +229,10 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
     leaves out keeps its equation-error fit, labelled ``ee``. When the estimator does not
     converge, every coefficient keeps its equation-error fit, labelled ``ee``, and each
     :class:`PointFit` carries the failure (``failure``: the method and the reason).
+
+    In the default structure the terms the records do not excite are left out first
+    (:func:`supported`); after the fit, a lift or drag control term on which it and the
+    equation error disagree (:func:`disagreement`) is left out and the fit made again.
 
     Parameters
     ----------

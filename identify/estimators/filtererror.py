@@ -56,7 +56,20 @@ class FilterError(OutputError):
         self.r_gain = None  # the innovation covariance the gain is computed with
 
     def _start(self) -> np.ndarray:
-        return np.concatenate([super()._start(), self.f0])
+        """The starting values, the process noise scaled down where it would put ``K C`` above 1 (a
+        gain that overcorrects makes the filter diverge)."""
+        theta = np.concatenate([super()._start(), self.f0])
+        self._initial_r(theta)
+        inside = self._inside(theta)
+        return theta if inside is None else inside
+
+    def _initial_r(self, theta: np.ndarray) -> None:
+        """``R`` from the output error's residuals (no gain), to start."""
+        if self.r_gain is None:
+            nx = len(self.model.states)
+            p, x0s, _ = self._unpack(theta[None, :-nx])
+            res = [r.z - simulate(self.model, p, x0, r)[0] for r, x0 in zip(self.records, x0s)]
+            self.r_gain = self._covariance(res)
 
     def gains(self, thetas: np.ndarray, rec: Record) -> tuple[np.ndarray, np.ndarray]:
         """Steady-state gains (B, nx, ny) and linearized output matrices (B, ny, nx)."""
@@ -82,11 +95,7 @@ class FilterError(OutputError):
         return [simulate(self.model, p, x0, r, gain=self.gains(thetas, r)[0]) for r, x0 in zip(self.records, x0s)]
 
     def _residuals(self, theta: np.ndarray) -> list[np.ndarray]:
-        if self.r_gain is None:  # start: the output error's residuals, no gain
-            nx = len(self.model.states)
-            p, x0s, _ = self._unpack(theta[None, :-nx])
-            res = [r.z - simulate(self.model, p, x0, r)[0] for r, x0 in zip(self.records, x0s)]
-            self.r_gain = self._covariance(res)
+        self._initial_r(theta)
         return super()._residuals(theta)
 
     def _weights(self, res: list[np.ndarray]) -> np.ndarray:
