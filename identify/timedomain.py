@@ -255,7 +255,7 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
             res = estimator(model, recs, start, method, air, max_iter).fit()
         except (ValueError, np.linalg.LinAlgError) as exc:
             return [replace(f, failure={"method": method, "reason": f"the estimator failed: {exc}"}) for f in fits]
-        if structure is not DEFAULT or not res.converged:
+        if structure.source != DEFAULT.source or not res.converged:  # a structure the user named is fitted as named
             break
         worst = disagreement(res, fits, used)
         if worst is None:

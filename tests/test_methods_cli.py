@@ -170,3 +170,27 @@ def test_time_domain_options_are_refused_with_equation_error(hfb_import, tmp_pat
     assert main(["identify", str(hfb_import), "--out", str(tmp_path / "x"), "--method", "oe",
                  "--max-iterations", "0"]) == 2
     assert "--max-iterations" in capsys.readouterr().err
+
+
+def test_worker_processes_fit_as_this_process_does(hfb_oe, tmp_path):
+    """Two status points on two workers: each fitted as a single point is in this process, the
+    default structure's decisions included (a structure crosses to a worker as a copy)."""
+    import shutil
+
+    from identify.logs import read_campaign
+    from identify.pipeline import identify_logs
+    shutil.copy(DATA / "hfb320_1_10.asc", tmp_path / "hfb_higher.asc")
+    higher = tmp_path / "higher-map.toml"
+    higher.write_text((EXAMPLES / "hfb320-map.toml").read_text().replace('alt_ft = "4300 m"', 'alt_ft = "4500 m"'))
+    folder = _import(tmp_path / "two", ("hfb320_1_10.asc", "hfb320-map.toml"))
+    assert main(["import", str(tmp_path / "hfb_higher.asc"), "--map", str(higher), "--out", str(folder)]) == 0
+    # the single record had no data compatibility (one log): neither have these two copies of it
+    ident = identify_logs(read_campaign(folder), compatibility=False, jobs=2, method="oe")
+    fits = {f.point: f for f in ident.fits}
+    assert set(fits) == {"hfb320_1_10", "hfb_higher"} and ident.converged == 2
+    for f in fits.values():
+        assert f.timedomain["records"] == [f.point]
+        assert "disagree" in f.timedomain["structure"]["left_out"]["CL delevator_rad"]
+    one = hfb_oe[2]["points"]["hfb320_1_10"]
+    for c in ("CL", "CD", "Cm"):
+        assert fits["hfb320_1_10"].fits[c].params.to_dict() == pytest.approx(one[c]["params"], rel=1e-9, abs=1e-12)
