@@ -90,9 +90,9 @@ class Structure:
 #: The default: the longitudinal model with lift in alpha, Mach (and alpha's square) and the controls,
 #: drag in alpha and Mach, the pitching moment in all of eq. (3)'s terms. Lift and drag take no
 #: pitch-rate term: in turbulence it takes the gusts' and the vanes' share and bends the pitch
-#: damping. Each fit leaves out the terms its records do not excite, and the lift's control terms
-#: on which it and the equation error disagree (:func:`identify.timedomain.supported`,
-#: :func:`identify.timedomain.disagreement`).
+#: damping. Each fit leaves out the terms its records do not excite, and the lift and drag control
+#: and curvature terms on which it and the equation error disagree
+#: (:func:`identify.timedomain.supported`, :func:`identify.timedomain.disagreement`).
 DEFAULT = Structure({"CL": ("const", "dalpha_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2"),
                      "CD": ("const", "dalpha_rad", "dmach", "dalpha2_rad2"),
                      "Cm": TERMS})

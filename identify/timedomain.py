@@ -56,7 +56,7 @@ F0_SHARE = 0.2
 MIN_CURVATURE_DEG2 = 1.0
 #: the lift and drag terms the default structure keeps only where the time-domain and the equation-error
 #: estimates agree within AGREE_SE combined standard errors (:func:`disagreement`)
-SECONDARY = ("delevator_rad", "dstabilizer_rad")
+SECONDARY = ("delevator_rad", "dstabilizer_rad", "dalpha2_rad2")
 AGREE_SE = 3.0
 #: outputs whose bias the output error estimates (the accelerometers: the data compatibility may leave one)
 BIASED = ("ax", "az")
@@ -164,13 +164,14 @@ def curvature_deg2(logs: Sequence[Log], fits: Sequence[PointFit]) -> float:
     return float(np.std(rest)) / D2R ** 2
 
 
-def disagreement(res, fits: Sequence[PointFit], used: Structure) -> tuple[str, str, str] | None:
-    """The lift or drag control term (of the default structure) on which the time-domain estimate and the
-    equation error's disagree most, by more than :data:`AGREE_SE` combined standard errors (coloured):
-    (coefficient, term, why), or None. Where two methods with different error models disagree on a
-    secondary term, the record does not determine it (an elevator that moved with alpha, a vane's lag):
-    left out, it cannot bend the lift slope and the pitch damping."""
-    worst, found = AGREE_SE, None
+def disagreement(res, fits: Sequence[PointFit], used: Structure) -> list[tuple[str, str, str]]:
+    """The lift and drag control and curvature terms (of the default structure) on which the
+    time-domain estimates and the equation error's disagree by more than :data:`AGREE_SE` combined
+    standard errors (coloured): (coefficient, term, why) each. Where two methods with different error
+    models disagree on such a term, the records do not determine it (an elevator that moved with alpha,
+    a vane's lag, a curvature along a valley of the cost): left out, it cannot bend the lift slope and
+    the pitch damping."""
+    found = []
     for c in ("CL", "CD"):
         for t in used.terms.get(c, ()):
             if t not in SECONDARY:
@@ -181,10 +182,9 @@ def disagreement(res, fits: Sequence[PointFit], used: Structure) -> tuple[str, s
             v_ee, se_ee = np.mean([v for v, _ in ee]), np.sqrt(np.mean([se ** 2 for _, se in ee]))
             name = param_name(c, t)
             v, se = float(res.params[name]), float(res.bse_coloured[name])
-            z = abs(v - v_ee) / np.hypot(se, se_ee)
-            if z > worst:
-                worst, found = z, (c, t, f"equation error and {NAMES[res.method]} disagree on it ({v_ee:.3g} +- "
-                                         f"{se_ee:.2g} against {v:.3g} +- {se:.2g}): the records do not determine it")
+            if not np.isfinite(v) or abs(v - v_ee) > AGREE_SE * np.hypot(se, se_ee):
+                found.append((c, t, f"equation error and {NAMES[res.method]} disagree on it ({v_ee:.3g} +- "
+                                    f"{se_ee:.2g} against {v:.3g} +- {se:.2g}): the records do not determine it"))
     return found
 
 
@@ -231,8 +231,9 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
     :class:`PointFit` carries the failure (``failure``: the method and the reason).
 
     In the default structure the terms the records do not excite are left out first
-    (:func:`supported`); after the fit, a lift or drag control term on which it and the
-    equation error disagree (:func:`disagreement`) is left out and the fit made again.
+    (:func:`supported`); after the fit (converged, or stopped at the estimator's own limit), the
+    lift and drag control and curvature terms on which it and the equation error disagree
+    (:func:`disagreement`) are left out and the fit made again.
 
     Parameters
     ----------
@@ -255,12 +256,14 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
             res = estimator(model, recs, start, method, air, max_iter).fit()
         except (ValueError, np.linalg.LinAlgError) as exc:
             return [replace(f, failure={"method": method, "reason": f"the estimator failed: {exc}"}) for f in fits]
-        if structure.source != DEFAULT.source or not res.converged:  # a structure the user named is fitted as named
+        # a structure the user named is fitted as named; a fit stopped at the user's iteration limit is reported
+        if structure.source != DEFAULT.source or not (res.converged or max_iter is None):
             break
-        worst = disagreement(res, fits, used)
-        if worst is None:
+        split = disagreement(res, fits, used)
+        if not split:
             break
-        used = used.without(*worst)
+        for term in split:
+            used = used.without(*term)
     info = {"method": method, "records": [log.point for log in logs], "structure": used.to_dict()}
     info.update(converged=bool(res.converged), iterations=res.iterations, reason=res.reason, cost=res.cost,
                 R={k: float(v) for k, v in res.R.items()})

@@ -160,6 +160,12 @@ class FilterError(OutputError):
         self.r_gain = r_old
         return theta, cost, r
 
+    def _stalled(self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray):
+        """No step on the parameters lowers the likelihood with ``R`` held: ``R`` re-estimated (as after a
+        step); if that lowers it, go on from there, else the parameters and ``R`` are both settled."""
+        theta, c, r = self._after_step(theta, max(iteration, F_UPDATE_FROM), cost, r)
+        return (theta, c, r) if abs(np.expm1(c - cost)) >= self.tol else True
+
     def _inside(self, theta: np.ndarray) -> np.ndarray | None:
         """``theta`` with the process noise of the states whose ``K C`` exceeds 1 scaled down, by
         bisection, until none does (with a new ``R`` the compensated gain may overshoot); None if

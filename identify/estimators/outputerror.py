@@ -172,6 +172,12 @@ class OutputError:
             delta = 0.5 * delta
         return None
 
+    def _stalled(self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray):
+        """Hook where no step lowers the cost: the parameters, cost and ``R`` to go on from if the
+        estimator can still lower it otherwise; True if it has converged; False to judge by the steps
+        taken (the output error: ``R`` is in closed form)."""
+        return False
+
     def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         """The cost minimized, ``log det R`` with ``R`` the residuals' covariance (diagonal), and that ``R``."""
         r = self._covariance(self._residuals(theta))
@@ -218,11 +224,19 @@ class OutputError:
                     break
             if step is None:
                 # no step lowers the cost: at the (constrained) minimum to numerical precision when the
-                # last accepted step had nearly stopped changing the cost, or moved no estimate by more
-                # than a small part of its Cramér-Rao bound
+                # estimator's other unknowns are settled too (_stalled), when the last accepted step had
+                # nearly stopped changing the cost, or moved no estimate by more than a small part of its
+                # Cramér-Rao bound
+                settled = self._stalled(theta, it, cost, r)
+                if not isinstance(settled, bool):
+                    theta, c, r = settled
+                    cost, last_step = c, None
+                    costs.append(cost)
+                    history.append(float(np.prod(r)))
+                    continue
                 last = abs(np.expm1(costs[-1] - costs[-2])) if len(costs) > 1 else float("nan")
                 moved = float(np.max(np.abs(last_step) / bounds(m))) if last_step is not None else float("nan")
-                converged = last < 10 * self.tol or moved < STILL_SE
+                converged = settled or last < 10 * self.tol or moved < STILL_SE
                 reason = "" if converged else (
                     f"no step lowered the cost at iteration {it} (Gauss-Newton and damped steps, each halved); the last "
                     f"accepted step changed it by {last:.2g} (tolerance {self.tol:g}) and moved an estimate by "
