@@ -23,6 +23,8 @@ GENERATED = ROOT / "docs" / "generated"
 README = ROOT / "README.md"
 BEGIN = "<!-- validation table: written by benchmarks/tables.py from benchmarks/results/, do not edit -->"
 END = "<!-- end of validation table -->"
+BEGIN_METHODS = "<!-- methods table: written by benchmarks/tables.py from benchmarks/results/, do not edit -->"
+END_METHODS = "<!-- end of methods table -->"
 BANDS = ("0.3-1", "1-3", "3-10", "10 and more")
 
 
@@ -173,12 +175,49 @@ def detection_figure(path: Path) -> None:
 def methods_page() -> str:
     doc = _json("identification_accuracy.json")
     cols = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
-    rows = [[r["data"], r["method"], *[r[c] for c in cols], r["s_per_point"]] for r in doc["rows"]]
-    out = _table(["data", "method", *cols, "s / point"], rows) + _source(doc)
+
+    def cell(r, c):
+        if c not in r:
+            return "-"
+        return f"{r[c]} ({r[c + '_points']} points)" if c + "_points" in r else r[c]
+    rows = [[r["data"], r["method"], r.get("converged", "-"), *[cell(r, c) for c in cols], r["s_per_point"]]
+            for r in doc["rows"]]
+    out = _table(["data", "method", "converged", *cols, "s / point"], rows) + _source(doc)
     out += f"\n{doc['setup']}. {doc['caveat'][0].upper() + doc['caveat'][1:]}.\n"
     out += "\nShare of estimates within 3 coloured standard errors of the XML, flight-test profile: " + ", ".join(
         f"{k} {v}" for k, v in doc["within_3_coloured_se"].items()) + ".\n"
     return out
+
+
+SYMBOL = {"Z_alpha_per_s": "Z_alpha", "Z_q": "Z_q", "Z_de_per_s": "Z_de", "M_alpha_per_s2": "M_alpha",
+          "M_q_per_s": "M_q", "M_de_per_s2": "M_de"}
+
+
+def _cli_result(r: dict) -> str:
+    """What one command-line run gave, against its reference where it has one."""
+    d = r["derivatives"]
+    values = ", ".join(f"{SYMBOL.get(k, k)} {v['ours']:.4g}" for k, v in d.items() if v["ours"] is not None)
+    ref = next((k for k in ("published_fe", "independent_oe", "published_oe") if k in next(iter(d.values()))), None)
+    if r["method"] == "oe" and r["record"] == "HFB-320":
+        ref = "independent_oe"
+    if ref is None or r["method"] == "ee" and ref != "published_fe":
+        return values if r["record"] != "ATTAS" else f"{values} (nothing published in these terms)"
+    worst = max(abs(v["ours"] / v[ref] - 1) for v in d.values() if v["ours"] is not None) * 100
+    against = {"published_fe": "the published filter-error estimates",
+               "independent_oe": "an output-error run of the data set's own model",
+               "published_oe": "the published output-error estimates"}[ref]
+    return f"{values}: within {worst:.2g} % of {against}"
+
+
+def methods_table() -> str:
+    """The README's methods table: each estimator on the real records through the command line."""
+    doc = _json("estimators_cli.json")
+    rows = []
+    for r in doc["rows"]:
+        ok = "yes" if r["exit_code"] == 0 and not r["not_converged"] else f"{r['not_converged']} of {r['points']} not"
+        ok = ok if r["method"] != "ee" else "-"
+        rows.append([r["record"], f"`{r['command']}`", ok, _cli_result(r)])
+    return _table(["record", "command", "converged", "gives"], rows) + _source(doc)
 
 
 def estimators_page() -> str:
@@ -262,16 +301,19 @@ def speed_page() -> str:
 
 
 PAGES = {"validation-summary.md": validation_table, "detection.md": detection_page, "methods.md": methods_page,
+         "estimators-cli.md": methods_table,
          "estimators.md": estimators_page, "hit-rate.md": hit_rate_page, "replay-gain.md": replay_gain_page,
          "multisine.md": multisine_page, "plan.md": plan_page, "speed.md": speed_page}
 
 
 def readme_with_table(text: str) -> str:
-    """README.md's text with the validation table between its markers replaced by the results'."""
-    head, sep, rest = text.partition(BEGIN)
-    if not sep or END not in rest:
-        raise SystemExit(f"{README}: the validation table's marker lines are missing")
-    return head + BEGIN + "\n" + validation_table() + rest[rest.index(END):]
+    """README.md's text with the validation and methods tables between their markers replaced by the results'."""
+    for begin, end, make in ((BEGIN, END, validation_table), (BEGIN_METHODS, END_METHODS, methods_table)):
+        head, sep, rest = text.partition(begin)
+        if not sep or end not in rest:
+            raise SystemExit(f"{README}: the marker lines of {begin[5:-4]!r} are missing")
+        text = head + begin + "\n" + make() + rest[rest.index(end):]
+    return text
 
 
 def write_docs() -> None:

@@ -104,7 +104,8 @@ def fly(matrix: str | Path | None = None, out: str | Path | None = None, *, jobs
 
 
 def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: int = 1, plots: str = "paper",
-             model: str | Path | None = None, reuse: bool = True) -> IdentificationResult:
+             model: str | Path | None = None, reuse: bool = True, structure: str | Path | None = None,
+             max_iterations: int | None = None) -> IdentificationResult:
     """Identify the aerodynamic models from measured logs (``campaign identify``): eq. (1) coefficients
     after the data compatibility, eq. (3) fits per excitation manoeuvre, the linear (eq. 4) and
     nonlinear (eqs. 8-9) gear models, and their JSBSim XML merged into the model.
@@ -119,7 +120,9 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
         logs in memory).
     method : {"ee", "oe", "fe"}
         Eq. (3) estimator: equation error (the paper's least squares), output error, or filter
-        error (for turbulent data).
+        error (for turbulent data). A point whose output-error or filter-error fit does not
+        converge keeps its equation-error estimates, labelled ``ee``, and is listed in
+        ``not_converged`` (``campaign identify`` exits with 1 when no point converged).
     jobs : int
         Worker processes for the per-point fits.
     plots : {"paper", "all", "none"}
@@ -129,26 +132,34 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
     reuse : bool
         For a campaign folder and the default ``out``: keep an identification made from the same
         logs, model, options and tool version (as :func:`fly` does) instead of computing it again.
+    structure : str or Path, optional
+        With ``oe`` or ``fe``: the model to fit, a TOML file (:mod:`identify.structure`); default the
+        longitudinal model with lift and drag in alpha and Mach, each point's unexcited terms left out.
+    max_iterations : int, optional
+        With ``oe`` or ``fe``: the estimator's iteration limit.
 
     Returns
     -------
     IdentificationResult
         ``summary()``, ``to_dict()`` (``identification.json``), ``parameters`` and
-        ``linear_gear_model`` tables, ``identification`` (the fits in memory, when computed).
+        ``linear_gear_model`` tables, ``not_converged``, ``identification`` (the fits in memory,
+        when computed).
     """
-    from campaign.orchestration.job import identify_job
+    from campaign.orchestration.job import convergence_lines, identify_job, time_domain_options
     from campaign.orchestration.store import holding
     folder = _folder(data)
     if folder is not None:
         from identify.pipeline import up_to_date
         if reuse and out is None and model is None and (folder / "manifest.json").exists():
-            kept = up_to_date(folder, plots, method)
+            kept = up_to_date(folder, plots, method, time_domain_options(method, structure, max_iterations),
+                              max_iterations)
             if kept:
                 LOG.info(f"identification in {kept}: made from these logs already, kept")
                 return IdentificationResult(kept, {}, None, kept=True)
         with holding(folder, "identify"):
-            files = identify_job(folder, Path(out) if out else None, model, plots, jobs, method, say=LOG.info)
-        return IdentificationResult(Path(files["json"]).parent, files)
+            files, ident = identify_job(folder, Path(out) if out else None, model, plots, jobs, method, say=LOG.info,
+                                        structure=structure, max_iterations=max_iterations)
+        return IdentificationResult(Path(files["json"]).parent, files, ident)
     logs = list(data) if isinstance(data, Sequence) else None
     if not logs or not all(isinstance(lg, Log) for lg in logs):
         raise UserError("identify: data: expected a folder, a CampaignResult or a list of Log")
@@ -158,12 +169,16 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
     from identify.pipeline import identify_into
     if model:
         check_aircraft_folder(model)
+    shape = time_domain_options(method, structure, max_iterations)
     try:
-        files, ident = identify_into(logs, Path(out), model, plots, jobs, method)
+        files, ident = identify_into(logs, Path(out), model, plots, jobs, method, structure=shape,
+                                     max_iterations=max_iterations)
     except LogError as exc:
         raise UserError(str(exc)) from None
     except ValueError as exc:  # an estimator's option
         raise UserError(f"identify: {exc}") from None
+    for line in convergence_lines(ident):
+        LOG.info(line)
     return IdentificationResult(Path(files["json"]).parent, files, ident)
 
 

@@ -48,7 +48,8 @@ class IdentificationResult:
     @property
     def parameters(self) -> pd.DataFrame:
         """Every point's eq. (3) parameters: ``point``, ``gear``, ``coefficient``, ``parameter``,
-        ``estimate``, ``std_error``, ``identifiable``, ``note`` (regressors in rad, [1/rad])."""
+        ``estimate``, ``std_error``, ``identifiable``, ``note``, ``method`` (the estimator the number came
+        from; regressors in rad, [1/rad])."""
         return pd.read_csv(self.folder / "baseline_parameters.csv")
 
     @property
@@ -56,6 +57,12 @@ class IdentificationResult:
         """The linear gear model (eq. 4) per condition: gear-up and gear-down C0, ``dCL_gear``,
         ``dCD_gear``, ``dCm_gear`` [-] and the derivatives."""
         return pd.read_csv(self.folder / "linear_gear_model.csv")
+
+    @property
+    def not_converged(self) -> list[dict]:
+        """The points whose output-error or filter-error fit did not converge: ``point``, ``method``,
+        ``reason`` (their estimates are the equation error's, labelled ``ee``); empty for equation error."""
+        return list(self.to_dict().get("not_converged", []))
 
     def summary(self) -> str:
         """The identification's summary: gear increments, eq. (9) designs, the data compatibility

@@ -90,7 +90,8 @@ class LSResults:
         }
 
     def summary(self) -> str:
-        lines = [f"{self.name}: N = {self.nobs}, R^2 = {self.rsquared:.6f}, "
+        by = "" if self.method == "ee" else f" ({self.method})"
+        lines = [f"{self.name}{by}: N = {self.nobs}, R^2 = {self.rsquared:.6f}, "
                  f"residual max {self.resid_max:.3g}, RMS {self.resid_rms:.3g}, "
                  f"relative {self.rel_error_pct:.2f} %",
                  f"  {'parameter':<20}{'estimate':>14}{'std err':>12}{'t':>10}"]

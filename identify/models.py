@@ -154,6 +154,12 @@ class PointFit:
     fits: dict[str, LSResults]
     alpha_trim_deg: float
     t_s: np.ndarray = field(repr=False, default=None)
+    #: ``{"method", "reason"}`` when the time-domain method asked for did not converge (the fits
+    #: are then the equation error's, labelled ``ee``)
+    failure: dict | None = None
+    #: what a time-domain fit reports of the point: method, records fitted together, structure,
+    #: iterations, convergence, dimensional derivatives (None for equation error)
+    timedomain: dict | None = None
 
     def param(self, coeff: str, regressor: str) -> float | None:
         res = self.fits[coeff]
@@ -175,7 +181,22 @@ class PointFit:
         head = (f"{self.point} ({'gear down' if self.gear_down else 'gear up'}), regressors about "
                 f"alpha {self.reference.alpha_deg:.3f} deg, elevator {self.reference.elevator_deg:.3f} deg, "
                 f"stabilizer {self.reference.stabilizer_deg:.3f} deg")
-        return "\n".join([head] + [self.fits[c].summary() for c in COEFFS])
+        lines = [head]
+        names = {"oe": "output error", "fe": "filter error"}
+        if self.failure:
+            lines.append(f"NOT CONVERGED by {names.get(self.failure['method'], self.failure['method'])}: "
+                         f"{self.failure['reason']}; the estimates below are the equation error's (ee)")
+        elif self.timedomain:
+            td = self.timedomain
+            lines.append(f"by {names.get(td['method'], td['method'])} ({td['method']}), converged in {td['iterations']} "
+                         f"iterations, records fitted together: {', '.join(td['records'])}")
+            lines.append("  structure: " + ", ".join(f"{c} {' '.join(t)}" for c, t in td["structure"]["terms"].items()
+                                                      if t) + f"; states {' '.join(td['structure']['states'])}")
+            if td["structure"]["left_out"]:
+                lines.append("  left out: " + "; ".join(f"{k}: {v}" for k, v in td["structure"]["left_out"].items()))
+            if td.get("derivatives"):
+                lines.append("  dimensional derivatives: " + ", ".join(f"{k} {v:.4g}" for k, v in td["derivatives"].items()))
+        return "\n".join(lines + [self.fits[c].summary() for c in COEFFS])
 
 
 def fit_baseline(log: Log, ref: Reference) -> PointFit:

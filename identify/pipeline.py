@@ -23,7 +23,8 @@ from infra.provenance import tool
 from identify.models import (COEFFS, PARAM_SUFFIX, REGRESSORS, GearSurface, Increments, LinearGearModel, PointFit,
                              Reference, fit_baseline, fit_surface, increments, linear_models, reference_of,
                              reference_order)
-from identify.timedomain import METHODS, refine_point
+from identify.structure import DEFAULT, Structure
+from identify.timedomain import METHODS, NAMES, refine_group
 from infra.pool import imap, pmap
 
 PAPER_POINTS = ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn")
@@ -63,7 +64,19 @@ class Identification:
     arm_ft: tuple[float, float]  # AERORP aft of and above the CG [ft]
     compat: CompatResult | None = None  # instrument errors estimated and corrected before eq. (1)
     notes: tuple[str, ...] = ()  # why a model is missing
-    method: str = "ee"  # the eq. (3) estimator
+    method: str = "ee"  # the eq. (3) estimator asked for
+    structure: Structure | None = None  # the time-domain structure asked for (before each point's terms left out)
+    #: the points whose time-domain fit did not converge: ``{"point", "method", "reason"}`` each
+    not_converged: tuple[dict, ...] = ()
+    converged: int = 0  # points whose time-domain fit converged
+
+    def to_dict(self) -> dict:
+        """What the fits came from: the method, the structure, which points converged."""
+        head = {"method": self.method, "method_name": NAMES[self.method]}
+        if self.method != "ee":
+            head.update(structure=(self.structure or DEFAULT).to_dict(), converged_points=self.converged,
+                        not_converged=list(self.not_converged))
+        return head
 
 
 def _read(log: Log | LogHead, correct) -> Log:
@@ -80,10 +93,29 @@ def pack(item) -> bytes:
     return zlib.compress(pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL), 1)
 
 
-def _fit(log: Log | LogHead, ref: Reference, correct, series: bool, method: str = "ee") -> bytes:
-    log = _read(log, correct)
-    fit = refine_point(log, fit_baseline(log, ref), method)
+def _fit(log: Log | LogHead, ref: Reference, correct, series: bool) -> bytes:
+    fit = fit_baseline(_read(log, correct), ref)
     return pack(fit if series else fit.slim())
+
+
+def _fit_group(logs: list, ref: Reference, correct, series: list[bool], method: str, structure: Structure,
+               max_iter: int | None) -> list[bytes]:
+    """One status point's logs: equation error each, then the time-domain fit of them together."""
+    logs = [_read(log, correct) for log in logs]
+    fits = refine_group(logs, [fit_baseline(log, ref) for log in logs], method, structure, max_iter)
+    return [pack(f if keep else f.slim()) for f, keep in zip(fits, series)]
+
+
+def point_groups(logs: Iterable[Log | LogHead]) -> list[list]:
+    """The excitation logs by status point (condition, the flap to 0.1 deg, gear position and weight), in
+    order of first appearance: what a time-domain fit estimates together."""
+    groups: dict[tuple, list] = {}
+    for log in logs:
+        if log.excitation:
+            alt, mach, flap = log.condition
+            key = (alt, mach, round(flap, 1), log.gear_down, log.meta["status_point"].get("weight_lb"))
+            groups.setdefault(key, []).append(log)
+    return list(groups.values())
 
 
 def _increments(log: Log | LogHead, derivatives: dict, correct) -> Increments:
@@ -91,7 +123,8 @@ def _increments(log: Log | LogHead, derivatives: dict, correct) -> Increments:
 
 
 def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: int = 1,
-                  series: Collection[str] | None = None, method: str = "ee") -> Identification:
+                  series: Collection[str] | None = None, method: str = "ee", structure: Structure | None = None,
+                  max_iterations: int | None = None) -> Identification:
     """Baseline fits, linear gear models, increments and the eq. (9) surfaces.
 
     With ``compatibility`` the instrument errors are estimated first (from a sample of the
@@ -107,16 +140,37 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
         The points whose fits keep their per-sample series (for their plots); None: every one.
     method : {"ee", "oe", "fe"}
         The eq. (3) estimator: equation error (the paper's least squares), output error or
-        filter error (:mod:`identify.timedomain`, started from the equation error's estimates).
+        filter error (:mod:`identify.timedomain`, started from the equation error's estimates;
+        each status point's excitation manoeuvres fitted together).
+    structure : Structure, optional
+        The time-domain model (:mod:`identify.structure`; default :data:`identify.structure.DEFAULT`,
+        each point's unexcited terms left out).
+    max_iterations : int, optional
+        The time-domain estimator's iteration limit (default: its own).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
+    if max_iterations is not None and max_iterations < 1:
+        raise ValueError(f"max_iterations must be at least 1, not {max_iterations}")
     compat = estimate(logs, jobs=jobs) if compatibility else None
     correct = compat.correct if compat is not None else None
     order = reference_order(logs)
     refs = dict(zip(order, pmap(_reference, [(*o, correct) for o in order.values()], jobs)))
-    fits = Packed(imap(_fit, [(log, refs[log.condition], correct, series is None or log.point in series, method)
-                             for log in logs if log.excitation], jobs))
+    keep = lambda log: series is None or log.point in series  # noqa: E731
+    if method == "ee":
+        fits = Packed(imap(_fit, [(log, refs[log.condition], correct, keep(log)) for log in logs if log.excitation],
+                           jobs))
+    else:
+        fits = Packed(b for group in imap(_fit_group, [(g, refs[g[0].condition], correct, [keep(lg) for lg in g],
+                                                        method, structure or DEFAULT, max_iterations)
+                                                       for g in point_groups(logs)], jobs) for b in group)
+    failed, converged = [], 0
+    if method != "ee":
+        for f in fits:
+            if f.failure:
+                failed.append({"point": f.point, **f.failure})
+            else:
+                converged += 1
     linear = linear_models(fits)
     moves = [log for log in logs if log.transition and log.condition in linear]
     incs = dict(zip((log.point for log in moves),
@@ -135,7 +189,7 @@ def identify_logs(logs: list[Log | LogHead], compatibility: bool = True, jobs: i
     arm = ((g.get("aerorp_x_in", 0.0) - g.get("cg_x_in", 0.0)) / 12.0,
            (g.get("aerorp_z_in", 0.0) - g.get("cg_z_in", 0.0)) / 12.0)
     return Identification(fits, linear, incs, lin_surface, nl_surface, arm, compat, _why_none(logs, linear, incs),
-                          method)
+                          method, structure, tuple(failed), converged)
 
 
 def _why_none(logs: list[Log], linear: dict, incs: dict) -> tuple[str, ...]:
@@ -153,6 +207,22 @@ def _why_none(logs: list[Log], linear: dict, incs: dict) -> tuple[str, ...]:
             f"the gear transitions ({', '.join(sorted({_cond_key(lg.condition) for lg in moves}))}) are at no "
             "condition with a linear gear model, whose derivatives they need."))
     return tuple(notes)
+
+
+def _method_lines(ident: Identification) -> list[str]:
+    """The head of summary.txt for a time-domain identification: the method, the structure, and
+    every point whose fit did not converge."""
+    if ident.method == "ee":
+        return []
+    lines = [f"Method: {NAMES[ident.method]} ({ident.method}), each status point's excitation manoeuvres fitted "
+             f"together; {ident.converged} point(s) converged, {len(ident.not_converged)} not.",
+             f"Structure ({(ident.structure or DEFAULT).source}): {(ident.structure or DEFAULT).describe()}; "
+             "each point's terms its records do not support are left out (listed with the point).", ""]
+    if ident.not_converged:
+        lines += [f"NOT CONVERGED: {len(ident.not_converged)} point(s); their estimates are the equation error's, "
+                  "labelled ee:"]
+        lines += [f"  {d['point']}: {NAMES[d['method']]}: {d['reason']}" for d in ident.not_converged] + [""]
+    return lines
 
 
 def _cond_key(c: tuple) -> str:
@@ -173,13 +243,13 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                 yield {"point": f.point, "gear": "down" if f.gear_down else "up", "coefficient": c,
                        "parameter": f"{c}{PARAM_SUFFIX[r]}", "estimate": float(res.params[r]) if ok else np.nan,
                        "std_error": float(res.bse[r]) if ok else np.nan,
-                       "identifiable": ok, "note": "" if ok else res.unexcited.get(r, "")}
+                       "identifiable": ok, "note": "" if ok else res.unexcited.get(r, ""), "method": res.method}
 
     def statistics_rows(f: PointFit) -> Iterator[dict]:
         for c, res in f.fits.items():
             yield {"point": f.point, "coefficient": c, "r2": res.rsquared, "resid_max": res.resid_max,
                    "resid_rms": res.resid_rms, "rel_error_pct": res.rel_error_pct, "nobs": res.nobs,
-                   "not_identifiable": ";".join(res.unexcited)}
+                   "not_identifiable": ";".join(res.unexcited), "method": res.method}
 
     _csv_in_chunks(out / "baseline_parameters.csv", (r for f in ident.fits for r in parameter_rows(f)))
     _csv_in_chunks(out / "baseline_fit_statistics.csv", (r for f in ident.fits for r in statistics_rows(f)))
@@ -197,7 +267,7 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
     files.update({k: str(out / f"{k}.csv") for k in ("baseline_parameters", "baseline_fit_statistics",
                                                       "linear_gear_model", "gear_increments")})
 
-    text = ["Identification summary", "=" * 22, ""] + [*ident.notes] + ([""] if ident.notes else [])
+    text = ["Identification summary", "=" * 22, ""] + _method_lines(ident) + [*ident.notes] + ([""] if ident.notes else [])
     if ident.linear:
         head = pd.DataFrame([{"condition": _cond_key(c), "alpha_trim_deg": round(m.alpha_trim_deg, 2),
                               **{f"d{k}_gear": round(m.increment(k), 5) for k in COEFFS}}
@@ -253,10 +323,13 @@ def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
                          "reference": {**vars(f.reference), "source": Path(f.reference.source).name},
                          # the log, from this folder (it is staged beside its final place): campaign model reads it
                          **({"log": os.path.relpath(f.path, out)} if Path(f.path).is_file() else {}),
+                         "method": f.timedomain["method"] if f.timedomain and not f.failure else "ee",
+                         **({"not_converged": f.failure} if f.failure else {}),
+                         **({"timedomain": f.timedomain} if f.timedomain else {}),
                          **{c: f.fits[c].to_dict() for c in COEFFS}}) for f in ident.fits)
     doc = {
         "tool": tool(),
-        "method": ident.method,
+        **ident.to_dict(),
         "points": _LATER[0],
         "linear": {_cond_key(c): m.to_dict() for c, m in ident.linear.items()},
         "increments": _LATER[1],
@@ -336,8 +409,10 @@ def _draw(kind: str, args: tuple, path: Path) -> None:
 
 
 def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | None = None,
-                      plots: str = "paper", jobs: int = 1, method: str = "ee") -> dict[str, str]:
-    """Identify everything from a campaign folder; return the files written.
+                      plots: str = "paper", jobs: int = 1, method: str = "ee", structure: Structure | None = None,
+                      max_iterations: int | None = None) -> tuple[dict[str, str], Identification]:
+    """Identify everything from a campaign folder; return the files written and the identification
+    (:func:`identify_into`).
 
     The outputs are written into a staging folder beside ``out`` and swapped in
     when complete: a killed identification leaves the previous results, never a
@@ -352,7 +427,9 @@ def identify_campaign(results: Path, out: Path | None = None, model_dir: Path | 
         man = results / "manifest.json"
         if man.exists():
             model_dir = json.loads(man.read_text()).get("settings", {}).get("aircraft")
-    return identify_into(logs, final, model_dir, plots, jobs, method, source_stamp(results, model_dir, plots, method))[0]
+    return identify_into(logs, final, model_dir, plots, jobs, method,
+                         source_stamp(results, model_dir, plots, method, structure, max_iterations), structure,
+                         max_iterations)
 
 
 def _writable(final: Path) -> Path:
@@ -365,7 +442,8 @@ def _writable(final: Path) -> Path:
 
 
 def identify_into(logs: list[Log | LogHead], out: Path, model_dir: str | Path | None = None, plots: str = "paper",
-                  jobs: int = 1, method: str = "ee", stamp: dict | None = None) -> tuple[dict[str, str], Identification]:
+                  jobs: int = 1, method: str = "ee", stamp: dict | None = None, structure: Structure | None = None,
+                  max_iterations: int | None = None) -> tuple[dict[str, str], Identification]:
     """:func:`identify_logs` and :func:`write_outputs` into ``out``, written into a staging folder beside
     it and swapped in when complete (a killed identification leaves the previous results, never a
     mixture); ``stamp`` (:func:`source_stamp`) is kept beside them as ``source.json``.
@@ -377,7 +455,8 @@ def identify_into(logs: list[Log | LogHead], out: Path, model_dir: str | Path | 
     identification : Identification
     """
     final = _writable(Path(out).resolve())
-    ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS), method=method)
+    ident = identify_logs(logs, jobs=jobs, series={"all": None, "none": ()}.get(plots, PAPER_POINTS), method=method,
+                          structure=structure, max_iterations=max_iterations)
     stage = _sibling(final, "partial")
     files = write_outputs(ident, stage, Path(model_dir) if model_dir else None, plots, jobs)
     if stamp is not None:
@@ -390,24 +469,32 @@ def identify_into(logs: list[Log | LogHead], out: Path, model_dir: str | Path | 
 SOURCE = "source.json"
 
 
-def source_stamp(results: Path, model_dir: str | Path | None, plots: str, method: str) -> dict:
+def source_stamp(results: Path, model_dir: str | Path | None, plots: str, method: str,
+                 structure: Structure | None = None, max_iterations: int | None = None) -> dict:
     """What an identification of ``results`` depends on: the SHA-256 of the campaign's manifest and of
-    every log file beside it (names and bytes), of the model folder merged into, the options and the
-    tool's version (another version identifies again). Paths are left out: a copy of the folder has
-    the same stamp."""
+    every log file beside it (names and bytes), of the model folder merged into, the options (a
+    structure by its content) and the tool's version (another version identifies again). Paths are
+    left out: a copy of the folder has the same stamp."""
     h = hashlib.sha256()
     for f in sorted(p for p in Path(results).iterdir() if p.is_file() and (p.name == "manifest.json"
                                                                             or p.suffix in LOG_SUFFIXES)):
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
     model = folder_hash(Path(model_dir)) if model_dir is not None and Path(model_dir).is_dir() else None
-    return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method, "tool": tool()}
+    extra = {}
+    if structure is not None:
+        extra["structure"] = {k: v for k, v in structure.to_dict().items() if k != "source"}
+    if max_iterations is not None:
+        extra["max_iterations"] = max_iterations
+    return {"logs_sha256": h.hexdigest(), "model_sha256": model, "plots": plots, "method": method, **extra,
+            "tool": tool()}
 
 
 #: The files of a campaign folder an identification reads.
 LOG_SUFFIXES = (".parquet", ".csv", ".json")
 
 
-def up_to_date(results: Path, plots: str = "paper", method: str = "ee") -> Path | None:
+def up_to_date(results: Path, plots: str = "paper", method: str = "ee", structure: Structure | None = None,
+               max_iterations: int | None = None) -> Path | None:
     """``results/identification`` if it was made, complete, from the logs and options that are there now
     (:func:`source_stamp`, the manifest's aircraft as the model); else None. A killed identification is
     undone first (:func:`recover`)."""
@@ -421,7 +508,7 @@ def up_to_date(results: Path, plots: str = "paper", method: str = "ee") -> Path 
     if not (final / "identification.json").is_file():
         return None
     model = json.loads((results / "manifest.json").read_text()).get("settings", {}).get("aircraft")
-    return final if kept == source_stamp(results, model, plots, method) else None
+    return final if kept == source_stamp(results, model, plots, method, structure, max_iterations) else None
 
 
 def _sibling(folder: Path, what: str) -> Path:

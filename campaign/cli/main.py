@@ -87,6 +87,14 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--method", choices=("ee", "oe", "fe"), default="ee",
                        help="eq. (3) estimator: equation error (the paper's least squares, default), output "
                             "error, or filter error (for turbulent data); see the README's Methods")
+    ident.add_argument("--structure", metavar="FILE",
+                       help="with oe or fe: the model to fit, in TOML (terms per coefficient, states, outputs, "
+                            "inputs; docs/method/estimators.md); default: the longitudinal model, lift and drag in "
+                            "alpha and Mach, the moment also in q and the controls, each record's unexcited terms "
+                            "left out")
+    ident.add_argument("--max-iterations", type=_jobs, metavar="N",
+                       help="with oe or fe: stop each fit after N iterations (a fit stopped before it converged is "
+                            "reported as not converged)")
 
     fly = sub.add_parser("fly", help="re-fly one status point",
                          description="Re-fly one status point; its logs are bit-identical to the "
@@ -283,12 +291,16 @@ def _main(args) -> int:
         if args.command == "identify":
             from campaign.orchestration.job import identify_job
             results = Path(args.results)
+
+            def identified():
+                return identify_job(results, args.out and Path(args.out), args.model, args.plots, args.jobs,
+                                    args.method, structure=args.structure, max_iterations=args.max_iterations)[1]
             if not results.is_dir():
-                identify_job(results, args.out and Path(args.out), args.model, args.plots, args.jobs, args.method)
-                return 0
-            with holding(results, "identify"):
-                identify_job(results, args.out and Path(args.out), args.model, args.plots, args.jobs, args.method)
-            return 0
+                ident = identified()
+            else:
+                with holding(results, "identify"):
+                    ident = identified()
+            return 1 if ident.not_converged and not ident.converged else 0  # no time-domain fit converged
         matrix, config = _config(args)
         if args.command == "run":
             out = Path(args.out) if args.out else Path("results") / matrix.name

@@ -83,16 +83,27 @@ def html_report(folder: Path, say: Say = print, warn: Say = _warn) -> Path | Non
 
 
 def identify_job(results: Path, out: Path | None = None, model: str | Path | None = None, plots: str = "paper",
-                 jobs: int = 1, method: str = "ee", say: Say = print) -> dict[str, str]:
-    """Identify a campaign folder (or a folder of logs) into ``out`` (default ``results/identification``);
-    return the files written (:func:`identify.pipeline.identify_campaign`)."""
+                 jobs: int = 1, method: str = "ee", say: Say = print, structure: str | Path | None = None,
+                 max_iterations: int | None = None):
+    """Identify a campaign folder (or a folder of logs) into ``out`` (default ``results/identification``)
+    (:func:`identify.pipeline.identify_campaign`); say where, and for output or filter error how many
+    points converged and, for each that did not, why.
+
+    Returns
+    -------
+    files : dict
+        The files written, by kind.
+    identification : identify.pipeline.Identification
+    """
     from campaign.simulation.aircraft import check_aircraft_folder
     from identify.logs import LogError
     from identify.pipeline import identify_campaign
     if model:
         check_aircraft_folder(model)
+    shape = time_domain_options(method, structure, max_iterations)
     try:
-        files = identify_campaign(Path(results), out, Path(model) if model else None, plots, jobs, method)
+        files, ident = identify_campaign(Path(results), out, Path(model) if model else None, plots, jobs, method,
+                                         shape, max_iterations)
     except LogError as exc:
         raise UserError(str(exc)) from None
     except KeyboardInterrupt:  # the staging folder goes now, not at the next identification
@@ -102,7 +113,40 @@ def identify_job(results: Path, out: Path | None = None, model: str | Path | Non
     say(f"identification ({method}) in {Path(files['json']).parent}: "
         f"{sum(1 for k in files if k.startswith('plot'))} plots, "
         f"{', '.join(Path(v).name for k, v in files.items() if k.startswith('xml'))}")
-    return files
+    for line in convergence_lines(ident):
+        say(line)
+    return files, ident
+
+
+def time_domain_options(method: str, structure: str | Path | None, max_iterations: int | None):
+    """The structure file read (None: the default), once the options are checked against the method."""
+    from identify.structure import StructureError, load_structure
+    if method == "ee" and (structure is not None or max_iterations is not None):
+        raise UserError(f"identify: {'--structure' if structure is not None else '--max-iterations'}: applies to "
+                        "the time-domain methods (--method oe or fe), not to equation error")
+    if max_iterations is not None and max_iterations < 1:
+        raise UserError(f"identify: --max-iterations: must be at least 1, found {max_iterations}")
+    if structure is None:
+        return None
+    try:
+        return load_structure(structure)
+    except StructureError as exc:
+        raise UserError(str(exc)) from None
+
+
+def convergence_lines(ident) -> list[str]:
+    """What the terminal says of a time-domain identification's convergence (nothing for equation error)."""
+    from identify.timedomain import NAMES
+    if ident.method == "ee":
+        return []
+    name, bad = NAMES[ident.method], ident.not_converged
+    lines = [f"{name}: {ident.converged} of {ident.converged + len(bad)} point(s) converged"]
+    for d in bad:
+        lines.append(f"NOT CONVERGED {d['point']}: {NAMES[d['method']]}: {d['reason']}; its estimates are the "
+                     "equation error's, labelled ee")
+    if bad and not ident.converged:
+        lines.append(f"no point converged by {name}")
+    return lines
 
 
 def replay_job(results: Path, names: list[str] | None = None, cases_file: str | Path | None = None, jobs: int = 1,

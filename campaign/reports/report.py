@@ -91,11 +91,17 @@ def _identification(folder: Path) -> str:
             v = p[c]["params"].get(r)
             cells.append("n/i" if v is None else f"{v:.4g} &plusmn; {se:.2g}")
         cells.append(f"{min(p[c]['rsquared'] for c in ('CL', 'CD', 'Cm')):.4f}")
+        cells.append(escape(p.get("method", doc.get("method", "ee"))))
         rows.append(cells)
+    names = {'ee': 'equation error', 'oe': 'output error', 'fe': 'filter error'}
     method = doc.get("method", "ee")
-    body = [f"<p>Eq. (3) by <b>{ {'ee': 'equation error', 'oe': 'output error', 'fe': 'filter error'}[method]}</b>; "
-            "estimates with standard errors corrected for coloured residuals; n/i: not identifiable.</p>",
-            html.table(["point", "gear", *[k[2] for k in keys], "min R^2"], rows, left=2, raw=True)]
+    failed = doc.get("not_converged", [])
+    body = [f"<p>Eq. (3) by <b>{names[method]}</b>; estimates with standard errors corrected for coloured "
+            "residuals; n/i: not identifiable; each point's method is the one its numbers came from.</p>"]
+    if failed:
+        body.append(f"<p><b>Not converged by {names[method]}</b> (equation-error estimates kept, labelled ee): "
+                    + "; ".join(f"{escape(d['point'])}: {escape(d['reason'])}" for d in failed) + "</p>")
+    body.append(html.table(["point", "gear", *[k[2] for k in keys], "min R^2", "method"], rows, left=2, raw=True))
     lin = [(k, m["alpha_trim_deg"], *(m["increment"][c] for c in ("CL", "CD", "Cm")),
             *(m["C0_gearDn_bse"][c] for c in ("CL", "CD", "Cm"))) for k, m in doc["linear"].items()]
     if lin:

@@ -9,12 +9,15 @@ innovation covariance (Jategaonkar 2015, ch. 5, the algorithm of ``ml_fem``):
 
 1. ``R`` from the output error (no gain) to start;
 2. Gauss-Newton steps on the parameters and ``F``, ``R`` held, the sensitivities including
-   the gain's; the step halved while ``det(R)`` rises, or while a diagonal element of
-   ``K C`` would exceed 1 (the measurement noise would be negative);
-3. after each step, ``R`` re-estimated and ``F`` scaled to compensate (eq. 5.41), that
-   scaling halved back if it raised the cost. ``ml_fem`` waits for the third iteration; on
-   the HFB-320 record that lands in a local minimum with ``det(R)`` twenty times higher
-   (Cmq 10 % off the published value), compensating from the first lands within 1 %.
+   the gain's; the step halved while the likelihood with ``R`` held (``log det R + tr(R^-1 S)``,
+   ``S`` the innovations' covariance) rises, or while a diagonal element of ``K C`` would
+   exceed 1 (the measurement noise would be negative);
+3. after each step, ``R`` re-estimated and ``F`` scaled to compensate (eq. 5.41), the ``F``
+   of a state whose ``K C`` the new ``R`` would push above 1 reduced until it is not, the
+   scaling halved back, then dropped, if it raised the likelihood. ``ml_fem`` waits for the
+   third iteration; on the HFB-320 record that lands in a local minimum with ``det(R)``
+   twenty times higher (Cmq 10 % off the published value), compensating from the first lands
+   within 1 %.
 """
 from __future__ import annotations
 
@@ -53,7 +56,20 @@ class FilterError(OutputError):
         self.r_gain = None  # the innovation covariance the gain is computed with
 
     def _start(self) -> np.ndarray:
-        return np.concatenate([super()._start(), self.f0])
+        """The starting values, the process noise scaled down where it would put ``K C`` above 1 (a
+        gain that overcorrects makes the filter diverge)."""
+        theta = np.concatenate([super()._start(), self.f0])
+        self._initial_r(theta)
+        inside = self._inside(theta)
+        return theta if inside is None else inside
+
+    def _initial_r(self, theta: np.ndarray) -> None:
+        """``R`` from the output error's residuals (no gain), to start."""
+        if self.r_gain is None:
+            nx = len(self.model.states)
+            p, x0s, _ = self._unpack(theta[None, :-nx])
+            res = [r.z - simulate(self.model, p, x0, r)[0] for r, x0 in zip(self.records, x0s)]
+            self.r_gain = self._covariance(res)
 
     def gains(self, thetas: np.ndarray, rec: Record) -> tuple[np.ndarray, np.ndarray]:
         """Steady-state gains (B, nx, ny) and linearized output matrices (B, ny, nx)."""
@@ -79,11 +95,7 @@ class FilterError(OutputError):
         return [simulate(self.model, p, x0, r, gain=self.gains(thetas, r)[0]) for r, x0 in zip(self.records, x0s)]
 
     def _residuals(self, theta: np.ndarray) -> list[np.ndarray]:
-        if self.r_gain is None:  # start: the output error's residuals, no gain
-            nx = len(self.model.states)
-            p, x0s, _ = self._unpack(theta[None, :-nx])
-            res = [r.z - simulate(self.model, p, x0, r)[0] for r, x0 in zip(self.records, x0s)]
-            self.r_gain = self._covariance(res)
+        self._initial_r(theta)
         return super()._residuals(theta)
 
     def _weights(self, res: list[np.ndarray]) -> np.ndarray:
@@ -115,28 +127,60 @@ class FilterError(OutputError):
     def _trial_ok(self, trial: np.ndarray) -> bool:
         return bool(np.all(self._kc(trial[None]) <= 1.0))
 
-    def _cost(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        r = self._covariance(self._residuals(theta))
-        return float(np.sum(np.log(r))), r
+    def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """The negative log-likelihood per sample with ``R`` held at the gain's (``log det R +
+        tr(R^-1 S)``, ``S`` the innovations' covariance; ``log det S`` plus the number of outputs
+        when ``R = S``), and ``S``."""
+        s = self._covariance(self._residuals(theta))
+        return float(np.sum(np.log(self.r_gain)) + np.sum(s / self.r_gain)), s
 
-    def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
-        cost, r_new = self._cost(theta)
+    def _after_step(self, theta: np.ndarray, iteration: int, cost: float,
+                    r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """``R`` re-estimated from the innovations and ``F`` scaled to keep the gain (eq. 5.41); the
+        scaling halved back, then dropped, if the likelihood would rise; ``R`` kept if even that fails."""
         if iteration < F_UPDATE_FROM:
-            return theta, cost
+            return theta, cost, r
         nx = len(self.model.states)
         _, c = self.gains(theta[None], self.records[0])
         c2 = c[0] ** 2  # (ny, nx)
         ri_old = 1.0 / self.r_gain
-        ratio = np.sqrt(r_new / self.r_gain)
+        ratio = np.sqrt(r / self.r_gain)
         scale = (c2.T @ (ri_old * ratio)) / (c2.T @ ri_old)
         f_old, r_old = theta[-nx:].copy(), self.r_gain
-        self.r_gain = r_new
-        trial = theta.copy()
-        trial[-nx:] = f_old * scale
-        for halving in range(3):
-            c_new, _ = self._cost(trial)
-            if c_new <= cost and np.all(self._kc(trial[None]) <= 1.0):
-                return trial, c_new
-            trial[-nx:] = 0.5 * (trial[-nx:] + f_old)
+        self.r_gain = r
+        for f in (f_old * scale, 0.5 * f_old * (scale + 1.0), f_old):
+            trial = theta.copy()
+            trial[-nx:] = f
+            trial = self._inside(trial)
+            if trial is None:
+                continue
+            c_new, s_new = self._objective(trial)
+            if c_new <= cost:
+                return trial, c_new, s_new
         self.r_gain = r_old
-        return theta, cost
+        return theta, cost, r
+
+    def _stalled(self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray):
+        """No step on the parameters lowers the likelihood with ``R`` held: ``R`` re-estimated (as after a
+        step); if that lowers it, go on from there, else the parameters and ``R`` are both settled."""
+        theta, c, r = self._after_step(theta, max(iteration, F_UPDATE_FROM), cost, r)
+        return (theta, c, r) if abs(np.expm1(c - cost)) >= self.tol else True
+
+    def _inside(self, theta: np.ndarray) -> np.ndarray | None:
+        """``theta`` with the process noise of the states whose ``K C`` exceeds 1 scaled down, by
+        bisection, until none does (with a new ``R`` the compensated gain may overshoot); None if
+        no scaling does."""
+        nx = len(self.model.states)
+        kc = self._kc(theta[None])[0]
+        if np.all(kc <= 1.0):
+            return theta
+        over = np.zeros(len(theta), dtype=bool)
+        over[len(theta) - nx:] = kc > 1.0 - KC_MARGIN
+        lo, hi = 0.0, 1.0
+        while hi - lo > 1e-3:
+            mid = 0.5 * (lo + hi)
+            if np.all(self._kc(np.where(over, mid * theta, theta)[None]) <= 1.0 - 0.5 * KC_MARGIN):
+                lo = mid
+            else:
+                hi = mid
+        return np.where(over, lo * theta, theta) if lo > 0.0 else None

@@ -3,7 +3,8 @@
 The model is integrated from its initial states with the measured inputs; the parameters
 minimize ``det(R)``, ``R`` the covariance of the output residuals, by the relaxation of
 Jategaonkar (2015, ch. 4): ``R`` in closed form, then a Gauss-Newton step on the parameters
-with ``R`` held, the step halved while the cost rises. Sensitivities are forward
+with ``R`` held (the parameters scaled to a unit diagonal of the information matrix), the step
+halved while the cost rises. Sensitivities are forward
 differences, integrated as one batch with the nominal model.
 """
 from __future__ import annotations
@@ -16,6 +17,29 @@ import pandas as pd
 from identify.estimators.dynamics import Record, StateSpaceModel, simulate
 from identify.estimators.results import TimeDomainResults
 from identify.lsq import lagged_gram
+
+
+#: A fit has converged when a step moves no estimate by more than this share of its Cramér-Rao bound
+#: (or changes the cost by less than the tolerance).
+STILL_SE = 0.1
+
+
+def bounds(m: np.ndarray) -> np.ndarray:
+    """Cramér-Rao bounds of an information matrix (scaled before it is inverted)."""
+    d = np.sqrt(np.clip(np.diag(m), 1e-300, None))
+    return np.sqrt(np.clip(np.diag(np.linalg.pinv(m / np.outer(d, d))), 1e-300, None)) / d
+
+
+def solve_scaled(m: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step ``m^-1 g``, ``m`` scaled to a unit diagonal first (parameters of
+    very different sizes: a lift slope, a pitch damping, a process-noise level), by least
+    squares if it is singular (a parameter the data do not determine stays put)."""
+    d = np.sqrt(np.clip(np.diag(m), 1e-300, None))
+    ms = m / np.outer(d, d)
+    try:
+        return np.linalg.solve(ms, g / d) / d
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(ms, g / d, rcond=1e-12)[0] / d
 
 
 class OutputError:
@@ -36,7 +60,8 @@ class OutputError:
     biases : collection of str
         Outputs with an estimated bias, per record.
     tol : float
-        Convergence: relative change of ``det(R)`` between iterations.
+        Convergence: relative change of ``det(R)`` between iterations (or a step that moves no
+        estimate by more than :data:`STILL_SE` of its Cramér-Rao bound).
     max_iter : int
     step : float
         Relative finite-difference step (absolute for parameters at zero).
@@ -100,12 +125,23 @@ class OutputError:
         return [r.z - y[0] for r, y in zip(self.records, self.predict(theta[None]))]
 
     def _sensitivities(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Residuals and output sensitivities ``dy/dtheta`` (N, ny, n) per record."""
-        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)
-        batch = np.vstack([theta, theta + np.diag(h)])
+        """Residuals and output sensitivities ``dy/dtheta`` (N, ny, n) per record; an output bias's is
+        one on its record's output, the others' are finite differences."""
+        n, first = len(theta), len(self.i_free) + len(self.records) * len(self.i_x0)
+        nbias = len(self.records) * len(self.i_bias)
+        moved = [i for i in range(n) if not first <= i < first + nbias]
+        h = np.where(theta != 0.0, self.step * np.abs(theta), self.step)[moved]
+        batch = np.repeat(theta[None], len(moved) + 1, axis=0)
+        batch[1 + np.arange(len(moved)), moved] += h
         ys = self.predict(batch)
         res = [r.z - y[0] for r, y in zip(self.records, ys)]
-        sens = [np.transpose((y[1:] - y[:1]) / h[:, None, None], (1, 2, 0)) for y in ys]
+        sens = []
+        for j, y in enumerate(ys):
+            s = np.zeros((y.shape[1], y.shape[2], n))
+            s[:, :, moved] = np.transpose((y[1:] - y[:1]) / h[:, None, None], (1, 2, 0))
+            for k, out in enumerate(self.i_bias):
+                s[:, out, first + j * len(self.i_bias) + k] = 1.0
+            sens.append(s)
         return res, sens
 
     @staticmethod
@@ -124,9 +160,33 @@ class OutputError:
         """Hook: whether a trial step keeps the estimator's constraints (always, for the output error)."""
         return True
 
-    def _after_step(self, theta: np.ndarray, iteration: int) -> tuple[np.ndarray, float]:
-        """Hook after an accepted step; returns the parameters and the cost (log det R)."""
-        return theta, float(np.sum(np.log(self._covariance(self._residuals(theta)))))
+    def _line_search(self, theta: np.ndarray, delta: np.ndarray, cost: float,
+                     halvings: int) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """The first of ``theta + delta``, ``theta + delta / 2``, ... that lowers the cost and keeps the
+        constraints: (parameters, cost, R), or None."""
+        for _ in range(halvings):
+            trial = theta + delta
+            c, r = self._objective(trial)
+            if np.isfinite(c) and c <= cost and self._trial_ok(trial):
+                return trial, c, r
+            delta = 0.5 * delta
+        return None
+
+    def _stalled(self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray):
+        """Hook where no step lowers the cost: the parameters, cost and ``R`` to go on from if the
+        estimator can still lower it otherwise; True if it has converged; False to judge by the steps
+        taken (the output error: ``R`` is in closed form)."""
+        return False
+
+    def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """The cost minimized, ``log det R`` with ``R`` the residuals' covariance (diagonal), and that ``R``."""
+        r = self._covariance(self._residuals(theta))
+        return float(np.sum(np.log(r))), r
+
+    def _after_step(self, theta: np.ndarray, iteration: int, cost: float,
+                    r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """Hook after an accepted step: the parameters, the cost and ``R`` to go on from."""
+        return theta, cost, r
 
     def _information(self, res, sens, w) -> tuple[np.ndarray, np.ndarray]:
         m = sum(np.einsum("nkp,k,nkq->pq", s, w, s) for s in sens)
@@ -144,34 +204,59 @@ class OutputError:
     def _fit(self) -> TimeDomainResults:
         theta = self._start()
         self._prepare(theta)
-        res = self._residuals(theta)
-        cost = float(np.sum(np.log(self._covariance(res))))
-        history, converged, it = [float(np.exp(cost))], False, 0
+        cost, r = self._objective(theta)
+        if not np.isfinite(cost):
+            raise ValueError("the model cannot be integrated from the starting values")
+        history, costs, converged, it, last_step = [float(np.prod(r))], [cost], False, 0, None
+        reason = f"iteration limit ({self.max_iter}) reached"
         for it in range(1, self.max_iter + 1):
             self._prepare(theta)
             res, sens = self._sensitivities(theta)
             w = self._weights(res)
             m, g = self._information(res, sens, w)
-            delta = self._constrain(theta, np.linalg.solve(m, g), m, g)
-            for _ in range(11):
-                trial = theta + delta
-                c = float(np.sum(np.log(self._covariance(self._residuals(trial)))))
-                if np.isfinite(c) and c <= cost and self._trial_ok(trial):
+            step = None
+            # the Gauss-Newton step, then, if no halving of it lowers the cost (a poor quadratic model: a
+            # constraint nearly active, inaccurate sensitivities), steps damped toward the gradient
+            for damping, halvings in ((0.0, 11), (1e-2, 6), (1.0, 6), (1e2, 6)):
+                md = m + damping * np.diag(np.diag(m))
+                step = self._line_search(theta, self._constrain(theta, solve_scaled(md, g), md, g), cost, halvings)
+                if step is not None:
                     break
-                delta = 0.5 * delta
-            else:
-                # no decrease after ten halvings: at the (constrained) minimum to numerical precision
-                # when the last accepted step had nearly stopped changing the cost
-                converged = len(history) > 1 and abs(history[-1] / history[-2] - 1.0) < 10 * self.tol
+            if step is None:
+                # no step lowers the cost: at the (constrained) minimum to numerical precision when the
+                # estimator's other unknowns are settled too (_stalled), when the last accepted step had
+                # nearly stopped changing the cost, or moved no estimate by more than a small part of its
+                # Cramér-Rao bound
+                settled = self._stalled(theta, it, cost, r)
+                if not isinstance(settled, bool):
+                    theta, c, r = settled
+                    cost, last_step = c, None
+                    costs.append(cost)
+                    history.append(float(np.prod(r)))
+                    continue
+                last = abs(np.expm1(costs[-1] - costs[-2])) if len(costs) > 1 else float("nan")
+                moved = float(np.max(np.abs(last_step) / bounds(m))) if last_step is not None else float("nan")
+                converged = settled or last < 10 * self.tol or moved < STILL_SE
+                reason = "" if converged else (
+                    f"no step lowered the cost at iteration {it} (Gauss-Newton and damped steps, each halved); the last "
+                    f"accepted step changed it by {last:.2g} (tolerance {self.tol:g}) and moved an estimate by "
+                    f"{moved:.2g} of its Cramér-Rao bound")
                 break
-            theta, c = self._after_step(trial, it)
+            trial, c, r = step
+            last_step = trial - theta
+            theta, c, r = self._after_step(trial, it, c, r)
             change = abs(np.expm1(c - cost))
             cost = c
-            history.append(float(np.exp(cost)))
-            if change < self.tol:
-                converged = True
+            costs.append(cost)
+            history.append(float(np.prod(r)))
+            if change < self.tol or np.max(np.abs(last_step) / bounds(m)) < STILL_SE:
+                converged, reason = True, ""
                 break
-        return self._results(theta, history, converged, it)
+        else:
+            reason += f", the cost still changing by {abs(np.expm1(costs[-1] - costs[-2])):.2g} a step"
+        out = self._results(theta, history, converged, it)
+        out.reason = reason
+        return out
 
     def _results(self, theta, history, converged, iterations) -> TimeDomainResults:
         self._prepare(theta)

@@ -50,6 +50,8 @@ class TimeDomainResults:
     residuals: list[np.ndarray] = field(repr=False, default_factory=list)
     cov: np.ndarray = field(repr=False, default=None)
     cov_coloured: np.ndarray = field(repr=False, default=None)
+    #: why the fit did not converge ("" when it did)
+    reason: str = ""
 
     @property
     def nobs(self) -> int:
@@ -72,13 +74,14 @@ class TimeDomainResults:
             "se_coloured": {k: float(v) for k, v in self.bse_coloured.items()},
             "R": {k: float(v) for k, v in self.R.items()},
             "cost": self.cost, "iterations": self.iterations, "converged": self.converged,
+            **({"reason": self.reason} if self.reason else {}),
             "nobs": self.nobs,
         }
 
     def summary(self) -> str:
         name = {"oe": "Output error", "fe": "Filter error"}.get(self.method, self.method)
         lines = [f"{name}: N = {self.nobs}, det(R) = {self.cost:.4g}, {self.iterations} iterations, "
-                 f"{'converged' if self.converged else 'NOT converged'}",
+                 f"{'converged' if self.converged else 'NOT converged: ' + self.reason}",
                  f"  {'parameter':<24}{'estimate':>14}{'CR bound':>12}{'coloured':>12}{'rel %':>8}"]
         for k in self.params.index:
             v, se, sc = self.params[k], self.bse[k], self.bse_coloured[k]
