@@ -236,6 +236,11 @@ def replay(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame 
         return None
 
 
+#: The niceness of the process that flies the model's replays ahead (:class:`infra.pool.Ahead`): the lowest
+#: priority, so that it takes a core only when the diagnosis leaves one idle.
+AHEAD_NICE = 19
+
+
 #: Which held-out logs get plots of their own: ``key`` those where the first aerodynamic cause acts
 #: (without one, those with the largest residual of each coefficient), ``all`` every one.
 PLOTS = ("key", "all", "none")
@@ -390,40 +395,37 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
                "[{elapsed}]")
     src_model = AircraftSource(str(model), load_effects(None))
-    # the data compatibility runs on one core: a process of its own flies the model's replays meanwhile
-    ahead = Ahead(replay, [(lg, src_model) for lg in held], jobs if client is None else 1)
 
     def stage(name: str) -> None:
-        if name != STAGES[0]:
-            ahead.stop()
         bar.n = STAGES.index(name)
         bar.set_description(name)
 
-    try:
-        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage, settings=settings)
-    except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
-        evaluator.close()
-        bar.close()
-        raise UserError(str(exc)) from None
-    finally:
-        ahead.stop()
-    out.mkdir(parents=True, exist_ok=True)
-    doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
-                          "logs": len(logs), "train": [lg.path for lg in train],
-                          "held_out": [lg.path for lg in held]}, str(model))
-    before = diag.held
-    raw_held, held = held, diag.held_logs  # as corrected for instrument errors
-    extended_eval = src_ext = after = None
-    if diag.aero_causes:
-        stage("extension")
-        xml = write_extension(diag, out / "extension.xml")
-        folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
-        doc["extension"], doc["extension_xml"] = str(folder), str(xml)
-        extended_eval = ModelEvaluator(folder, jobs=fan)
-        after = residual_data(held, extended_eval)
-        src_ext = AircraftSource(str(folder), load_effects(None))
-    stage("replays")
-    early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
+    # a process of its own flies the model's replays at the lowest priority until they are wanted: on the
+    # core the serial work leaves (the data compatibility, the search, the verdict), hardly beside the workers
+    with Ahead(replay, [(lg, src_model) for lg in held], jobs if client is None else 1, nice=AHEAD_NICE) as ahead:
+        try:
+            diag = diagnose(train, evaluator, held, jobs=fan, progress=stage, settings=settings)
+        except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
+            evaluator.close()
+            bar.close()
+            raise UserError(str(exc)) from None
+        out.mkdir(parents=True, exist_ok=True)
+        doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
+                              "logs": len(logs), "train": [lg.path for lg in train],
+                              "held_out": [lg.path for lg in held]}, str(model))
+        before = diag.held
+        raw_held, held = held, diag.held_logs  # as corrected for instrument errors
+        extended_eval = src_ext = after = None
+        if diag.aero_causes:
+            stage("extension")
+            xml = write_extension(diag, out / "extension.xml")
+            folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
+            doc["extension"], doc["extension_xml"] = str(folder), str(xml)
+            extended_eval = ModelEvaluator(folder, jobs=fan)
+            after = residual_data(held, extended_eval)
+            src_ext = AircraftSource(str(folder), load_effects(None))
+        stage("replays")
+        early = {i: fb for i, fb in ahead.finished(cancel=True).items() if recorded(held[i]) == recorded(raw_held[i])}
     sources = (src_model,) if src_ext is None else (src_model, src_ext)
     calls = [(i, src) for i in range(len(held)) for src in sources if src is src_ext or i not in early]
     if client is None:
