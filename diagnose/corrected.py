@@ -81,6 +81,12 @@ class Corrected:
             self._once[key] = compute()
         return self._once[key]
 
+    def keep(self, compat: CompatResult | None) -> None:
+        """Drop the residual frames of every other correction (the trials not made)."""
+        key = None if compat is None else compat.correction_key()
+        for k in [k for k in self._memo if k[0] != key]:
+            del self._memo[k]
+
     def forget(self) -> None:
         """Drop the residual frames and results kept (the diagnosis is over)."""
         self._memo.clear()

@@ -59,6 +59,7 @@ from diagnose.terms import candidate_terms, sensor_of
 from diagnose.verdict import contribution, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
+from infra.pool import trim_memory
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
@@ -155,7 +156,11 @@ def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None 
 def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,
               progress, s: DiagnosisSettings) -> Diagnosis:
     """:func:`diagnose` within its settings ``s``."""
-    stage = progress or (lambda name: None)
+    def stage(name: str) -> None:
+        trim_memory()  # each stage starts from what the diagnosis holds, not from the last one's peak
+        if progress is not None:
+            progress(name)
+
     evaluator.jobs = jobs
     corrected = Corrected(logs, held, evaluator, step)
     stage("data compatibility")
@@ -164,6 +169,7 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
+        corrected.keep(compat)
     def one_pass(compat, swaps=None, whole=frozenset(), dropped=None, fallen=()):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")

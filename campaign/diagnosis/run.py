@@ -40,7 +40,7 @@ from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from identify.models import lowpass
-from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
+from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit, trim_memory
 from maneuvers.library import Recorded
 
 G0 = 32.174049
@@ -397,6 +397,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     src_model = AircraftSource(str(model), load_effects(None))
 
     def stage(name: str) -> None:
+        trim_memory()
         bar.n = STAGES.index(name)
         bar.set_description(name)
 
