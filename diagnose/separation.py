@@ -126,26 +126,34 @@ class Stack:
             del self._designs[next(iter(self._designs))]
         return x
 
-    def nuisance(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+    def nuisance(self, i: int) -> tuple[list[np.ndarray], np.ndarray]:
         """Coefficient ``COEFFS[i]``'s rows of the columns every hypothesis has (its intercept and its
-        context terms; the others are zero there), weighted: (n, k), and where they stand among all."""
-        c, w = COEFFS[i], self.w[i]
-        cols, at = [np.full((self.n, 1), w)], [[i]]
+        context terms; the others are zero there), unweighted: the column blocks (n, k each), and where
+        their columns stand among all."""
+        c = COEFFS[i]
+        cols, at = [np.ones((self.n, 1))], [[i]]
         j = len(COEFFS)
         for o in COEFFS:
             terms = self.context.get(o, [])
             width = sum(t.width for t in terms)
             if terms and o == c:
-                cols.append(self._design(terms) * w)
+                cols.append(self._design(terms))
                 at.append(range(j, j + width))
             j += width
-        return np.hstack(cols), np.concatenate([np.asarray(a, int) for a in at])
+        return cols, np.concatenate([np.asarray(a, int) for a in at])
 
     def own(self, h: Hypothesis, i: int) -> np.ndarray | None:
-        """Coefficient ``COEFFS[i]``'s rows of the hypothesis's own columns, weighted (None if zero there)."""
+        """Coefficient ``COEFFS[i]``'s rows of the hypothesis's own columns, unweighted (None if zero there)."""
         if h.kind == "aero":
-            return self._design(h.terms) * self.w[i] if h.coefficient == COEFFS[i] else None
-        return self.sig[h.key][i][:, None] * self.w[i]
+            return self._design(h.terms) if h.coefficient == COEFFS[i] else None
+        return self.sig[h.key][i][:, None]
+
+    @staticmethod
+    def own_width(h: Hypothesis, i: int) -> int:
+        """The hypothesis's own columns not zero in coefficient ``COEFFS[i]``'s rows."""
+        if h.kind == "aero":
+            return sum(t.width for t in h.terms) if h.coefficient == COEFFS[i] else 0
+        return 1
 
     def width(self, h: Hypothesis) -> int:
         """The hypothesis's columns, nuisance and own (the own last)."""
@@ -176,44 +184,49 @@ def left(stats: dict) -> float:
     return float(np.sqrt(max(lam, 0.0)))
 
 
+#: Rows factorized at a time (:func:`_blocks`): the triangles of row blocks are stacked and factorized again.
+QR_ROWS = 16384
+
+
 def _blocks(stack: Stack, hs, residuals: bool = True) -> list[tuple]:
     """Each coefficient's rows of the stacked designs of ``hs``, reduced to the triangle R of the QR
     factorization of their columns not zero there (the nuisance's, then each hypothesis's own, once if
     they are the same) and of the weighted residual last (with ``residuals``), rows where any of them
     is not finite left out: ``(R, [(R's columns, where they stand in the design) per hypothesis])``.
     ``R[:, cols]`` has the cross products of the design's rows and the part of the residual in their span:
-    everything the least squares and the sums of :func:`left` need. A block of the nuisance alone is
-    factorized once per stack."""
+    everything the least squares and the sums of :func:`left` need. The rows are factorized
+    :data:`QR_ROWS` at a time and their triangles factorized together (the memory a block of rows needs);
+    a block of the nuisance alone is factorized once per stack."""
     out = []
     for i, c in enumerate(COEFFS):
-        x, at = stack.nuisance(i)
-        own = [stack.own(h, i) for h in hs]
-        same = len(hs) == 2 and (hs[0] == hs[1] or own[0] is None and own[1] is None)
-        cols = [x] + ([own[0]] if own[0] is not None else []) + ([own[1]] if own[1] is not None and not same else [])
-        if residuals:
-            cols.append(stack.frame[f"r_{c}"].to_numpy(float)[:, None] * stack.w[i])
-        k, j, ends = x.shape[1], x.shape[1], []
-        for o in own:
-            if o is None:
-                ends.append(np.arange(k))
-            else:
-                start = k if same else j
-                ends.append(np.r_[np.arange(k), start:start + o.shape[1]])
-                j = start + o.shape[1]
-        key = ("nuisance", i, residuals) if all(o is None for o in own) else None
+        at = stack.nuisance(i)[1]
+        widths = [stack.own_width(h, i) for h in hs]
+        same = len(hs) == 2 and (hs[0] == hs[1] or not any(widths))
+        k, j, ends = len(at), len(at), []
+        for width in widths:
+            start = k if same else j
+            ends.append(np.r_[np.arange(k), start:start + width])
+            j = start + width
 
-        def make(cols: list = cols) -> np.ndarray:
-            m = np.hstack(cols)
-            ok = np.isfinite(m).all(axis=1)
-            m = m if ok.all() else m[ok]
-            return np.linalg.qr(m, mode="r") if len(m) else np.zeros((0, m.shape[1]))
-        if key is None:
-            r = make()
-        else:
-            r = stack._triangles.get(key)
-            r = stack._triangles.setdefault(key, make()) if r is None else r
-        places = [np.r_[at, stack.width(h) - (o.shape[1] if o is not None else 0) + np.arange(
-            o.shape[1] if o is not None else 0)] for h, o in zip(hs, own)]
+        def make(i: int = i, c: str = c) -> np.ndarray:
+            cols = stack.nuisance(i)[0]
+            own = [stack.own(h, i) for h in hs]
+            cols += [o for o in (own[:1] if same else own) if o is not None]
+            if residuals:
+                cols.append(stack.frame[f"r_{c}"].to_numpy(float)[:, None])
+            tri = []
+            for lo in range(0, stack.n, QR_ROWS):
+                m = np.hstack([x[lo:lo + QR_ROWS] for x in cols]) * stack.w[i]
+                ok = np.isfinite(m).all(axis=1)
+                m = m if ok.all() else m[ok]
+                if len(m):
+                    tri.append(np.linalg.qr(m, mode="r"))
+            width = sum(x.shape[1] for x in cols)
+            return np.linalg.qr(np.vstack(tri), mode="r") if tri else np.zeros((0, width))
+        key = (i, residuals)  # the nuisance alone is the same in every pair of the stack
+        r = make() if any(widths) else stack._triangles.get(key)
+        r = stack._triangles.setdefault(key, make()) if r is None else r
+        places = [np.r_[at, stack.width(h) - width + np.arange(width)] for h, width in zip(hs, widths)]
         out.append((r, list(zip(ends, places))))
     return out
 
