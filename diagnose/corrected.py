@@ -82,9 +82,11 @@ class Corrected:
         return self._once[key]
 
     def keep(self, compat: CompatResult | None) -> None:
-        """Drop the residual frames of every other correction (the trials not made)."""
-        key = None if compat is None else compat.correction_key()
-        for k in [k for k in self._memo if k[0] != key]:
+        """Drop the residual frames of the trials not made: every correction but ``compat`` and ``compat``
+        with one of its corrections undone (what :func:`diagnose.arbitration.compat_causes` asks for)."""
+        kept = {None if compat is None else compat.correction_key()}
+        kept |= {compat.without(p.name).correction_key() for p in compat.applied} if compat is not None else set()
+        for k in [k for k in self._memo if k[0] not in kept]:
             del self._memo[k]
 
     def forget(self) -> None:
