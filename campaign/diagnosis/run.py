@@ -423,7 +423,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
             folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
             doc["extension"], doc["extension_xml"] = str(folder), str(xml)
             extended_eval = ModelEvaluator(folder, jobs=fan)
-            after = residual_data(held, extended_eval)
+            after = residual_data(held, extended_eval, wait=False)  # the workers go on to the replays
             src_ext = AircraftSource(str(folder), load_effects(None))
         stage("replays")
         early = {i: fb for i, fb in ahead.finished(cancel=True).items() if recorded(held[i]) == recorded(raw_held[i])}
@@ -435,6 +435,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
         shipped = {id(s): pack(s) for s in sources}
         flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
                                                            for i, src in calls], fan)))
+    after = after() if callable(after) else after
     flown = {lg.path: (early[i] if i in early else flown_now[i, src_model],
                        flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
     doc["replays"] = replay_table(held, flown, extended=src_ext is not None)
