@@ -17,7 +17,8 @@ process's high-water mark (``VmHWM``, its last reading: a forked worker starts f
 reported for the main process, the largest worker and summed over the main process and its workers
 (the fork server and the resource tracker, which compute nothing, apart); the largest worker's unique memory (USS, ``Private_Clean +
 Private_Dirty`` of ``smaps_rollup``, every 0.5 s: RSS counts the shared libraries' pages, about 80
-MB of numpy, scipy, pandas and JSBSim code, in every process); and how busy the machine was with
+MB of numpy, scipy, pandas and JSBSim code, in every process) and the processes' proportional memory
+(PSS) summed, what the command took from the machine; and how busy the machine was with
 other work meanwhile (the CPU-seconds of ``/proc/stat`` not ours, over the wall time and the cores).
 
 The figures go into ``benchmarks/results/speed/<date>-<commit>.json`` (the machine, the commit and
@@ -68,12 +69,15 @@ def _hwm_kb(pid: int) -> int:
     return 0
 
 
-def _uss_kb(pid: int) -> int:
+def _uss_pss_kb(pid: int) -> tuple[int, int]:
+    """Unique (``Private_Clean + Private_Dirty``) and proportional (``Pss``: each shared page divided among
+    the processes that map it) memory of ``pid`` [kB]."""
     try:
         lines = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
     except OSError:
-        return 0
-    return sum(int(ln.split()[1]) for ln in lines if ln.startswith(("Private_Clean:", "Private_Dirty:")))
+        return 0, 0
+    return (sum(int(ln.split()[1]) for ln in lines if ln.startswith(("Private_Clean:", "Private_Dirty:"))),
+            sum(int(ln.split()[1]) for ln in lines if ln.startswith("Pss:")))
 
 
 def _cpu_s(pid: int) -> float | None:
@@ -156,6 +160,9 @@ class Run:
         Peak RSS of the main process and every worker, summed (each its own peak) [MB].
     all_mb : float
         The same with the fork server and the resource tracker [MB].
+    pss_mb : float
+        Each process's peak proportional memory (PSS, every 0.5 s: a page shared by k processes counts
+        1/k in each), summed over all of them: the memory the command took from the machine, about [MB].
     others_busy : float
         The share of the machine's cores that other work used meanwhile (0 to 1).
     load : list of float
@@ -171,6 +178,7 @@ class Run:
     unique_mb: float
     sum_mb: float
     all_mb: float
+    pss_mb: float
     others_busy: float
     load: list[float]
     processes: list[dict] = field(default_factory=list)
@@ -209,6 +217,7 @@ def timed(args: list[str], cwd: Path | None = None) -> Run:
                             stderr=subprocess.PIPE, text=True)
     peaks: dict[int, int] = {}
     uss: dict[int, int] = {}
+    pss: dict[int, int] = {}
     cpu: dict[int, float] = {}
     roles: dict[int, str] = {}
 
@@ -225,7 +234,8 @@ def timed(args: list[str], cwd: Path | None = None) -> Run:
                 if p not in roles:
                     roles[p] = _role(p, proc.pid)
                 if tick % USS_EVERY == 0:
-                    uss[p] = max(uss.get(p, 0), _uss_kb(p))
+                    u, q = _uss_pss_kb(p)
+                    uss[p], pss[p] = max(uss.get(p, 0), u), max(pss.get(p, 0), q)
             tick += 1
             time.sleep(0.05)
 
@@ -244,7 +254,7 @@ def timed(args: list[str], cwd: Path | None = None) -> Run:
     return Run(wall, ours, mb.pop(proc.pid, 0.0), max((mb[p] for p in workers), default=0.0),
                max((uss.get(p, 0) / 1024 for p in workers), default=0.0),
                peaks.get(proc.pid, 0) / 1024 + sum(mb[p] for p in workers), sum(v / 1024 for v in peaks.values()),
-               max(busy - ours, 0.0) / (wall * (os.cpu_count() or 1)), [load0, _load()],
+               sum(pss.values()) / 1024, max(busy - ours, 0.0) / (wall * (os.cpu_count() or 1)), [load0, _load()],
                [{"role": roles.get(p, "main"), "peak_mb": round(peaks[p] / 1024), "cpu_s": round(cpu.get(p, 0.0), 2)}
                 for p in sorted(peaks)], out)
 
@@ -396,8 +406,8 @@ def diagnosis(a, work: Path, paper: Path, fig: dict, doc: dict) -> None:
     fig[f"fly x3 ({n} points), 2 jobs"] = timed(["run", "--matrix", str(work / "x3.toml"), "--noise", "flight-test",
                                                  "--no-identify", "--quiet", "--out", str(x3), "--jobs", "2"]).figures()
     print("| diagnosis, 2 jobs (median of runs) | wall [s] | CPU [s] | main peak [MB] | largest worker peak [MB] | "
-          "main + workers peak [MB] | others' share of the cores |")
-    print("|---|---|---|---|---|---|---|")
+          "main + workers peak [MB] | PSS [MB] | others' share of the cores |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, (extra, scale) in DIAGNOSES.items():
         data = paper if scale == 1 else x3
         runs = []
@@ -406,11 +416,12 @@ def diagnosis(a, work: Path, paper: Path, fig: dict, doc: dict) -> None:
                                "--out", str(work / f"diag-{scale}-{len(extra)}-{k}"), "--quiet", "--jobs", "2"]
                               + extra))
         fig[name] = {**{k: sorted(getattr(r, k) for r in runs)[len(runs) // 2] for k in
-                        ("wall_s", "cpu_s", "main_mb", "worker_mb", "unique_mb", "sum_mb", "all_mb", "others_busy")},
+                        ("wall_s", "cpu_s", "main_mb", "worker_mb", "unique_mb", "sum_mb", "all_mb", "pss_mb",
+                         "others_busy")},
                      "runs": [r.figures() for r in runs]}
         f = fig[name]
         print(f"| {name} | {f['wall_s']:.1f} | {f['cpu_s']:.1f} | {f['main_mb']:.0f} | {f['worker_mb']:.0f} | "
-              f"{f['sum_mb']:.0f} | {f['others_busy']:.2f} |", flush=True)
+              f"{f['sum_mb']:.0f} | {f['pss_mb']:.0f} | {f['others_busy']:.2f} |", flush=True)
     doc["stages"] = diagnose_stages(paper)
 
 

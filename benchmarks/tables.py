@@ -288,15 +288,19 @@ def speed_page() -> str:
     if diag:
         head = ["the diagnosis, 2 jobs (median of the runs)"]
         for d in diag:
-            head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]", "main + workers peak [MB]"]
+            head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]", "main + workers peak [MB]", "PSS [MB]"]
         rows = [[name] + [x for d in diag for x in (_num(d["figures"].get(name, {}).get("wall_s")),
                                                       _num(d["figures"].get(name, {}).get("cpu_s")),
-                                                      _num(d["figures"].get(name, {}).get("sum_mb"), ".0f"))]
+                                                      _num(d["figures"].get(name, {}).get("sum_mb"), ".0f"),
+                                                      _num(d["figures"].get(name, {}).get("pss_mb"), ".0f"))]
                 for name in DIAGNOSES]
         busy = [d["figures"][DIAGNOSES[0]].get("others_busy") for d in diag]
         out.append("\n" + _table(head, rows) + "\nOther work on the machine took "
                    + " and ".join(f"{100 * b:.0f} %" for b in busy if b is not None)
-                   + " of its cores meanwhile (the CPU-seconds are the diagnosis's own: its processes').\n")
+                   + " of its cores meanwhile (the CPU-seconds are the diagnosis's own: its processes'). The peak "
+                   "is each process's high-water mark summed over the main process and its workers: each counts "
+                   "the 200 MB a process holds once it has imported numpy, scipy, pandas and JSBSim, most of it "
+                   "shared with the others; PSS counts a shared page once over the processes.\n")
         staged = [d for d in diag if d.get("stages")]
         if staged:
             names = list(staged[-1]["stages"]["stages"])

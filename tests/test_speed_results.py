@@ -48,6 +48,6 @@ def test_the_speed_page_shows_the_last_two_diagnoses_side_by_side(tmp_path, monk
     (tmp_path / "a.json").write_text(json.dumps(_result("a" * 40, "2026-01-01T10:00:00+00:00", 33.0, 60.0, 8.0)))
     (tmp_path / "b.json").write_text(json.dumps(_result("b" * 40, "2026-01-02T10:00:00+00:00", 14.0, 28.0, 1.0)))
     page = tables.speed_page()
-    assert "| diagnose, no plots | 33.0 | 60.0 | 900 | 14.0 | 28.0 | 900 |" in page
+    assert "| diagnose, no plots | 33.0 | 60.0 | 900 | - | 14.0 | 28.0 | 900 | - |" in page
     assert "`aaaaaaa` wall [s]" in page and "`bbbbbbb` wall [s]" in page
     assert "| verdict | 8.00 | 8.00 | 1.00 | 1.00 |" in page
