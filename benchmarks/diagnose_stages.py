@@ -1,7 +1,7 @@
 """``campaign diagnose`` timed stage by stage: wall time and CPU-seconds of the main process and
 its workers in each stage.
 
-    python benchmarks/diagnose_stages.py DATA_DIR [--model aircraft/737] [--jobs 2]
+    python benchmarks/diagnose_stages.py DATA_DIR [--model aircraft/737] [--jobs 2] [--json FILE]
 
 ``DATA_DIR`` is a campaign folder, for example one flown with
 ``campaign run --noise flight-test --no-identify --out DATA_DIR``. The diagnosis is the command's
@@ -9,11 +9,14 @@ own (:func:`campaign.cli.main`), its report written to a temporary folder and re
 stages are those of its progress bar (``campaign.diagnosis.run.STAGES``), "start" is everything
 before the first (imports of the command, reading the logs, the model's evaluation copy).
 CPU-seconds are read from ``/proc`` for the main process and every live descendant (the
-workers and the process that flies replays ahead) as each stage begins. Run by hand, outside CI.
+workers and the process that flies replays ahead) as each stage begins; a process that ended
+within a stage takes its CPU-seconds with it. ``--json`` also writes the table as data
+(``benchmarks/speed_table.py`` keeps it in its result file). Run by hand, outside CI.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import tempfile
@@ -61,6 +64,7 @@ def main() -> None:
     ap.add_argument("data")
     ap.add_argument("--model", default="aircraft/737")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--json", help="also write the stages' figures into this file")
     a = ap.parse_args()
     diagnose.tqdm = StageClock
     from campaign.cli import main as cli
@@ -74,11 +78,17 @@ def main() -> None:
     end = time.perf_counter()
     print(f"\n| stage ({a.jobs} jobs) | wall [s] | CPU [s] |\n|---|---|---|")
     prev = ("start", T0, 0.0)
+    rows = {}
     for mark in StageClock.marks + [("exit", end, cpu_seconds(os.getpid()))]:
         name = "after the stages (the report's files, the workers closed)" if prev[0] == "end" else prev[0]
         print(f"| {name} | {mark[1] - prev[1]:.2f} | {mark[2] - prev[2]:.2f} |")
+        rows[name] = {"wall_s": round(mark[1] - prev[1], 2), "cpu_s": round(mark[2] - prev[2], 2)}
         prev = mark
     print(f"| all (the interpreter's own start not included) | {end - T0:.2f} | {prev[2]:.2f} |")
+    rows["all"] = {"wall_s": round(end - T0, 2), "cpu_s": round(prev[2], 2)}
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump({"jobs": a.jobs, "data": a.data, "stages": rows}, f, indent=1)
     raise SystemExit(rc)
 
 

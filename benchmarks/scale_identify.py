@@ -43,10 +43,10 @@ def main() -> int:
                             "--out", str(camp), "--cluster", cluster.scheduler_address, "--no-identify", "--quiet"],
                            check=True, cwd=ROOT)
             fly_s = time.perf_counter() - t0
-    wall, main_mb, worker_mb, _, _ = timed(["identify", str(camp), "--jobs", "2"])
+    r = timed(["identify", str(camp), "--jobs", "2"])
     print(f"x{a.scale}: {n} points flown on a LocalCluster of {a.cluster_workers} workers in {fly_s:.0f} s "
-          f"({1000 * fly_s / n:.0f} ms a point); identify --jobs 2: {wall:.0f} s, main process peak "
-          f"{main_mb:.0f} MB, largest worker peak {worker_mb:.0f} MB (work in {work})")
+          f"({1000 * fly_s / n:.0f} ms a point); identify --jobs 2: {r.wall_s:.0f} s, main process peak "
+          f"{r.main_mb:.0f} MB, largest worker peak {r.worker_mb:.0f} MB (work in {work})")
     return 0
 
 

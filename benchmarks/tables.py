@@ -277,27 +277,104 @@ def plan_page() -> str:
     return out
 
 
+SPEED = RESULTS / "speed"
+#: The stages speed_table.py times with 1 and 2 jobs, in the order of the table.
+STAGES = ("fly (138 manoeuvres)", "identify", "replay", "plots (redrawn)", "run: fly through plots",
+          "diagnose (full matrix)")
+#: The diagnoses speed_table.py times with 2 jobs, each the median of its runs.
+DIAGNOSES = ("diagnose, no plots", "diagnose, key plots", "diagnose x3 (291 points), no plots")
+
+
+def speed_results() -> list[dict]:
+    """Every result of ``benchmarks/speed_table.py`` (``benchmarks/results/speed/*.json``), in the order
+    they were measured."""
+    docs = [{**json.loads(p.read_text()), "file": p.name} for p in SPEED.glob("*.json")]
+    return sorted(docs, key=lambda d: (d["date"], d["file"]))
+
+
+def _speed_source(docs: list[dict]) -> str:
+    """The provenance line under a speed table: each result's command, commit, date and machine."""
+    def one(d: dict) -> str:
+        m = d.get("machine", {})
+        where = f", {m['cpu']}, {m['cores']} cores" if "cpu" in m else ""
+        return f"`{d['command']}`, code at commit `{d['code_commit'][:7]}`, measured {d['date'][:10]}{where}"
+    return "\n*Measured by " + "; and by ".join(one(d) for d in docs) + ". Data: `benchmarks/results/speed/`.*\n"
+
+
+def _num(v, fmt: str = ".1f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
 def speed_page() -> str:
-    s = _json("speed.json")
-    rows = [[r["stage"], r["jobs_1_s"], r["jobs_2_s"], f"x{r['jobs_1_s'] / r['jobs_2_s']:.2f}", r["main_peak_mb"],
-             r["worker_peak_mb"], r["worker_uss_mb"]] for r in s["stages"]]
-    out = _table(["stage (paper matrix, flight-test profile)", "1 job [s]", "2 jobs [s]", "speed-up",
-                  "main peak [MB]", "worker peak [MB]", "worker USS [MB]"], rows) + _source(s)
-    out += f"\n{s['setup'][0].upper() + s['setup'][1:]}. {s['caveat'][0].upper() + s['caveat'][1:]}.\n"
-    x = s["scaled_10x"]
-    out += f"\n**Ten times the points** ({x['setup']}; `{x['command']}`):\n\n" + _table(
-        ["seed", "fly [s]", "identify [s]", "fly per point [ms]"],
-        [[r["seed"], r["fly_s"], r["identify_s"], r["fly_per_point_ms"]] for r in x["rows"]])
+    docs = speed_results()
+    out = []
+    st = next((d for d in reversed(docs) if f"{STAGES[0]}, 1 job" in d["figures"]), None)
+    if st is not None:
+        rows = []
+        for name in STAGES:
+            one, two = st["figures"].get(f"{name}, 1 job", {}), st["figures"].get(f"{name}, 2 jobs", {})
+            rows.append([name, _num(one.get("wall_s")), _num(two.get("wall_s")),
+                         f"x{one['wall_s'] / two['wall_s']:.2f}" if one and two else "-", _num(two.get("cpu_s")),
+                         _num(two.get("main_mb"), ".0f"), _num(two.get("worker_mb"), ".0f"),
+                         _num(two.get("unique_mb"), ".0f"), _num(two.get("sum_mb"), ".0f")])
+        out.append(_table(["stage (paper matrix, flight-test profile)", "1 job [s]", "2 jobs [s]", "speed-up",
+                           "CPU, 2 jobs [s]", "main peak [MB]", "worker peak [MB]", "worker USS [MB]",
+                           "main + workers peak [MB]"], rows) + _speed_source([st]))
+        ratio = st["figures"].get("flying loop / raw fdm.run()", {}).get("ratio")
+        if ratio is not None:
+            out.append(f"\nThe flying loop steps at {ratio:.2f} of raw `fdm.run()` (`benchmarks/stepping.py`).\n")
+    diag = [d for d in docs if DIAGNOSES[0] in d["figures"]][-2:]
+    if diag:
+        head = ["the diagnosis, 2 jobs (median of the runs)"]
+        for d in diag:
+            head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]", "main + workers peak [MB]", "PSS [MB]"]
+        rows = [[name] + [x for d in diag for x in (_num(d["figures"].get(name, {}).get("wall_s")),
+                                                      _num(d["figures"].get(name, {}).get("cpu_s")),
+                                                      _num(d["figures"].get(name, {}).get("sum_mb"), ".0f"),
+                                                      _num(d["figures"].get(name, {}).get("pss_mb"), ".0f"))]
+                for name in DIAGNOSES]
+        busy = [d["figures"][DIAGNOSES[0]].get("others_busy") for d in diag]
+        out.append("\n" + _table(head, rows) + "\nOther work on the machine took "
+                   + " and ".join(f"{100 * b:.0f} %" for b in busy if b is not None)
+                   + " of its cores meanwhile (the CPU-seconds are the diagnosis's own: its processes'). The peak "
+                   "is each process's high-water mark summed over the main process and its workers: each counts "
+                   "the 200 MB a process holds once it has imported numpy, scipy, pandas and JSBSim, most of it "
+                   "shared with the others; PSS counts a shared page once over the processes.\n")
+        staged = [d for d in diag if d.get("stages")]
+        if staged:
+            names = list(staged[-1]["stages"]["stages"])
+            rows = [[n] + [x for d in staged for x in (_num(d["stages"]["stages"].get(n, {}).get("wall_s"), ".2f"),
+                                                       _num(d["stages"]["stages"].get(n, {}).get("cpu_s"), ".2f"))]
+                    for n in names]
+            head = ["stage of the diagnosis (paper matrix, 2 jobs, key plots)"]
+            for d in staged:
+                head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]"]
+            out.append("\n" + _table(head, rows))
+        out.append(_speed_source(diag))
+    scaled = next((d for d in reversed(docs) if any(k.startswith("x10 ") for k in d["figures"])), None)
+    if scaled is not None:
+        seeds = sorted({k.split(" seed ")[1].split(":")[0] for k in scaled["figures"] if k.startswith("x10 ")})
+        fly_ref = scaled["figures"].get(f"{STAGES[0]}, 2 jobs", {}).get("wall_s")
+        rows = []
+        for sd in seeds:
+            of = {k.split(": ")[1]: v for k, v in scaled["figures"].items() if k.startswith("x10 ")
+                  and k.split(": ")[0].endswith(f"seed {sd}")}
+            fly, ident = of["fly, 2 jobs"], of["identify, 2 jobs"]
+            rows.append([sd, _num(fly["wall_s"]), _num(ident["wall_s"]), f"{fly['wall_s'] / 970 * 1000:.0f}"])
+        out.append("\n**Ten times the points** (each paper point at 10 altitudes 150 ft apart, 970 points, 2 jobs, "
+                   "one run per noise seed" + (f"; the paper matrix flies {fly_ref / 97 * 1000:.0f} ms a point"
+                                              if fly_ref else "") + "):\n\n"
+                   + _table(["seed", "fly [s]", "identify [s]", "fly per point [ms]"], rows) + _speed_source([scaled]))
     c = _json("scale_identify.json")
     r = c["results"]
-    out += (f"\n**A hundred times the points** ({c['setup']}): flying {r['fly_s']} s ({r['fly_per_point_ms']} ms a "
-            f"point; {r['points_flown']:,} flew, {r['points_failed']} failed: {r['failed_because']}); identification "
-            f"{r['identify_s']} s, main process peak {r['identify_main_peak_mb'][0]}-{r['identify_main_peak_mb'][1]} MB.\n"
-            + _source(c))
+    peak = r["identify_main_peak_mb"]
+    out.append(f"\n**A hundred times the points** ({c['setup']}): flying {r['fly_s']} s ({r['fly_per_point_ms']} ms "
+               f"a point; {r['points_flown']:,} flew, {r['points_failed']} failed: {r['failed_because']}); "
+               f"identification {r['identify_s']} s, main process peak {peak[0]}-{peak[1]} MB.\n" + _source(c))
     rs = _json("report_speed.json")
-    out += "\n**The HTML report**: " + "; ".join(f"{r['folder']}: {r['size_mb']} MB written in {r['write_s']} s"
-                                                for r in rs["rows"]) + ".\n" + _source(rs)
-    return out
+    out.append("\n**The HTML report**: " + "; ".join(f"{r['folder']}: {r['size_mb']} MB written in {r['write_s']} s"
+                                                    for r in rs["rows"]) + ".\n" + _source(rs))
+    return "".join(out)
 
 
 PAGES = {"validation-summary.md": validation_table, "detection.md": detection_page, "methods.md": methods_page,

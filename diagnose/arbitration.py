@@ -76,22 +76,30 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
     late vane) hides it in the second but not in the first. A third entry, ``the others about their
     means``, is the smallest of the other coefficients' fitted-log RMS ratios, each about its mean.
     """
+    # the workers evaluate the trial's logs, fitted and held out, together; the search beside the aero
+    # terms on the fitted logs as they are runs here meanwhile
+    pending = [data.residuals(trial, wait=False)]
+    if data.held:
+        pending += [data.residuals(compat, held=True, wait=False), data.residuals(trial, held=True, wait=False)]
     before = data.residuals(compat)
-    after = data.residuals(trial)
+    after = pending[0]()
     c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
-    held = (data.residuals(compat, held=True), data.residuals(trial, held=True)) if data.held else None
 
     def ratio(a: np.ndarray, b: np.ndarray) -> float:
         return float(np.sqrt(np.mean(a ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
 
-    def left(frame: pd.DataFrame, other: pd.DataFrame | None) -> tuple[np.ndarray, np.ndarray | None]:
-        res = stepwise(frame, c, candidate_terms(frame, c))
-        return (frame[f"r_{c}"].to_numpy() - res.predict(frame),
-                None if other is None else other[f"r_{c}"].to_numpy() - res.predict(other))
+    def search(frame: pd.DataFrame):
+        return stepwise(frame, c, candidate_terms(frame, c))
 
-    lb, lbh = data.once(("left beside aero terms", compat.correction_key(), c),
-                        lambda: left(before, held[0] if held else None))  # every trial of one correction
-    la, lah = left(after, held[1] if held else None)
+    def left(res, frame: pd.DataFrame) -> np.ndarray | None:
+        return None if frame is None else frame[f"r_{c}"].to_numpy() - res.predict(frame)
+
+    fit_before = data.once(("search beside aero terms", compat.correction_key(), c),
+                           lambda: search(before))  # every trial of one correction
+    fit_after = search(after)
+    held = (pending[1](), pending[2]()) if data.held else None
+    lb, lbh = left(fit_before, before), left(fit_before, held[0] if held else None)
+    la, lah = left(fit_after, after), left(fit_after, held[1] if held else None)
     nan = float("nan")
 
     def about_mean(k: str) -> float:
@@ -220,6 +228,10 @@ def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
     for ch, err in compat.unmeasured:
         if err != "delay" or not data.held:
             continue
+        # what the first step from no delay asks for, then the held-out logs as corrected, which every
+        # trial and the diagnosis after it ask for: the workers go from one to the other without a pause
+        data.ahead(compat, delays=(ch,))
+        data.ahead(compat, held=True)
         name = f"{ch}.{err}"
         kinematic = compat.get(name).estimate
         starts = [0.0] + ([kinematic] if np.isfinite(kinematic) and kinematic != 0.0 else [])

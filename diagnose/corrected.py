@@ -56,16 +56,23 @@ class Corrected:
         correct = None if compat is None else compat.correct
         key = (None if compat is None else compat.correction_key(), held)
         done = self._memo.setdefault(key, {})
-        for have, frame in done.items():
+        for have in list(done):
             if set(delays) <= set(have):
                 extra = [f"{ch.split('_')[0]}delay_{c}" for ch in set(have) - set(delays) for c in COEFFS]
-                return frame.drop(columns=extra) if wait else (lambda frame=frame: frame.drop(columns=extra))
-        pending = residual_data(raw, self.evaluator, self.step, delays, wait=False, correct=correct)
+
+                def kept(have: tuple = have, extra: list = extra) -> pd.DataFrame:
+                    return _frame(done, have).drop(columns=extra)
+                return kept() if wait else kept
+        # kept while the workers compute it: a later request of the same correction waits for the same frame
+        done[tuple(delays)] = residual_data(raw, self.evaluator, self.step, delays, wait=False, correct=correct)
 
         def finished() -> pd.DataFrame:
-            done[tuple(delays)] = pending()
-            return done[tuple(delays)].copy()
+            return _frame(done, tuple(delays)).copy()
         return finished() if wait else finished
+
+    def ahead(self, compat: CompatResult | None, held: bool = False, delays: tuple = ()) -> None:
+        """Start the workers on :meth:`residuals` of a correction that will be asked for, and go on."""
+        self.residuals(compat, held, delays, wait=False)
 
     def once(self, key: tuple, compute: Callable[[], object]) -> object:
         """``compute()``, computed once per ``key`` (hashable, naming the correction it depends on)
@@ -74,7 +81,22 @@ class Corrected:
             self._once[key] = compute()
         return self._once[key]
 
+    def keep(self, compat: CompatResult | None) -> None:
+        """Drop the residual frames of the trials not made: every correction but ``compat`` and ``compat``
+        with one of its corrections undone (what :func:`diagnose.arbitration.compat_causes` asks for)."""
+        kept = {None if compat is None else compat.correction_key()}
+        kept |= {compat.without(p.name).correction_key() for p in compat.applied} if compat is not None else set()
+        for k in [k for k in self._memo if k[0] not in kept]:
+            del self._memo[k]
+
     def forget(self) -> None:
         """Drop the residual frames and results kept (the diagnosis is over)."""
         self._memo.clear()
         self._once.clear()
+
+
+def _frame(done: dict, have: tuple) -> pd.DataFrame:
+    """The frame ``done[have]``, waited for if the workers are still computing it (a callable)."""
+    if not isinstance(done[have], pd.DataFrame):
+        done[have] = done[have]()
+    return done[have]

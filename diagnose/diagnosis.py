@@ -63,6 +63,7 @@ from diagnose.together import confounded_note, flown_together
 from diagnose.verdict import contribution, implausible, judge, rank
 from identify.compat import estimate
 from identify.logs import Log
+from infra.pool import trim_memory
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
 STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
@@ -178,7 +179,11 @@ def _reach_of(compat, instruments: Instrumentation, logs: list[Log], reach_se: f
 def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,
               progress, s: DiagnosisSettings) -> Diagnosis:
     """:func:`diagnose` within its settings ``s``."""
-    stage = progress or (lambda name: None)
+    def stage(name: str) -> None:
+        trim_memory()  # each stage starts from what the diagnosis holds, not from the last one's peak
+        if progress is not None:
+            progress(name)
+
     evaluator.jobs = jobs
     corrected = Corrected(logs, held, evaluator, step)
     instruments = instrumentation(list(logs) + list(held))
@@ -188,6 +193,7 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
         compat = arbitrate(compat, corrected)
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
+        corrected.keep(compat)
     def one_pass(compat, swaps=None, whole=frozenset(), dropped=None, fallen=()):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")

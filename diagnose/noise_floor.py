@@ -121,6 +121,12 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
     inputs = ev.inputs(chans, _measured_cl(chans, log.meta, ev))
     whole = ev.evaluate_array(inputs)
     base = whole[rows]
+    # without inputs taken from the time series (alpha-dot, CL squared) each row's inputs are its own:
+    # a perturbed channel's are made at the subsample only
+    own = not ev.redirected
+    at = slice(None) if own else rows
+    if own:
+        chans = _Channels(chans.values[rows], chans.at, chans.columns) if numbers else d.iloc[rows]
     out = {}
     for ch, sigma in noise.items():
         if ch not in d:
@@ -128,13 +134,12 @@ def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.
         if numbers:
             moved = _Channels(chans.values, chans.at, chans.columns, {ch: chans[ch].to_numpy() + sigma})
         else:
-            moved = d.copy(deep=False)  # the changed column is replaced, not written into
+            moved = (d.iloc[rows] if own else d).copy(deep=False)  # the changed column is replaced, not written into
             moved[ch] = moved[ch] + sigma
-        cl = _measured_cl(moved, log.meta, ev)
-        changed = ev.inputs(moved, cl)
-        if all(np.array_equal(changed[p][rows], inputs[p][rows]) for p in inputs):
+        changed = ev.inputs(moved, None if own else _measured_cl(moved, log.meta, ev))
+        if all(np.array_equal(changed[p][at], inputs[p][rows]) for p in inputs):
             continue
-        out[ch] = (ev.evaluate_array(changed, rows) - base) / sigma
+        out[ch] = (ev.evaluate_array(changed, None if own else rows) - base) / sigma
     return t[rows] if dt > 0 else rows.astype(float), out, whole[:, 0].copy()
 
 

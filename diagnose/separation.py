@@ -115,69 +115,57 @@ class Stack:
     def __init__(self, frame: pd.DataFrame, weights, signatures: dict, context: dict) -> None:
         self.frame, self.w, self.sig, self.context = frame, np.asarray(weights, float), signatures, context
         self.n = len(frame)
+        self._designs: dict[tuple, np.ndarray] = {}  # terms -> their design (n, widths), the last few kept
+        self._triangles: dict[tuple, np.ndarray] = {}  # the blocks' QR triangles (:func:`_blocks`)
 
-    def _blocks(self, per: dict[str, np.ndarray], width: int) -> np.ndarray:
-        out = np.zeros((3 * self.n, width))
-        for i, c in enumerate(COEFFS):
-            if c in per:
-                out[i * self.n:(i + 1) * self.n] = per[c] * self.w[i]
-        return out
+    def _design(self, terms) -> np.ndarray:
+        key = tuple(terms)
+        x = self._designs.pop(key, None)
+        x = design_matrix(list(terms), self.frame)[:, 1:] if x is None else x
+        self._designs[key] = x  # the newest last: a cause's own terms and its context come back every pair
+        while len(self._designs) > 2 + len(self.context):
+            del self._designs[next(iter(self._designs))]
+        return x
 
-    def nuisance(self) -> np.ndarray:
-        """An intercept per coefficient, then the context terms (3n, q)."""
-        cols = [self._blocks({c: np.ones((self.n, 1))}, 1) for c in COEFFS]
-        for c in COEFFS:
-            terms = self.context.get(c, [])
-            if terms:
-                cols.append(self._blocks({c: design_matrix(terms, self.frame)[:, 1:]}, sum(t.width for t in terms)))
-        return np.hstack(cols)
+    def nuisance(self, i: int) -> tuple[list[np.ndarray], np.ndarray]:
+        """Coefficient ``COEFFS[i]``'s rows of the columns every hypothesis has (its intercept and its
+        context terms; the others are zero there), unweighted: the column blocks (n, k each), and where
+        their columns stand among all."""
+        c = COEFFS[i]
+        cols, at = [np.ones((self.n, 1))], [[i]]
+        j = len(COEFFS)
+        for o in COEFFS:
+            terms = self.context.get(o, [])
+            width = sum(t.width for t in terms)
+            if terms and o == c:
+                cols.append(self._design(terms))
+                at.append(range(j, j + width))
+            j += width
+        return cols, np.concatenate([np.asarray(a, int) for a in at])
 
-    def columns(self, h: Hypothesis) -> np.ndarray:
-        """The hypothesis's own columns (3n, p)."""
+    def own(self, h: Hypothesis, i: int) -> np.ndarray | None:
+        """Coefficient ``COEFFS[i]``'s rows of the hypothesis's own columns, unweighted (None if zero there)."""
         if h.kind == "aero":
-            return self._blocks({h.coefficient: design_matrix(list(h.terms), self.frame)[:, 1:]},
-                                sum(t.width for t in h.terms))
-        s = self.sig[h.key]
-        return self._blocks({c: s[i][:, None] for i, c in enumerate(COEFFS)}, 1)
+            return self._design(h.terms) if h.coefficient == COEFFS[i] else None
+        return self.sig[h.key][i][:, None]
 
-    def target(self) -> np.ndarray:
-        """The weighted residuals, stacked (3n)."""
-        return self._blocks({c: self.frame[f"r_{c}"].to_numpy(float)[:, None] for c in COEFFS}, 1)[:, 0]
+    @staticmethod
+    def own_width(h: Hypothesis, i: int) -> int:
+        """The hypothesis's own columns not zero in coefficient ``COEFFS[i]``'s rows."""
+        if h.kind == "aero":
+            return sum(t.width for t in h.terms) if h.coefficient == COEFFS[i] else 0
+        return 1
 
-    def designs(self, hs, y: np.ndarray | None = None) -> list[np.ndarray]:
-        """Nuisance and own columns of each hypothesis (3n, q + p), the rows where any of them (or
-        ``y``) is not finite zeroed in all (and in ``y``, in place)."""
-        nuis = self.nuisance()
-        zs = [np.hstack([nuis, self.columns(h)]) for h in hs]
-        bad = np.zeros(3 * self.n, bool)
-        for z in zs:
-            bad |= ~np.isfinite(z).all(axis=1)
-        if y is not None:
-            bad |= ~np.isfinite(y)
-            y[bad] = 0.0
-        for z in zs:
-            z[bad] = 0.0
-        return zs
+    def width(self, h: Hypothesis) -> int:
+        """The hypothesis's columns, nuisance and own (the own last)."""
+        own = sum(t.width for t in h.terms) if h.kind == "aero" else 1
+        return len(COEFFS) + sum(t.width for ts in self.context.values() for t in ts) + own
 
 
 def _prior_rows(hs: tuple[Hypothesis, Hypothesis]) -> list[tuple[int, float, float]]:
     """(which hypothesis, 1 / se, estimate / se) of each measured instrument error among ``hs``."""
     return [(i, 1.0 / h.prior[1], h.prior[0] / h.prior[1]) for i, h in enumerate(hs)
             if h.kind == "sensor" and h.prior is not None and h.prior[1] > 0]
-
-
-def _with_priors(z: np.ndarray, which: int, priors: list) -> np.ndarray:
-    rows = np.zeros((len(priors), z.shape[1]))
-    for r, (i, w, _) in enumerate(priors):
-        if i == which:
-            rows[r, -1] = w
-    return np.vstack([z, rows])
-
-
-def _sums(zb: np.ndarray, za: np.ndarray, za_hat: np.ndarray) -> dict:
-    """The sums of one way over some rows: the rival's design ``zb``, the truth's ``za`` and its
-    prediction ``za_hat``."""
-    return {"G": zb.T @ zb, "b": zb.T @ za_hat, "c": float(za_hat @ za_hat), "H": za.T @ za, "C": zb.T @ za}
 
 
 def left(stats: dict) -> float:
@@ -197,8 +185,80 @@ def left(stats: dict) -> float:
     return float(np.sqrt(max(lam, 0.0)))
 
 
+#: Rows factorized at a time (:func:`_blocks`): the triangles of row blocks are stacked and factorized again.
+QR_ROWS = 16384
+
+
+def _blocks(stack: Stack, hs, residuals: bool = True) -> list[tuple]:
+    """Each coefficient's rows of the stacked designs of ``hs``, reduced to the triangle R of the QR
+    factorization of their columns not zero there (the nuisance's, then each hypothesis's own, once if
+    they are the same) and of the weighted residual last (with ``residuals``), rows where any of them
+    is not finite left out: ``(R, [(R's columns, where they stand in the design) per hypothesis])``.
+    ``R[:, cols]`` has the cross products of the design's rows and the part of the residual in their span:
+    everything the least squares and the sums of :func:`left` need. The rows are factorized
+    :data:`QR_ROWS` at a time and their triangles factorized together (the memory a block of rows needs);
+    a block of the nuisance alone is factorized once per stack."""
+    out = []
+    for i, c in enumerate(COEFFS):
+        at = stack.nuisance(i)[1]
+        widths = [stack.own_width(h, i) for h in hs]
+        same = len(hs) == 2 and (hs[0] == hs[1] or not any(widths))
+        k, j, ends = len(at), len(at), []
+        for width in widths:
+            start = k if same else j
+            ends.append(np.r_[np.arange(k), start:start + width])
+            j = start + width
+
+        def make(i: int = i, c: str = c) -> np.ndarray:
+            cols = stack.nuisance(i)[0]
+            own = [stack.own(h, i) for h in hs]
+            cols += [o for o in (own[:1] if same else own) if o is not None]
+            if residuals:
+                cols.append(stack.frame[f"r_{c}"].to_numpy(float)[:, None])
+            tri = []
+            for lo in range(0, stack.n, QR_ROWS):
+                m = np.hstack([x[lo:lo + QR_ROWS] for x in cols]) * stack.w[i]
+                ok = np.isfinite(m).all(axis=1)
+                m = m if ok.all() else m[ok]
+                if len(m):
+                    tri.append(np.linalg.qr(m, mode="r"))
+            width = sum(x.shape[1] for x in cols)
+            return np.linalg.qr(np.vstack(tri), mode="r") if tri else np.zeros((0, width))
+        key = (i, residuals)  # the nuisance alone is the same in every pair of the stack
+        r = make() if any(widths) else stack._triangles.get(key)
+        r = stack._triangles.setdefault(key, make()) if r is None else r
+        places = [np.r_[at, stack.width(h) - width + np.arange(width)] for h, width in zip(hs, widths)]
+        out.append((r, list(zip(ends, places))))
+    return out
+
+
+def _min_norm(x: np.ndarray, y: np.ndarray, rows: int) -> tuple[np.ndarray, int]:
+    """The minimum-norm least-squares solution of ``x theta = y`` and ``x``'s rank, singular values at or
+    below ``eps * rows`` of the largest taken as zero (NumPy's ``lstsq`` and ``matrix_rank`` defaults for a
+    design of ``rows`` rows, which ``x`` stands for)."""
+    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    keep = s > s.max(initial=0.0) * rows * np.finfo(float).eps
+    return vt[keep].T @ ((u[:, keep].T @ y) / s[keep]), int(keep.sum())
+
+
+def _design_of(blocks: list, k: int, width: int) -> list[np.ndarray]:
+    """Hypothesis ``k``'s rows of each block's triangle, in the design's column order (zero elsewhere)."""
+    out = []
+    for r, parts in blocks:
+        cols, places = parts[k]
+        z = np.zeros((r.shape[0], width))
+        z[:, places] = r[:, cols]
+        out.append(z)
+    return out
+
+
 def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
     """A cause ``a`` and its rival ``b`` fitted to ``stack``'s residuals.
+
+    Each coefficient's rows are reduced to the triangle of their QR factorization (:func:`_blocks`), and
+    the triangles and the data compatibility's rows solved together: the same least squares as the whole
+    stacked design (a minimum-norm solution, its rank at NumPy's ``lstsq`` and ``matrix_rank`` tolerance
+    for that design's shape), at a small part of its cost and memory.
 
     Returns
     -------
@@ -213,21 +273,26 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
     """
     hs = (a, b)
     priors = _prior_rows(hs)
-    rows = stack.target()
-    zs = [_with_priors(z, i, priors) for i, z in enumerate(stack.designs(hs, rows))]
-    y = np.concatenate([rows, [t for _, _, t in priors]])
-    thetas, rss, fitted = [], [], []
-    for z in zs:
-        th = np.linalg.lstsq(z, y, rcond=None)[0]
-        thetas.append(th)
-        fitted.append(z @ th)
-        rss.append(float(np.sum((y - z @ th) ** 2)))
+    widths = [stack.width(h) for h in hs]
+    blocks = _blocks(stack, hs)
+    y = [r[:, -1] for r, _ in blocks] + [np.array([t]) for _, _, t in priors]
+    zs = []
+    for k in range(2):
+        rows = _design_of(blocks, k, widths[k])
+        for i, w, _ in priors:
+            rows.append(np.zeros((1, widths[k])))
+            rows[-1][0, -1] = w if i == k else 0.0
+        zs.append(rows)
+    fits = [_min_norm(np.vstack(z), np.concatenate(y), max(3 * stack.n + len(priors), widths[k]))
+            for k, z in enumerate(zs)]
+    thetas = [th for th, _ in fits]
+    fitted = [[zb @ th for zb in z] for z, th in zip(zs, thetas)]  # each block's part of the residual's span
+    # RSS within each block's span (what lies outside it, the same for both, cancels in every difference)
+    rss = [[float(np.sum((yb - f) ** 2)) for yb, f in zip(y, fk)] for fk in fitted]
     # a hypothesis with more columns fits more noise: E[RSS_B - RSS_A] = lambda + p_A - p_B
-    own = [np.linalg.matrix_rank(z) for z in zs]
-    d = rss[1] - rss[0] - (own[0] - own[1])
-    blocks = {c: slice(i * stack.n, (i + 1) * stack.n) for i, c in enumerate(COEFFS)}
-    blocks["data compatibility"] = slice(3 * stack.n, len(y))
-    by = {k: float(np.sum((y[s] - fitted[1][s]) ** 2) - np.sum((y[s] - fitted[0][s]) ** 2)) for k, s in blocks.items()}
+    d = sum(rss[1]) - sum(rss[0]) - (fits[0][1] - fits[1][1])
+    by = {c: rss[1][i] - rss[0][i] for i, c in enumerate(COEFFS)}
+    by["data compatibility"] = float(sum(rss[1][3:]) - sum(rss[0][3:]))
     stats = [_sums(zs[1], zs[0], fitted[0]), _sums(zs[0], zs[1], fitted[1])]
     for st in stats:
         st["V"] = np.linalg.pinv(st["H"], rcond=1e-12, hermitian=True)
@@ -235,6 +300,15 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
             "separation_se": float(np.sign(d) * np.sqrt(abs(d))), "predicted_se": min(left(s) for s in stats),
             "by_coefficient": by, "theta": [t.tolist() for t in thetas], "weights": stack.w.tolist(),
             "stats": [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in stats]}
+
+
+def _sums(zb: list[np.ndarray], za: list[np.ndarray], za_hat: list[np.ndarray]) -> dict:
+    """The sums of one way over some rows, block by block: the rival's design ``zb``, the truth's ``za``
+    and its prediction ``za_hat`` make ``G = zb'zb``, ``b = zb'za_hat``, ``c = za_hat'za_hat``,
+    ``H = za'za`` and ``C = zb'za``."""
+    return {"G": sum(x.T @ x for x in zb), "b": sum(x.T @ f for x, f in zip(zb, za_hat)),
+            "c": float(sum(f @ f for f in za_hat)), "H": sum(x.T @ x for x in za),
+            "C": sum(u.T @ v for u, v in zip(zb, za))}
 
 
 def unclipped(t: Term) -> Term:
@@ -249,11 +323,12 @@ def predicted(stack: Stack, doc: dict) -> list[dict]:
     observation), to add to the old sums."""
     hs = [replace(h, terms=tuple(unclipped(t) for t in h.terms))
           for h in (Hypothesis.from_dict(d) for d in doc["hypotheses"])]
-    zs = stack.designs(hs)
+    blocks = _blocks(stack, hs, residuals=False)
+    zs = [_design_of(blocks, k, stack.width(h)) for k, h in enumerate(hs)]
     out = []
     for truth, rival in ((0, 1), (1, 0)):
-        z_hat = zs[truth] @ np.asarray(doc["theta"][truth], float)
-        out.append(_sums(zs[rival], zs[truth], z_hat))
+        theta = np.asarray(doc["theta"][truth], float)
+        out.append(_sums(zs[rival], zs[truth], [z @ theta for z in zs[truth]]))
     return out
 
 

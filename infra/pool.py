@@ -152,6 +152,25 @@ def one_blas_thread() -> None:
     threadpool_limits(limits=1, user_api="blas")
 
 
+def trim_memory() -> None:
+    """Give the memory this process has freed back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). Large arrays freed stay in the C heap otherwise, and a process that computes one stage
+    after another holds the sum of their peaks."""
+    if _TRIM is not None:
+        _TRIM(0)
+
+
+def _malloc_trim():
+    import ctypes
+    try:
+        return ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
+_TRIM = _malloc_trim()
+
+
 def executor(jobs: int) -> ProcessPoolExecutor:
     """This process's pool of ``jobs`` workers (made on first use, or again if the number changed).
 
@@ -210,7 +229,10 @@ def portable(func: Callable) -> Callable:
 
 def _in(cwd: str, func: Callable, args: tuple):
     os.chdir(cwd)  # a worker is forked from the server: relative paths mean the caller's
-    return func(*args)
+    try:
+        return func(*args)
+    finally:
+        trim_memory()  # a worker's next task starts from what it holds, not from this one's peak
 
 
 @contextmanager
@@ -246,7 +268,10 @@ def cluster():
 
 def _on_cluster_worker(func: Callable, args: tuple):
     one_blas_thread()
-    return func(*args)
+    try:
+        return func(*args)
+    finally:
+        trim_memory()
 
 
 def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
@@ -294,8 +319,10 @@ def pmap(func: Callable, calls: list[tuple], jobs: int) -> list:
     return list(results(submit(func, calls, jobs)))
 
 
-def _ahead(send, stop, cwd: str, func: Callable, calls: list[tuple]) -> None:
+def _ahead(send, stop, cwd: str, func: Callable, calls: list[tuple], nice: int = 0) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller ends this process (a daemon) as it exits
+    if nice and hasattr(os, "nice"):
+        os.nice(nice)
     os.chdir(cwd)
     one_blas_thread()
     for i, args in enumerate(calls):
@@ -306,6 +333,7 @@ def _ahead(send, stop, cwd: str, func: Callable, calls: list[tuple]) -> None:
         except BaseException as exc:  # handed back to the caller, raised there
             send.send((i, False, exc))
             break
+        trim_memory()
     send.close()
 
 
@@ -317,13 +345,18 @@ class Ahead:
     the pool's workers stay free and do not keep what these tasks leave in memory.
     :meth:`stop` ends the chain after the task running, so that work needed now does not
     share the cores with it; :meth:`finished` gives what was done, by index into ``calls``.
-    Whatever it lacks the caller computes itself.
+    Whatever it lacks the caller computes itself. With ``nice`` (Unix) the process runs at that
+    lower priority: beside the caller's busy workers it takes next to no CPU, and it takes a core
+    whenever one would idle, the caller's serial work included; :meth:`finished` then ends the
+    task running (``cancel``) rather than wait for it. As a context manager, it is cancelled on leaving.
     """
 
-    def __init__(self, func: Callable, calls: list[tuple], jobs: int) -> None:
+    def __init__(self, func: Callable, calls: list[tuple], jobs: int, nice: int = 0) -> None:
         self._done: dict[int, object] = {}
         self._error: BaseException | None = None
         self._thread = None
+        self._proc = None
+        self._nice = nice
         ctx = _context()
         self._stopped = ctx.Event() if jobs > 1 and calls else threading.Event()
         if jobs > 1 and calls:  # a thread starts the process: that waits for the warm server's imports
@@ -333,8 +366,10 @@ class Ahead:
 
     def _collect(self, ctx, func: Callable, calls: list[tuple]) -> None:
         recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls), daemon=True)
+        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls, self._nice),
+                           daemon=True)
         proc.start()
+        self._proc = proc
         send.close()
         try:
             while True:
@@ -353,10 +388,23 @@ class Ahead:
         """Start no more tasks."""
         self._stopped.set()
 
-    def finished(self) -> dict[int, object]:
-        """Each task's result, by its index, but for those not started (the one running is
-        waited for; a task's exception is raised here)."""
+    def __enter__(self) -> Ahead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.cancel()
+
+    def cancel(self) -> None:
+        """Start no more tasks, and end the one running unfinished (its result is left out)."""
         self.stop()
+        proc = self._proc
+        if proc is not None and proc.is_alive():
+            proc.terminate()  # what it was sending is cut short: the collector reads to the end of the pipe
+
+    def finished(self, cancel: bool = False) -> dict[int, object]:
+        """Each task's result, by its index, but for those not started (the one running is
+        waited for, or with ``cancel`` ended and left out; a task's exception is raised here)."""
+        self.cancel() if cancel else self.stop()
         if self._thread is not None:
             self._thread.join()
         if self._error is not None:

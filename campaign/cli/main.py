@@ -226,10 +226,18 @@ PRELOAD = {"run": ("campaign.orchestration.runner", "identify.pipeline", "identi
            "plots": ("campaign.replays.report",), "diagnose": ("campaign.diagnosis.run", "diagnose.plots")}
 
 
+def _preload(args) -> tuple[str, ...]:
+    """:data:`PRELOAD` of the command, without the plots' modules (matplotlib, 30 MB in every worker) when it
+    draws none."""
+    if args.command == "diagnose" and (args.no_plots or args.plots == "none"):
+        return tuple(m for m in PRELOAD["diagnose"] if not m.endswith(".plots"))
+    return PRELOAD[args.command]
+
+
 def _main(args) -> int:
     if getattr(args, "jobs", 1) > 1 and args.command in PRELOAD:
         from infra.pool import warm
-        warm(PRELOAD[args.command])
+        warm(_preload(args))
     try:
         if args.command == "points":
             from campaign.simulation.matrix import load_matrix

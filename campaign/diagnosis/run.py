@@ -36,7 +36,7 @@ from identify.export import merge_into_aircraft
 from identify.kinematics import measured_wind
 from identify.logs import Log, LogError, read_campaign, read_csv, read_parquet
 from identify.models import lowpass
-from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit
+from infra.pool import Ahead, local_workers, on_cluster, pmap, results, submit, trim_memory
 
 G0 = 32.174049
 
@@ -251,6 +251,11 @@ def replay(log: Log, source: AircraftSource, wind: bool = True) -> pd.DataFrame 
     return None if isinstance(out, str) else out
 
 
+#: The niceness of the process that flies the model's replays ahead (:class:`infra.pool.Ahead`): the lowest
+#: priority, so that it takes a core only when the diagnosis leaves one idle.
+AHEAD_NICE = 19
+
+
 #: Which held-out logs get plots of their own: ``key`` those where the first aerodynamic cause acts
 #: (without one, those with the largest residual of each coefficient), ``all`` every one.
 PLOTS = ("key", "all", "none")
@@ -411,41 +416,39 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
     bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
                "[{elapsed}]")
     src_model = AircraftSource(str(model), load_effects(None))
-    # the data compatibility runs on one core: a process of its own flies the model's replays meanwhile
-    ahead = Ahead(replay_why, [(lg, src_model) for lg in held], jobs if client is None else 1)
 
     def stage(name: str) -> None:
-        if name != STAGES[0]:
-            ahead.stop()
+        trim_memory()
         bar.n = STAGES.index(name)
         bar.set_description(name)
 
-    try:
-        diag = diagnose(train, evaluator, held, jobs=fan, progress=stage, settings=settings)
-    except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
-        evaluator.close()
-        bar.close()
-        raise UserError(str(exc)) from None
-    finally:
-        ahead.stop()
-    out.mkdir(parents=True, exist_ok=True)
-    doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
-                          "logs": len(logs), "train": [lg.path for lg in train],
-                          "held_out": [lg.path for lg in held],
-                          "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition"}, str(model))
-    before = diag.held
-    raw_held, held = held, diag.held_logs  # as corrected for instrument errors
-    extended_eval = src_ext = after = None
-    if diag.aero_causes:
-        stage("extension")
-        xml = write_extension(diag, out / "extension.xml")
-        folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
-        doc["extension"], doc["extension_xml"] = str(folder), str(xml)
-        extended_eval = ModelEvaluator(folder, jobs=fan)
-        after = residual_data(held, extended_eval)
-        src_ext = AircraftSource(str(folder), load_effects(None))
-    stage("replays")
-    early = {i: fb for i, fb in ahead.finished().items() if recorded(held[i]) == recorded(raw_held[i])}
+    # a process of its own flies the model's replays at the lowest priority until they are wanted: on the
+    # core the serial work leaves (the data compatibility, the search, the verdict), hardly beside the workers
+    with Ahead(replay_why, [(lg, src_model) for lg in held], jobs if client is None else 1, nice=AHEAD_NICE) as ahead:
+        try:
+            diag = diagnose(train, evaluator, held, jobs=fan, progress=stage, settings=settings)
+        except ValueError as exc:  # logs the model cannot be set to (a flap angle it does not have)
+            evaluator.close()
+            bar.close()
+            raise UserError(str(exc)) from None
+        out.mkdir(parents=True, exist_ok=True)
+        doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
+                              "logs": len(logs), "train": [lg.path for lg in train],
+                              "held_out": [lg.path for lg in held],
+                              "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition"}, str(model))
+        before = diag.held
+        raw_held, held = held, diag.held_logs  # as corrected for instrument errors
+        extended_eval = src_ext = after = None
+        if diag.aero_causes:
+            stage("extension")
+            xml = write_extension(diag, out / "extension.xml")
+            folder = merge_into_aircraft(model, xml, out / "extended_aircraft", replace_gear=False)
+            doc["extension"], doc["extension_xml"] = str(folder), str(xml)
+            extended_eval = ModelEvaluator(folder, jobs=fan)
+            after = residual_data(held, extended_eval, wait=False)  # the workers go on to the replays
+            src_ext = AircraftSource(str(folder), load_effects(None))
+        stage("replays")
+        early = {i: fb for i, fb in ahead.finished(cancel=True).items() if recorded(held[i]) == recorded(raw_held[i])}
     sources = (src_model,) if src_ext is None else (src_model, src_ext)
     calls = [(i, src) for i in range(len(held)) for src in sources if src is src_ext or i not in early]
     seeds = [_floor_seed(lg) for lg in held]
@@ -458,6 +461,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
                                                            for i, src in calls], fan)))
         floors = pmap(floor_shipped, [(lg, shipped[id(src_model)], src_model.effects, sd)
                                       for lg, sd in zip(held, seeds)], fan)
+    after = after() if callable(after) else after
     raw = {lg.path: (early[i] if i in early else flown_now[i, src_model],
                      flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
     flown = {k: tuple(None if isinstance(f, str) else f for f in v) for k, v in raw.items()}
