@@ -176,7 +176,7 @@ def _reach_of(compat, instruments: Instrumentation, logs: list[Log], reach_se: f
     return (list(names) + extra, total), np.array(left + [0.0] * len(extra)), unmeasured, extra
 
 
-def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,
+def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,  # noqa: C901
               progress, s: DiagnosisSettings) -> Diagnosis:
     """:func:`diagnose` within its settings ``s``."""
     def stage(name: str) -> None:

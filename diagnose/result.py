@@ -157,7 +157,7 @@ class Diagnosis:
         with using(self.settings):
             return self._summary()
 
-    def _summary(self) -> str:
+    def _summary(self) -> str:  # noqa: C901
         lines = []
         if self.compat is not None and self.compat.applied:
             lines.append("Data corrected for instrument errors (data compatibility): " + ", ".join(

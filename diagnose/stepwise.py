@@ -232,7 +232,7 @@ class StepwiseResult:
         return out
 
 
-def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float | None = None,
+def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float | None = None,  # noqa: C901
              min_reduction: float | None = None, max_terms: int | None = None, lags: Lags | None = None,
              gram: Gram | None = None, split: bool = True) -> StepwiseResult:
     """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.

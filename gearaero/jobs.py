@@ -45,7 +45,7 @@ def _folder(data) -> Path | None:
     return None
 
 
-def fly(matrix: str | Path | None = None, out: str | Path | None = None, *, jobs: int = 1,
+def fly(matrix: str | Path | None = None, out: str | Path | None = None, *, jobs: int = 1,  # noqa: PLR0913
         noise: str | None = None, instruments: str | Path | None = None, aircraft: str | Path | None = None,
         effects: str | Path | None = None, seed: int = 0, identify: bool = True, replay: bool = True,
         cases: str | Path | None = None, cluster: str | None = None, progress: bool = False) -> CampaignResult:

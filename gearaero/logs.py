@@ -56,7 +56,7 @@ def _accuracy_value(path: str, where: str, value, unit: str) -> float:
     return _number(where, value)
 
 
-def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slugft2: float,
+def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slugft2: float,  # noqa: C901, PLR0913
                    mass_slug: float | None = None, ixx_slugft2: float = 0.0, izz_slugft2: float = 0.0,
                    ixz_slugft2: float = 0.0, b_ft: float = 0.0, thrust_z_arm_ft: float = 0.0,
                    cg_x_in: float | None = None, cg_z_in: float | None = None, aerorp_x_in: float | None = None,

@@ -230,7 +230,7 @@ def _cond_key(c: tuple) -> str:
     return f"h{int(c[0]):05d}_m{c[1]:.2f}_f{flap}"
 
 
-def write_outputs(ident: Identification, out: Path, model_dir: Path | None,
+def write_outputs(ident: Identification, out: Path, model_dir: Path | None,  # noqa: C901
                   plots: str = "paper", jobs: int = 1) -> dict[str, str]:
     """Write tables (CSV, text), identification.json, XML and plots (on ``jobs`` processes) into ``out``."""
     out.mkdir(parents=True, exist_ok=True)

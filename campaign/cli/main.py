@@ -234,7 +234,7 @@ def _preload(args) -> tuple[str, ...]:
     return PRELOAD[args.command]
 
 
-def _main(args) -> int:
+def _main(args) -> int:  # noqa: C901
     if getattr(args, "jobs", 1) > 1 and args.command in PRELOAD:
         from infra.pool import warm
         warm(_preload(args))

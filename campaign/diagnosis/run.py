@@ -404,7 +404,7 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
             client.close()
 
 
-def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],
+def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],  # noqa: PLR0913
                train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0,
                settings: DiagnosisSettings | None = None, by_flight: bool = False) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""

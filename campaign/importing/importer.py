@@ -155,7 +155,7 @@ class ImportMap:
     records: tuple[float, ...] = ()  # times [s] one file is cut at into records
 
 
-def load_map(path: str | Path) -> ImportMap:
+def load_map(path: str | Path) -> ImportMap:  # noqa: C901
     """Parse and check an import map.
 
     Raises

@@ -64,7 +64,7 @@ def _ranges(fdm) -> dict[str, float]:
     return out
 
 
-def trim_model(fdm, alt_ft: float, tas_kt: float, gamma_deg: float = 0.0, flap_deg: float = 0.0,
+def trim_model(fdm, alt_ft: float, tas_kt: float, gamma_deg: float = 0.0, flap_deg: float = 0.0,  # noqa: PLR0913
                gear_norm: float = 0.0, elevator_deg: float = 0.0, stabilizer_deg: float = 0.0,
                thrust_lbf: float = 0.0, alpha_deg: float = 2.0, weight_lb: float | None = None,
                pitch_control: str = "elevator", iterations: int = 30) -> ModelTrim:

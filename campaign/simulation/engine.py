@@ -350,7 +350,7 @@ class Flight:
     meta: dict
 
 
-def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig) -> Flight:
+def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig) -> Flight:  # noqa: C901
     """Trim at ``point`` and fly one manoeuvre.
 
     Parameters

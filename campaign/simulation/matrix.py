@@ -160,7 +160,7 @@ def _maneuver_list(path: str, where: str, value) -> tuple[str, ...]:
     return tuple(value)
 
 
-def load_matrix(path: str | Path | None = None) -> Matrix:
+def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
     """Read and validate a matrix file.
 
     Raises

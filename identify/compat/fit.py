@@ -42,7 +42,7 @@ from identify.logs import Log
 from infra.pool import pmap
 
 
-def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,
+def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C901
              settings: CompatSettings | None = None) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
@@ -384,7 +384,7 @@ def _covariance(blk, blocks: tuple | None) -> np.ndarray:
     return blk.cluster_cov() if blocks is None else blk.block_cov() + blk.offset_cov(blocks[2])
 
 
-def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,
+def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,  # noqa: PLR0913
                  perlog=None, covs: list | None = None, blocks: tuple | None = None, column=None,
                  settings: CompatSettings | None = None) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument

@@ -68,7 +68,7 @@ SHORT_PERIOD_STATES = ("alpha_rad", "q_rps")
 SHORT_PERIOD_OUTPUTS = ("alpha_rad", "q_rps", "qdot_rps2")
 
 
-def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs: Sequence[str] = ("de_rad",),
+def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs: Sequence[str] = ("de_rad",),  # noqa: C901
                  offsets: Mapping[str, float] | None = None,
                  outputs: Sequence[str] = LONGITUDINAL_OUTPUTS,
                  states: Sequence[str] = LONGITUDINAL_STATES) -> StateSpaceModel:
