@@ -11,6 +11,7 @@ the PATH, as `. .venv/bin/activate` would put it, and every ```python block whol
 block is the install and the main job, so the clone gets its own environment exactly as a new user's.
 Exit 1 at the first command that fails, with its output.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,18 +68,25 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         subprocess.run(["git", "clone", "--quiet", str(ROOT), str(clone)], check=True)
-        env = dict(os.environ, VIRTUAL_ENV=str(clone / ".venv"),
-                   PATH=f"{clone / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}")
+        env = dict(
+            os.environ,
+            VIRTUAL_ENV=str(clone / ".venv"),
+            PATH=f"{clone / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
+        )
         env.pop("PYTHONPATH", None)
         cmds = commands((clone / "README.md").read_text())
         for k, cmd in enumerate(cmds, 1):
             t = time.perf_counter()
-            r = subprocess.run(["bash", "-c", cmd], cwd=clone, env=env, capture_output=True, text=True,
-                               stdin=subprocess.DEVNULL)
+            r = subprocess.run(
+                ["bash", "-c", cmd], cwd=clone, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL
+            )
             dt = time.perf_counter() - t
             if r.returncode != 0:
-                print(f"README command {k} of {len(cmds)} exited with {r.returncode} after {dt:.0f} s: {cmd}\n"
-                      f"--- stdout (end)\n{r.stdout[-3000:]}\n--- stderr (end)\n{r.stderr[-3000:]}", file=sys.stderr)
+                print(
+                    f"README command {k} of {len(cmds)} exited with {r.returncode} after {dt:.0f} s: {cmd}\n"
+                    f"--- stdout (end)\n{r.stdout[-3000:]}\n--- stderr (end)\n{r.stderr[-3000:]}",
+                    file=sys.stderr,
+                )
                 return 1
             print(f"README command {k} of {len(cmds)} ran in {dt:5.1f} s: {cmd.splitlines()[0]}", flush=True)
         print(f"README commands: all {len(cmds)} exited with 0, {time.perf_counter() - t0:.0f} s in a fresh clone")

@@ -11,6 +11,7 @@ folder that the cases read (a campaign imported from the HFB-320 record), the sh
 inputs' own sources are hashed, names, bytes and times. Writes
 ``benchmarks/results/bad_input_sweep.json``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,19 +41,29 @@ RESULT = ROOT / "benchmarks" / "results" / "bad_input_sweep.json"
 
 
 def _watched(results: Path) -> dict[str, str]:
-    return {"results folder": tree_hash(results), "shipped aircraft": tree_hash(SHIPPED_737),
-            **{name: hashlib.sha256(f.read_bytes() + str(f.stat().st_mtime_ns).encode()).hexdigest()
-               for name, f in (("measured file", DATA), ("map", MAP))}}
+    return {
+        "results folder": tree_hash(results),
+        "shipped aircraft": tree_hash(SHIPPED_737),
+        **{
+            name: hashlib.sha256(f.read_bytes() + str(f.stat().st_mtime_ns).encode()).hexdigest()
+            for name, f in (("measured file", DATA), ("map", MAP))
+        },
+    }
 
 
 def in_subprocess(case) -> dict:
     """The case as a real process: its exit code (a signal is negative) and stderr."""
-    done = subprocess.run([sys.executable, "-m", "campaign.cli", *case.argv], capture_output=True, text=True,
-                          timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-m", "campaign.cli", *case.argv], capture_output=True, text=True, timeout=600
+    )
     err = done.stderr
-    return {"label": case.label, "code": done.returncode, "one_line": err.count("\n") == 1,
-            "traceback": "Traceback" in err or "terminate called" in err,
-            "named": all(any(alt in err for alt in n.split("|")) for n in case.needles)}
+    return {
+        "label": case.label,
+        "code": done.returncode,
+        "one_line": err.count("\n") == 1,
+        "traceback": "Traceback" in err or "terminate called" in err,
+        "named": all(any(alt in err for alt in n.split("|")) for n in case.needles),
+    }
 
 
 def sweep(n: int, seed: int, n_sub: int, work: Path) -> dict:
@@ -81,14 +92,24 @@ def sweep(n: int, seed: int, n_sub: int, work: Path) -> dict:
         r["clean"] = clean(r)
         rows.append(r)
         if (i + 1) % 100 == 0:
-            print(f"{i + 1} of {n}: {sum(x['clean'] for x in rows)} clean, {time.perf_counter() - t0:.0f} s",
-                  file=sys.stderr)
+            print(
+                f"{i + 1} of {n}: {sum(x['clean'] for x in rows)} clean, {time.perf_counter() - t0:.0f} s",
+                file=sys.stderr,
+            )
     wall = time.perf_counter() - t0
     step = max(1, n // max(n_sub, 1))
     subs = [in_subprocess(c) for c in cases[::step][:n_sub]] if n_sub else []
-    by_kind = {k: {"tried": sum(r["kind"] == k for r in rows), "clean": sum(r["clean"] for r in rows if r["kind"] == k),
-                   "labels": len({r["label"] for r in rows if r["kind"] == k})} for k in KINDS}
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    by_kind = {
+        k: {
+            "tried": sum(r["kind"] == k for r in rows),
+            "clean": sum(r["clean"] for r in rows if r["kind"] == k),
+            "labels": len({r["label"] for r in rows if r["kind"] == k}),
+        }
+        for k in KINDS
+    }
+    commit = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True
+    ).stdout.strip()
     return {
         "benchmark": "bad_input_sweep",
         "command": f"python benchmarks/bad_input_sweep.py --n {n} --seed {seed} --subprocess {n_sub}",
@@ -106,9 +127,11 @@ def sweep(n: int, seed: int, n_sub: int, work: Path) -> dict:
         "by_kind": by_kind,
         "seconds": round(wall, 1),
         "median_case_s": round(sorted(r["s"] for r in rows)[len(rows) // 2], 3),
-        "subprocess": {"tried": len(subs), "clean": sum(s["code"] == 2 and s["one_line"] and s["named"]
-                                                        and not s["traceback"] for s in subs),
-                       "exit_codes": dict(collections.Counter(str(s["code"]) for s in subs))},
+        "subprocess": {
+            "tried": len(subs),
+            "clean": sum(s["code"] == 2 and s["one_line"] and s["named"] and not s["traceback"] for s in subs),
+            "exit_codes": dict(collections.Counter(str(s["code"]) for s in subs)),
+        },
         "failures": [{k: r[k] for k in ("label", "code", "stderr", "escaped")} for r in rows if not r["clean"]][:20],
     }
 

@@ -5,6 +5,7 @@
 
 Run by hand, outside CI.
 """
+
 from __future__ import annotations
 
 import sys
@@ -31,14 +32,17 @@ def run(matrix: str | None = None) -> None:
     local = timed(["run", "--out", str(tmp / "local"), "--jobs", "2"] + common)
     with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
         t0 = time.perf_counter()
-        with LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None,
-                          silence_logs=50) as cluster:
+        with LocalCluster(
+            n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None, silence_logs=50
+        ) as cluster:
             start = time.perf_counter() - t0
             remote = timed(["run", "--out", str(tmp / "dask"), "--cluster", cluster.scheduler_address] + common)
     a = {p.name: p.read_bytes() for p in (tmp / "local").glob("*.parquet")}
     b = {p.name: p.read_bytes() for p in (tmp / "dask").glob("*.parquet")}
-    print(f"{len(a)} logs; local --jobs 2: {local:.1f} s; LocalCluster (2 workers): {remote:.1f} s "
-          f"(+{start:.1f} s to start the cluster); bit-identical: {a == b}")
+    print(
+        f"{len(a)} logs; local --jobs 2: {local:.1f} s; LocalCluster (2 workers): {remote:.1f} s "
+        f"(+{start:.1f} s to start the cluster); bit-identical: {a == b}"
+    )
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ figure more than ``--threshold`` percent slower (or larger) on either is named, 
 machine was with other work in each run: a regression in wall time alone, with the CPU-seconds
 unchanged and the machine busier, is the machine's. Exits 1 if anything got slower, 0 otherwise.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,8 +20,12 @@ from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed"
 #: What is compared of a figure: field -> (what it is, its unit).
-METRICS = {"wall_s": ("wall time", "s"), "cpu_s": ("CPU", "s"), "sum_mb": ("peak memory, main + workers", "MB"),
-           "ratio": ("ratio", "")}
+METRICS = {
+    "wall_s": ("wall time", "s"),
+    "cpu_s": ("CPU", "s"),
+    "sum_mb": ("peak memory, main + workers", "MB"),
+    "ratio": ("ratio", ""),
+}
 #: Below these a change is noise whatever its share: half a second, 20 MB.
 FLOOR = {"wall_s": 0.5, "cpu_s": 0.5, "sum_mb": 20.0, "ratio": 0.0}
 
@@ -36,17 +41,29 @@ def changes(old: dict, new: dict, threshold: float) -> list[dict]:
     change [%] and whether it is a regression (``threshold`` % or more, beyond :data:`FLOOR`)."""
     out = []
     rows = [(k, old["figures"][k], new["figures"][k]) for k in old.get("figures", {}) if k in new.get("figures", {})]
-    rows += [(f"diagnosis stage: {k}", old["stages"]["stages"][k], new["stages"]["stages"][k])
-             for k in (old.get("stages") or {}).get("stages", {}) if k in (new.get("stages") or {}).get("stages", {})]
+    rows += [
+        (f"diagnosis stage: {k}", old["stages"]["stages"][k], new["stages"]["stages"][k])
+        for k in (old.get("stages") or {}).get("stages", {})
+        if k in (new.get("stages") or {}).get("stages", {})
+    ]
     for name, a, b in rows:
         for m, (what, unit) in METRICS.items():
             if m not in a or m not in b or not a[m]:
                 continue
             pct = 100.0 * (b[m] / a[m] - 1.0)
             worse = -pct if m == "ratio" else pct  # the flying loop's ratio to raw stepping: lower is slower
-            out.append({"figure": name, "metric": what, "unit": unit, "old": a[m], "new": b[m], "change_pct": pct,
-                        "slower": worse > threshold and abs(b[m] - a[m]) > FLOOR[m],
-                        "busy": (a.get("others_busy"), b.get("others_busy"))})
+            out.append(
+                {
+                    "figure": name,
+                    "metric": what,
+                    "unit": unit,
+                    "old": a[m],
+                    "new": b[m],
+                    "change_pct": pct,
+                    "slower": worse > threshold and abs(b[m] - a[m]) > FLOOR[m],
+                    "busy": (a.get("others_busy"), b.get("others_busy")),
+                }
+            )
     return out
 
 
@@ -61,18 +78,24 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     old, new = (json.loads(Path(f).read_text()) for f in files)
     for f, d in zip(files, (old, new)):
-        print(f"{'old' if d is old else 'new'}: {f.name}, commit {d.get('code_commit', '?')[:12]}, measured "
-              f"{d.get('date', '?')} on {d.get('machine', {}).get('cpu', '?')}")
+        print(
+            f"{'old' if d is old else 'new'}: {f.name}, commit {d.get('code_commit', '?')[:12]}, measured "
+            f"{d.get('date', '?')} on {d.get('machine', {}).get('cpu', '?')}"
+        )
     rows = changes(old, new, a.threshold)
     slower = [r for r in rows if r["slower"]]
     for r in rows:
         mark = "SLOWER" if r["slower"] else ""
         busy = "" if r["busy"][0] is None else f"  (others busy {r['busy'][0]:.0%} -> {r['busy'][1]:.0%})"
-        print(f"{mark:6} {r['figure']}, {r['metric']}: {r['old']:g} -> {r['new']:g} {r['unit']} "
-              f"({r['change_pct']:+.0f} %){busy}")
+        print(
+            f"{mark:6} {r['figure']}, {r['metric']}: {r['old']:g} -> {r['new']:g} {r['unit']} "
+            f"({r['change_pct']:+.0f} %){busy}"
+        )
     if slower:
-        print(f"\n{len(slower)} slower by more than {a.threshold:g} %: "
-              + "; ".join(f"{r['figure']} ({r['metric']} {r['change_pct']:+.0f} %)" for r in slower))
+        print(
+            f"\n{len(slower)} slower by more than {a.threshold:g} %: "
+            + "; ".join(f"{r['figure']} ({r['metric']} {r['change_pct']:+.0f} %)" for r in slower)
+        )
         return 1
     print(f"\nnothing slower by more than {a.threshold:g} % ({len(rows)} figures compared)")
     return 0

@@ -40,6 +40,7 @@ the first three for the cases of several such folders (ranges flown by processes
 Run by hand, outside CI: about 16 s a case on 2 cores (two processes side by side: 360 cases in
 48 minutes).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -70,6 +71,7 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     """The altitude [ft] at which ``to_mach`` flies at the dynamic pressure ``mach`` has at ``alt_ft``
     (:func:`campaign.design.plan.same_lift_alt_ft`, the plan's candidate), rounded to 500 ft."""
     from campaign.design.plan import same_lift_alt_ft
+
     return float(round(same_lift_alt_ft(alt_ft, mach, to_mach) / 500.0) * 500.0)
 
 
@@ -84,13 +86,31 @@ def same_alpha_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
 #: flap 30 at Mach 0.3 and 10,000 ft (165 kt calibrated, under the 737-800's 175 kt flap-30 placard): with
 #: Mach 0.2 flown at flap 30 only and flap 0 at Mach 0.3 to 0.5, the flap angle would be a function of Mach
 #: over the data (:mod:`diagnose.flap_mach`), and an effect in Mach below 0.3 the flap's.
-OUR_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (30, 0.2, 2000), (30, 0.3, 10000),
-                            (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "diagnosis")
-STOCK_737 = matrix_toml(pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000),
-                              (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))), "clean")
-A320 = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000),
-                         (0, 0.4, same_alpha_alt_ft(5000, 0.3, 0.4)),
-                         (0, 0.5, same_alpha_alt_ft(10000, 0.4, 0.5))), "a320")
+OUR_737 = matrix_toml(
+    pairs(
+        (0, 0.3, [2000, 10000]),
+        (0, 0.5, 10000),
+        (30, 0.2, 2000),
+        (30, 0.3, 10000),
+        (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4)),
+    ),
+    "diagnosis",
+)
+STOCK_737 = matrix_toml(
+    pairs((0, 0.3, [2000, 10000]), (0, 0.5, 10000), (0, 0.4, 5000), (0, 0.4, same_alpha_alt_ft(2000, 0.3, 0.4))),
+    "clean",
+)
+A320 = matrix_toml(
+    pairs(
+        (0, 0.3, 5000),
+        (0, 0.4, 10000),
+        (0, 0.5, 10000),
+        (15, 0.3, 5000),
+        (0, 0.4, same_alpha_alt_ft(5000, 0.3, 0.4)),
+        (0, 0.5, same_alpha_alt_ft(10000, 0.4, 0.5)),
+    ),
+    "a320",
+)
 
 
 AIRCRAFT = ("our 737", "stock 737", "A320")
@@ -102,9 +122,13 @@ def aircraft(rng: np.random.Generator, only: str | None = None) -> tuple[str, st
     import jsbsim
 
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
-    every = [("our 737", str(DEFAULT_AIRCRAFT), OUR_737), ("stock 737", str(stock / "737"), STOCK_737),
-             ("A320", str(stock / "A320"), A320)]
+    every = [
+        ("our 737", str(DEFAULT_AIRCRAFT), OUR_737),
+        ("stock 737", str(stock / "737"), STOCK_737),
+        ("A320", str(stock / "A320"), A320),
+    ]
     drawn = every[int(rng.integers(3))]
     return every[AIRCRAFT.index(only)] if only else drawn
 
@@ -117,13 +141,16 @@ def flown_ranges(folder: str, matrix: str) -> dict[str, tuple[float, float]]:
     its elevator between -25 and -2 deg and flies Mach 0.3 to 0.5, where our 737 flies -3 to 3 deg and
     Mach 0.2 to 0.5. A variable the matrix holds still (the stock 737's flap) has an empty range."""
     from campaign.diagnosis.run import load_data
+
     with tempfile.TemporaryDirectory(prefix="ranges-") as tmp:
         prof = Path(tmp) / "instruments.toml"
         prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 1.5\n')
         data = run_matrix(Path(tmp), matrix, folder, None, noise=str(prof), seed=0)
         frames = [log.data for log in load_data(data)]
-    return {v: tuple(float(np.percentile(np.concatenate([f[v].to_numpy() for f in frames]), q)) for q in (1, 99))
-            for v in VARIABLES}
+    return {
+        v: tuple(float(np.percentile(np.concatenate([f[v].to_numpy() for f in frames]), q)) for q in (1, 99))
+        for v in VARIABLES
+    }
 
 
 def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, extension: str | None) -> dict:
@@ -135,12 +162,16 @@ def realized(data: Path, folder: str, fx: Path, effect: Effect, work: Path, exte
     effect leaves beyond a function of that variable alone (:func:`left_beyond`)."""
     from campaign.diagnosis.run import load_data
     from identify.export import merge_into_aircraft
+
     truth = merge_into_aircraft(Path(folder), fx, work / "truth", replace_gear=False)
     models = [truth] + ([extension] if extension else [])
     frame, (true, *fitted) = differences(load_data(data), Path(folder), models, effect.coefficient)
-    return {"size": float(np.ptp(true)), "middle": _middle(true),
-            "shape_error": shape_error(fitted[0], true) if fitted else np.nan,
-            "left": {v: left_beyond(true, frame[v].to_numpy()) for v in effect.variables}}
+    return {
+        "size": float(np.ptp(true)),
+        "middle": _middle(true),
+        "shape_error": shape_error(fitted[0], true) if fitted else np.nan,
+        "left": {v: left_beyond(true, frame[v].to_numpy()) for v in effect.variables},
+    }
 
 
 def _middle(x: np.ndarray) -> float:
@@ -163,8 +194,9 @@ def left_beyond(true: np.ndarray, x: np.ndarray) -> float:
     return _middle(true[order] - near)
 
 
-def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None,
-            family: str | None = None) -> tuple[str, str]:
+def profile(
+    rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float | None = None, family: str | None = None
+) -> tuple[str, str]:
     """An instrument profile (a file) and its description: 1.5 or 3 ft/s (or ``sigma_fps``), a sensor
     error or none (``family``: an error of that family)."""
     sigma = float(rng.choice([1.5, 3.0]))
@@ -180,8 +212,14 @@ def profile(rng: np.random.Generator, work: Path, sensor: bool, sigma_fps: float
     return str(path), what
 
 
-def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: float | None = None,
-         keep: Path | None = None, sensor_family: str | None = None) -> dict:
+def case(
+    seed: int,
+    null: bool = False,
+    only: str | None = None,
+    sigma_fps: float | None = None,
+    keep: Path | None = None,
+    sensor_family: str | None = None,
+) -> dict:
     """Draw, fly, diagnose and score one case (``only``, ``sigma_fps``, ``sensor_family``: force the
     aircraft, the turbulence or a sensor error of that family; ``keep``: a folder to write the case's
     candidates and their verdicts to, as ``<seed>.json``, for calibrating the verdict on them). The case's
@@ -190,16 +228,24 @@ def case(seed: int, null: bool = False, only: str | None = None, sigma_fps: floa
         return _case(Path(tmp), seed, null, only, sigma_fps, keep, sensor_family)
 
 
-def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float | None, keep: Path | None,
-          sensor_family: str | None) -> dict:
+def _case(
+    work: Path,
+    seed: int,
+    null: bool,
+    only: str | None,
+    sigma_fps: float | None,
+    keep: Path | None,
+    sensor_family: str | None,
+) -> dict:
     from campaign.diagnosis.run import run_diagnosis
+
     rng = np.random.default_rng(seed)
     name, folder, matrix = aircraft(rng, only)
     effect = None
     if not null:
         ranges = flown_ranges(folder, matrix)
         allowed = [v for v in VARIABLES if ranges[v][1] > ranges[v][0]]
-        pick = (PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(allowed)),))
+        pick = PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(allowed)),)
         if not set(pick) <= set(allowed):
             pick = (pick[0],)
         effect = draw(rng, variables=pick, ranges=ranges)
@@ -214,40 +260,86 @@ def _case(work: Path, seed: int, null: bool, only: str | None, sigma_fps: float 
     aero = discrepancies(doc)
     if keep is not None:
         keep.mkdir(parents=True, exist_ok=True)
-        slim = {k: [{f: v for f, v in c.items() if f != "curve"} for c in doc.get(k, [])]
-                for k in ("causes", "unconfirmed", "rejected")}
-        (keep / f"{seed}.json").write_text(json.dumps(
-            {"seed": seed, "aircraft": name, "conditions": what, "sensor": sensor,
-             "effect": None if effect is None else {"coefficient": effect.coefficient,
-                                                    "variables": list(effect.variables),
-                                                    "description": effect.description},
-             "held_out_check": doc.get("held_out_check"), **slim}, default=str))
-    row = {"seed": seed, "aircraft": name, "conditions": what, "discrepancy": doc["discrepancy"],
-           "named": f"{aero[0]['coefficient']} vs {', '.join(aero[0]['variables'])}" if aero else ""}
+        slim = {
+            k: [{f: v for f, v in c.items() if f != "curve"} for c in doc.get(k, [])]
+            for k in ("causes", "unconfirmed", "rejected")
+        }
+        (keep / f"{seed}.json").write_text(
+            json.dumps(
+                {
+                    "seed": seed,
+                    "aircraft": name,
+                    "conditions": what,
+                    "sensor": sensor,
+                    "effect": None
+                    if effect is None
+                    else {
+                        "coefficient": effect.coefficient,
+                        "variables": list(effect.variables),
+                        "description": effect.description,
+                    },
+                    "held_out_check": doc.get("held_out_check"),
+                    **slim,
+                },
+                default=str,
+            )
+        )
+    row = {
+        "seed": seed,
+        "aircraft": name,
+        "conditions": what,
+        "discrepancy": doc["discrepancy"],
+        "named": f"{aero[0]['coefficient']} vs {', '.join(aero[0]['variables'])}" if aero else "",
+    }
     # an unconfirmed discrepancy is reported as one ("a discrepancy all the same"): not rejected
-    missed_big = [c for c in doc["rejected"] if c["kind"] == "aero" and c["evidence"].get("F", 0) >= 1e3
-                  and c["verdict"].get("holdout_gain", 0) >= 1.5 and not c["verdict"].get("unconfirmed")]
-    row["rejected_strong"] = "; ".join(f"{c['coefficient']} vs {', '.join(c['variables'])}: {c['verdict']['reason']}"
-                                       for c in missed_big)
+    missed_big = [
+        c
+        for c in doc["rejected"]
+        if c["kind"] == "aero"
+        and c["evidence"].get("F", 0) >= 1e3
+        and c["verdict"].get("holdout_gain", 0) >= 1.5
+        and not c["verdict"].get("unconfirmed")
+    ]
+    row["rejected_strong"] = "; ".join(
+        f"{c['coefficient']} vs {', '.join(c['variables'])}: {c['verdict']['reason']}" for c in missed_big
+    )
     if effect is None:
         false = bool(aero) or (not sensor and any(c["kind"] == "sensor" for c in doc["causes"]))
         return {**row, "effect": "", "size_over_floor": np.nan, "hit": False, "invented": "", "false_positive": false}
     first = aero[0] if aero else {}
-    hit = (first.get("coefficient") == effect.coefficient and set(effect.variables) <= set(first["variables"])
-           and first["variables"][0] in effect.variables)
-    invented = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in aero[1:]
-                if c["coefficient"] != effect.coefficient or not set(effect.variables) & set(c["variables"])]
+    hit = (
+        first.get("coefficient") == effect.coefficient
+        and set(effect.variables) <= set(first["variables"])
+        and first["variables"][0] in effect.variables
+    )
+    invented = [
+        f"{c['coefficient']} vs {', '.join(c['variables'])}"
+        for c in aero[1:]
+        if c["coefficient"] != effect.coefficient or not set(effect.variables) & set(c["variables"])
+    ]
     got = realized(data, folder, fx, effect, work, doc.get("extension"))
     floor = FLOOR[effect.coefficient]
     # as flown: the variables named, of the effect's, leave less than the floor of it unexplained
     named = [v for v in first.get("variables", []) if v in effect.variables]
-    as_flown = hit or (first.get("coefficient") == effect.coefficient and first["variables"][0] in effect.variables
-                       and len(named) == 1 and got["left"][named[0]] < floor)
-    return {**row, "effect": effect.description, "size_over_floor": got["size"] / floor,
-            "middle_98_over_floor": got["middle"] / floor, "hit": hit, "hit_as_flown": as_flown,
-            "left_over_floor": "; ".join(f"{v} {x / floor:.2f}" for v, x in got["left"].items()),
-            "shape_error": got["shape_error"], "invented": "; ".join(invented), "false_positive": False,
-            "nominal_over_floor": effect.size_over_floor}
+    as_flown = hit or (
+        first.get("coefficient") == effect.coefficient
+        and first["variables"][0] in effect.variables
+        and len(named) == 1
+        and got["left"][named[0]] < floor
+    )
+    return {
+        **row,
+        "effect": effect.description,
+        "size_over_floor": got["size"] / floor,
+        "middle_98_over_floor": got["middle"] / floor,
+        "hit": hit,
+        "hit_as_flown": as_flown,
+        "left_over_floor": "; ".join(f"{v} {x / floor:.2f}" for v, x in got["left"].items()),
+        "shape_error": got["shape_error"],
+        "invented": "; ".join(invented),
+        "false_positive": False,
+        "nominal_over_floor": effect.size_over_floor,
+    }
 
 
 def _said(text) -> bool:
@@ -258,8 +350,13 @@ def _said(text) -> bool:
 def table(rows: list[dict]) -> str:
     effects = [r for r in rows if _said(r["effect"])]
     nulls = [r for r in rows if not _said(r["effect"])]
-    lines = [("| size / floor | effects | hits | hit rate | hits as flown | shape error of the hits (median, 90th "
-              "percentile) | invented causes | strong candidates rejected |"), "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        (
+            "| size / floor | effects | hits | hit rate | hits as flown | shape error of the hits (median, 90th "
+            "percentile) | invented causes | strong candidates rejected |"
+        ),
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for lo, hi in pairwise(BINS):
         b = [r for r in effects if lo <= r["size_over_floor"] < hi or (hi == BINS[-1] and r["size_over_floor"] >= hi)]
         hits = sum(r["hit"] for r in b)
@@ -269,21 +366,27 @@ def table(rows: list[dict]) -> str:
         shapes = [r["shape_error"] for r in b if r["hit"] and np.isfinite(r.get("shape_error", np.nan))]
         shape = f"{np.median(shapes):.2f}, {np.percentile(shapes, 90):.2f}" if shapes else "-"
         label = f"{lo:g} and more" if hi == BINS[-1] else f"{lo:g}-{hi:g}"
-        lines.append(f"| {label} | {len(b)} | {hits} | {rate} | {flown} | {shape} | {sum(_said(r['invented']) for r in b)} | "
-                     f"{sum(_said(r['rejected_strong']) for r in b)} |")
+        lines.append(
+            f"| {label} | {len(b)} | {hits} | {rate} | {flown} | {shape} | {sum(_said(r['invented']) for r in b)} | "
+            f"{sum(_said(r['rejected_strong']) for r in b)} |"
+        )
     fp = sum(r["false_positive"] for r in nulls)
     below = [r for r in effects if r["size_over_floor"] < BINS[0]]
     wrong = sum(_said(r["named"]) and not r["hit"] for r in below)
-    lines.append(f"\nBelow {BINS[0]:g} times the floor over the data flown: {len(below)} effects, "
-                 f"{sum(r['hit'] for r in below)} named, {wrong} with another aerodynamic cause named (as good as "
-                 f"nulls: a cause named there is a false discovery). Nulls: {len(nulls)}, false positives: {fp}.")
+    lines.append(
+        f"\nBelow {BINS[0]:g} times the floor over the data flown: {len(below)} effects, "
+        f"{sum(r['hit'] for r in below)} named, {wrong} with another aerodynamic cause named (as good as "
+        f"nulls: a cause named there is a false discovery). Nulls: {len(nulls)}, false positives: {fp}."
+    )
     return "\n".join(lines)
 
 
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     effects = [r for r in rows if _said(r["effect"])]
     centres, rates, counts = [], [], []
     for lo, hi in pairwise(BINS):
@@ -307,6 +410,7 @@ def plot(rows: list[dict], path: Path) -> None:
 
 def main() -> int:
     import pandas as pd
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--effects", type=int, default=300)
     ap.add_argument("--nulls", type=int, default=60)
@@ -315,8 +419,13 @@ def main() -> int:
     ap.add_argument("--aircraft", choices=AIRCRAFT, help="fly every case on this aircraft")
     ap.add_argument("--sigma-fps", type=float, help="every case in this turbulence [ft/s]")
     ap.add_argument("--sensor", choices=SENSOR_FAMILIES, help="a sensor error of this family in every case")
-    ap.add_argument("--merge", type=Path, nargs="+", metavar="DIR",
-                    help="fly nothing: the table and plot of the cases in these --out folders together")
+    ap.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        metavar="DIR",
+        help="fly nothing: the table and plot of the cases in these --out folders together",
+    )
     a = ap.parse_args()
     if a.merge:
         if any(d.resolve() == a.out.resolve() for d in a.merge):
@@ -329,14 +438,23 @@ def main() -> int:
         return report(pd.concat([pd.read_csv(d / "detection_curve.csv") for d in a.merge]).to_dict("records"), a.out)
     rows = []
     for i in range(a.effects + a.nulls):
-        r = case(a.seed_base + i, null=i >= a.effects, only=a.aircraft, sigma_fps=a.sigma_fps, keep=a.out / "cases",
-                 sensor_family=a.sensor)
+        r = case(
+            a.seed_base + i,
+            null=i >= a.effects,
+            only=a.aircraft,
+            sigma_fps=a.sigma_fps,
+            keep=a.out / "cases",
+            sensor_family=a.sensor,
+        )
         rows.append(r)
-        print(f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
-              f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
-              f"shape error {r.get('shape_error', np.nan):.2f} "
-              f"{'invented: ' + r['invented'] if r['invented'] else ''}"
-              f"{' REJECTED STRONG: ' + r['rejected_strong'] if r['rejected_strong'] else ''}", flush=True)
+        print(
+            f"{r['seed']} {r['aircraft']:9s} {r['conditions']:40s} {r['effect'][:70]:70s} "
+            f"size/floor {r['size_over_floor']:5.1f} -> {r['named'] or '-'} hit={r['hit']} "
+            f"shape error {r.get('shape_error', np.nan):.2f} "
+            f"{'invented: ' + r['invented'] if r['invented'] else ''}"
+            f"{' REJECTED STRONG: ' + r['rejected_strong'] if r['rejected_strong'] else ''}",
+            flush=True,
+        )
         pd.DataFrame(rows).to_csv(a.out / "detection_curve.csv", index=False)
     return report(rows, a.out)
 
@@ -344,6 +462,7 @@ def main() -> int:
 def report(rows: list[dict], out: Path) -> int:
     """Write the table, the plot and (merged) the cases' CSV into ``out``, and print the table."""
     import pandas as pd
+
     pd.DataFrame(rows).to_csv(out / "detection_curve.csv", index=False)
     text = table(rows)
     (out / "detection_curve.md").write_text(text + "\n")

@@ -13,6 +13,7 @@ workers and the process that flies replays ahead) as each stage begins; a proces
 within a stage takes its CPU-seconds with it. ``--json`` also writes the table as data
 (``benchmarks/speed_table.py`` keeps it in its result file). Run by hand, outside CI.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -71,8 +72,20 @@ def main() -> None:
 
     out = tempfile.mkdtemp(prefix="diagnose-stages-")
     try:
-        rc = cli(["diagnose", "--data", a.data, "--model", a.model, "--out", os.path.join(out, "report"),
-                  "--jobs", str(a.jobs), "--quiet"])
+        rc = cli(
+            [
+                "diagnose",
+                "--data",
+                a.data,
+                "--model",
+                a.model,
+                "--out",
+                os.path.join(out, "report"),
+                "--jobs",
+                str(a.jobs),
+                "--quiet",
+            ]
+        )
     finally:
         shutil.rmtree(out, ignore_errors=True)
     end = time.perf_counter()

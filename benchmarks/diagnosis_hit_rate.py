@@ -26,6 +26,7 @@ nose-boom vanes 62 ft ahead of the CG, sensor noise), with seeds no development 
 Run by hand, outside CI: well over an hour on 2 cores with the defaults. N_SEEDS=0
 skips stage 1, N_FLOOR_SEEDS=0 stage 7.
 """
+
 from __future__ import annotations
 
 import sys
@@ -36,26 +37,39 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.validation.hidden import (CLEAN, FAMILIES, OWN_TERMS, SENSOR_FAMILIES, make, make_sensor, score,  # noqa: E402
-                          score_sensor)
+from campaign.validation.hidden import (
+    CLEAN,
+    FAMILIES,
+    OWN_TERMS,
+    SENSOR_FAMILIES,
+    make,
+    make_sensor,
+    score,  # noqa: E402
+    score_sensor,
+)
 from campaign.validation.support import matrix_toml, pairs, run_matrix, scaled_copy  # noqa: E402
 
 #: Sizes swept for the detection floors: aero families as a multiple of their drawn size,
 #: sensor faults in their own units (accelerometer: x then z).
 AERO_SCALES = (0.05, 0.1, 0.2, 0.35, 0.5, 1.0)
-SENSOR_SIZES = {"alpha_bias": (0.03, 0.06, 0.1, 0.15, 0.25, 0.4),
-                "alpha_scale": (0.005, 0.01, 0.02, 0.03, 0.05),
-                "alpha_delay": (0.005, 0.01, 0.02, 0.04, 0.06),
-                "accel_bias:ax_fps2": (0.005, 0.01, 0.02, 0.04, 0.06),
-                "accel_bias:az_fps2": (0.01, 0.02, 0.04, 0.08, 0.15),
-                "thrust_scale": (0.005, 0.01, 0.02, 0.03, 0.05)}
+SENSOR_SIZES = {
+    "alpha_bias": (0.03, 0.06, 0.1, 0.15, 0.25, 0.4),
+    "alpha_scale": (0.005, 0.01, 0.02, 0.03, 0.05),
+    "alpha_delay": (0.005, 0.01, 0.02, 0.04, 0.06),
+    "accel_bias:ax_fps2": (0.005, 0.01, 0.02, 0.04, 0.06),
+    "accel_bias:az_fps2": (0.01, 0.02, 0.04, 0.08, 0.15),
+    "thrust_scale": (0.005, 0.01, 0.02, 0.03, 0.05),
+}
 
 
 def _secondary(causes: list[dict], coefficient: str, variables) -> list[str]:
     """Causes named beside the first aero one that the hidden effect does not explain."""
     aero = [c for c in causes if c["kind"] == "aero"]
-    out = [f"{c['coefficient']} vs {', '.join(c['variables'])}" for c in aero[1:]
-           if c["coefficient"] != coefficient or not set(variables) & set(c["variables"])]
+    out = [
+        f"{c['coefficient']} vs {', '.join(c['variables'])}"
+        for c in aero[1:]
+        if c["coefficient"] != coefficient or not set(variables) & set(c["variables"])
+    ]
     return out + [f"sensor {c['channel']} {c['error']}" for c in causes if c["kind"] == "sensor"]
 
 
@@ -73,14 +87,22 @@ def hidden_effects(n_seeds: int) -> list[dict]:
             aero = [c for c in r["doc"]["causes"] if c["kind"] == "aero"]
             hit = bool(r["discrepancy"] and r.get("coefficient_ok") and r.get("variable_ok"))
             first = aero[0] if aero else {}
-            row = {"family": fam, "description": h.description, "hit": hit,
-                   "shape": r.get("shape_error", np.nan), "gain": r.get("gain", np.nan),
-                   "secondary": _secondary(r["doc"]["causes"], h.coefficient, h.variables),
-                   "size_over_floor": first.get("verdict", {}).get("size_over_floor", np.nan)}
+            row = {
+                "family": fam,
+                "description": h.description,
+                "hit": hit,
+                "shape": r.get("shape_error", np.nan),
+                "gain": r.get("gain", np.nan),
+                "secondary": _secondary(r["doc"]["causes"], h.coefficient, h.variables),
+                "size_over_floor": first.get("verdict", {}).get("size_over_floor", np.nan),
+            }
             rows.append(row)
-            print(f"{fam:20s} {h.description:58s} hit={hit!s:5} shape={row['shape']:.3f} gain={row['gain']:.1f} "
-                  f"size/floor={row['size_over_floor']:.0f} -> {first.get('coefficient')} {first.get('variables')}"
-                  f"{'  secondary: ' + '; '.join(row['secondary']) if row['secondary'] else ''}", flush=True)
+            print(
+                f"{fam:20s} {h.description:58s} hit={hit!s:5} shape={row['shape']:.3f} gain={row['gain']:.1f} "
+                f"size/floor={row['size_over_floor']:.0f} -> {first.get('coefficient')} {first.get('variables')}"
+                f"{'  secondary: ' + '; '.join(row['secondary']) if row['secondary'] else ''}",
+                flush=True,
+            )
     return rows
 
 
@@ -90,8 +112,11 @@ def nulls_ours(n: int) -> list[bool]:
         r = score(_tmp("null-"), None, seed=70_000 + s)
         big = r["doc"].get("largest_rejected") or {}
         named = [c.get("channel") or c["coefficient"] for c in r["doc"]["causes"]]
-        print(f"null, our 737, seed {70_000 + s}: discrepancy={r['discrepancy']} {named}  closest: "
-              f"{big.get('candidate')}: {big.get('reason')}", flush=True)
+        print(
+            f"null, our 737, seed {70_000 + s}: discrepancy={r['discrepancy']} {named}  closest: "
+            f"{big.get('candidate')}: {big.get('reason')}",
+            flush=True,
+        )
         out.append(bool(r["discrepancy"]))
     return out
 
@@ -100,6 +125,7 @@ def nulls_stock(n: int) -> list[bool]:
     import jsbsim
 
     from campaign.diagnosis.run import run_diagnosis
+
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft"
     matrices = {"737": CLEAN, "A320": matrix_toml(pairs((0, 0.3, 5000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")}
     out = []
@@ -110,8 +136,11 @@ def nulls_stock(n: int) -> list[bool]:
             doc = run_diagnosis(data, stock / name, work / "report", plots=False)
             big = doc.get("largest_rejected") or {}
             named = [c.get("channel") or c["coefficient"] for c in doc["causes"]]
-            print(f"null, stock {name}, seed {80_000 + s}: discrepancy={doc['discrepancy']} {named}  closest: "
-                  f"{big.get('candidate')}: {big.get('reason')}", flush=True)
+            print(
+                f"null, stock {name}, seed {80_000 + s}: discrepancy={doc['discrepancy']} {named}  closest: "
+                f"{big.get('candidate')}: {big.get('reason')}",
+                flush=True,
+            )
             out.append(bool(doc["discrepancy"]))
     return out
 
@@ -120,6 +149,7 @@ def stock_terms() -> list[dict]:
     import jsbsim
 
     from campaign.diagnosis.run import run_diagnosis
+
     stock = Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"
     data = run_matrix(_tmp("stock-terms-"), CLEAN, str(stock), noise="flight-test", seed=31)
     rows = []
@@ -130,14 +160,18 @@ def stock_terms() -> list[dict]:
         first = aero[0] if aero else {}
         hit = bool(first) and first["coefficient"] == coefficient and first["variables"][0] == variable
         sec = _secondary(doc["causes"], coefficient, (variable,))
-        alts = [f"{a['channel']} {a['error']} {a['needs']:+.3g} ({a['needs_se']:.1f} SE)"
-                for a in first.get("evidence", {}).get("sensor_alternatives", [])]
+        alts = [
+            f"{a['channel']} {a['error']} {a['needs']:+.3g} ({a['needs_se']:.1f} SE)"
+            for a in first.get("evidence", {}).get("sensor_alternatives", [])
+        ]
         rows.append({"hit": hit, "secondary": sec})
-        print(f"stock 737 {function.split('/')[-1]} x{scale:g}: hit={hit!s:5} -> {first.get('coefficient')} "
-              f"{first.get('variables')} size/floor={first.get('verdict', {}).get('size_over_floor', 0):.0f} "
-              f"gain={doc['gain'].get('residual_gain', float('nan')):.1f}"
-              f"{'  secondary: ' + '; '.join(sec) if sec else ''}{'  or a sensor: ' + '; '.join(alts) if alts else ''}",
-              flush=True)
+        print(
+            f"stock 737 {function.split('/')[-1]} x{scale:g}: hit={hit!s:5} -> {first.get('coefficient')} "
+            f"{first.get('variables')} size/floor={first.get('verdict', {}).get('size_over_floor', 0):.0f} "
+            f"gain={doc['gain'].get('residual_gain', float('nan')):.1f}"
+            f"{'  secondary: ' + '; '.join(sec) if sec else ''}{'  or a sensor: ' + '; '.join(alts) if alts else ''}",
+            flush=True,
+        )
     return rows
 
 
@@ -148,14 +182,21 @@ def sensor_faults(n: int) -> list[dict]:
         for fam in SENSOR_FAMILIES:
             f = make_sensor(fam, rng)
             r = score_sensor(_tmp("sensor-"), f, seed=91_000 + s)
-            row = {"family": fam, "hit": bool(r["sensor_first"] and not r["aero_named"]), "within": r.get("within"),
-                   "rel_error": abs(r["estimate_error"] / f.value) if "estimate_error" in r else np.nan,
-                   "z_error": abs(r["estimate_error"] / r["se"]) if "estimate_error" in r else np.nan,
-                   "invented": r["aero_named"] + r["other_sensors"]}
+            row = {
+                "family": fam,
+                "hit": bool(r["sensor_first"] and not r["aero_named"]),
+                "within": r.get("within"),
+                "rel_error": abs(r["estimate_error"] / f.value) if "estimate_error" in r else np.nan,
+                "z_error": abs(r["estimate_error"] / r["se"]) if "estimate_error" in r else np.nan,
+                "invented": r["aero_named"] + r["other_sensors"],
+            }
             rows.append(row)
-            print(f"{fam:14s} {f.description:32s} hit={row['hit']!s:5} estimate={r.get('estimate', np.nan):+.4g} "
-                  f"+- {r.get('se', np.nan):.2g} (error {row['rel_error'] * 100:.1f} %, {row['z_error']:.1f} SE)"
-                  f"{'  invented: ' + '; '.join(row['invented']) if row['invented'] else ''}", flush=True)
+            print(
+                f"{fam:14s} {f.description:32s} hit={row['hit']!s:5} estimate={r.get('estimate', np.nan):+.4g} "
+                f"+- {r.get('se', np.nan):.2g} (error {row['rel_error'] * 100:.1f} %, {row['z_error']:.1f} SE)"
+                f"{'  invented: ' + '; '.join(row['invented']) if row['invented'] else ''}",
+                flush=True,
+            )
     return rows
 
 
@@ -166,12 +207,17 @@ def sensor_and_aero(n: int) -> list[dict]:
         f = make_sensor(SENSOR_FAMILIES[s % len(SENSOR_FAMILIES)], rng)
         h = make(FAMILIES[s % len(FAMILIES)], rng)
         r = score_sensor(_tmp("both-"), f, seed=96_000 + s, hidden=h)
-        row = {"sensor": bool(r["sensor_ok"]), "aero": bool(r.get("coefficient_ok") and r.get("variable_ok")),
-               "shape": r.get("shape_error", np.nan)}
+        row = {
+            "sensor": bool(r["sensor_ok"]),
+            "aero": bool(r.get("coefficient_ok") and r.get("variable_ok")),
+            "shape": r.get("shape_error", np.nan),
+        }
         rows.append(row)
-        print(f"both: {f.description} + {h.description}: sensor={row['sensor']} aero={row['aero']} "
-              f"shape={row['shape']:.3f} named={[c.get('channel') or c['coefficient'] for c in r['doc']['causes']]}",
-              flush=True)
+        print(
+            f"both: {f.description} + {h.description}: sensor={row['sensor']} aero={row['aero']} "
+            f"shape={row['shape']:.3f} named={[c.get('channel') or c['coefficient'] for c in r['doc']['causes']]}",
+            flush=True,
+        )
     return rows
 
 
@@ -225,8 +271,7 @@ def detection_floors(n_seeds: int = 2) -> dict:
     return out
 
 
-def main(n_seeds: int = 8, n_null: int = 20, n_stock_null: int = 10, n_sensor: int = 6,
-         n_floor_seeds: int = 2) -> None:
+def main(n_seeds: int = 8, n_null: int = 20, n_stock_null: int = 10, n_sensor: int = 6, n_floor_seeds: int = 2) -> None:
     t0 = time.perf_counter()
     rows = hidden_effects(n_seeds)
     fp_ours = nulls_ours(n_null)
@@ -239,35 +284,53 @@ def main(n_seeds: int = 8, n_null: int = 20, n_stock_null: int = 10, n_sensor: i
     shape = np.array([r["shape"] for r in rows], dtype=float)
     gain = np.array([r["gain"] for r in rows], dtype=float)
     ok = hits & np.isfinite(shape)
-    print(f"\n{len(rows)} hidden-effect cases, {len(fp_ours) + len(fp_stock)} null cases, {len(own)} stock-737 "
-          f"terms, {len(sens)} sensor faults, {len(both)} sensor + aero, {time.perf_counter() - t0:.0f} s")
-    print(f"hit rate (first aero cause: right coefficient and variable): {hits.mean() * 100:.1f} % "
-          f"({hits.sum()}/{len(hits)})")
-    print(f"false positives: {sum(fp_ours)}/{len(fp_ours)} nulls on our 737, {sum(fp_stock)}/{len(fp_stock)} on stock "
-          f"aircraft (737, A320)")
-    print(f"invented causes: {sum(len(r['secondary']) for r in rows)} over {len(rows)} hidden effects, "
-          f"{sum(len(r['secondary']) for r in own)} over {len(own)} stock-737 terms, "
-          f"{sum(len(r['invented']) for r in sens)} over {len(sens)} sensor faults")
+    print(
+        f"\n{len(rows)} hidden-effect cases, {len(fp_ours) + len(fp_stock)} null cases, {len(own)} stock-737 "
+        f"terms, {len(sens)} sensor faults, {len(both)} sensor + aero, {time.perf_counter() - t0:.0f} s"
+    )
+    print(
+        f"hit rate (first aero cause: right coefficient and variable): {hits.mean() * 100:.1f} % "
+        f"({hits.sum()}/{len(hits)})"
+    )
+    print(
+        f"false positives: {sum(fp_ours)}/{len(fp_ours)} nulls on our 737, {sum(fp_stock)}/{len(fp_stock)} on stock "
+        f"aircraft (737, A320)"
+    )
+    print(
+        f"invented causes: {sum(len(r['secondary']) for r in rows)} over {len(rows)} hidden effects, "
+        f"{sum(len(r['secondary']) for r in own)} over {len(own)} stock-737 terms, "
+        f"{sum(len(r['invented']) for r in sens)} over {len(sens)} sensor faults"
+    )
     print(f"stock 737's own terms changed: {sum(r['hit'] for r in own)}/{len(own)} named first")
     if ok.any():
-        print(f"shape error over hits, % of peak: median {np.median(shape[ok]) * 100:.1f}, "
-              f"90th pct {np.percentile(shape[ok], 90) * 100:.1f}, max {shape[ok].max() * 100:.1f}; "
-              f"within 10 %: {(shape[ok] < 0.10).mean() * 100:.0f} %")
-        print(f"held-out gain over hits: min {np.nanmin(gain[ok]):.1f}, median {np.nanmedian(gain[ok]):.1f}; "
-              f">= 2x: {(gain[ok] >= 2).mean() * 100:.0f} %, >= 3x: {(gain[ok] >= 3).mean() * 100:.0f} %")
+        print(
+            f"shape error over hits, % of peak: median {np.median(shape[ok]) * 100:.1f}, "
+            f"90th pct {np.percentile(shape[ok], 90) * 100:.1f}, max {shape[ok].max() * 100:.1f}; "
+            f"within 10 %: {(shape[ok] < 0.10).mean() * 100:.0f} %"
+        )
+        print(
+            f"held-out gain over hits: min {np.nanmin(gain[ok]):.1f}, median {np.nanmedian(gain[ok]):.1f}; "
+            f">= 2x: {(gain[ok] >= 2).mean() * 100:.0f} %, >= 3x: {(gain[ok] >= 3).mean() * 100:.0f} %"
+        )
     for fam in FAMILIES if rows else ():
         sel = np.array([r["family"] == fam for r in rows])
-        print(f"  {fam:20s} hits {hits[sel].sum()}/{sel.sum()}  shape max {np.nanmax(shape[sel]) * 100:.1f} %  "
-              f"gain min {np.nanmin(gain[sel]):.1f}  size/floor min "
-              f"{np.nanmin([r['size_over_floor'] for r, s in zip(rows, sel) if s]):.0f}")
+        print(
+            f"  {fam:20s} hits {hits[sel].sum()}/{sel.sum()}  shape max {np.nanmax(shape[sel]) * 100:.1f} %  "
+            f"gain min {np.nanmin(gain[sel]):.1f}  size/floor min "
+            f"{np.nanmin([r['size_over_floor'] for r, s in zip(rows, sel) if s]):.0f}"
+        )
     for fam in SENSOR_FAMILIES:
         sel = [r for r in sens if r["family"] == fam]
         rel = np.array([r["rel_error"] for r in sel])
-        print(f"  {fam:14s} named first {sum(r['hit'] for r in sel)}/{len(sel)}; estimate within 2 SE or 10 %: "
-              f"{sum(bool(r['within']) for r in sel)}/{len(sel)}; error median {np.nanmedian(rel) * 100:.1f} %, "
-              f"max {np.nanmax(rel) * 100:.1f} %")
-    print(f"sensor + aero: sensor named {sum(r['sensor'] for r in both)}/{len(both)}, aero named "
-          f"{sum(r['aero'] for r in both)}/{len(both)}")
+        print(
+            f"  {fam:14s} named first {sum(r['hit'] for r in sel)}/{len(sel)}; estimate within 2 SE or 10 %: "
+            f"{sum(bool(r['within']) for r in sel)}/{len(sel)}; error median {np.nanmedian(rel) * 100:.1f} %, "
+            f"max {np.nanmax(rel) * 100:.1f} %"
+        )
+    print(
+        f"sensor + aero: sensor named {sum(r['sensor'] for r in both)}/{len(both)}, aero named "
+        f"{sum(r['aero'] for r in both)}/{len(both)}"
+    )
     print("detection floors (smallest size found at every seed, and above):")
     for k, (v, found, unit) in floors.items():
         print(f"  {k:22s} {v} {unit}")

@@ -12,6 +12,7 @@ the first cause before and after, the rivals' separation before, predicted and m
 and the flight time added. Cases whose first diagnosis has no open rival are counted and skipped.
 Run by hand, outside CI: about 90 s a case on 2 cores.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,15 +32,24 @@ def case(seed: int, work: Path) -> dict:
     from campaign.cli import main
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from diagnose.config import recorded
+
     hidden = make("gear_x_alpha", np.random.default_rng(seed), "Cm")
     data, fx = fly_data(work, hidden, seed=seed, matrix=NARROW)
     quiet = ["--no-plots", "--jobs", "2"]
     if main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(work / "d1"), *quiet]):
         return {"seed": seed, "effect": hidden.description, "error": "diagnose failed", "open": []}
     d1 = json.loads((work / "d1" / "diagnosis.json").read_text())
-    row = {"seed": seed, "effect": hidden.description, "coefficient": hidden.coefficient,
-           "before": _first(d1), "open": [f"{r['rival']} {r['separation_se']:.1f}" for r in d1["rivals"]
-                                          if r["separation_se"] < recorded(d1).settled_se]}
+    row = {
+        "seed": seed,
+        "effect": hidden.description,
+        "coefficient": hidden.coefficient,
+        "before": _first(d1),
+        "open": [
+            f"{r['rival']} {r['separation_se']:.1f}"
+            for r in d1["rivals"]
+            if r["separation_se"] < recorded(d1).settled_se
+        ],
+    }
     if not row["open"]:
         return row
     if main(["plan", "--diagnosis", str(work / "d1"), "--out", str(work / "plan"), "--jobs", "2", "--quiet"]):
@@ -49,15 +59,46 @@ def case(seed: int, work: Path) -> dict:
     row["predicted"] = [f"{r['rival']} {r['planned_se']:.1f}" for r in plan["rivals"]]
     if not plan["matrix"]:
         return row
-    main(["run", "--matrix", plan["matrix"], "--aircraft", str(DEFAULT_AIRCRAFT), "--effects", str(fx),
-          "--noise", "flight-test", "--seed", str(seed + 1), "--out", str(work / "new"), "--no-identify", "--quiet"])
-    main(["diagnose", "--data", str(data), "--data", str(work / "new"), "--model", str(DEFAULT_AIRCRAFT),
-          "--out", str(work / "d2"), *quiet])
+    main(
+        [
+            "run",
+            "--matrix",
+            plan["matrix"],
+            "--aircraft",
+            str(DEFAULT_AIRCRAFT),
+            "--effects",
+            str(fx),
+            "--noise",
+            "flight-test",
+            "--seed",
+            str(seed + 1),
+            "--out",
+            str(work / "new"),
+            "--no-identify",
+            "--quiet",
+        ]
+    )
+    main(
+        [
+            "diagnose",
+            "--data",
+            str(data),
+            "--data",
+            str(work / "new"),
+            "--model",
+            str(DEFAULT_AIRCRAFT),
+            "--out",
+            str(work / "d2"),
+            *quiet,
+        ]
+    )
     d2 = json.loads((work / "d2" / "diagnosis.json").read_text())
     row["after"] = _first(d2)
     first = d2["causes"][0] if d2["causes"] else {}
-    row["right_after"] = (first.get("coefficient") == hidden.coefficient
-                          and first.get("variables", [])[:2] == ["gear_norm", "alpha_deg"])
+    row["right_after"] = first.get("coefficient") == hidden.coefficient and first.get("variables", [])[:2] == [
+        "gear_norm",
+        "alpha_deg",
+    ]
     seps = [r["separation_se"] for r in first.get("evidence", {}).get("rivals", [])]
     row["measured"] = [f"{r['rival']} {r['separation_se']:.1f}" for r in first.get("evidence", {}).get("rivals", [])]
     row["settled"] = row["right_after"] and all(s >= recorded(d2).settled_se for s in seps)
@@ -84,11 +125,13 @@ def main() -> int:
     (a.out / "plan_separation.json").write_text(json.dumps(rows, indent=1))
     planned = [r for r in rows if r["open"]]
     flown = [r for r in planned if "after" in r]
-    print(f"\n{len(rows)} cases; {len(planned)} with an open rival; {len(flown)} planned and flown; "
-          f"settled (right cause first, every rival >= 5 se): {sum(r['settled'] for r in flown)}; "
-          f"right cause first before: {sum(r['before'] == 'Cm vs gear_norm, alpha_deg' for r in planned)}, "
-          f"after: {sum(r['right_after'] for r in flown)}; flight time added: "
-          + ", ".join(f"{r['added_pct']:.0f} %" for r in planned if "added_pct" in r))
+    print(
+        f"\n{len(rows)} cases; {len(planned)} with an open rival; {len(flown)} planned and flown; "
+        f"settled (right cause first, every rival >= 5 se): {sum(r['settled'] for r in flown)}; "
+        f"right cause first before: {sum(r['before'] == 'Cm vs gear_norm, alpha_deg' for r in planned)}, "
+        f"after: {sum(r['right_after'] for r in flown)}; flight time added: "
+        + ", ".join(f"{r['added_pct']:.0f} %" for r in planned if "added_pct" in r)
+    )
     return 0
 
 

@@ -11,6 +11,7 @@ error per channel over the judged windows (Part 60 gear change: 5 s before to 15
 the others: the manoeuvre) and over the whole logs, beside the floor the diagnosis reports for them.
 Writes ``benchmarks/results/replay_floor.json``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,10 +38,17 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
     from identify.compat import estimate
     from identify.logs import read_campaign
     from infra.pool import pmap
+
     prof = work / f"t{sigma:g}.toml"
     prof.write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma}\n')
-    data = run_matrix(work / f"s{sigma:g}-{seed}", Path(DEFAULT_MATRIX).read_text(), str(DEFAULT_AIRCRAFT),
-                      noise=str(prof), seed=seed, jobs=jobs)
+    data = run_matrix(
+        work / f"s{sigma:g}-{seed}",
+        Path(DEFAULT_MATRIX).read_text(),
+        str(DEFAULT_AIRCRAFT),
+        noise=str(prof),
+        seed=seed,
+        jobs=jobs,
+    )
     logs = read_campaign(data)
     train, held = split(logs)
     compat = estimate(train)
@@ -52,8 +60,12 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
     where = {}
     for lg, f, fl in zip(held, flown, floors):
         win = replay_window(lg.data)[:2]
-        for k, e in (("window", replay_errors(lg.data, f, win)), ("log", replay_errors(lg.data, f)),
-                     ("floor_window", fl["window"]), ("floor_log", fl["log"])):
+        for k, e in (
+            ("window", replay_errors(lg.data, f, win)),
+            ("log", replay_errors(lg.data, f)),
+            ("floor_window", fl["window"]),
+            ("floor_log", fl["log"]),
+        ):
             for ch in CHANNELS:
                 if e[ch] > worst[k][ch] or e[ch] != e[ch]:
                     worst[k][ch] = e[ch]
@@ -74,26 +86,35 @@ def main() -> None:
         for seed in a.seeds:
             rows.append(one(work, sigma, seed, a.jobs))
             w = rows[-1]["worst"]
-            print(f"sigma {sigma:g} seed {seed}: window {w['window']}  log {w['log']}  floor (window) "
-                  f"{w['floor_window']}", flush=True)
+            print(
+                f"sigma {sigma:g} seed {seed}: window {w['window']}  log {w['log']}  floor (window) "
+                f"{w['floor_window']}",
+                flush=True,
+            )
             write(a.out, rows)
 
 
 def write(out: Path, rows: list[dict]) -> None:
     """The results file, rewritten after each campaign."""
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    doc = {"benchmark": "replay_floor",
-           "command": "python benchmarks/replay_floor.py " + " ".join(sys.argv[1:]),
-           "recorded_at_commit": commit,
-           "date": datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat(),
-           "setup": ("our 737 against its own data: the paper's Fig. 3 matrix through the flight-test instruments at "
-                     "each turbulence level and seed, the held-out conditions of campaign diagnose corrected by the "
-                     "data compatibility of the fitted logs and replayed on the same 737 as the diagnosis replays "
-                     "them; worst error per channel over the judged windows (Part 60 gear change, else the "
-                     "manoeuvre) and over the whole logs, and the worst floor reported"),
-           "tolerances": {"window (half Part 60)": {"theta_deg": 0.75, "tas_kt": 1.5, "alt_ft": 50.0},
-                          "log (Part 60)": {"theta_deg": 1.5, "tas_kt": 3.0, "alt_ft": 100.0}},
-           "rows": rows}
+    doc = {
+        "benchmark": "replay_floor",
+        "command": "python benchmarks/replay_floor.py " + " ".join(sys.argv[1:]),
+        "recorded_at_commit": commit,
+        "date": datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat(),
+        "setup": (
+            "our 737 against its own data: the paper's Fig. 3 matrix through the flight-test instruments at "
+            "each turbulence level and seed, the held-out conditions of campaign diagnose corrected by the "
+            "data compatibility of the fitted logs and replayed on the same 737 as the diagnosis replays "
+            "them; worst error per channel over the judged windows (Part 60 gear change, else the "
+            "manoeuvre) and over the whole logs, and the worst floor reported"
+        ),
+        "tolerances": {
+            "window (half Part 60)": {"theta_deg": 0.75, "tas_kt": 1.5, "alt_ft": 50.0},
+            "log (Part 60)": {"theta_deg": 1.5, "tas_kt": 3.0, "alt_ft": 100.0},
+        },
+        "rows": rows,
+    }
     out.write_text(json.dumps(doc, indent=1) + "\n")
 
 

@@ -10,6 +10,7 @@ the quantity the extension moves most (``gain.replay_moved_most``) with its gain
 the truth itself reaches there (the same data diagnosed against the model with the hidden
 effect: its replay errors are what no extension can beat).
 """
+
 from __future__ import annotations
 
 import sys
@@ -28,6 +29,7 @@ def attainable(workdir: Path, g: dict) -> dict[str, float]:
     with the hidden effect): the smallest error any extension could reach, per channel."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.diagnosis.run import run_diagnosis
+
     truth = workdir / "truth" / DEFAULT_AIRCRAFT.name
     doc = run_diagnosis(workdir / "data", truth, workdir / "truth-report", plots="none")
     where = [doc["replays"][name] for name in g["cause_exercised_in"] if name in doc["replays"]]
@@ -48,10 +50,13 @@ def main(work: Path, only: list[str]) -> None:
         most = g.get("replay_moved_most")
         on_most = gains.get(most, float("nan"))
         reach = g["replay_where_acts"][most]["before"] / best[most] if most in best and best[most] > 0 else float("nan")
-        print(f"{family:>20} {str(coeff):>4}  size/floor {sof:5.1f}  residual x{g.get('residual_gain', float('nan')):5.1f}"
-              f"  moved most: {most} ({g.get('replay_moved', {}).get(most, float('nan')):.2f} tol) x{on_most:.2f}"
-              f" (the truth itself: x{reach:.2f})"
-              f"  replay where it acts {gains}", flush=True)
+        print(
+            f"{family:>20} {str(coeff):>4}  size/floor {sof:5.1f}  residual x{g.get('residual_gain', float('nan')):5.1f}"
+            f"  moved most: {most} ({g.get('replay_moved', {}).get(most, float('nan')):.2f} tol) x{on_most:.2f}"
+            f" (the truth itself: x{reach:.2f})"
+            f"  replay where it acts {gains}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@
 Prints, per folder, the time to write ``report.html`` once the results exist (the mean of
 three writes, the modules already imported) and its size.
 """
+
 from __future__ import annotations
 
 import sys

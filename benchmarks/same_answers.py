@@ -14,6 +14,7 @@ and exits 1 if any does. Run it at two commits to show a refactoring changed no 
 (about 2 minutes). The work folder is emptied first and must be the same for both runs: the
 diagnosis names its paths.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,8 +53,18 @@ def answers(work: Path) -> dict[str, str]:
     for profile in PROFILES:
         run = work / f"run-{profile}"
         _campaign("run", "--noise", profile, "--out", str(run), "--jobs", "2")
-        _campaign("diagnose", "--data", str(run), "--model", str(ROOT / "aircraft" / "737"),
-                  "--out", str(work / f"diagnosis-{profile}"), "--no-plots", "--jobs", "1")
+        _campaign(
+            "diagnose",
+            "--data",
+            str(run),
+            "--model",
+            str(ROOT / "aircraft" / "737"),
+            "--out",
+            str(work / f"diagnosis-{profile}"),
+            "--no-plots",
+            "--jobs",
+            "1",
+        )
     return hashes(work)
 
 
@@ -62,8 +73,9 @@ def main() -> int:
     mode = ap.add_mutually_exclusive_group(required=True)
     mode.add_argument("--save", type=Path)
     mode.add_argument("--compare", type=Path)
-    ap.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "same-answers",
-                    help="where to fly (emptied first)")
+    ap.add_argument(
+        "--work", type=Path, default=Path(tempfile.gettempdir()) / "same-answers", help="where to fly (emptied first)"
+    )
     a = ap.parse_args()
     work = a.work
     shutil.rmtree(work, ignore_errors=True)

@@ -9,6 +9,7 @@ workers on 127.0.0.1, then ``campaign identify --jobs 2`` runs in a fresh proces
 high-water mark (``VmHWM``) is sampled with its workers' (``speed_table``). Run by hand, outside
 CI: about 15 minutes for N = 100 (9,700 points, 6 GB of logs) on 2 cores.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,17 +37,35 @@ def main() -> int:
     n = scaled_matrix(a.scale, work / "scaled.toml")
     camp = work / "campaign"
     with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
-        with LocalCluster(n_workers=a.cluster_workers, threads_per_worker=1, host="127.0.0.1",
-                          dashboard_address=None, silence_logs=50) as cluster:
+        with LocalCluster(
+            n_workers=a.cluster_workers, threads_per_worker=1, host="127.0.0.1", dashboard_address=None, silence_logs=50
+        ) as cluster:
             t0 = time.perf_counter()
-            subprocess.run([*CAMPAIGN, "run", "--matrix", str(work / "scaled.toml"), "--noise", "flight-test",
-                            "--out", str(camp), "--cluster", cluster.scheduler_address, "--no-identify", "--quiet"],
-                           check=True, cwd=ROOT)
+            subprocess.run(
+                [
+                    *CAMPAIGN,
+                    "run",
+                    "--matrix",
+                    str(work / "scaled.toml"),
+                    "--noise",
+                    "flight-test",
+                    "--out",
+                    str(camp),
+                    "--cluster",
+                    cluster.scheduler_address,
+                    "--no-identify",
+                    "--quiet",
+                ],
+                check=True,
+                cwd=ROOT,
+            )
             fly_s = time.perf_counter() - t0
     r = timed(["identify", str(camp), "--jobs", "2"])
-    print(f"x{a.scale}: {n} points flown on a LocalCluster of {a.cluster_workers} workers in {fly_s:.0f} s "
-          f"({1000 * fly_s / n:.0f} ms a point); identify --jobs 2: {r.wall_s:.0f} s, main process peak "
-          f"{r.main_mb:.0f} MB, largest worker peak {r.worker_mb:.0f} MB (work in {work})")
+    print(
+        f"x{a.scale}: {n} points flown on a LocalCluster of {a.cluster_workers} workers in {fly_s:.0f} s "
+        f"({1000 * fly_s / n:.0f} ms a point); identify --jobs 2: {r.wall_s:.0f} s, main process peak "
+        f"{r.main_mb:.0f} MB, largest worker peak {r.worker_mb:.0f} MB (work in {work})"
+    )
     return 0
 
 

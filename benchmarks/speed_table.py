@@ -28,6 +28,7 @@ got slower, and ``benchmarks/tables.py`` writes the documentation's speed page f
 commit: the same commands, run there), for a before and after in one sitting. Run by hand, outside
 CI (about 20 minutes on 2 cores with the defaults).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -76,8 +77,10 @@ def _uss_pss_kb(pid: int) -> tuple[int, int]:
         lines = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
     except OSError:
         return 0, 0
-    return (sum(int(ln.split()[1]) for ln in lines if ln.startswith(("Private_Clean:", "Private_Dirty:"))),
-            sum(int(ln.split()[1]) for ln in lines if ln.startswith("Pss:")))
+    return (
+        sum(int(ln.split()[1]) for ln in lines if ln.startswith(("Private_Clean:", "Private_Dirty:"))),
+        sum(int(ln.split()[1]) for ln in lines if ln.startswith("Pss:")),
+    )
 
 
 def _cpu_s(pid: int) -> float | None:
@@ -202,9 +205,18 @@ def _env(code: Path, path: str | None = None) -> dict:
 
 def compiled(code: Path) -> None:
     """The tool's modules compiled once (their ``__pycache__``), before anything is timed."""
-    subprocess.run([sys.executable, "-c", "import campaign.cli.main, campaign.diagnosis.run, diagnose.plots, "
-                    "campaign.orchestration.runner, identify.pipeline, identify.plots, campaign.replays.replay, "
-                    "campaign.replays.report"], cwd=code, env=_env(code), check=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import campaign.cli.main, campaign.diagnosis.run, diagnose.plots, "
+            "campaign.orchestration.runner, identify.pipeline, identify.plots, campaign.replays.replay, "
+            "campaign.replays.report",
+        ],
+        cwd=code,
+        env=_env(code),
+        check=True,
+    )
 
 
 def timed(args: list[str], cwd: Path | None = None) -> Run:
@@ -213,8 +225,9 @@ def timed(args: list[str], cwd: Path | None = None) -> Run:
     env = _env(code)
     load0, busy0 = _load(), _machine_busy_s()
     t0 = time.perf_counter()
-    proc = subprocess.Popen(CAMPAIGN + args, cwd=cwd or code, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        CAMPAIGN + args, cwd=cwd or code, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     peaks: dict[int, int] = {}
     uss: dict[int, int] = {}
     pss: dict[int, int] = {}
@@ -251,19 +264,36 @@ def timed(args: list[str], cwd: Path | None = None) -> Run:
     workers = [p for p, r in roles.items() if r == "worker" and peaks.get(p, 0) > 0]
     mb = {p: v / 1024 for p, v in peaks.items()}
     ours = sum(cpu.values())
-    return Run(wall, ours, mb.pop(proc.pid, 0.0), max((mb[p] for p in workers), default=0.0),
-               max((uss.get(p, 0) / 1024 for p in workers), default=0.0),
-               peaks.get(proc.pid, 0) / 1024 + sum(mb[p] for p in workers), sum(v / 1024 for v in peaks.values()),
-               sum(pss.values()) / 1024, max(busy - ours, 0.0) / (wall * (os.cpu_count() or 1)), [load0, _load()],
-               [{"role": roles.get(p, "main"), "peak_mb": round(peaks[p] / 1024), "cpu_s": round(cpu.get(p, 0.0), 2)}
-                for p in sorted(peaks)], out)
+    return Run(
+        wall,
+        ours,
+        mb.pop(proc.pid, 0.0),
+        max((mb[p] for p in workers), default=0.0),
+        max((uss.get(p, 0) / 1024 for p in workers), default=0.0),
+        peaks.get(proc.pid, 0) / 1024 + sum(mb[p] for p in workers),
+        sum(v / 1024 for v in peaks.values()),
+        sum(pss.values()) / 1024,
+        max(busy - ours, 0.0) / (wall * (os.cpu_count() or 1)),
+        [load0, _load()],
+        [
+            {"role": roles.get(p, "main"), "peak_mb": round(peaks[p] / 1024), "cpu_s": round(cpu.get(p, 0.0), 2)}
+            for p in sorted(peaks)
+        ],
+        out,
+    )
 
 
 def stepping() -> tuple[float, str]:
     code = CODE[0]
     script = code / "benchmarks" / "stepping.py"
-    out = subprocess.run([sys.executable, str(script if script.exists() else ROOT / "benchmarks" / "stepping.py")],
-                         cwd=code, text=True, capture_output=True, check=True, env=_env(code)).stdout
+    out = subprocess.run(
+        [sys.executable, str(script if script.exists() else ROOT / "benchmarks" / "stepping.py")],
+        cwd=code,
+        text=True,
+        capture_output=True,
+        check=True,
+        env=_env(code),
+    ).stdout
     ratio = next(float(line.split()[-1]) for line in out.splitlines() if line.startswith("ratio"))
     return ratio, out
 
@@ -274,10 +304,24 @@ def diagnose_stages(data: Path, jobs: int = 2) -> dict:
     code = CODE[0]
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "stages.json"
-        subprocess.run([sys.executable, str(ROOT / "benchmarks" / "diagnose_stages.py"), str(data), "--jobs",
-                        str(jobs), "--model", str(code / "aircraft" / "737"), "--json", str(path)], cwd=code,
-                       env=_env(code, f"{code}{os.pathsep}{ROOT / 'benchmarks'}"),
-                       check=True, capture_output=True, text=True)
+        subprocess.run(
+            [
+                sys.executable,
+                str(ROOT / "benchmarks" / "diagnose_stages.py"),
+                str(data),
+                "--jobs",
+                str(jobs),
+                "--model",
+                str(code / "aircraft" / "737"),
+                "--json",
+                str(path),
+            ],
+            cwd=code,
+            env=_env(code, f"{code}{os.pathsep}{ROOT / 'benchmarks'}"),
+            check=True,
+            capture_output=True,
+            text=True,
+        )
         return json.loads(path.read_text())
 
 
@@ -285,8 +329,9 @@ def scaled_matrix(factor: int, path: Path) -> int:
     """The paper matrix with every point repeated at ``factor`` altitudes 150 ft apart (1500 / ``factor`` ft
     beyond 10, so that no two points meet); returns its point count."""
     from campaign.simulation.matrix import DEFAULT_MATRIX, load_matrix
+
     text = DEFAULT_MATRIX.read_text()
-    head = text[:text.index("[[points]]")]
+    head = text[: text.index("[[points]]")]
     doc = tomllib.loads(text)
     lines = [head.replace(f'name = "{doc["name"]}"', f'name = "{doc["name"]}-x{factor}"')]
     for p in doc["points"]:
@@ -302,23 +347,41 @@ def scaled_matrix(factor: int, path: Path) -> int:
 
 def machine() -> dict:
     """What the figures were measured on."""
-    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                  if ln.startswith("model name")), platform.processor())
-    mem = next(int(ln.split()[1]) for ln in Path("/proc/meminfo").read_text().splitlines()
-               if ln.startswith("MemTotal"))
+    model = next(
+        (
+            ln.split(":", 1)[1].strip()
+            for ln in Path("/proc/cpuinfo").read_text().splitlines()
+            if ln.startswith("model name")
+        ),
+        platform.processor(),
+    )
+    mem = next(int(ln.split()[1]) for ln in Path("/proc/meminfo").read_text().splitlines() if ln.startswith("MemTotal"))
     import jsbsim
     import numpy
-    return {"host": platform.node(), "cpu": model, "cores": os.cpu_count(), "memory_gb": round(mem / 2**20, 1),
-            "python": platform.python_version(), "numpy": numpy.__version__, "jsbsim": jsbsim.__version__}
+
+    return {
+        "host": platform.node(),
+        "cpu": model,
+        "cores": os.cpu_count(),
+        "memory_gb": round(mem / 2**20, 1),
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "jsbsim": jsbsim.__version__,
+    }
 
 
 def commit_of(code: Path) -> tuple[str, str]:
     """The commit and its date of a git checkout (``unknown`` elsewhere)."""
     try:
-        out = subprocess.run(["git", "-C", str(code), "log", "-1", "--format=%H %cI"], capture_output=True,
-                             text=True, check=True).stdout.split()
-        dirty = subprocess.run(["git", "-C", str(code), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, check=True).stdout.strip()
+        out = subprocess.run(
+            ["git", "-C", str(code), "log", "-1", "--format=%H %cI"], capture_output=True, text=True, check=True
+        ).stdout.split()
+        dirty = subprocess.run(
+            ["git", "-C", str(code), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
         return out[0] + ("+changes" if dirty else ""), out[1]
     except (subprocess.CalledProcessError, FileNotFoundError, IndexError):
         return "unknown", ""
@@ -329,10 +392,14 @@ def main() -> None:
     ap.add_argument("--scale", type=int, default=10)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--skip-scale", action="store_true")
-    ap.add_argument("--only-scale", action="store_true", help="the scaled campaign only (and the paper matrix's "
-                                                             "flying with 2 jobs, its reference)")
-    ap.add_argument("--diagnosis-only", action="store_true", help="the diagnosis's figures only (and the paper "
-                                                                  "matrix flown for it)")
+    ap.add_argument(
+        "--only-scale",
+        action="store_true",
+        help="the scaled campaign only (and the paper matrix's flying with 2 jobs, its reference)",
+    )
+    ap.add_argument(
+        "--diagnosis-only", action="store_true", help="the diagnosis's figures only (and the paper matrix flown for it)"
+    )
     ap.add_argument("--repeat", type=int, default=3, help="runs of each diagnosis (the median is kept)")
     ap.add_argument("--code", type=Path, help="another checkout of the tool to measure (default: this one)")
     ap.add_argument("--commit", help="the commit of --code when it is no git checkout (a git archive)")
@@ -344,37 +411,72 @@ def main() -> None:
     started = datetime.now(timezone.utc)
     compiled(CODE[0])
     work = Path(tempfile.mkdtemp(prefix="speed-"))
-    doc = {"benchmark": "speed_table", "command": "python benchmarks/speed_table.py " + " ".join(sys.argv[1:]),
-           "code_commit": commit, "code_date": commit_date, "date": started.isoformat(timespec="seconds"),
-           "machine": machine(), "figures": {}, "stages": {}}
+    doc = {
+        "benchmark": "speed_table",
+        "command": "python benchmarks/speed_table.py " + " ".join(sys.argv[1:]),
+        "code_commit": commit,
+        "code_date": commit_date,
+        "date": started.isoformat(timespec="seconds"),
+        "machine": machine(),
+        "figures": {},
+        "stages": {},
+    }
     fig = doc["figures"]
     paper = work / "paper-j2"
     rows = []
     if a.only_scale or a.diagnosis_only:
-        fig["fly (138 manoeuvres), 2 jobs"] = timed(["run", "--noise", "flight-test", "--no-identify", "--quiet",
-                                                     "--out", str(paper), "--jobs", "2"]).figures()
+        fig["fly (138 manoeuvres), 2 jobs"] = timed(
+            ["run", "--noise", "flight-test", "--no-identify", "--quiet", "--out", str(paper), "--jobs", "2"]
+        ).figures()
     if not (a.only_scale or a.diagnosis_only):
         for jobs in (1, 2):
             camp = work / f"paper-j{jobs}"
             j = ["--jobs", str(jobs)]
-            for name, args in (("fly (138 manoeuvres)", ["run", "--noise", "flight-test", "--no-identify", "--quiet",
-                                                         "--out", str(camp)]),
-                               ("identify", ["identify", str(camp)]), ("replay", ["replay", str(camp)]),
-                               ("plots (redrawn)", ["plots", str(camp)]),
-                               ("run: fly through plots", ["run", "--noise", "flight-test", "--quiet", "--out",
-                                                           str(work / f"whole-j{jobs}")]),
-                               ("diagnose (full matrix)", ["diagnose", "--data", str(camp), "--model",
-                                                           str(CODE[0] / "aircraft" / "737"), "--out",
-                                                           str(work / f"diag-j{jobs}"), "--quiet"])):
+            for name, args in (
+                (
+                    "fly (138 manoeuvres)",
+                    ["run", "--noise", "flight-test", "--no-identify", "--quiet", "--out", str(camp)],
+                ),
+                ("identify", ["identify", str(camp)]),
+                ("replay", ["replay", str(camp)]),
+                ("plots (redrawn)", ["plots", str(camp)]),
+                (
+                    "run: fly through plots",
+                    ["run", "--noise", "flight-test", "--quiet", "--out", str(work / f"whole-j{jobs}")],
+                ),
+                (
+                    "diagnose (full matrix)",
+                    [
+                        "diagnose",
+                        "--data",
+                        str(camp),
+                        "--model",
+                        str(CODE[0] / "aircraft" / "737"),
+                        "--out",
+                        str(work / f"diag-j{jobs}"),
+                        "--quiet",
+                    ],
+                ),
+            ):
                 fig[f"{name}, {jobs} job{'s' if jobs > 1 else ''}"] = timed(args + j).figures()
-        for name in ("fly (138 manoeuvres)", "identify", "replay", "plots (redrawn)", "run: fly through plots",
-                     "diagnose (full matrix)"):
+        for name in (
+            "fly (138 manoeuvres)",
+            "identify",
+            "replay",
+            "plots (redrawn)",
+            "run: fly through plots",
+            "diagnose (full matrix)",
+        ):
             one, two = fig[f"{name}, 1 job"], fig[f"{name}, 2 jobs"]
-            rows.append(f"| {name} | {one['wall_s']:.1f} | {two['wall_s']:.1f} | "
-                        f"x{one['wall_s'] / two['wall_s']:.2f} | {two['cpu_s']:.1f} | {two['main_mb']:.0f} | "
-                        f"{two['worker_mb']:.0f} | {two['unique_mb']:.0f} | {two['sum_mb']:.0f} |")
-        print("| stage (paper matrix, flight-test profile) | 1 job [s] | 2 jobs [s] | speed-up | CPU, 2 jobs [s] | "
-              "main peak [MB] | largest worker peak [MB] | largest worker USS [MB] | main + workers peak [MB] |")
+            rows.append(
+                f"| {name} | {one['wall_s']:.1f} | {two['wall_s']:.1f} | "
+                f"x{one['wall_s'] / two['wall_s']:.2f} | {two['cpu_s']:.1f} | {two['main_mb']:.0f} | "
+                f"{two['worker_mb']:.0f} | {two['unique_mb']:.0f} | {two['sum_mb']:.0f} |"
+            )
+        print(
+            "| stage (paper matrix, flight-test profile) | 1 job [s] | 2 jobs [s] | speed-up | CPU, 2 jobs [s] | "
+            "main peak [MB] | largest worker peak [MB] | largest worker USS [MB] | main + workers peak [MB] |"
+        )
         print("|---|---|---|---|---|---|---|---|---|")
         print("\n".join(rows), flush=True)
         ratio, _ = stepping()
@@ -393,8 +495,11 @@ def main() -> None:
 
 
 #: The diagnoses timed: name -> extra arguments and the campaign (1: the paper matrix, 3: three times its points).
-DIAGNOSES = {"diagnose, no plots": (["--no-plots"], 1), "diagnose, key plots": ([], 1),
-             "diagnose x3 (291 points), no plots": (["--no-plots"], 3)}
+DIAGNOSES = {
+    "diagnose, no plots": (["--no-plots"], 1),
+    "diagnose, key plots": ([], 1),
+    "diagnose x3 (291 points), no plots": (["--no-plots"], 3),
+}
 
 
 def diagnosis(a, work: Path, paper: Path, fig: dict, doc: dict) -> None:
@@ -403,25 +508,70 @@ def diagnosis(a, work: Path, paper: Path, fig: dict, doc: dict) -> None:
         timed(["run", "--noise", "flight-test", "--no-identify", "--quiet", "--out", str(paper), "--jobs", "2"])
     n = scaled_matrix(3, work / "x3.toml")
     x3 = work / "paper-x3"
-    fig[f"fly x3 ({n} points), 2 jobs"] = timed(["run", "--matrix", str(work / "x3.toml"), "--noise", "flight-test",
-                                                 "--no-identify", "--quiet", "--out", str(x3), "--jobs", "2"]).figures()
-    print("| diagnosis, 2 jobs (median of runs) | wall [s] | CPU [s] | main peak [MB] | largest worker peak [MB] | "
-          "main + workers peak [MB] | PSS [MB] | others' share of the cores |")
+    fig[f"fly x3 ({n} points), 2 jobs"] = timed(
+        [
+            "run",
+            "--matrix",
+            str(work / "x3.toml"),
+            "--noise",
+            "flight-test",
+            "--no-identify",
+            "--quiet",
+            "--out",
+            str(x3),
+            "--jobs",
+            "2",
+        ]
+    ).figures()
+    print(
+        "| diagnosis, 2 jobs (median of runs) | wall [s] | CPU [s] | main peak [MB] | largest worker peak [MB] | "
+        "main + workers peak [MB] | PSS [MB] | others' share of the cores |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name, (extra, scale) in DIAGNOSES.items():
         data = paper if scale == 1 else x3
         runs = []
         for k in range(a.repeat):
-            runs.append(timed(["diagnose", "--data", str(data), "--model", str(CODE[0] / "aircraft" / "737"),
-                               "--out", str(work / f"diag-{scale}-{len(extra)}-{k}"), "--quiet", "--jobs", "2"]
-                              + extra))
-        fig[name] = {**{k: sorted(getattr(r, k) for r in runs)[len(runs) // 2] for k in
-                        ("wall_s", "cpu_s", "main_mb", "worker_mb", "unique_mb", "sum_mb", "all_mb", "pss_mb",
-                         "others_busy")},
-                     "runs": [r.figures() for r in runs]}
+            runs.append(
+                timed(
+                    [
+                        "diagnose",
+                        "--data",
+                        str(data),
+                        "--model",
+                        str(CODE[0] / "aircraft" / "737"),
+                        "--out",
+                        str(work / f"diag-{scale}-{len(extra)}-{k}"),
+                        "--quiet",
+                        "--jobs",
+                        "2",
+                    ]
+                    + extra
+                )
+            )
+        fig[name] = {
+            **{
+                k: sorted(getattr(r, k) for r in runs)[len(runs) // 2]
+                for k in (
+                    "wall_s",
+                    "cpu_s",
+                    "main_mb",
+                    "worker_mb",
+                    "unique_mb",
+                    "sum_mb",
+                    "all_mb",
+                    "pss_mb",
+                    "others_busy",
+                )
+            },
+            "runs": [r.figures() for r in runs],
+        }
         f = fig[name]
-        print(f"| {name} | {f['wall_s']:.1f} | {f['cpu_s']:.1f} | {f['main_mb']:.0f} | {f['worker_mb']:.0f} | "
-              f"{f['sum_mb']:.0f} | {f['pss_mb']:.0f} | {f['others_busy']:.2f} |", flush=True)
+        print(
+            f"| {name} | {f['wall_s']:.1f} | {f['cpu_s']:.1f} | {f['main_mb']:.0f} | {f['worker_mb']:.0f} | "
+            f"{f['sum_mb']:.0f} | {f['pss_mb']:.0f} | {f['others_busy']:.2f} |",
+            flush=True,
+        )
     doc["stages"] = diagnose_stages(paper)
 
 
@@ -431,19 +581,39 @@ def scaled(a, work: Path, fig: dict) -> None:
     n = scaled_matrix(a.scale, matrix)
     ref = next((fig[k]["wall_s"] for k in ("fly (138 manoeuvres), 2 jobs",) if k in fig), None)
     print(f"\ncampaign x{a.scale}: {n} points, 2 jobs, flight-test profile")
-    print("| seed | fly [s] | identify [s] | fly + identify [s] | fly per point [ms] (paper matrix: "
-          f"{ref / 97 * 1000 if ref else float('nan'):.0f}) | main / worker peak [MB] |")
+    print(
+        "| seed | fly [s] | identify [s] | fly + identify [s] | fly per point [ms] (paper matrix: "
+        f"{ref / 97 * 1000 if ref else float('nan'):.0f}) | main / worker peak [MB] |"
+    )
     print("|---|---|---|---|---|---|")
     for seed in range(a.seeds):
         camp = work / f"scaled-{seed}"
-        fly = timed(["run", "--matrix", str(matrix), "--noise", "flight-test", "--seed", str(seed),
-                     "--no-identify", "--quiet", "--jobs", "2", "--out", str(camp)])
+        fly = timed(
+            [
+                "run",
+                "--matrix",
+                str(matrix),
+                "--noise",
+                "flight-test",
+                "--seed",
+                str(seed),
+                "--no-identify",
+                "--quiet",
+                "--jobs",
+                "2",
+                "--out",
+                str(camp),
+            ]
+        )
         ident = timed(["identify", str(camp), "--jobs", "2", "--plots", "none"])
         fig[f"x{a.scale} ({n} points) seed {seed}: fly, 2 jobs"] = fly.figures()
         fig[f"x{a.scale} ({n} points) seed {seed}: identify, 2 jobs"] = ident.figures()
-        print(f"| {seed} | {fly.wall_s:.1f} | {ident.wall_s:.1f} | {fly.wall_s + ident.wall_s:.1f} | "
-              f"{fly.wall_s / n * 1000:.0f} | {max(fly.main_mb, ident.main_mb):.0f} / "
-              f"{max(fly.worker_mb, ident.worker_mb):.0f} |", flush=True)
+        print(
+            f"| {seed} | {fly.wall_s:.1f} | {ident.wall_s:.1f} | {fly.wall_s + ident.wall_s:.1f} | "
+            f"{fly.wall_s / n * 1000:.0f} | {max(fly.main_mb, ident.main_mb):.0f} / "
+            f"{max(fly.worker_mb, ident.worker_mb):.0f} |",
+            flush=True,
+        )
         shutil.rmtree(camp, ignore_errors=True)
 
 

@@ -9,6 +9,7 @@ measures anything. ``mkdocs build`` runs :func:`write_docs` first (``docs/hooks.
 the results as they are on disk; the README's validation table is written between two marker lines and
 checked by the tests (``tests/test_product_text.py``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,8 +52,10 @@ def _source(doc: dict) -> str:
     """The provenance line under a table: the command, the commit and its date."""
     commit = doc.get("code_commit") or doc.get("recorded_at_commit")
     what = "code at commit" if "code_commit" in doc else "recorded at commit"
-    return (f"\n*Measured by `{doc['command']}`; {what} `{commit[:7]}` ({doc['date'][:10]}). "
-            f"Data: `benchmarks/results/`.*\n")
+    return (
+        f"\n*Measured by `{doc['command']}`; {what} `{commit[:7]}` ({doc['date'][:10]}). "
+        f"Data: `benchmarks/results/`.*\n"
+    )
 
 
 def current_ranges() -> list[dict]:
@@ -65,8 +68,10 @@ def current_ranges() -> list[dict]:
 def detection_headline() -> dict:
     """Hits from 3 and from 10 times the floor and false positives over the current ranges."""
     cur = current_ranges()
-    s = {k: sum(int(r[k]) for r in cur) for k in ("effects", "nulls", "false_positives", "effects_3_10",
-                                                  "hits_3_10", "effects_10_up", "hits_10_up")}
+    s = {
+        k: sum(int(r[k]) for r in cur)
+        for k in ("effects", "nulls", "false_positives", "effects_3_10", "hits_3_10", "effects_10_up", "hits_10_up")
+    }
     s["ranges"] = cur
     return s
 
@@ -74,8 +79,10 @@ def detection_headline() -> dict:
 def validation_table() -> str:
     """The README's one table: what the tool has been validated on."""
     d = detection_headline()
-    seeds = ", ".join(f"{int(r['seed_first']):,}-{int(r['seed_first']) + int(r['effects']) + int(r['nulls']) - 1:,}"
-                      for r in d["ranges"])
+    seeds = ", ".join(
+        f"{int(r['seed_first']):,}-{int(r['seed_first']) + int(r['effects']) + int(r['nulls']) - 1:,}"
+        for r in d["ranges"]
+    )
     ident = _json("identification_accuracy.json")
     ee = next(r for r in ident["rows"] if r["method"] == "equation error" and r["data"].startswith("flight-test"))
     est = _json("estimators_flight_data.json")
@@ -87,31 +94,66 @@ def validation_table() -> str:
     gain = _json("replay_gain.json")
     share = [r["gain"] / r["truth_gain"] for r in gain["rows"]]
     rows = [
-        ["Hidden effects the diagnosis was not built against, 10 times the noise floor or more: first cause right",
-         f"{d['effects']} random effects in our 737, the stock 737 and A320 (seeds {seeds})",
-         _pct(d["hits_10_up"], d["effects_10_up"]), "`benchmarks/detection_curve.py`"],
-        ["... 3 to 10 times the noise floor", "the same", _pct(d["hits_3_10"], d["effects_3_10"]),
-         "`benchmarks/detection_curve.py`"],
-        ["Null flights (no effect) that name a cause", f"{d['nulls']} nulls, the same aircraft",
-         f"{d['false_positives']} of {d['nulls']}", "`benchmarks/detection_curve.py`"],
-        ["Sensor faults named first, nothing aerodynamic invented", "our 737, 5 fault kinds x 4 seeds",
-         f"{sensor['count']} of {sensor['of']}", "`benchmarks/diagnosis_hit_rate.py`"],
-        ["Replay gain of the extension over the gain of the true model (1: the best any extension can do)",
-         f"{len(gain['rows'])} hidden-effect cases", f"{min(share):.2f} to {max(share):.2f}", "`benchmarks/replay_gain.py`"],
-        ["Derivatives by equation error in turbulence, RMS error against the XML", "97 2-3-1-1s, paper matrix",
-         f"CLalpha {ee['CLalpha']} %, Cmalpha {ee['Cmalpha']} %, Cmq {ee['Cmq']} %",
-         "`benchmarks/identification_accuracy.py --methods`"],
-        ["Output error on real flight data (ATTAS), against the published estimates", "2 elevator records",
-         f"within {worst(attas):.3f} %", "`tests/test_estimators.py`"],
-        ["Filter error on real flight data in turbulence (HFB-320)", "1 record",
-         f"within {worst(hfb):.1f} % (4 main derivatives)", "`tests/test_estimators.py`"],
+        [
+            "Hidden effects the diagnosis was not built against, 10 times the noise floor or more: first cause right",
+            f"{d['effects']} random effects in our 737, the stock 737 and A320 (seeds {seeds})",
+            _pct(d["hits_10_up"], d["effects_10_up"]),
+            "`benchmarks/detection_curve.py`",
+        ],
+        [
+            "... 3 to 10 times the noise floor",
+            "the same",
+            _pct(d["hits_3_10"], d["effects_3_10"]),
+            "`benchmarks/detection_curve.py`",
+        ],
+        [
+            "Null flights (no effect) that name a cause",
+            f"{d['nulls']} nulls, the same aircraft",
+            f"{d['false_positives']} of {d['nulls']}",
+            "`benchmarks/detection_curve.py`",
+        ],
+        [
+            "Sensor faults named first, nothing aerodynamic invented",
+            "our 737, 5 fault kinds x 4 seeds",
+            f"{sensor['count']} of {sensor['of']}",
+            "`benchmarks/diagnosis_hit_rate.py`",
+        ],
+        [
+            "Replay gain of the extension over the gain of the true model (1: the best any extension can do)",
+            f"{len(gain['rows'])} hidden-effect cases",
+            f"{min(share):.2f} to {max(share):.2f}",
+            "`benchmarks/replay_gain.py`",
+        ],
+        [
+            "Derivatives by equation error in turbulence, RMS error against the XML",
+            "97 2-3-1-1s, paper matrix",
+            f"CLalpha {ee['CLalpha']} %, Cmalpha {ee['Cmalpha']} %, Cmq {ee['Cmq']} %",
+            "`benchmarks/identification_accuracy.py --methods`",
+        ],
+        [
+            "Output error on real flight data (ATTAS), against the published estimates",
+            "2 elevator records",
+            f"within {worst(attas):.3f} %",
+            "`tests/test_estimators.py`",
+        ],
+        [
+            "Filter error on real flight data in turbulence (HFB-320)",
+            "1 record",
+            f"within {worst(hfb):.1f} % (4 main derivatives)",
+            "`tests/test_estimators.py`",
+        ],
     ]
     if (RESULTS / "bad_input_sweep.json").exists():
         bad = _json("bad_input_sweep.json")
-        rows.append(["Bad input refused in one line naming the file and field, exit code 2, nothing on disk changed",
-                     f"{bad['inputs_tried']:,} generated bad matrices, maps, data files, instrument profiles, "
-                     f"overlays and command lines", f"{bad['clean']:,} of {bad['inputs_tried']:,}, "
-                     f"{bad['tracebacks']} tracebacks", "`benchmarks/bad_input_sweep.py`"])
+        rows.append(
+            [
+                "Bad input refused in one line naming the file and field, exit code 2, nothing on disk changed",
+                f"{bad['inputs_tried']:,} generated bad matrices, maps, data files, instrument profiles, "
+                f"overlays and command lines",
+                f"{bad['clean']:,} of {bad['inputs_tried']:,}, {bad['tracebacks']} tracebacks",
+                "`benchmarks/bad_input_sweep.py`",
+            ]
+        )
     return _table(["what", "on", "result", "measured by"], rows)
 
 
@@ -125,23 +167,55 @@ def detection_page() -> str:
     for b in BANDS:
         sel = [r for r in bands if r["seed_first"] in cur and r["band"] == b]
         e, h = sum(int(r["effects"]) for r in sel), sum(int(r["hits"]) for r in sel)
-        rows.append([b, e, h, f"{100 * h / e:.0f} %" if e else "-",
-                     sum(int(r["invented"]) for r in sel), sum(int(r["strong_rejected"]) for r in sel)])
-    out.append(_table(["size / floor", "effects", "hits", "hit rate", "invented causes",
-                       "strong candidates rejected"], rows))
+        rows.append(
+            [
+                b,
+                e,
+                h,
+                f"{100 * h / e:.0f} %" if e else "-",
+                sum(int(r["invented"]) for r in sel),
+                sum(int(r["strong_rejected"]) for r in sel),
+            ]
+        )
+    out.append(
+        _table(["size / floor", "effects", "hits", "hit rate", "invented causes", "strong candidates rejected"], rows)
+    )
     out.append(f"\nFalse positives: {d['false_positives']} of {d['nulls']} null flights.\n")
     first = d["ranges"][-1]
-    out.append(f"\n*Measured by `{first['command']}` (and the same for each range); code at commits "
-               + ", ".join(f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})" for r in d["ranges"])
-               + ". Data: `benchmarks/results/detection_curve_bands.csv`.*\n")
+    out.append(
+        f"\n*Measured by `{first['command']}` (and the same for each range); code at commits "
+        + ", ".join(f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})" for r in d["ranges"])
+        + ". Data: `benchmarks/results/detection_curve_bands.csv`.*\n"
+    )
     out.append("\n### Every range, at the code it was flown with\n\n")
-    rows = [[f"{int(r['seed_first']):,}", f"{r['effects']}, {r['nulls']}", r["conditions_per_case"],
-             r["shapes_drawn_on"], _pct(int(r["hits_3_10"]), int(r["effects_3_10"])),
-             _pct(int(r["hits_10_up"]), int(r["effects_10_up"])), r["false_positives"],
-             f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})"]
-            for r in _csv("detection_curve_ranges.csv")]
-    out.append(_table(["first seed", "effects, nulls", "conditions per case", "shapes drawn on", "3-10 x floor",
-                       "10 x floor and more", "false positives", "code"], rows))
+    rows = [
+        [
+            f"{int(r['seed_first']):,}",
+            f"{r['effects']}, {r['nulls']}",
+            r["conditions_per_case"],
+            r["shapes_drawn_on"],
+            _pct(int(r["hits_3_10"]), int(r["effects_3_10"])),
+            _pct(int(r["hits_10_up"]), int(r["effects_10_up"])),
+            r["false_positives"],
+            f"`{r['code_commit'][:7]}` ({r['code_date'][:10]})",
+        ]
+        for r in _csv("detection_curve_ranges.csv")
+    ]
+    out.append(
+        _table(
+            [
+                "first seed",
+                "effects, nulls",
+                "conditions per case",
+                "shapes drawn on",
+                "3-10 x floor",
+                "10 x floor and more",
+                "false positives",
+                "code",
+            ],
+            rows,
+        )
+    )
     out.append("\n*Data: `benchmarks/results/detection_curve_ranges.csv` (with the command of each range).*\n")
     return "".join(out)
 
@@ -158,8 +232,13 @@ def detection_figure(path: Path) -> None:
     for seed in dict.fromkeys(r["seed_first"] for r in bands):
         sel = {r["band"]: r for r in bands if r["seed_first"] == seed}
         ax.plot(x, [100 * int(sel[b]["hits"]) / int(sel[b]["effects"]) for b in BANDS], color="0.8", lw=1)
-    tot = [(sum(int(r["hits"]) for r in bands if r["seed_first"] in cur and r["band"] == b),
-            sum(int(r["effects"]) for r in bands if r["seed_first"] in cur and r["band"] == b)) for b in BANDS]
+    tot = [
+        (
+            sum(int(r["hits"]) for r in bands if r["seed_first"] in cur and r["band"] == b),
+            sum(int(r["effects"]) for r in bands if r["seed_first"] in cur and r["band"] == b),
+        )
+        for b in BANDS
+    ]
     ax.plot(x, [100 * h / e for h, e in tot], "o-", color="k", lw=2, label="present decisions")
     ax.plot([], [], color="0.8", lw=1, label="each range at its code")
     ax.set_xticks(list(x), [f"{b} x" for b in BANDS])
@@ -180,17 +259,29 @@ def methods_page() -> str:
         if c not in r:
             return "-"
         return f"{r[c]} ({r[c + '_points']} points)" if c + "_points" in r else r[c]
-    rows = [[r["data"], r["method"], r.get("converged", "-"), *[cell(r, c) for c in cols], r["s_per_point"]]
-            for r in doc["rows"]]
+
+    rows = [
+        [r["data"], r["method"], r.get("converged", "-"), *[cell(r, c) for c in cols], r["s_per_point"]]
+        for r in doc["rows"]
+    ]
     out = _table(["data", "method", "converged", *cols, "s / point"], rows) + _source(doc)
     out += f"\n{doc['setup']}. {doc['caveat'][0].upper() + doc['caveat'][1:]}.\n"
-    out += "\nShare of estimates within 3 coloured standard errors of the XML, flight-test profile: " + ", ".join(
-        f"{k} {v}" for k, v in doc["within_3_coloured_se"].items()) + ".\n"
+    out += (
+        "\nShare of estimates within 3 coloured standard errors of the XML, flight-test profile: "
+        + ", ".join(f"{k} {v}" for k, v in doc["within_3_coloured_se"].items())
+        + ".\n"
+    )
     return out
 
 
-SYMBOL = {"Z_alpha_per_s": "Z_alpha", "Z_q": "Z_q", "Z_de_per_s": "Z_de", "M_alpha_per_s2": "M_alpha",
-          "M_q_per_s": "M_q", "M_de_per_s2": "M_de"}
+SYMBOL = {
+    "Z_alpha_per_s": "Z_alpha",
+    "Z_q": "Z_q",
+    "Z_de_per_s": "Z_de",
+    "M_alpha_per_s2": "M_alpha",
+    "M_q_per_s": "M_q",
+    "M_de_per_s2": "M_de",
+}
 
 
 def _cli_result(r: dict) -> str:
@@ -203,9 +294,11 @@ def _cli_result(r: dict) -> str:
     if ref is None or r["method"] == "ee" and ref != "published_fe":
         return values if r["record"] != "ATTAS" else f"{values} (nothing published in these terms)"
     worst = max(abs(v["ours"] / v[ref] - 1) for v in d.values() if v["ours"] is not None) * 100
-    against = {"published_fe": "the published filter-error estimates",
-               "independent_oe": "an output-error run of the data set's own model",
-               "published_oe": "the published output-error estimates"}[ref]
+    against = {
+        "published_fe": "the published filter-error estimates",
+        "independent_oe": "an output-error run of the data set's own model",
+        "published_oe": "the published output-error estimates",
+    }[ref]
     return f"{values}: within {worst:.2g} % of {against}"
 
 
@@ -222,10 +315,16 @@ def methods_table() -> str:
 
 def estimators_page() -> str:
     doc = _json("estimators_flight_data.json")
-    rows = [[r["check"], r["parameter"], r["published"], r["ours"], f"{100 * (r['ours'] / r['published'] - 1):+.3g} %"]
-            for r in doc["rows"]]
-    return (_table(["record, method", "parameter", "published", "ours", "difference"], rows) + _source(doc)
-            + "".join(f"\n- {n}." for n in doc["notes"]) + "\n")
+    rows = [
+        [r["check"], r["parameter"], r["published"], r["ours"], f"{100 * (r['ours'] / r['published'] - 1):+.3g} %"]
+        for r in doc["rows"]
+    ]
+    return (
+        _table(["record, method", "parameter", "published", "ours", "difference"], rows)
+        + _source(doc)
+        + "".join(f"\n- {n}." for n in doc["notes"])
+        + "\n"
+    )
 
 
 def hit_rate_page() -> str:
@@ -234,53 +333,86 @@ def hit_rate_page() -> str:
     out += _source(doc) + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n"
     fl = doc["detection_floors"]
     out += f"\nDetection floors ({fl['setup']}): " + ", ".join(f"{s['error']} {s['floor']}" for s in fl["sensor"])
-    out += "; hidden aerodynamic effects down to " + ", ".join(
-        f"{a['floor']} ({a['family']})" for a in fl["aero_times_drawn_size"]) + " times their drawn size.\n"
+    out += (
+        "; hidden aerodynamic effects down to "
+        + ", ".join(f"{a['floor']} ({a['family']})" for a in fl["aero_times_drawn_size"])
+        + " times their drawn size.\n"
+    )
     return out
 
 
 def replay_gain_page() -> str:
     doc = _json("replay_gain.json")
-    rows = [[r["effect"], r["size_over_floor"], r["moved_most"], f"x{r['gain']:.3g}", f"x{r['truth_gain']:.3g}"]
-            for r in doc["rows"]]
-    return (_table(["hidden effect", "size / floor", "moved most", "gain", "the truth's gain"], rows)
-            + _source(doc) + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n")
+    rows = [
+        [r["effect"], r["size_over_floor"], r["moved_most"], f"x{r['gain']:.3g}", f"x{r['truth_gain']:.3g}"]
+        for r in doc["rows"]
+    ]
+    return (
+        _table(["hidden effect", "size / floor", "moved most", "gain", "the truth's gain"], rows)
+        + _source(doc)
+        + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n"
+    )
 
 
 def multisine_page() -> str:
     doc = _json("multisine_information.json")
-    rows = [[r["derivative"], f"{r['predicted'][0]}-{r['predicted'][1]}", f"{r['realized'][0]}-{r['realized'][1]}"]
-            for r in doc["rows"]]
-    return (_table(["derivative", "predicted", "realized"], rows) + _source(doc)
-            + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n")
+    rows = [
+        [r["derivative"], f"{r['predicted'][0]}-{r['predicted'][1]}", f"{r['realized'][0]}-{r['realized'][1]}"]
+        for r in doc["rows"]
+    ]
+    return (
+        _table(["derivative", "predicted", "realized"], rows)
+        + _source(doc)
+        + f"\n{doc['setup'][0].upper() + doc['setup'][1:]}.\n"
+    )
 
 
 def plan_page() -> str:
     p, t = _json("plan_separation.json"), _json("turn_airspeed.json")
     r = p["results"]
-    out = _table(["", ""], [
-        ["cases", r["cases"]], ["an open rival before the plan", r["open_rival_before"]],
-        ["the rival's separation before [standard errors]", f"{r['rival_separation_before_se'][0]} to {r['rival_separation_before_se'][1]}"],
-        ["the plan", r["plan"]], ["right cause first after", f"{r['right_cause_first_after']} of {r['open_rival_before']}"],
-        ["rival settled after (5 standard errors)", f"{r['settled_after']} of {r['open_rival_before']}"],
-        ["separation after [standard errors]", f"{r['separation_after_se'][0]} to {r['separation_after_se'][1]}"],
-        ["planned separation [standard errors]", f"{r['planned_se'][0]} to {r['planned_se'][1]}"],
-        ["measured / planned", f"{r['measured_over_planned'][0]} to {r['measured_over_planned'][1]} "
-                               f"(mean {r['measured_over_planned_mean']})"]])
+    out = _table(
+        ["", ""],
+        [
+            ["cases", r["cases"]],
+            ["an open rival before the plan", r["open_rival_before"]],
+            [
+                "the rival's separation before [standard errors]",
+                f"{r['rival_separation_before_se'][0]} to {r['rival_separation_before_se'][1]}",
+            ],
+            ["the plan", r["plan"]],
+            ["right cause first after", f"{r['right_cause_first_after']} of {r['open_rival_before']}"],
+            ["rival settled after (5 standard errors)", f"{r['settled_after']} of {r['open_rival_before']}"],
+            ["separation after [standard errors]", f"{r['separation_after_se'][0]} to {r['separation_after_se'][1]}"],
+            ["planned separation [standard errors]", f"{r['planned_se'][0]} to {r['planned_se'][1]}"],
+            [
+                "measured / planned",
+                f"{r['measured_over_planned'][0]} to {r['measured_over_planned'][1]} "
+                f"(mean {r['measured_over_planned_mean']})",
+            ],
+        ],
+    )
     out += _source(p) + f"\n{p['setup'][0].upper() + p['setup'][1:]}.\n"
     tr = t["results"]
-    out += (f"\n**Airspeed error from a level turn.** {t['setup'][0].upper() + t['setup'][1:]}. With no error hidden "
-            f"({tr['null_seeds']} seeds) the error came out between {tr['null_error_kt'][0]} and +{tr['null_error_kt'][1]} kt, "
-            f"at {tr['null_z'][0]} to +{tr['null_z'][1]} standard errors (RMS {tr['null_z_rms']}: the standard error is "
-            f"about that much too small); with a 3 % scale hidden it came out {tr['scale_3pct_error_from_truth_kt'][0]} to "
-            f"{tr['scale_3pct_error_from_truth_kt'][1]} kt from the truth.\n" + _source(t))
+    out += (
+        f"\n**Airspeed error from a level turn.** {t['setup'][0].upper() + t['setup'][1:]}. With no error hidden "
+        f"({tr['null_seeds']} seeds) the error came out between {tr['null_error_kt'][0]} and +{tr['null_error_kt'][1]} kt, "
+        f"at {tr['null_z'][0]} to +{tr['null_z'][1]} standard errors (RMS {tr['null_z_rms']}: the standard error is "
+        f"about that much too small); with a 3 % scale hidden it came out {tr['scale_3pct_error_from_truth_kt'][0]} to "
+        f"{tr['scale_3pct_error_from_truth_kt'][1]} kt from the truth.\n" + _source(t)
+    )
     return out
 
 
 SPEED = RESULTS / "speed"
 #: The stages speed_table.py times with 1 and 2 jobs, in the order of the table.
-STAGES = ("fly (138 manoeuvres)", "identify", "replay", "plots (redrawn)", "run: fly through plots",
-          "diagnose (full matrix)")
+STAGES = (
+    "fly (138 manoeuvres)",
+    "identify",
+    "replay",
+    "plots (redrawn)",
+    "run: fly through plots",
+    "diagnose (full matrix)",
+)
 #: The diagnoses speed_table.py times with 2 jobs, each the median of its runs.
 DIAGNOSES = ("diagnose, no plots", "diagnose, key plots", "diagnose x3 (291 points), no plots")
 
@@ -294,10 +426,12 @@ def speed_results() -> list[dict]:
 
 def _speed_source(docs: list[dict]) -> str:
     """The provenance line under a speed table: each result's command, commit, date and machine."""
+
     def one(d: dict) -> str:
         m = d.get("machine", {})
         where = f", {m['cpu']}, {m['cores']} cores" if "cpu" in m else ""
         return f"`{d['command']}`, code at commit `{d['code_commit'][:7]}`, measured {d['date'][:10]}{where}"
+
     return "\n*Measured by " + "; and by ".join(one(d) for d in docs) + ". Data: `benchmarks/results/speed/`.*\n"
 
 
@@ -313,13 +447,36 @@ def speed_page() -> str:
         rows = []
         for name in STAGES:
             one, two = st["figures"].get(f"{name}, 1 job", {}), st["figures"].get(f"{name}, 2 jobs", {})
-            rows.append([name, _num(one.get("wall_s")), _num(two.get("wall_s")),
-                         f"x{one['wall_s'] / two['wall_s']:.2f}" if one and two else "-", _num(two.get("cpu_s")),
-                         _num(two.get("main_mb"), ".0f"), _num(two.get("worker_mb"), ".0f"),
-                         _num(two.get("unique_mb"), ".0f"), _num(two.get("sum_mb"), ".0f")])
-        out.append(_table(["stage (paper matrix, flight-test profile)", "1 job [s]", "2 jobs [s]", "speed-up",
-                           "CPU, 2 jobs [s]", "main peak [MB]", "worker peak [MB]", "worker USS [MB]",
-                           "main + workers peak [MB]"], rows) + _speed_source([st]))
+            rows.append(
+                [
+                    name,
+                    _num(one.get("wall_s")),
+                    _num(two.get("wall_s")),
+                    f"x{one['wall_s'] / two['wall_s']:.2f}" if one and two else "-",
+                    _num(two.get("cpu_s")),
+                    _num(two.get("main_mb"), ".0f"),
+                    _num(two.get("worker_mb"), ".0f"),
+                    _num(two.get("unique_mb"), ".0f"),
+                    _num(two.get("sum_mb"), ".0f"),
+                ]
+            )
+        out.append(
+            _table(
+                [
+                    "stage (paper matrix, flight-test profile)",
+                    "1 job [s]",
+                    "2 jobs [s]",
+                    "speed-up",
+                    "CPU, 2 jobs [s]",
+                    "main peak [MB]",
+                    "worker peak [MB]",
+                    "worker USS [MB]",
+                    "main + workers peak [MB]",
+                ],
+                rows,
+            )
+            + _speed_source([st])
+        )
         ratio = st["figures"].get("flying loop / raw fdm.run()", {}).get("ratio")
         if ratio is not None:
             out.append(f"\nThe flying loop steps at {ratio:.2f} of raw `fdm.run()` (`benchmarks/stepping.py`).\n")
@@ -328,24 +485,46 @@ def speed_page() -> str:
         head = ["the diagnosis, 2 jobs (median of the runs)"]
         for d in diag:
             head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]", "main + workers peak [MB]", "PSS [MB]"]
-        rows = [[name] + [x for d in diag for x in (_num(d["figures"].get(name, {}).get("wall_s")),
-                                                      _num(d["figures"].get(name, {}).get("cpu_s")),
-                                                      _num(d["figures"].get(name, {}).get("sum_mb"), ".0f"),
-                                                      _num(d["figures"].get(name, {}).get("pss_mb"), ".0f"))]
-                for name in DIAGNOSES]
+        rows = [
+            [name]
+            + [
+                x
+                for d in diag
+                for x in (
+                    _num(d["figures"].get(name, {}).get("wall_s")),
+                    _num(d["figures"].get(name, {}).get("cpu_s")),
+                    _num(d["figures"].get(name, {}).get("sum_mb"), ".0f"),
+                    _num(d["figures"].get(name, {}).get("pss_mb"), ".0f"),
+                )
+            ]
+            for name in DIAGNOSES
+        ]
         busy = [d["figures"][DIAGNOSES[0]].get("others_busy") for d in diag]
-        out.append("\n" + _table(head, rows) + "\nOther work on the machine took "
-                   + " and ".join(f"{100 * b:.0f} %" for b in busy if b is not None)
-                   + " of its cores meanwhile (the CPU-seconds are the diagnosis's own: its processes'). The peak "
-                   "is each process's high-water mark summed over the main process and its workers: each counts "
-                   "the 200 MB a process holds once it has imported numpy, scipy, pandas and JSBSim, most of it "
-                   "shared with the others; PSS counts a shared page once over the processes.\n")
+        out.append(
+            "\n"
+            + _table(head, rows)
+            + "\nOther work on the machine took "
+            + " and ".join(f"{100 * b:.0f} %" for b in busy if b is not None)
+            + " of its cores meanwhile (the CPU-seconds are the diagnosis's own: its processes'). The peak "
+            "is each process's high-water mark summed over the main process and its workers: each counts "
+            "the 200 MB a process holds once it has imported numpy, scipy, pandas and JSBSim, most of it "
+            "shared with the others; PSS counts a shared page once over the processes.\n"
+        )
         staged = [d for d in diag if d.get("stages")]
         if staged:
             names = list(staged[-1]["stages"]["stages"])
-            rows = [[n] + [x for d in staged for x in (_num(d["stages"]["stages"].get(n, {}).get("wall_s"), ".2f"),
-                                                       _num(d["stages"]["stages"].get(n, {}).get("cpu_s"), ".2f"))]
-                    for n in names]
+            rows = [
+                [n]
+                + [
+                    x
+                    for d in staged
+                    for x in (
+                        _num(d["stages"]["stages"].get(n, {}).get("wall_s"), ".2f"),
+                        _num(d["stages"]["stages"].get(n, {}).get("cpu_s"), ".2f"),
+                    )
+                ]
+                for n in names
+            ]
             head = ["stage of the diagnosis (paper matrix, 2 jobs, key plots)"]
             for d in staged:
                 head += [f"`{d['code_commit'][:7]}` wall [s]", "CPU [s]"]
@@ -357,30 +536,51 @@ def speed_page() -> str:
         fly_ref = scaled["figures"].get(f"{STAGES[0]}, 2 jobs", {}).get("wall_s")
         rows = []
         for sd in seeds:
-            of = {k.split(": ")[1]: v for k, v in scaled["figures"].items() if k.startswith("x10 ")
-                  and k.split(": ")[0].endswith(f"seed {sd}")}
+            of = {
+                k.split(": ")[1]: v
+                for k, v in scaled["figures"].items()
+                if k.startswith("x10 ") and k.split(": ")[0].endswith(f"seed {sd}")
+            }
             fly, ident = of["fly, 2 jobs"], of["identify, 2 jobs"]
             rows.append([sd, _num(fly["wall_s"]), _num(ident["wall_s"]), f"{fly['wall_s'] / 970 * 1000:.0f}"])
-        out.append("\n**Ten times the points** (each paper point at 10 altitudes 150 ft apart, 970 points, 2 jobs, "
-                   "one run per noise seed" + (f"; the paper matrix flies {fly_ref / 97 * 1000:.0f} ms a point"
-                                              if fly_ref else "") + "):\n\n"
-                   + _table(["seed", "fly [s]", "identify [s]", "fly per point [ms]"], rows) + _speed_source([scaled]))
+        out.append(
+            "\n**Ten times the points** (each paper point at 10 altitudes 150 ft apart, 970 points, 2 jobs, "
+            "one run per noise seed"
+            + (f"; the paper matrix flies {fly_ref / 97 * 1000:.0f} ms a point" if fly_ref else "")
+            + "):\n\n"
+            + _table(["seed", "fly [s]", "identify [s]", "fly per point [ms]"], rows)
+            + _speed_source([scaled])
+        )
     c = _json("scale_identify.json")
     r = c["results"]
     peak = r["identify_main_peak_mb"]
-    out.append(f"\n**A hundred times the points** ({c['setup']}): flying {r['fly_s']} s ({r['fly_per_point_ms']} ms "
-               f"a point; {r['points_flown']:,} flew, {r['points_failed']} failed: {r['failed_because']}); "
-               f"identification {r['identify_s']} s, main process peak {peak[0]}-{peak[1]} MB.\n" + _source(c))
+    out.append(
+        f"\n**A hundred times the points** ({c['setup']}): flying {r['fly_s']} s ({r['fly_per_point_ms']} ms "
+        f"a point; {r['points_flown']:,} flew, {r['points_failed']} failed: {r['failed_because']}); "
+        f"identification {r['identify_s']} s, main process peak {peak[0]}-{peak[1]} MB.\n" + _source(c)
+    )
     rs = _json("report_speed.json")
-    out.append("\n**The HTML report**: " + "; ".join(f"{r['folder']}: {r['size_mb']} MB written in {r['write_s']} s"
-                                                    for r in rs["rows"]) + ".\n" + _source(rs))
+    out.append(
+        "\n**The HTML report**: "
+        + "; ".join(f"{r['folder']}: {r['size_mb']} MB written in {r['write_s']} s" for r in rs["rows"])
+        + ".\n"
+        + _source(rs)
+    )
     return "".join(out)
 
 
-PAGES = {"validation-summary.md": validation_table, "detection.md": detection_page, "methods.md": methods_page,
-         "estimators-cli.md": methods_table,
-         "estimators.md": estimators_page, "hit-rate.md": hit_rate_page, "replay-gain.md": replay_gain_page,
-         "multisine.md": multisine_page, "plan.md": plan_page, "speed.md": speed_page}
+PAGES = {
+    "validation-summary.md": validation_table,
+    "detection.md": detection_page,
+    "methods.md": methods_page,
+    "estimators-cli.md": methods_table,
+    "estimators.md": estimators_page,
+    "hit-rate.md": hit_rate_page,
+    "replay-gain.md": replay_gain_page,
+    "multisine.md": multisine_page,
+    "plan.md": plan_page,
+    "speed.md": speed_page,
+}
 
 
 def readme_with_table(text: str) -> str:
@@ -389,7 +589,7 @@ def readme_with_table(text: str) -> str:
         head, sep, rest = text.partition(begin)
         if not sep or end not in rest:
             raise SystemExit(f"{README}: the marker lines of {begin[5:-4]!r} are missing")
-        text = head + begin + "\n" + make() + rest[rest.index(end):]
+        text = head + begin + "\n" + make() + rest[rest.index(end) :]
     return text
 
 
@@ -420,8 +620,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         text = README.read_text()
         if readme_with_table(text) != text:
-            print(f"{README}: the validation table differs from benchmarks/results/ "
-                  "(run python benchmarks/tables.py)", file=sys.stderr)
+            print(
+                f"{README}: the validation table differs from benchmarks/results/ (run python benchmarks/tables.py)",
+                file=sys.stderr,
+            )
             return 1
         return 0
     write()

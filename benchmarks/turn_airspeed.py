@@ -7,6 +7,7 @@ the scale at one speed) against the truth, and its standard error.
 
     python benchmarks/turn_airspeed.py --seeds 2 3 4 5
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,8 +27,9 @@ from campaign.validation.support import TURN_MATRIX as MATRIX, run_matrix  # noq
 def one(root: Path, scale: float, sigma: float, seed: int) -> tuple[float, float, float]:
     """(estimate, standard error, truth) of the airspeed error along the turn's track [kt]."""
     prof = root / "p.toml"
-    prof.write_text(f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma}\n'
-                    f'[channels.tas_kt]\nscale = {1.0 + scale}\n')
+    prof.write_text(
+        f'extends = "flight-test"\n[turbulence]\nsigma_fps = {sigma}\n[channels.tas_kt]\nscale = {1.0 + scale}\n'
+    )
     logs = load_data(run_matrix(root, MATRIX, str(DEFAULT_AIRCRAFT), noise=str(prof), seed=seed))
     turn = next(lg for lg in logs if lg.maneuver == "level_turn").read()
     tas = float(np.median(turn.data.tas_kt)) / (1.0 + scale)

@@ -11,6 +11,7 @@ none, the settings' ``default_accuracy`` does: the noise of each channel is the 
 specification and its estimate, and every bias, scale factor and delay the data compatibility did not
 measure may be as large as specified (``reach_se`` standard errors of the reach).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -51,8 +52,9 @@ class Instrumentation:
                 out[ch] = max(out[ch], float(s["noise"]))
         return out
 
-    def unmeasured(self, measured: list[tuple[str, str]], present: set[str], reach_se: float
-                   ) -> tuple[list[tuple[str, str]], np.ndarray]:
+    def unmeasured(
+        self, measured: list[tuple[str, str]], present: set[str], reach_se: float
+    ) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The specified instrument errors the data compatibility did not measure, as (channel, error), and a
         diagonal covariance that puts the specified bound at ``reach_se`` standard errors.
 
@@ -83,19 +85,25 @@ class Instrumentation:
     def text(self) -> str:
         """One sentence for the report."""
         if self.source == "estimated":
-            return ("estimated from the logs (each channel's white noise from its second differences; the "
-                    "instrument errors the data compatibility left uncertain): logs a campaign flew")
+            return (
+                "estimated from the logs (each channel's white noise from its second differences; the "
+                "instrument errors the data compatibility left uncertain): logs a campaign flew"
+            )
         parts = []
         if self.declared:
             parts.append(f"declared in the import map for {', '.join(self.declared)}")
         rest = sorted(set(self.spec) - set(self.declared))
         if rest:
             which = "every channel" if not self.declared else ", ".join(rest)
-            parts.append(f"the stated default for measured data for {which} (no [accuracy] in the import map; "
-                         f"DiagnosisSettings.default_accuracy)")
-        return ("; ".join(parts) + ": the noise floor draws each channel's noise at the larger of its specification "
-                "and the logs' estimate, and the instrument errors' reach takes every bias, scale factor and delay "
-                "the data compatibility did not measure to be as large as specified")
+            parts.append(
+                f"the stated default for measured data for {which} (no [accuracy] in the import map; "
+                f"DiagnosisSettings.default_accuracy)"
+            )
+        return (
+            "; ".join(parts) + ": the noise floor draws each channel's noise at the larger of its specification "
+            "and the logs' estimate, and the instrument errors' reach takes every bias, scale factor and delay "
+            "the data compatibility did not measure to be as large as specified"
+        )
 
 
 def instrumentation(logs) -> Instrumentation:
@@ -118,5 +126,5 @@ def instrumentation(logs) -> Instrumentation:
     present = set().union(*(set(lg.data.columns) for lg in measured))
     default = {ch: dict(s) for ch, s in current().default_accuracy.items() if ch in present and ch not in declared}
     spec = {**default, **declared}
-    source = ("declared and default" if declared and default else "declared" if declared else "default")
+    source = "declared and default" if declared and default else "declared" if declared else "default"
     return Instrumentation(source, spec, tuple(sorted(declared)))

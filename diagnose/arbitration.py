@@ -3,6 +3,7 @@ chosen by the aerodynamic residuals, the vanes' delays timed by them, a loosely 
 error refined by them, and the corrections made named as sensor causes with their verdict. The
 thresholds (``corroborated_gain``, ``refined_worse``, ``agree_*``, ``sensor_*``) are
 :class:`diagnose.config.DiagnosisSettings`', read from :func:`diagnose.config.current`."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -41,19 +42,25 @@ def arbitrate(compat: CompatResult, data: Corrected, channels: set[str] | None =
     for p in compat.undecided:
         if channels is not None and p.channel not in channels:
             continue
-        g = next((g for g in groups if p.confounded_with in {q.name for q in g}
-                  or p.name in {q.confounded_with for q in g}), None)
+        g = next(
+            (g for g in groups if p.confounded_with in {q.name for q in g} or p.name in {q.confounded_with for q in g}),
+            None,
+        )
         g.append(p) if g is not None else groups.append([p])
     for g in groups:
         tried = [(p, *_trial(compat, compat.choose(p.name, "trial"), data)) for p in g]
         best = max(tried, key=lambda t: _score(t[2]))
         for p, c, gains in tried:
-            why = (f"the kinematics cannot tell it from {p.confounded_with}" if p.confounded_with else
-                   f"{p.z:.1f} standard errors from the kinematics")
+            why = (
+                f"the kinematics cannot tell it from {p.confounded_with}"
+                if p.confounded_with
+                else f"{p.z:.1f} standard errors from the kinematics"
+            )
             way = _agrees(gains) if p is best[0] else ""
             if way:
-                compat = compat.choose(p.name, f"{why}; the {c} residual agrees: {_said(gains)}",
-                                       beside_aero=way != "as is")
+                compat = compat.choose(
+                    p.name, f"{why}; the {c} residual agrees: {_said(gains)}", beside_aero=way != "as is"
+                )
             else:
                 compat = compat.note(p.name, f"{why}; the {c} residual does not choose it ({_said(gains)})")
     return compat
@@ -86,7 +93,7 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
     c = max(COEFFS, key=lambda k: float(np.max(np.abs(after[f"r_{k}"].to_numpy() - before[f"r_{k}"].to_numpy()))))
 
     def ratio(a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(a ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+        return float(np.sqrt(np.mean(a**2)) / max(np.sqrt(np.mean(b**2)), 1e-300))
 
     def search(frame: pd.DataFrame):
         return stepwise(frame, c, candidate_terms(frame, c))
@@ -94,8 +101,9 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
     def left(res, frame: pd.DataFrame) -> np.ndarray | None:
         return None if frame is None else frame[f"r_{c}"].to_numpy() - res.predict(frame)
 
-    fit_before = data.once(("search beside aero terms", compat.correction_key(), c),
-                           lambda: search(before))  # every trial of one correction
+    fit_before = data.once(
+        ("search beside aero terms", compat.correction_key(), c), lambda: search(before)
+    )  # every trial of one correction
     fit_after = search(after)
     held = (pending[1](), pending[2]()) if data.held else None
     lb, lbh = left(fit_before, before), left(fit_before, held[0] if held else None)
@@ -106,10 +114,14 @@ def _trial(compat: CompatResult, trial: CompatResult, data: Corrected) -> tuple[
         b, a = before[f"r_{k}"].to_numpy(), after[f"r_{k}"].to_numpy()
         return ratio(b - b.mean(), a - a.mean())
 
-    return c, {"as is": (ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
-                         ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan),
-               "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan),
-               OTHERS: (min(about_mean(k) for k in COEFFS if k != c), nan)}
+    return c, {
+        "as is": (
+            ratio(before[f"r_{c}"].to_numpy(), after[f"r_{c}"].to_numpy()),
+            ratio(held[0][f"r_{c}"].to_numpy(), held[1][f"r_{c}"].to_numpy()) if held else nan,
+        ),
+        "beside aero terms": (ratio(lb, la), ratio(lbh, lah) if held else nan),
+        OTHERS: (min(about_mean(k) for k in COEFFS if k != c), nan),
+    }
 
 
 def _agrees(gains: dict[str, tuple[float, float]]) -> str:
@@ -128,8 +140,13 @@ def _agrees(gains: dict[str, tuple[float, float]]) -> str:
         return ""
     g, h = gains["as is"]
     gb, hb = gains["beside aero terms"]
-    return ("as is" if g >= s.corroborated_gain and not h < s.corroborated_gain else
-            "beside aero terms" if gb >= 1.0 and hb >= s.corroborated_gain else "")
+    return (
+        "as is"
+        if g >= s.corroborated_gain and not h < s.corroborated_gain
+        else "beside aero terms"
+        if gb >= 1.0 and hb >= s.corroborated_gain
+        else ""
+    )
 
 
 def _score(gains: dict[str, tuple[float, float]]) -> float:
@@ -141,9 +158,11 @@ def _score(gains: dict[str, tuple[float, float]]) -> float:
 
 
 def _said(gains: dict[str, tuple[float, float]]) -> str:
-    return "; ".join(f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h)
-                                                                else "") for k, (g, h) in gains.items()
-                     if k != OTHERS or _others_worse(gains))
+    return "; ".join(
+        f"{k}: RMS x{g:.2f} smaller corrected" + (f", x{h:.2f} on held-out logs" if np.isfinite(h) else "")
+        for k, (g, h) in gains.items()
+        if k != OTHERS or _others_worse(gains)
+    )
 
 
 def _others_worse(gains: dict[str, tuple[float, float]]) -> bool:
@@ -155,13 +174,27 @@ def _others_worse(gains: dict[str, tuple[float, float]]) -> bool:
 RESIDUAL_DELAY_ITERATIONS = 3
 
 
-def _with_estimate(compat: CompatResult, name: str, estimate: float, se: float, chosen: str,
-                   beside_aero: bool = False) -> CompatResult:
+def _with_estimate(
+    compat: CompatResult, name: str, estimate: float, se: float, chosen: str, beside_aero: bool = False
+) -> CompatResult:
     """The same result with one parameter estimated by the residuals and applied."""
-    return replace(compat, parameters=[
-        replace(q, identifiable=True, estimate=estimate, se=se, sources={"residuals": (estimate, se)}, chosen=chosen,
-                beside_aero=beside_aero)
-        if q.name == name else q for q in compat.parameters])
+    return replace(
+        compat,
+        parameters=[
+            replace(
+                q,
+                identifiable=True,
+                estimate=estimate,
+                se=se,
+                sources={"residuals": (estimate, se)},
+                chosen=chosen,
+                beside_aero=beside_aero,
+            )
+            if q.name == name
+            else q
+            for q in compat.parameters
+        ],
+    )
 
 
 def _time_shift(data: pd.DataFrame, head: str) -> tuple[float, float, float, str] | None:
@@ -246,22 +279,27 @@ def residual_delays(compat: CompatResult, data: Corrected) -> CompatResult:
                 tried.append((tau, se, r2, best, c, gains))
         if not tried:
             if timed:
-                compat = compat.note(name, f"the residuals put it at {timed[0][0] * 1000:+.0f} +- "
-                                           f"{timed[0][1] * 1000:.0f} ms, not a correction to make")
+                compat = compat.note(
+                    name,
+                    f"the residuals put it at {timed[0][0] * 1000:+.0f} +- "
+                    f"{timed[0][1] * 1000:.0f} ms, not a correction to make",
+                )
             continue
         tau, se, r2, best, c, gains = max(tried, key=lambda t: _score(t[5]))
-        source = ("the kinematics' own estimate" if best == "kinematics" else
-                  f"from the {best} residual (explains {100 * r2:.0f} % of it)")
+        source = (
+            "the kinematics' own estimate"
+            if best == "kinematics"
+            else f"from the {best} residual (explains {100 * r2:.0f} % of it)"
+        )
         said = f"{tau * 1000:+.0f} +- {se * 1000:.1f} ms, {source}; the {c} residual {_said(gains)}"
         way = _agrees(gains)
         if way:
-            compat = _with_estimate(compat, name, tau, se, f"timed by the aerodynamic residuals: {said}",
-                                    beside_aero=way != "as is")
+            compat = _with_estimate(
+                compat, name, tau, se, f"timed by the aerodynamic residuals: {said}", beside_aero=way != "as is"
+            )
         else:
             compat = compat.note(name, f"the residuals put it at {said}: not applied")
     return compat
-
-
 
 
 class Refinement(NamedTuple):
@@ -276,8 +314,11 @@ def _held_out_refutes(cause: Cause) -> bool:
     """The cause's own held-out logs refute it: tested there, it gained less than the verdict needs
     (:func:`diagnose.verdict.judge`: neither ``replicate_gain`` nor ``replicate_gain_where_departs``)."""
     s, v = current(), cause.verdict
-    return bool(np.isfinite(v.get("replicate_gain", np.nan)) and not v["replicate_gain"] >= s.replicate_gain
-                and not v.get("replicate_gain_where_departs", np.nan) >= s.departs_gain)
+    return bool(
+        np.isfinite(v.get("replicate_gain", np.nan))
+        and not v["replicate_gain"] >= s.replicate_gain
+        and not v.get("replicate_gain_where_departs", np.nan) >= s.departs_gain
+    )
 
 
 def _subsets(by: dict[str, float]) -> list[dict[str, float]]:
@@ -329,8 +370,11 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
     needs: dict[tuple[str, str], dict[str, float]] = {}
     refuted: dict[tuple[str, str], set[str]] = {}
     for cause, rc in zip(causes, reach):
-        if (cause.kind != "aero" or not cause.evidence["p_value"] < s.alpha_in
-                or not cause.size > cause.verdict["noise_floor"]):
+        if (
+            cause.kind != "aero"
+            or not cause.evidence["p_value"] < s.alpha_in
+            or not cause.size > cause.verdict["noise_floor"]
+        ):
             continue
         for a in rc["alternatives"]:
             if a.get("unmeasured") or a.get("declared") or a["explains_pct"] < s.agree_pct:
@@ -355,24 +399,51 @@ def residual_refinement(compat: CompatResult, causes: list[Cause], reach: list[d
                 continue
             total = (p.estimate if p.applied else 0.0) + float(np.median(v))
             gap = _gap(p, total) if p.se > 0 else np.inf
-            if (gap <= (s.agree_all_se if len(v) == len(COEFFS) else s.agree_se)
-                    and (best is None or (-len(v), gap) < (-len(best[3]), best[0]))):
+            if gap <= (s.agree_all_se if len(v) == len(COEFFS) else s.agree_se) and (
+                best is None or (-len(v), gap) < (-len(best[3]), best[0])
+            ):
                 best = (gap, p, total, by)
     if best is None:
         return None
     gap, p, total, by = best
     said = ", ".join(f"{c} {x:+.4g}" for c, x in by.items())
-    where = (f"between the kinematics' {p.estimate:+.4g} +- {p.se:.2g} and none" if gap == 0 and p.applied else
-             f"{gap:.1f} standard errors from the kinematics' {p.estimate:+.4g} +- {p.se:.2g}")
-    why = (f"the residuals of {', '.join(by)} {'each ' if len(by) > 1 else ''}need it (a further {said}); "
-           f"{total:+.4g} in all, {where}")
+    where = (
+        f"between the kinematics' {p.estimate:+.4g} +- {p.se:.2g} and none"
+        if gap == 0 and p.applied
+        else f"{gap:.1f} standard errors from the kinematics' {p.estimate:+.4g} +- {p.se:.2g}"
+    )
+    why = (
+        f"the residuals of {', '.join(by)} {'each ' if len(by) > 1 else ''}need it (a further {said}); "
+        f"{total:+.4g} in all, {where}"
+    )
     moved = _follow(compat, p, total)
-    return Refinement(replace(compat, parameters=[
-        replace(q, estimate=total, sources={**(q.sources or {"kinematics": (q.estimate, q.se)}),
-                                            "residuals": (total, q.se)}, chosen=why) if q is p else
-        replace(q, estimate=moved[q.name], sources={**(q.sources or {"kinematics": (q.estimate, q.se)}),
-                                                    f"given {p.name}": (moved[q.name], q.se)})
-        if q.name in moved else q for q in compat.parameters]), p.name, tuple(by))
+    return Refinement(
+        replace(
+            compat,
+            parameters=[
+                replace(
+                    q,
+                    estimate=total,
+                    sources={**(q.sources or {"kinematics": (q.estimate, q.se)}), "residuals": (total, q.se)},
+                    chosen=why,
+                )
+                if q is p
+                else replace(
+                    q,
+                    estimate=moved[q.name],
+                    sources={
+                        **(q.sources or {"kinematics": (q.estimate, q.se)}),
+                        f"given {p.name}": (moved[q.name], q.se),
+                    },
+                )
+                if q.name in moved
+                else q
+                for q in compat.parameters
+            ],
+        ),
+        p.name,
+        tuple(by),
+    )
 
 
 def _follow(compat: CompatResult, p: Parameter, total: float) -> dict[str, float]:
@@ -395,8 +466,6 @@ def _follow(compat: CompatResult, p: Parameter, total: float) -> dict[str, float
     return {}
 
 
-
-
 def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.DataFrame) -> CompatResult | None:
     """The refined data compatibility if the residuals over all the data agree with it, else None.
 
@@ -410,6 +479,7 @@ def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.Da
     than with the correction the CD residual needed. A drag change with
     alpha that a vane bias would mimic in CD grows CL's residual instead.
     """
+
     def rms(data: pd.DataFrame, c: str, about_mean: bool = False) -> float:
         r = data[f"r_{c}"].to_numpy()
         return float(np.sqrt(np.mean((r - np.mean(r) if about_mean else r) ** 2)))
@@ -425,9 +495,15 @@ def refinement_stands(refinement: Refinement, before: pd.DataFrame, after: pd.Da
     witness = max((c for c in COEFFS if c not in refinement.coefficients), key=gain.get)
     if not gain[witness] >= s.corroborated_gain:
         return None
-    return replace(compat, parameters=[
-        replace(q, chosen=f"{q.chosen}; {witness}'s residual RMS x{gain[witness]:.2f} smaller with it")
-        if q.name == refinement.name else q for q in compat.parameters])
+    return replace(
+        compat,
+        parameters=[
+            replace(q, chosen=f"{q.chosen}; {witness}'s residual RMS x{gain[witness]:.2f} smaller with it")
+            if q.name == refinement.name
+            else q
+            for q in compat.parameters
+        ],
+    )
 
 
 def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) -> CompatResult:
@@ -437,13 +513,19 @@ def rearbitrate(before: CompatResult, refined: CompatResult, data: Corrected) ->
     +4.8 % scale was measured at -0.16 +- 2.7 %, stood in for the scale at the trim alphas, and beside the
     scale refined to +4.7 % doubled it there (CD's residual RMS grew 1.5-fold about its mean, and "CL vs
     alpha" and "Cm vs alpha" were named on a null of our 737). Chosen again, it is not."""
-    changed = {q.channel for p, q in zip(before.parameters, refined.parameters)
-               if (p.applied != q.applied or q.estimate != p.estimate) and "residuals" in q.sources}
+    changed = {
+        q.channel
+        for p, q in zip(before.parameters, refined.parameters)
+        if (p.applied != q.applied or q.estimate != p.estimate) and "residuals" in q.sources
+    }
     again = [q.name for q in refined.parameters if q.channel in changed and q.chosen and "residuals" not in q.sources]
     if not again:
         return refined
-    return arbitrate(replace(refined, parameters=[replace(q, chosen="") if q.name in again else q
-                                                  for q in refined.parameters]), data, changed)
+    return arbitrate(
+        replace(refined, parameters=[replace(q, chosen="") if q.name in again else q for q in refined.parameters]),
+        data,
+        changed,
+    )
 
 
 def _gap(p: Parameter, total: float) -> float:
@@ -456,8 +538,13 @@ def _gap(p: Parameter, total: float) -> float:
     return max(lo - total, total - hi, 0.0) / p.se
 
 
-def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame, held_data: pd.DataFrame | None,
-                  aero: dict[str, list[Term]] | None = None) -> list[Cause]:
+def compat_causes(
+    compat: CompatResult,
+    corrected: Corrected,
+    data: pd.DataFrame,
+    held_data: pd.DataFrame | None,
+    aero: dict[str, list[Term]] | None = None,
+) -> list[Cause]:
     """The instrument errors the data compatibility corrected, as causes with their verdict.
 
     Each correction is undone in turn and JSBSim evaluates the model again: its
@@ -475,7 +562,7 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
     aero = aero or {}
 
     def rms(x: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(x ** 2)))
+        return float(np.sqrt(np.mean(x**2)))
 
     def beside(frame: pd.DataFrame, held: pd.DataFrame, c: str) -> np.ndarray:
         y = frame[f"r_{c}"].to_numpy()
@@ -501,19 +588,42 @@ def compat_causes(compat: CompatResult, corrected: Corrected, data: pd.DataFrame
         if effect[c] < s.sensor_effect:
             reasons.append(f"moves {c} by {effect[c]:.2g} at most (needs {s.sensor_effect:g})")
         if not gain >= s.sensor_min_gain:
-            reasons.append("no held-out data" if not np.isfinite(gain) else
-                           f"does not improve held-out data (gain x{gain:.3f}, needs x{s.sensor_min_gain})")
-        cause = Cause(c, [p.channel], [], p.error, {"z": p.z, "F": p.z ** 2, "p_value": 0.0, "dof": [1, 0],
-                                                  "rss_reduction_pct": float("nan"), "method": "data compatibility",
-                                                  "methods": {k: {"estimate": e, "se": se}
-                                                              for k, (e, se) in p.sources.items()},
-                                                  "effect_by_coefficient": effect,
-                                                  **({"confounded_with": p.confounded_with or None,
-                                                      "chosen_because": p.chosen} if p.chosen else {})},
-                      effect[c], size=effect[c], kind="sensor", channel=p.channel, error=p.error,
-                      estimate=p.estimate, se=p.se)
-        cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "holdout_gain": gain,
-                         "noise_floor": s.sensor_effect, "size_over_floor": effect[c] / s.sensor_effect,
-                         "unit": p.unit}
+            reasons.append(
+                "no held-out data"
+                if not np.isfinite(gain)
+                else f"does not improve held-out data (gain x{gain:.3f}, needs x{s.sensor_min_gain})"
+            )
+        cause = Cause(
+            c,
+            [p.channel],
+            [],
+            p.error,
+            {
+                "z": p.z,
+                "F": p.z**2,
+                "p_value": 0.0,
+                "dof": [1, 0],
+                "rss_reduction_pct": float("nan"),
+                "method": "data compatibility",
+                "methods": {k: {"estimate": e, "se": se} for k, (e, se) in p.sources.items()},
+                "effect_by_coefficient": effect,
+                **({"confounded_with": p.confounded_with or None, "chosen_because": p.chosen} if p.chosen else {}),
+            },
+            effect[c],
+            size=effect[c],
+            kind="sensor",
+            channel=p.channel,
+            error=p.error,
+            estimate=p.estimate,
+            se=p.se,
+        )
+        cause.verdict = {
+            "accepted": not reasons,
+            "reason": "; ".join(reasons),
+            "holdout_gain": gain,
+            "noise_floor": s.sensor_effect,
+            "size_over_floor": effect[c] / s.sensor_effect,
+            "unit": p.unit,
+        }
         causes.append(cause)
     return causes

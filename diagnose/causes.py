@@ -1,4 +1,5 @@
 """Causes: the selected terms that share a variable, grouped, shaped and ranked by F."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -46,12 +47,25 @@ class Cause:
         return f"{self.coefficient} vs {', '.join(self.variables)}"
 
     def to_dict(self) -> dict:
-        common = {"kind": self.kind, "shape": self.shape, "evidence": self.evidence, "peak": self.peak,
-                  "size": self.size, "verdict": self.verdict, "terms": [t.label for t in self.terms],
-                  "curve": self.curve}
+        common = {
+            "kind": self.kind,
+            "shape": self.shape,
+            "evidence": self.evidence,
+            "peak": self.peak,
+            "size": self.size,
+            "verdict": self.verdict,
+            "terms": [t.label for t in self.terms],
+            "curve": self.curve,
+        }
         if self.kind == "sensor":
-            return {**common, "channel": self.channel, "error": self.error, "estimate": self.estimate,
-                    "se": self.se, "coefficient": self.coefficient}
+            return {
+                **common,
+                "channel": self.channel,
+                "error": self.error,
+                "estimate": self.estimate,
+                "se": self.se,
+                "coefficient": self.coefficient,
+            }
         return {**common, "coefficient": self.coefficient, "variables": self.variables}
 
 
@@ -89,8 +103,9 @@ def _share(y: np.ndarray, x: np.ndarray) -> float:
     return 1.0 - float(e @ e) / ss if ss > 0 else 0.0
 
 
-def along(group: list[Term], res: StepwiseResult, data: pd.DataFrame, variable: str,
-           n: int = 41) -> tuple[np.ndarray, np.ndarray]:
+def along(
+    group: list[Term], res: StepwiseResult, data: pd.DataFrame, variable: str, n: int = 41
+) -> tuple[np.ndarray, np.ndarray]:
     """A group's contribution along one of its variables, the others at their median."""
     names = {v for t in group for v in t.variables}
     grid = pd.DataFrame({v: np.full(n, float(np.median(data[v]))) for v in names})
@@ -129,7 +144,9 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             # first of them (not the one that entered first: a drag step in alpha on the A320 came in
             # as smooth(CL), then quadratic(alpha) and alpha x CL, and was named "CD vs CL, alpha")
             single = list(dict.fromkeys(t.variables[0] for t in g if t.kind in ("smooth", "linear", "quadratic")))
-            variables = sorted(single, key=lambda v: -_share(contrib, data[v].to_numpy())) if len(single) > 1 else single
+            variables = (
+                sorted(single, key=lambda v: -_share(contrib, data[v].to_numpy())) if len(single) > 1 else single
+            )
             for t in sorted(g, key=lambda t: t.kind not in ("smooth", "linear", "quadratic")):
                 ordered = t.variables
                 # the variable that alone explains more of the cause comes first; a smooth gear term that
@@ -148,22 +165,46 @@ def name_causes(results: dict[str, StepwiseResult], data: pd.DataFrame, lags: La
             if sensor:
                 # the signature is per unit of the logged value: beta = e / (1 + e) for logged = (1 + e) true
                 beta = float(res.term_beta(g[0])[0])
-                se = _se(full, [designs[t] for t in res.terms], sum(t.width for t in res.terms[:res.terms.index(g[0])]),
-                         n_eff)
-                cause_kw = {"kind": "sensor", "channel": sensor[0], "error": sensor[1],
-                            "estimate": beta / (1.0 - beta), "se": se / (1.0 - beta) ** 2, "shape": "scale factor"}
+                se = _se(
+                    full,
+                    [designs[t] for t in res.terms],
+                    sum(t.width for t in res.terms[: res.terms.index(g[0])]),
+                    n_eff,
+                )
+                cause_kw = {
+                    "kind": "sensor",
+                    "channel": sensor[0],
+                    "error": sensor[1],
+                    "estimate": beta / (1.0 - beta),
+                    "se": se / (1.0 - beta) ** 2,
+                    "shape": "scale factor",
+                }
             else:
                 cause_kw = {}
-            causes.append(Cause(c, variables, g, shape,
-                                {"F": f, "p_value": p, "dof": [k, max(n_eff - p_all, 1.0)],
-                                 "log10_p": f_logsf(f, k, max(n_eff - p_all, 1.0)) / np.log(10.0),
-                                 "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
-                                 "terms": {t.label: res.evidence.get(t.label, {}) for t in g},
-                                 "hardly_separated_from": [a for t in g for a in res.close.get(t.label, [])]},
-                                float(np.max(np.abs(contrib))),
-                                {primary: cx.tolist(), f"d{c}": np.asarray(cy).tolist(),
-                                 "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]}},
-                                float(np.ptp(contrib))))
+            causes.append(
+                Cause(
+                    c,
+                    variables,
+                    g,
+                    shape,
+                    {
+                        "F": f,
+                        "p_value": p,
+                        "dof": [k, max(n_eff - p_all, 1.0)],
+                        "log10_p": f_logsf(f, k, max(n_eff - p_all, 1.0)) / np.log(10.0),
+                        "rss_reduction_pct": 100.0 * (1.0 - full.rss / small.rss),
+                        "terms": {t.label: res.evidence.get(t.label, {}) for t in g},
+                        "hardly_separated_from": [a for t in g for a in res.close.get(t.label, [])],
+                    },
+                    float(np.max(np.abs(contrib))),
+                    {
+                        primary: cx.tolist(),
+                        f"d{c}": np.asarray(cy).tolist(),
+                        "others_at_median": {v: float(np.median(data[v])) for v in variables[1:]},
+                    },
+                    float(np.ptp(contrib)),
+                )
+            )
             for k, v in cause_kw.items():
                 setattr(causes[-1], k, v)
     causes.sort(key=lambda c: -c.evidence["F"])
@@ -177,6 +218,7 @@ def _se(fit: Fit, cols: list[np.ndarray], column: int, n_eff: float) -> float:
     n, p = x.shape
     var = np.linalg.pinv(x.T @ x)[1 + column, 1 + column] * fit.rss / max(n - p, 1) * n / max(n_eff, 1.0)
     return float(np.sqrt(var))
+
 
 def merge_sensors(causes: list[Cause]) -> list[Cause]:
     """One cause per instrument error: its sightings in several coefficients' residuals become
@@ -193,7 +235,8 @@ def merge_sensors(causes: list[Cause]) -> list[Cause]:
         first = seen[key]
         keep, other = (first, c) if first.evidence["F"] >= c.evidence["F"] else (c, first)
         keep.evidence.setdefault("also_in", []).append(
-            {"coefficient": other.coefficient, "estimate": other.estimate, "se": other.se, "F": other.evidence["F"]})
+            {"coefficient": other.coefficient, "estimate": other.estimate, "se": other.se, "F": other.evidence["F"]}
+        )
         keep.evidence["also_in"] += other.evidence.get("also_in", [])
         if keep is c:
             out[out.index(first)] = c

@@ -6,6 +6,7 @@ and receives corrected data. The arbitration between instrument errors and aerod
 asks for the same corrections many times (a trial, the correction undone, the delays timed);
 each residual frame is computed once per correction and reused.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -45,8 +46,9 @@ class Corrected:
         raw = self.raw(held)
         return raw if compat is None else [compat.correct(lg) for lg in raw]
 
-    def residuals(self, compat: CompatResult | None, held: bool = False, delays: tuple = (),
-                  wait: bool = True) -> pd.DataFrame | Callable[[], pd.DataFrame]:
+    def residuals(
+        self, compat: CompatResult | None, held: bool = False, delays: tuple = (), wait: bool = True
+    ) -> pd.DataFrame | Callable[[], pd.DataFrame]:
         """:func:`diagnose.residuals.residual_data` of the logs corrected by ``compat``, each
         correction computed once (the workers correct the logs they evaluate). A frame with
         the delay signatures of ``delays`` (channels) serves a request without them. With
@@ -62,12 +64,14 @@ class Corrected:
 
                 def kept(have: tuple = have, extra: list = extra) -> pd.DataFrame:
                     return _frame(done, have).drop(columns=extra)
+
                 return kept() if wait else kept
         # kept while the workers compute it: a later request of the same correction waits for the same frame
         done[tuple(delays)] = residual_data(raw, self.evaluator, self.step, delays, wait=False, correct=correct)
 
         def finished() -> pd.DataFrame:
             return _frame(done, tuple(delays)).copy()
+
         return finished() if wait else finished
 
     def ahead(self, compat: CompatResult | None, held: bool = False, delays: tuple = ()) -> None:

@@ -26,6 +26,7 @@
    variables' properties), to merge into a copy of the model (:mod:`diagnose.extension`);
    the gain measured on held-out logs (:mod:`diagnose.gain`).
 """
+
 from __future__ import annotations
 
 from functools import cache
@@ -66,8 +67,20 @@ from identify.logs import Log
 from infra.pool import trim_memory
 
 #: The stages :func:`diagnose` reports through ``progress``, and those that follow it, in order.
-STAGES = ("data compatibility", "instrument delays", "residuals", "stepwise", "noise floor", "instrument reach",
-          "verdict", "extension", "replays", "refine", "bands", "plots")
+STAGES = (
+    "data compatibility",
+    "instrument delays",
+    "residuals",
+    "stepwise",
+    "noise floor",
+    "instrument reach",
+    "verdict",
+    "extension",
+    "replays",
+    "refine",
+    "bands",
+    "plots",
+)
 
 
 def _conditions(frame: pd.DataFrame, logs: list[Log], offset: int = 0) -> pd.DataFrame:
@@ -123,8 +136,16 @@ def _with_reach(fell: list, causes: list, reach: list) -> list[tuple]:
     return [(f, next(r for c, r in zip(causes, reach) if c is f)) for f in fell]
 
 
-def diagnose(logs: list[Log], evaluator, held: list[Log] = (), step: int | None = None, compatibility: bool = True,
-             jobs: int = 1, progress=None, settings: DiagnosisSettings | None = None) -> Diagnosis:
+def diagnose(
+    logs: list[Log],
+    evaluator,
+    held: list[Log] = (),
+    step: int | None = None,
+    compatibility: bool = True,
+    jobs: int = 1,
+    progress=None,
+    settings: DiagnosisSettings | None = None,
+) -> Diagnosis:
     """Residuals against the model, stepwise structure per coefficient, causes and their verdict.
 
     Parameters
@@ -171,14 +192,23 @@ def _reach_of(compat, instruments: Instrumentation, logs: list[Log], reach_se: f
     if not names and not extra:
         return None, None, unmeasured, []
     total = np.zeros((len(names) + len(extra),) * 2)
-    total[:len(names), :len(names)] = cov
-    total[len(names):, len(names):] = extra_cov
+    total[: len(names), : len(names)] = cov
+    total[len(names) :, len(names) :] = extra_cov
     return (list(names) + extra, total), np.array(left + [0.0] * len(extra)), unmeasured, extra
 
 
-def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, compatibility: bool, jobs: int,  # noqa: C901
-              progress, s: DiagnosisSettings) -> Diagnosis:
+def _diagnose(  # noqa: C901
+    logs: list[Log],
+    evaluator,
+    held: list[Log],
+    step: int | None,
+    compatibility: bool,
+    jobs: int,
+    progress,
+    s: DiagnosisSettings,
+) -> Diagnosis:
     """:func:`diagnose` within its settings ``s``."""
+
     def stage(name: str) -> None:
         trim_memory()  # each stage starts from what the diagnosis holds, not from the last one's peak
         if progress is not None:
@@ -194,6 +224,7 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
         stage("instrument delays")
         compat = residual_delays(compat, corrected)
         corrected.keep(compat)
+
     def one_pass(compat, swaps=None, whole=frozenset(), dropped=None, fallen=()):
         logs, held = corrected.logs(compat), corrected.logs(compat, held=True)
         stage("residuals")
@@ -202,8 +233,10 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
         noise = instruments.noise(channel_noise(logs + held))
         # the workers compute the held-out residuals and then the sensitivities beside the stepwise search
         # (once per correction: a later pass of the same one reads them)
-        sensitivities = corrected.once(("model sensitivities", compat.correction_key() if compat else None),
-                                       lambda: cache(model_sensitivities(logs, evaluator, noise, jobs)))
+        sensitivities = corrected.once(
+            ("model sensitivities", compat.correction_key() if compat else None),
+            lambda: cache(model_sensitivities(logs, evaluator, noise, jobs)),
+        )
         stage("stepwise")
         lags = Lags(data["log"].to_numpy())
         terms = {c: candidate_terms(data, c) for c in COEFFS}
@@ -225,18 +258,46 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
                 if jobs > 1:
                     sensitivities()  # wanted or not: the workers are then free for what comes next
                 uncertain, left, unmeasured, declared = _reach_of(compat, instruments, logs, s.reach_se)
-                floor = (NoiseFloor(logs, evaluator, noise, step, s.noise_realizations, uncertain=uncertain,
-                                    left=left, unmeasured=unmeasured, jobs=jobs, declared=declared,
-                                    sensitivities=sensitivities) if causes else None)
-                data_all = pd.concat([_conditions(data, logs)]
-                                     + ([_conditions(held_data, held, len(logs))] if held else []), ignore_index=True)
+                floor = (
+                    NoiseFloor(
+                        logs,
+                        evaluator,
+                        noise,
+                        step,
+                        s.noise_realizations,
+                        uncertain=uncertain,
+                        left=left,
+                        unmeasured=unmeasured,
+                        jobs=jobs,
+                        declared=declared,
+                        sensitivities=sensitivities,
+                    )
+                    if causes
+                    else None
+                )
+                data_all = pd.concat(
+                    [_conditions(data, logs)] + ([_conditions(held_data, held, len(logs))] if held else []),
+                    ignore_index=True,
+                )
             groups = [(c.coefficient, c.terms) for c in causes]
             floors = floor.sizes(groups) if causes else []
             stage("instrument reach")
             aero = [c for c in causes if c.kind == "aero"]  # a sensor signature is itself an instrument error
-            by_aero = dict(zip(map(id, aero), floor.reach(
-                [(c.coefficient, c.terms, contribution(results[c.coefficient], c, data)) for c in aero], data,
-                weights=noise_weights(data, results, lags), beside={o: r.terms for o, r in results.items()}))) if aero else {}
+            by_aero = (
+                dict(
+                    zip(
+                        map(id, aero),
+                        floor.reach(
+                            [(c.coefficient, c.terms, contribution(results[c.coefficient], c, data)) for c in aero],
+                            data,
+                            weights=noise_weights(data, results, lags),
+                            beside={o: r.terms for o, r in results.items()},
+                        ),
+                    )
+                )
+                if aero
+                else {}
+            )
             reach = [by_aero.get(id(c), {"made": 0.0, "left": c.size, "alternatives": []}) for c in causes]
             factors = floor.eiv_factors({v for c in causes for v in c.variables}) if causes else {}
             eiv = [max((factors[v] for v in c.variables), default=1.0) for c in causes]
@@ -246,14 +307,31 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
             if more == dropped or round_ == s.drop_rounds:
                 break
             dropped, fallen = more, fallen + _with_reach(fell, causes, reach)
-        return SimpleNamespace(whole=whole, compat=compat, logs=logs, held=held, data=data, held_data=held_data,
-                               noise=noise, lags=lags, terms=terms, results=results, causes=causes, floor=floor,
-                               reach=reach, dropped=dropped, fallen=fallen)
+        return SimpleNamespace(
+            whole=whole,
+            compat=compat,
+            logs=logs,
+            held=held,
+            data=data,
+            held_data=held_data,
+            noise=noise,
+            lags=lags,
+            terms=terms,
+            results=results,
+            causes=causes,
+            floor=floor,
+            reach=reach,
+            dropped=dropped,
+            fallen=fallen,
+        )
 
     p = one_pass(compat)
     # the refinement reads every cause, accepted or not: those dropped for falling too, as they fell
-    refined = None if compat is None else residual_refinement(compat, p.causes + [c for c, _ in p.fallen],
-                                                              p.reach + [r for _, r in p.fallen])
+    refined = (
+        None
+        if compat is None
+        else residual_refinement(compat, p.causes + [c for c, _ in p.fallen], p.reach + [r for _, r in p.fallen])
+    )
     if refined is not None:
         refined = refined._replace(compat=rearbitrate(compat, refined.compat, corrected))
         q = one_pass(refined.compat)
@@ -322,5 +400,21 @@ def _diagnose(logs: list[Log], evaluator, held: list[Log], step: int | None, com
             c.evidence["confounded"] = note
     first = {c: r.alternatives[0] for c, r in results.items() if r.alternatives}
     corrected.forget()
-    return Diagnosis(data, results, accepted, rejected, held_data, noise, list(evaluator.unset), first, compat,
-                     logs, held, rivals, kept_whole, s, instruments, pairs)
+    return Diagnosis(
+        data,
+        results,
+        accepted,
+        rejected,
+        held_data,
+        noise,
+        list(evaluator.unset),
+        first,
+        compat,
+        logs,
+        held,
+        rivals,
+        kept_whole,
+        s,
+        instruments,
+        pairs,
+    )

@@ -26,6 +26,7 @@ moment is returned about the model's aerodynamic reference point (AERORP),
 where JSBSim applies the aero forces, with the full x and z offset from the
 model's CG.
 """
+
 from __future__ import annotations
 
 import array
@@ -42,9 +43,21 @@ import numpy as np
 import pandas as pd
 
 from identify.kinematics import angle_rates
-from infra.model import (FCS_SECTIONS, PROPERTY_TAGS, captured_stdout, catalog, component_outputs,
-                            control_schedules, copy_model, declared, fcs_sections, load_fdm, longitudinal_inputs,
-                            mentioned, reads)
+from infra.model import (
+    FCS_SECTIONS,
+    PROPERTY_TAGS,
+    captured_stdout,
+    catalog,
+    component_outputs,
+    control_schedules,
+    copy_model,
+    declared,
+    fcs_sections,
+    load_fdm,
+    longitudinal_inputs,
+    mentioned,
+    reads,
+)
 from infra.pool import owned_tmpdir
 
 D2R = np.pi / 180.0
@@ -57,26 +70,64 @@ REDIRECT = {
     "aero/cl-squared": "eval/cl-squared",
 }
 #: Properties JSBSim derives from the state set as an initial condition.
-STATE_DERIVED = ("aero/alpha", "aero/beta", "aero/mag-beta", "aero/qbar", "aero/ci2vel", "aero/bi2vel",
-                 "aero/h_b-", "velocities/", "atmosphere/", "position/h-", "attitude/", "metrics/")
-IC_CHANNELS = (("ic/h-sl-ft", "alt_ft", 1.0), ("ic/vt-kts", "tas_kt", 1.0), ("ic/alpha-deg", "alpha_deg", 1.0),
-               ("ic/beta-deg", "beta_deg", 1.0), ("ic/theta-deg", "theta_deg", 1.0),
-               ("ic/phi-deg", "phi_deg", 1.0), ("ic/p-rad_sec", "p_dps", D2R), ("ic/q-rad_sec", "q_dps", D2R),
-               ("ic/r-rad_sec", "r_dps", D2R))
+STATE_DERIVED = (
+    "aero/alpha",
+    "aero/beta",
+    "aero/mag-beta",
+    "aero/qbar",
+    "aero/ci2vel",
+    "aero/bi2vel",
+    "aero/h_b-",
+    "velocities/",
+    "atmosphere/",
+    "position/h-",
+    "attitude/",
+    "metrics/",
+)
+IC_CHANNELS = (
+    ("ic/h-sl-ft", "alt_ft", 1.0),
+    ("ic/vt-kts", "tas_kt", 1.0),
+    ("ic/alpha-deg", "alpha_deg", 1.0),
+    ("ic/beta-deg", "beta_deg", 1.0),
+    ("ic/theta-deg", "theta_deg", 1.0),
+    ("ic/phi-deg", "phi_deg", 1.0),
+    ("ic/p-rad_sec", "p_dps", D2R),
+    ("ic/q-rad_sec", "q_dps", D2R),
+    ("ic/r-rad_sec", "r_dps", D2R),
+)
 
 
 #: What an evaluation copy's aerodynamics may read for its engines and landing-gear contacts to be
 #: left out: the state set as an initial condition, the atmosphere, the geometry, the control
 #: positions and what the evaluation sets or holds. Anything else (a propeller's induced velocity,
 #: the weight on a wheel, a force, a tank's contents) keeps them.
-WITHOUT_ENGINES = ("velocities/", "atmosphere/", "metrics/", "attitude/", "position/", "fcs/", "eval/",
-                   "aero/alpha-", "aero/beta-", "aero/mag-beta-", "aero/ci2vel", "aero/bi2vel", "aero/h_b-",
-                   "aero/qbar-psf", "aero/qbarUW-psf", "aero/qbarUV-psf", "aero/qbar-area", "aero/cl-squared",
-                   "aero/Re", "gear/gear-pos-norm")
+WITHOUT_ENGINES = (
+    "velocities/",
+    "atmosphere/",
+    "metrics/",
+    "attitude/",
+    "position/",
+    "fcs/",
+    "eval/",
+    "aero/alpha-",
+    "aero/beta-",
+    "aero/mag-beta-",
+    "aero/ci2vel",
+    "aero/bi2vel",
+    "aero/h_b-",
+    "aero/qbar-psf",
+    "aero/qbarUW-psf",
+    "aero/qbarUV-psf",
+    "aero/qbar-area",
+    "aero/cl-squared",
+    "aero/Re",
+    "gear/gear-pos-norm",
+)
 
 
-def moment_transfer(cm: np.ndarray, cx: np.ndarray, cz: np.ndarray, dx_in: float, dz_in: float,
-                    cbar_ft: float) -> np.ndarray:
+def moment_transfer(
+    cm: np.ndarray, cx: np.ndarray, cz: np.ndarray, dx_in: float, dz_in: float, cbar_ft: float
+) -> np.ndarray:
     """Pitching-moment coefficient moved from point A to point B.
 
     Parameters
@@ -251,8 +302,9 @@ class ModelEvaluator:
             copy_model(self.model_dir, self._tmp / "full")
             model_fdm = load_fdm(self._tmp / "full", name)
             folder, outputs, builtin, redirected = evaluation_copy(self.model_dir, self._tmp / "eval")
-            self.schedules = control_schedules(model_fdm, outputs | {p for p in builtin
-                                                                     if p.startswith(("fcs/", "gear/gear-"))})
+            self.schedules = control_schedules(
+                model_fdm, outputs | {p for p in builtin if p.startswith(("fcs/", "gear/gear-"))}
+            )
             self.fdm = load_fdm(self._tmp / "eval", name)
         except BaseException:
             shutil.rmtree(self._tmp, ignore_errors=True)
@@ -270,9 +322,14 @@ class ModelEvaluator:
         settable = {s.position for s in self.schedules.values()} | set(redirected)
         for s in self.schedules.values():
             settable |= set(s.outputs)
-        self.unset = [UnsetInput(p, float(fdm[p]) if p in self.names else 0.0) for p in sorted(inputs)
-                      if p not in settable and not p.startswith(STATE_DERIVED) and not p.startswith("eval/")
-                      and not (p.startswith("fcs/mag-") and "fcs/" + p[8:] in settable)]
+        self.unset = [
+            UnsetInput(p, float(fdm[p]) if p in self.names else 0.0)
+            for p in sorted(inputs)
+            if p not in settable
+            and not p.startswith(STATE_DERIVED)
+            and not p.startswith("eval/")
+            and not (p.startswith("fcs/mag-") and "fcs/" + p[8:] in settable)
+        ]
 
     def _start(self) -> None:
         self.fdm["ic/vt-kts"] = 200.0
@@ -302,9 +359,11 @@ class ModelEvaluator:
             measured = ch in data.columns
             if not s.moves:
                 if measured and float(np.max(np.abs(data[ch]))) > 1e-6:
-                    raise ValueError(f"{self.model_dir.name}: the logs have {ch} up to "
-                                     f"{float(np.max(np.abs(data[ch]))):g} but the model's flight controls "
-                                     f"never move {s.position}")
+                    raise ValueError(
+                        f"{self.model_dir.name}: the logs have {ch} up to "
+                        f"{float(np.max(np.abs(data[ch]))):g} but the model's flight controls "
+                        f"never move {s.position}"
+                    )
                 values = np.zeros(n)
             else:
                 values = data[ch].to_numpy(dtype=float) if measured else np.zeros(n)
@@ -318,11 +377,21 @@ class ModelEvaluator:
     def _derived(self, data: pd.DataFrame, cl: np.ndarray | None) -> dict[str, np.ndarray]:
         """α̇, β̇ and CL² as JSBSim has them: from the previous frame."""
         out = {}
-        if self.redirected & {"eval/alphadot-rad_sec", "eval/alphadot-deg_sec", "eval/betadot-rad_sec",
-                              "eval/betadot-deg_sec"}:
+        if self.redirected & {
+            "eval/alphadot-rad_sec",
+            "eval/alphadot-deg_sec",
+            "eval/betadot-rad_sec",
+            "eval/betadot-deg_sec",
+        }:
             adot, bdot = angle_rates(data, lag_s=self.frame_s)
-            out.update({"eval/alphadot-rad_sec": adot, "eval/alphadot-deg_sec": adot / D2R,
-                        "eval/betadot-rad_sec": bdot, "eval/betadot-deg_sec": bdot / D2R})
+            out.update(
+                {
+                    "eval/alphadot-rad_sec": adot,
+                    "eval/alphadot-deg_sec": adot / D2R,
+                    "eval/betadot-rad_sec": bdot,
+                    "eval/betadot-deg_sec": bdot / D2R,
+                }
+            )
         if "eval/cl-squared" in self.redirected:
             if cl is None:
                 raise ValueError(f"{self.model_dir.name}: the model reads aero/cl-squared: give the measured CL")
@@ -392,9 +461,17 @@ class ModelEvaluator:
         held = [(pm.get_node(p, False), pm.get_node(p, False).get_double_value()) for p in fixed]
         # the rows' values as Python floats: indexing a list costs a third of indexing an array
         sets = [(pm.get_node(p, False).set_double_value, v.tolist()) for p, v in values.items() if p not in fixed]
-        read = [pm.get_node(p, False) for p in ("aero/qbar-psf", "forces/fwz-aero-lbs", "forces/fwx-aero-lbs",
-                                                 "forces/fbx-aero-lbs", "forces/fbz-aero-lbs",
-                                                 "moments/m-aero-lbsft")]
+        read = [
+            pm.get_node(p, False)
+            for p in (
+                "aero/qbar-psf",
+                "forces/fwz-aero-lbs",
+                "forces/fwx-aero-lbs",
+                "forces/fbx-aero-lbs",
+                "forces/fbz-aero-lbs",
+                "moments/m-aero-lbsft",
+            )
+        ]
         get = type(read[0]).get_double_value
         out = array.array("d")
         with captured_stdout():
@@ -419,7 +496,6 @@ class ModelEvaluator:
 
     def close(self) -> None:
         self._remove()
-
 
 
 _EVALUATORS = threading.local()  # per thread: a Dask worker may run several tasks at once
@@ -461,22 +537,27 @@ def by_log_chunks(func, logs: list, evaluator: "ModelEvaluator", jobs: int, *arg
     With ``wait=False`` a callable that returns the results comes back: the workers start at once
     and this process goes on meanwhile (with one job the work is done on the call).
     """
-    chunks = [list(logs[i:i + CHUNK_LOGS]) for i in range(0, len(logs), CHUNK_LOGS)]
+    chunks = [list(logs[i : i + CHUNK_LOGS]) for i in range(0, len(logs), CHUNK_LOGS)]
     if jobs <= 1 or len(chunks) <= 1:
+
         def here() -> list:
             return [x for c in chunks for x in func(c, evaluator.restart(), *args)]
+
         return here() if wait else here
     from infra.pool import cluster, results, ship, submit
+
     model = ship(evaluator.model_dir) if cluster() is not None else evaluator.model_dir  # other machines' files
     futures = submit(_in_worker, [(func, c, model, args) for c in chunks], jobs)
 
     def joined() -> list:
         return [x for part in results(futures) for x in part]
+
     return joined() if wait else joined
 
 
 def _in_worker(func, chunk: list, model, args: tuple) -> list:
     from infra.pool import Shipment, landed
+
     model_dir = landed(model) / model.name if isinstance(model, Shipment) else model
     return func(chunk, evaluator_for(model_dir).restart(), *args)
 
@@ -492,8 +573,10 @@ def in_chunks(func, items: list, jobs: int, *args, wait: bool = True):
     if n <= 1:
         return func(list(items), *args) if wait else lambda: func(list(items), *args)
     from infra.pool import results, submit
+
     futures = submit(func, [([items[i] for i in c], *args) for c in np.array_split(np.arange(len(items)), n)], jobs)
 
     def joined() -> list:
         return [x for part in results(futures) for x in part]
+
     return joined() if wait else joined

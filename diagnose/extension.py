@@ -1,4 +1,5 @@
 """The diagnosed discrepancy as JSBSim functions (effects format)."""
+
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
@@ -15,8 +16,11 @@ from identify.export import AXIS
 #: Points per table on a variable exported through another property (CL through CL^2).
 DENSE = 41
 
-SCALE = {"CL": ("aero/qbar-psf", "metrics/Sw-sqft"), "CD": ("aero/qbar-psf", "metrics/Sw-sqft"),
-         "Cm": ("aero/qbar-psf", "metrics/Sw-sqft", "metrics/cbarw-ft")}
+SCALE = {
+    "CL": ("aero/qbar-psf", "metrics/Sw-sqft"),
+    "CD": ("aero/qbar-psf", "metrics/Sw-sqft"),
+    "Cm": ("aero/qbar-psf", "metrics/Sw-sqft", "metrics/cbarw-ft"),
+}
 
 
 def _fn(axis: ET.Element, name: str, coeff: str, description: str) -> ET.Element:
@@ -63,7 +67,7 @@ def _axis(variable: str, points) -> tuple[str, np.ndarray, np.ndarray]:
     if variable != "CL":
         return VARIABLES[variable], points, points
     cl = np.unique(np.concatenate([points, np.linspace(points.min(), points.max(), DENSE)]))
-    return VARIABLES[variable], cl ** 2, cl
+    return VARIABLES[variable], cl**2, cl
 
 
 def _term(prod: ET.Element, t: Term, beta: np.ndarray) -> None:
@@ -100,8 +104,11 @@ def _term(prod: ET.Element, t: Term, beta: np.ndarray) -> None:
 
 def aero_terms(diag: Diagnosis) -> list[tuple[str, int, Term]]:
     """The extension's terms, ``(coefficient, index, term)``, in the order they are written."""
-    return [(c, i, t) for c, res in diag.results.items()
-            for i, t in enumerate([t for t in res.terms if not sensor_of(t.variables[0])])]
+    return [
+        (c, i, t)
+        for c, res in diag.results.items()
+        for i, t in enumerate([t for t in res.terms if not sensor_of(t.variables[0])])
+    ]
 
 
 def term_name(c: str, i: int, t: Term) -> str:
@@ -118,7 +125,7 @@ def scaled(diag: Diagnosis, scales: dict[str, float]) -> Diagnosis:
         aero = [t for t in res.terms if not sensor_of(t.variables[0])]
         for t in res.terms:
             if t in aero:
-                beta[at:at + t.width] *= scales.get(term_name(c, aero.index(t), t), 1.0)
+                beta[at : at + t.width] *= scales.get(term_name(c, aero.index(t), t), 1.0)
             at += t.width
         results[c] = replace(res, beta=beta)
     return replace(diag, results=results)
@@ -135,8 +142,9 @@ def extension_effects(diag: Diagnosis) -> ET.Element:
         prod = _fn(axis, f"aero/coefficient/diag-d{c}-offset", c, f"Diagnosed offset of {c}")
         ET.SubElement(prod, "value").text = repr(float(res.beta[0]))
         for i, t in enumerate(aero):
-            prod = _fn(axis, f"aero/coefficient/diag-{term_name(c, i, t)}", c,
-                       f"Diagnosed discrepancy of {c}: {t.label}")
+            prod = _fn(
+                axis, f"aero/coefficient/diag-{term_name(c, i, t)}", c, f"Diagnosed discrepancy of {c}: {t.label}"
+            )
             _term(prod, t, res.term_beta(t))
     ET.indent(root)
     return root
@@ -144,6 +152,7 @@ def extension_effects(diag: Diagnosis) -> ET.Element:
 
 def write_extension(diag: Diagnosis, path: Path) -> Path:
     root = extension_effects(diag)
-    Path(path).write_text("<?xml version=\"1.0\"?>\n<!-- written by campaign diagnose -->\n"
-                          + ET.tostring(root, encoding="unicode") + "\n")
+    Path(path).write_text(
+        '<?xml version="1.0"?>\n<!-- written by campaign diagnose -->\n' + ET.tostring(root, encoding="unicode") + "\n"
+    )
     return Path(path)

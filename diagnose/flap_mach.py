@@ -9,6 +9,7 @@ the data cannot say which: on such a matrix, effects in Mach 3.6 to 28 times the
 "CL vs flap_deg" or "Cm vs flap_deg" in four simulated cases.
 Within one group no effect of either is a function of the other, unless it is one level over the group.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,10 @@ MACH_STEP = 0.01
 
 
 def _key(mach: float, flap: float) -> tuple[float, float]:
-    return (round(round(float(mach) / MACH_STEP) * MACH_STEP, 6),
-            round(round(float(flap) / FLAP_STEP_DEG) * FLAP_STEP_DEG, 6))
+    return (
+        round(round(float(mach) / MACH_STEP) * MACH_STEP, 6),
+        round(round(float(flap) / FLAP_STEP_DEG) * FLAP_STEP_DEG, 6),
+    )
 
 
 def groups(conditions) -> list[tuple[list[float], list[float]]]:
@@ -59,13 +62,19 @@ def flown_together(conditions) -> dict | None:
     found = groups(conditions)
     if len(found) < 2:
         return None
-    listed = "; ".join(f"flap {', '.join(f'{f:g}' for f in fs)} deg only at Mach {', '.join(f'{m:g}' for m in ms)}"
-                       for fs, ms in found)
-    text = (f"flap and Mach flown together ({listed}): over these data an effect of the flap angle fits as one "
-            f"of Mach, and an effect of Mach that is one level over each of these sets of Mach numbers as the "
-            f"flap's; a flap angle flown at a Mach number of another set tells them apart")
-    return {"variables": ["flap_deg", "mach"], "groups": [{"flap_deg": fs, "mach": ms} for fs, ms in found],
-            "text": text}
+    listed = "; ".join(
+        f"flap {', '.join(f'{f:g}' for f in fs)} deg only at Mach {', '.join(f'{m:g}' for m in ms)}" for fs, ms in found
+    )
+    text = (
+        f"flap and Mach flown together ({listed}): over these data an effect of the flap angle fits as one "
+        f"of Mach, and an effect of Mach that is one level over each of these sets of Mach numbers as the "
+        f"flap's; a flap angle flown at a Mach number of another set tells them apart"
+    )
+    return {
+        "variables": ["flap_deg", "mach"],
+        "groups": [{"flap_deg": fs, "mach": ms} for fs, ms in found],
+        "text": text,
+    }
 
 
 def level_share(contribution: np.ndarray, log: np.ndarray, conditions: list, together: dict) -> float:

@@ -3,6 +3,7 @@
 Computation only: the replays are flown by the caller (``campaign diagnose`` flies both
 aircraft from the same trimmed start with the recorded inputs) and handed in as frames.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,8 +30,15 @@ COMPARED = REPLAY_CHANNELS + tuple(f"trim_{c}" for c in TRIM_CHANNELS)
 #: moves most, and the tolerances a replay is judged by: Part 60's (gear change 2.c.4: pitch 1.5 deg,
 #: airspeed 3 kt, altitude 100 ft; short period 2.c.6 and trim 2.a: alpha 1.5 deg, pitch rate 2 deg/s,
 #: pitch control 1 deg, power 5 %).
-SCALES = {"theta_deg": 1.5, "alpha_deg": 1.5, "q_dps": 2.0, "tas_kt": 3.0, "alt_ft": 100.0,
-          "trim_elevator_deg": 1.0, "trim_thrust_pct": 5.0}
+SCALES = {
+    "theta_deg": 1.5,
+    "alpha_deg": 1.5,
+    "q_dps": 2.0,
+    "tas_kt": 3.0,
+    "alt_ft": 100.0,
+    "trim_elevator_deg": 1.0,
+    "trim_thrust_pct": 5.0,
+}
 #: Replays and data are compared low-passed here [Hz]: the replays fly in the measured wind low-passed
 #: at the same frequency (:data:`campaign.diagnosis.run.WIND_CUTOFF_HZ`), and what lies above it in the
 #: data (sensor noise, the gusts' fastest part) no replay can follow.
@@ -69,7 +77,11 @@ def replay_window(measured: pd.DataFrame) -> tuple[float, float, str]:
     g = gear_start_s(measured)
     if g is not None:
         lo, hi = t[0] + g - GEAR_WINDOW_S[0], t[0] + g + GEAR_WINDOW_S[1]
-        return float(max(lo, t[0])), float(min(hi, t[-1])), "Part 60 gear change (5 s before to 15 s after the gear moves)"
+        return (
+            float(max(lo, t[0])),
+            float(min(hi, t[-1])),
+            "Part 60 gear change (5 s before to 15 s after the gear moves)",
+        )
     head = quiet_head_s(measured)
     return float(t[0] + (head if head < t[-1] - t[0] else 0.0)), float(t[-1]), "the manoeuvre (from its first input)"
 
@@ -78,6 +90,7 @@ def compared(measured: pd.DataFrame, flown: pd.DataFrame) -> np.ndarray:
     """|flown - measured| per :data:`REPLAY_CHANNELS` channel at the log's sample times, both low-passed at
     :data:`COMPARE_CUTOFF_HZ` (NaN past the replay's end), shape (N, 5)."""
     from identify.models import lowpass
+
     t = measured["t_s"].to_numpy(dtype=float)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     m = measured[list(REPLAY_CHANNELS)].to_numpy(dtype=float, copy=True)
@@ -101,8 +114,10 @@ def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None, window: tu
     if window is not None:
         t = measured["t_s"].to_numpy(dtype=float)
         err = err[(t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)]
-    out = {ch: float(np.nanmax(err[:, j])) if np.isfinite(err[:, j]).any() else float("nan")
-           for j, ch in enumerate(REPLAY_CHANNELS)}
+    out = {
+        ch: float(np.nanmax(err[:, j])) if np.isfinite(err[:, j]).any() else float("nan")
+        for j, ch in enumerate(REPLAY_CHANNELS)
+    }
     for c in TRIM_CHANNELS:
         out[f"trim_{c}"] = _trim_difference(flown, measured, c)
     return out
@@ -130,8 +145,9 @@ def part60(error: float, floor: float | None, tolerance: float) -> dict:
     if floor is None or not np.isfinite(floor):
         return {"pass": ok, "margin": margin, "conclusive": None, "says": ("passes" if ok else "fails") + ", no floor"}
     sure = bool(abs(margin) > floor)
-    says = (("passes" if ok else "fails") + (" by more than the floor" if sure else
-                                              ", within the floor: the data cannot tell"))
+    says = ("passes" if ok else "fails") + (
+        " by more than the floor" if sure else ", within the floor: the data cannot tell"
+    )
     return {"pass": ok, "margin": margin, "conclusive": sure, "says": says}
 
 
@@ -155,8 +171,13 @@ def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool, floor
             if ch in REPLAY_CHANNELS:
                 f_log, f_win = (fl.get(k, {}).get(ch) for k in ("log", "window"))
                 row[ch]["floor"] = f_log
-                w = {"model": wm[ch], "extended": wx.get(ch), "floor": f_win, "tolerance": SCALES[ch],
-                     "part60": part60(wm[ch], f_win, SCALES[ch])}
+                w = {
+                    "model": wm[ch],
+                    "extended": wx.get(ch),
+                    "floor": f_win,
+                    "tolerance": SCALES[ch],
+                    "part60": part60(wm[ch], f_win, SCALES[ch]),
+                }
                 if extended:
                     w["part60_extended"] = part60(wx[ch], f_win, SCALES[ch])
                 row[ch]["window"] = w
@@ -176,12 +197,15 @@ def replay_lines(doc: dict) -> list[str]:
     if not reps:
         return []
     ext = bool(doc.get("extension"))
-    lines = ["  channel: worst over the judged windows (whole logs) [floor of a perfect model, windows (logs)]"
-             + (", model -> extended model" if ext else "")]
+    lines = [
+        "  channel: worst over the judged windows (whole logs) [floor of a perfect model, windows (logs)]"
+        + (", model -> extended model" if ext else "")
+    ]
 
     def worst(values) -> float:
         v = [x for x in values if x is not None and np.isfinite(x)]
         return max(v) if v else float("nan")
+
     for ch in next(iter(reps.values())):
         rs = list(reps.values())
         m, x = worst(r[ch]["model"] for r in rs), worst(r[ch]["extended"] for r in rs)
@@ -190,19 +214,27 @@ def replay_lines(doc: dict) -> list[str]:
             continue
         wm, wx = worst(r[ch]["window"]["model"] for r in rs), worst(r[ch]["window"]["extended"] for r in rs)
         fw, fl = worst(r[ch]["window"]["floor"] for r in rs), worst(r[ch]["floor"] for r in rs)
-        lines.append(f"  {ch}: {wm:.3g} ({m:.3g})" + (f" -> {wx:.3g} ({x:.3g})" if ext else "")
-                     + f" [floor {fw:.3g} ({fl:.3g}); tolerance {SCALES[ch]:g}]")
+        lines.append(
+            f"  {ch}: {wm:.3g} ({m:.3g})"
+            + (f" -> {wx:.3g} ({x:.3g})" if ext else "")
+            + f" [floor {fw:.3g} ({fl:.3g}); tolerance {SCALES[ch]:g}]"
+        )
     verdicts = [(n, ch, r[ch]["window"]["part60"]) for n, r in reps.items() for ch in ("theta_deg", "tas_kt", "alt_ft")]
     fails = [f"{n} {ch} ({v['says']})" for n, ch, v in verdicts if v["pass"] is False]
     unsure = [f"{n} {ch}" for n, ch, v in verdicts if v["pass"] and v["conclusive"] is False]
-    lines.append(f"  Part 60 gear-change tolerances (pitch, airspeed, altitude) over the judged windows, model: "
-                 f"{sum(v['pass'] is True for *_, v in verdicts)} of {len(verdicts)} pass, "
-                 f"{sum(v['pass'] is True and v['conclusive'] is True for *_, v in verdicts)} by more than the floor")
+    lines.append(
+        f"  Part 60 gear-change tolerances (pitch, airspeed, altitude) over the judged windows, model: "
+        f"{sum(v['pass'] is True for *_, v in verdicts)} of {len(verdicts)} pass, "
+        f"{sum(v['pass'] is True and v['conclusive'] is True for *_, v in verdicts)} by more than the floor"
+    )
     if fails:
         lines.append("    fail: " + "; ".join(fails[:8]) + (" ..." if len(fails) > 8 else ""))
     if unsure:
-        lines.append("    pass within the floor (the data cannot tell): " + "; ".join(unsure[:8])
-                     + (" ..." if len(unsure) > 8 else ""))
+        lines.append(
+            "    pass within the floor (the data cannot tell): "
+            + "; ".join(unsure[:8])
+            + (" ..." if len(unsure) > 8 else "")
+        )
     return lines
 
 
@@ -217,25 +249,34 @@ def exercised(frame: pd.DataFrame, variables: list[str], min_std: dict | None = 
 
 def largest(frame: pd.DataFrame) -> list[int]:
     """The held-out logs with the largest residual RMS of each coefficient."""
-    rms = frame.groupby("log")[[f"r_{c}" for c in COEFFS]].agg(lambda r: float(np.sqrt(np.mean(r ** 2))))
+    rms = frame.groupby("log")[[f"r_{c}" for c in COEFFS]].agg(lambda r: float(np.sqrt(np.mean(r**2))))
     return sorted({int(rms[col].idxmax()) for col in rms.columns})
 
 
 def _with_gain(table: dict) -> dict:
     for v in table.values():
-        v["gain"] = v["before"] / v["after"] if v["after"] > 0 else (float("nan") if np.isnan(v["after"])
-                                                                     else float("inf"))
+        v["gain"] = (
+            v["before"] / v["after"] if v["after"] > 0 else (float("nan") if np.isnan(v["after"]) else float("inf"))
+        )
     return table
 
 
 def residual_rms(before: pd.DataFrame, after: pd.DataFrame) -> dict:
     """Residual RMS of each coefficient before and after, and their ratio (``gain``)."""
-    return _with_gain({c: {"before": float(np.sqrt(np.mean(before[f"r_{c}"] ** 2))),
-                           "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2)))} for c in COEFFS})
+    return _with_gain(
+        {
+            c: {
+                "before": float(np.sqrt(np.mean(before[f"r_{c}"] ** 2))),
+                "after": float(np.sqrt(np.mean(after[f"r_{c}"] ** 2))),
+            }
+            for c in COEFFS
+        }
+    )
 
 
-def measure_gain(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame,
-                 flown: dict[str, tuple]) -> dict:
+def measure_gain(
+    diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame, flown: dict[str, tuple]
+) -> dict:
     """What ``diagnosis.json`` holds under ``gain``.
 
     Parameters
@@ -257,20 +298,39 @@ def measure_gain(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: 
         fb, fa = flown[lg.path]
         eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
         replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in COMPARED}
-    worst = _with_gain({ch: {"before": _max(r[ch]["before"] for r in replays.values()),
-                             "after": _max(r[ch]["after"] for r in replays.values())} for ch in COMPARED})
+    worst = _with_gain(
+        {
+            ch: {
+                "before": _max(r[ch]["before"] for r in replays.values()),
+                "after": _max(r[ch]["after"] for r in replays.values()),
+            }
+            for ch in COMPARED
+        }
+    )
     where = [replays[Path(held[i].path).name] for i in acting]
-    where_acts = _with_gain({ch: {"before": _max(r[ch]["before"] for r in where),
-                                  "after": _max(r[ch]["after"] for r in where)} for ch in COMPARED})
+    where_acts = _with_gain(
+        {
+            ch: {"before": _max(r[ch]["before"] for r in where), "after": _max(r[ch]["after"] for r in where)}
+            for ch in COMPARED
+        }
+    )
     shifts = [moved(*flown[held[i].path], held[i].data["t_s"].to_numpy()) for i in acting]
     shift = {ch: _max(m[ch] for m in shifts) for ch in COMPARED}
     most = max((ch for ch in COMPARED if np.isfinite(shift[ch])), key=shift.get, default=None)
-    return {"cause": first.label, "held_out_logs": [Path(lg.path).name for lg in held],
-            "cause_exercised_in": [Path(held[i].path).name for i in acting],
-            "residual_gain": rms_acting[first.coefficient]["gain"], "coefficient": first.coefficient,
-            "residual_rms": rms_acting, "residual_rms_all_held_out": residual_rms(before, after),
-            "replay_max_error": worst, "replay_where_acts": where_acts, "replay_per_log": replays,
-            "replay_moved": shift, "replay_moved_most": most}
+    return {
+        "cause": first.label,
+        "held_out_logs": [Path(lg.path).name for lg in held],
+        "cause_exercised_in": [Path(held[i].path).name for i in acting],
+        "residual_gain": rms_acting[first.coefficient]["gain"],
+        "coefficient": first.coefficient,
+        "residual_rms": rms_acting,
+        "residual_rms_all_held_out": residual_rms(before, after),
+        "replay_max_error": worst,
+        "replay_where_acts": where_acts,
+        "replay_per_log": replays,
+        "replay_moved": shift,
+        "replay_moved_most": most,
+    }
 
 
 def _max(values) -> float:

@@ -10,6 +10,7 @@ coefficient's residual, less what the fit predicts there, is compared log by log
 log leaves (``held_out_ratio`` of :class:`diagnose.config.DiagnosisSettings`). It decides nothing: the
 report says where the held-out data disagree.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,11 +25,17 @@ def left_per_log(frame: pd.DataFrame, res: StepwiseResult) -> pd.Series:
     """RMS [-] of ``res``'s coefficient residual less the fit's prediction (its offset included), per ``log``."""
     # StepwiseResult.predict keeps the offset where Diagnosis.predict, for a coefficient with no term, gives 0
     left = frame[f"r_{res.coefficient}"].to_numpy() - res.predict(frame)
-    return pd.Series(left ** 2).groupby(frame["log"].to_numpy()).mean() ** 0.5
+    return pd.Series(left**2).groupby(frame["log"].to_numpy()).mean() ** 0.5
 
 
-def held_out_check(data: pd.DataFrame, held: pd.DataFrame | None, results: dict[str, StepwiseResult],
-                   fitted_names: list[str], held_names: list[str], ratio: float | None = None) -> dict:
+def held_out_check(
+    data: pd.DataFrame,
+    held: pd.DataFrame | None,
+    results: dict[str, StepwiseResult],
+    fitted_names: list[str],
+    held_names: list[str],
+    ratio: float | None = None,
+) -> dict:
     """Per coefficient: the residual RMS each held-out log leaves once the fit's prediction is taken off,
     against the most any fitted log leaves.
 
@@ -59,19 +66,27 @@ def held_out_check(data: pd.DataFrame, held: pd.DataFrame | None, results: dict[
         fit, out_ = left_per_log(data, res), left_per_log(held, res)
         worst = int(out_.idxmax())
         worse = float(out_.max() / fit.max()) if fit.max() > 0 else float("inf")
-        out[c] = {"fitted_worst_rms": float(fit.max()), "fitted_worst_log": Path(fitted_names[int(fit.idxmax())]).name,
-                  "held_out_rms": {Path(held_names[int(i)]).name: float(v) for i, v in out_.items()},
-                  "ratio": worse, "worst_log": Path(held_names[worst]).name, "told": bool(worse >= told)}
+        out[c] = {
+            "fitted_worst_rms": float(fit.max()),
+            "fitted_worst_log": Path(fitted_names[int(fit.idxmax())]).name,
+            "held_out_rms": {Path(held_names[int(i)]).name: float(v) for i, v in out_.items()},
+            "ratio": worse,
+            "worst_log": Path(held_names[worst]).name,
+            "told": bool(worse >= told),
+        }
     return out
 
 
 def told_text(check: dict) -> list[str]:
     """One sentence per coefficient :func:`held_out_check` tells of (none if it tells of none)."""
-    return [f"the held-out data disagree in {c}: {v['worst_log']} leaves a residual RMS of {v['held_out_rms'][v['worst_log']]:.3g} "
-            f"once the fit is taken off, {v['ratio']:.1f} times the most a fitted log leaves ({v['fitted_worst_rms']:.3g}, "
-            f"{v['fitted_worst_log']}): a discrepancy the causes named do not carry acts there (the fitted conditions may "
-            f"fly it as a function of another variable, or it acts at the held-out condition alone)"
-            for c, v in check.items() if v["told"]]
+    return [
+        f"the held-out data disagree in {c}: {v['worst_log']} leaves a residual RMS of {v['held_out_rms'][v['worst_log']]:.3g} "
+        f"once the fit is taken off, {v['ratio']:.1f} times the most a fitted log leaves ({v['fitted_worst_rms']:.3g}, "
+        f"{v['fitted_worst_log']}): a discrepancy the causes named do not carry acts there (the fitted conditions may "
+        f"fly it as a function of another variable, or it acts at the held-out condition alone)"
+        for c, v in check.items()
+        if v["told"]
+    ]
 
 
 def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataFrame) -> float:
@@ -81,6 +96,7 @@ def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataF
     import numpy as np
 
     from diagnose.stepwise import refit
+
     y = held[f"r_{res.coefficient}"].to_numpy()
     ok = np.isfinite(y)
     rest = [t for t in res.terms if t not in cause.terms]
@@ -90,8 +106,9 @@ def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataF
     return before / after if after > 0 else float("inf")
 
 
-def worse_on_held_out(causes: list, results: dict[str, StepwiseResult], data: pd.DataFrame,
-                      held: pd.DataFrame | None) -> list:
+def worse_on_held_out(
+    causes: list, results: dict[str, StepwiseResult], data: pd.DataFrame, held: pd.DataFrame | None
+) -> list:
     """The accepted aerodynamic causes whose terms make their coefficient's held-out residual worse by the
     settings' ``held_out_worse`` (:func:`held_out_gain`): each is left unconfirmed (``accepted`` false,
     ``unconfirmed`` and ``held_out_worse`` true, the reason in its verdict), which keeps it out of the
@@ -110,9 +127,13 @@ def worse_on_held_out(causes: list, results: dict[str, StepwiseResult], data: pd
         gain = held_out_gain(c, results[c.coefficient], data, held)
         c.verdict["held_out_logs_gain"] = gain
         if gain < s.held_out_worse:
-            c.verdict.update(accepted=False, unconfirmed=True, held_out_worse=True,
-                             reason=f"not confirmed by the held-out logs: its terms make their {c.coefficient} "
-                                    f"residual worse (RMS x{gain:.3f} with it, needs x{s.held_out_worse:g} at "
-                                    f"least); kept out of the extension")
+            c.verdict.update(
+                accepted=False,
+                unconfirmed=True,
+                held_out_worse=True,
+                reason=f"not confirmed by the held-out logs: its terms make their {c.coefficient} "
+                f"residual worse (RMS x{gain:.3f} with it, needs x{s.held_out_worse:g} at "
+                f"least); kept out of the extension",
+            )
             out.append(c)
     return out

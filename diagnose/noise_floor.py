@@ -15,6 +15,7 @@ residual computation:
 Each realization is filtered and thinned like the real residuals, and the
 cause's own terms are fitted to it. The sizes these fits reach are the floor.
 """
+
 from __future__ import annotations
 
 from itertools import pairwise
@@ -40,19 +41,66 @@ from identify.lsq import solve_normal
 from identify.models import lowpass
 
 #: Channels whose sensor noise reaches the residuals or the regressors.
-NOISY = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps", "r_dps",
-         "qdot_dps2", "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg",
-         "stabilizer_deg", "flap_deg", "gear_norm", "mass_slug")
+NOISY = (
+    "alt_ft",
+    "tas_kt",
+    "mach",
+    "alpha_deg",
+    "beta_deg",
+    "theta_deg",
+    "phi_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "qdot_dps2",
+    "ax_fps2",
+    "ay_fps2",
+    "az_fps2",
+    "qbar_psf",
+    "thrust_lbf",
+    "elevator_deg",
+    "stabilizer_deg",
+    "flap_deg",
+    "gear_norm",
+    "mass_slug",
+)
 #: The channels each candidate variable is computed from (errors-in-variables needs noise in one).
-SOURCES = {"gear_norm": ("gear_norm",), "alpha_deg": ("alpha_deg",), "mach": ("mach",), "flap_deg": ("flap_deg",),
-           "elevator_deg": ("elevator_deg",), "stabilizer_deg": ("stabilizer_deg",),
-           "qhat_rad": ("q_dps", "tas_kt"),
-           "adothat_rad": ("alpha_deg", "beta_deg", "tas_kt", "ax_fps2", "az_fps2", "p_dps", "q_dps", "r_dps",
-                           "theta_deg", "phi_deg"),
-           # the model's CL at the measured states, and the measured CL a model that reads CL squared is given
-           "CL": ("alpha_deg", "mach", "elevator_deg", "stabilizer_deg", "q_dps", "tas_kt", "ax_fps2", "az_fps2",
-                  "qbar_psf", "thrust_lbf", "mass_slug"),
-           **{f"thrust_{c}": ("thrust_lbf", "alpha_deg", "qbar_psf") for c in COEFFS}}
+SOURCES = {
+    "gear_norm": ("gear_norm",),
+    "alpha_deg": ("alpha_deg",),
+    "mach": ("mach",),
+    "flap_deg": ("flap_deg",),
+    "elevator_deg": ("elevator_deg",),
+    "stabilizer_deg": ("stabilizer_deg",),
+    "qhat_rad": ("q_dps", "tas_kt"),
+    "adothat_rad": (
+        "alpha_deg",
+        "beta_deg",
+        "tas_kt",
+        "ax_fps2",
+        "az_fps2",
+        "p_dps",
+        "q_dps",
+        "r_dps",
+        "theta_deg",
+        "phi_deg",
+    ),
+    # the model's CL at the measured states, and the measured CL a model that reads CL squared is given
+    "CL": (
+        "alpha_deg",
+        "mach",
+        "elevator_deg",
+        "stabilizer_deg",
+        "q_dps",
+        "tas_kt",
+        "ax_fps2",
+        "az_fps2",
+        "qbar_psf",
+        "thrust_lbf",
+        "mass_slug",
+    ),
+    **{f"thrust_{c}": ("thrust_lbf", "alpha_deg", "qbar_psf") for c in COEFFS},
+}
 SENSITIVITY_EVERY_S = 0.5
 #: Below this a coefficient change is beyond the evaluation's own resolution (it reproduces
 #: noise-free logs to about 1e-7).
@@ -73,8 +121,11 @@ def channel_noise(logs: list[Log]) -> dict[str, float]:
     levels: dict[str, list[float]] = {}
     for log in logs:  # every channel of a log at once: a median per call costs more than the data
         names = [ch for ch in NOISY if ch in log.data]
-        d2 = np.diff(np.column_stack([log.data[ch].to_numpy(dtype=float) for ch in names]), 2, axis=0) \
-            if names else np.zeros((0, 0))
+        d2 = (
+            np.diff(np.column_stack([log.data[ch].to_numpy(dtype=float) for ch in names]), 2, axis=0)
+            if names
+            else np.zeros((0, 0))
+        )
         if len(d2):
             mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
             for ch, m in zip(names, mad):
@@ -96,8 +147,9 @@ def _measured_cl(data: pd.DataFrame, meta: dict, evaluator) -> np.ndarray:
     return lift_coefficient(data, meta) * (meta["geometry"]["S_ft2"] / evaluator.S)
 
 
-def model_sensitivity(log: Log, evaluator, noise: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray],
-                                                                            np.ndarray]:
+def model_sensitivity(
+    log: Log, evaluator, noise: dict[str, float]
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """d(model CL, CD, Cm)/d(channel) at a subsample of the log (JSBSim finite differences,
     one noise level ``noise[channel]`` up; channels the model's inputs do not see are left out),
     and the model's CL at every sample (the regressor CL, :func:`diagnose.residuals.variable_arrays`).
@@ -151,7 +203,7 @@ def design_matrix(terms, frame: pd.DataFrame) -> np.ndarray:
     x[:, 0] = 1.0
     j = 1
     for t in terms:
-        t.design(frame, x[:, j:j + t.width])
+        t.design(frame, x[:, j : j + t.width])
         j += t.width
     return x
 
@@ -186,15 +238,17 @@ class _Channels:
         Channel name -> values read instead of its column.
     """
 
-    def __init__(self, values: np.ndarray, at: dict[str, int], columns: pd.Index,
-                 replaced: dict[str, np.ndarray] | None = None) -> None:
+    def __init__(
+        self, values: np.ndarray, at: dict[str, int], columns: pd.Index, replaced: dict[str, np.ndarray] | None = None
+    ) -> None:
         self.values, self.at, self.columns, self.replaced = values, at, columns, replaced or {}
 
     @classmethod
     def of(cls, frame: pd.DataFrame) -> _Channels:
         """A frame of numbers' channels (each column a contiguous array, as the frame's own)."""
-        return cls(np.asfortranarray(frame.to_numpy(dtype=float)), {c: j for j, c in enumerate(frame.columns)},
-                   frame.columns)
+        return cls(
+            np.asfortranarray(frame.to_numpy(dtype=float)), {c: j for j, c in enumerate(frame.columns)}, frame.columns
+        )
 
     def __len__(self) -> int:
         return len(self.values)
@@ -260,9 +314,21 @@ class NoiseFloor:
         not measure (:mod:`diagnose.accuracy`): their alternatives in :meth:`reach` say so.
     """
 
-    def __init__(self, logs: list[Log], evaluator, noise: dict[str, float], step: int | None = None,
-                 realizations: int | None = None, seed: int = 0, uncertain=None, unmeasured=(), jobs: int = 1,
-                 sensitivities=None, left=None, declared=()) -> None:
+    def __init__(
+        self,
+        logs: list[Log],
+        evaluator,
+        noise: dict[str, float],
+        step: int | None = None,
+        realizations: int | None = None,
+        seed: int = 0,
+        uncertain=None,
+        unmeasured=(),
+        jobs: int = 1,
+        sensitivities=None,
+        left=None,
+        declared=(),
+    ) -> None:
         self.unmeasured = list(unmeasured)  # (channel, error) the data compatibility could not measure
         self.logs, self.evaluator, self.step, self.jobs = logs, evaluator, step, jobs
         self.ref = evaluator.reference
@@ -322,20 +388,29 @@ class NoiseFloor:
         for v in noisy:
             x = base[v].to_numpy(float)
             s2 = float(np.nanvar(fresh[v].to_numpy(float) - x))
-            within = float(np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in pairwise(starts)
-                                                      if b > a]) ** 2))
+            within = float(
+                np.nanmean(np.concatenate([x[a:b] - np.nanmean(x[a:b]) for a, b in pairwise(starts) if b > a]) ** 2)
+            )
             v_true = max(within - s2, 0.0)
             out[v] = (v_true + 2.0 * s2) / (v_true + s2) if v_true + s2 > 0 else 1.0
         return out
 
-    def realization(self, k: int, columns: set[str], noise: bool = True, instruments: bool = False,
-                    errors: np.ndarray | None = None, names: list | None = None) -> pd.DataFrame:
+    def realization(
+        self,
+        k: int,
+        columns: set[str],
+        noise: bool = True,
+        instruments: bool = False,
+        errors: np.ndarray | None = None,
+        names: list | None = None,
+    ) -> pd.DataFrame:
         """One residual data set made by noise alone (``noise``), by the instrument errors the
         correction may have left (``instruments``: drawn from their covariance) or by given
         ``errors`` (one per :attr:`uncertain`, or per ``names``): ``r_CL``... and the variables in
         ``columns``."""
-        return self.realization_batch(columns, [{"k": k, "noise": noise, "instruments": instruments, "errors": errors,
-                                            "names": names}])[0]
+        return self.realization_batch(
+            columns, [{"k": k, "noise": noise, "instruments": instruments, "errors": errors, "names": names}]
+        )[0]
 
     def realization_batch(self, columns: set[str], specs: list[dict]) -> list[pd.DataFrame]:
         """:meth:`realization` of each spec (its keyword arguments but ``columns``), each the same
@@ -345,9 +420,13 @@ class NoiseFloor:
         for spec in specs:
             errors, names = spec.get("errors"), spec.get("names")
             if errors is None:
-                errors = (np.random.default_rng([self.seed, spec["k"], 10**6]).multivariate_normal(
-                    np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh")
-                    if spec.get("instruments") and self.uncertain else np.zeros(len(self.uncertain)))
+                errors = (
+                    np.random.default_rng([self.seed, spec["k"], 10**6]).multivariate_normal(
+                        np.zeros(len(self.uncertain)), self.uncertain_cov, method="eigh"
+                    )
+                    if spec.get("instruments") and self.uncertain
+                    else np.zeros(len(self.uncertain))
+                )
             drawn.append((spec["k"], spec.get("noise", True), errors, self.uncertain if names is None else names))
         dts, steps = self._kept()
         ends = np.cumsum([len(k) for k in steps])  # where each log's kept samples end in a realization
@@ -360,16 +439,20 @@ class NoiseFloor:
             ts, sens, _ = self._sens[i]
             model = [np.column_stack([np.interp(t, ts, sj[:, j]) for j in range(len(COEFFS))]) for sj in sens.values()]
             noisy = [self._perturbed(i, d, at, t, *spec) for spec in drawn]
-            qdot = (pitch_rate_derivative(t, np.column_stack([x[:, at["q_dps"]] for x in noisy]))
-                    if "qdot_dps2" not in at and noisy else None)
+            qdot = (
+                pitch_rate_derivative(t, np.column_stack([x[:, at["q_dps"]] for x in noisy]))
+                if "qdot_dps2" not in at and noisy
+                else None
+            )
             lo = ends[i] - len(steps[i])
             for s, x in enumerate(noisy):
-                part = self._residuals(i, x, cols, at, t, dt, steps[i], model, None if qdot is None else qdot[:, s],
-                                       columns)
+                part = self._residuals(
+                    i, x, cols, at, t, dt, steps[i], model, None if qdot is None else qdot[:, s], columns
+                )
                 if frames[s] is None:
                     frames[s] = {c: np.empty(int(ends[-1]), dtype=v.dtype) for c, v in part.items()}
                 for c, v in part.items():
-                    frames[s][c][lo:ends[i]] = v
+                    frames[s][c][lo : ends[i]] = v
         return [pd.DataFrame(f, copy=False) if f is not None else pd.DataFrame() for f in frames]
 
     def _kept(self) -> tuple[list[float], list[np.ndarray]]:
@@ -384,15 +467,27 @@ class NoiseFloor:
         if noise:
             rng = np.random.default_rng([self.seed, k, i])
             noisy[:, chans] = d[:, chans] + rng.standard_normal((len(d), len(chans))) * np.array(
-                [self.noise[self._numbers[i][0][j]] for j in chans])
+                [self.noise[self._numbers[i][0][j]] for j in chans]
+            )
         for (c, e), z in zip(names, errors):  # the same instrument error in every log
             if c in at and z:
                 x = noisy[:, at[c]].copy()
                 noisy[:, at[c]] = x + z if e == "bias" else x * (1 + z) if e == "scale" else np.interp(t - z, t, x)
         return noisy
 
-    def _residuals(self, i: int, noisy: np.ndarray, cols, at: dict, t: np.ndarray, dt: float, keep: np.ndarray,
-                   model: list[np.ndarray], qdot: np.ndarray | None, columns: set[str]) -> dict[str, np.ndarray]:
+    def _residuals(
+        self,
+        i: int,
+        noisy: np.ndarray,
+        cols,
+        at: dict,
+        t: np.ndarray,
+        dt: float,
+        keep: np.ndarray,
+        model: list[np.ndarray],
+        qdot: np.ndarray | None,
+        columns: set[str],
+    ) -> dict[str, np.ndarray]:
         """Log ``i``'s residuals and variables from its perturbed channels, filtered and thinned."""
         meta, d = self._metas[i], self._numbers[i][1]
         moved = noisy[:, [at[c] for c in self._sens[i][1]]] - d[:, [at[c] for c in self._sens[i][1]]]
@@ -429,12 +524,14 @@ class NoiseFloor:
         sizes = np.array(self._spread("_sizes", list(range(self.realizations)), groups, columns, instruments))
         return [sizes[:, g].copy() for g in range(len(groups))] if len(sizes) else [np.zeros(0) for _ in groups]
 
-    def _sizes(self, ks: list[int], groups: list[tuple[str, list]], columns: set[str],
-               instruments: bool) -> list[list[float]]:
+    def _sizes(
+        self, ks: list[int], groups: list[tuple[str, list]], columns: set[str], instruments: bool
+    ) -> list[list[float]]:
         out = []
-        for batch in (ks[j:j + REALIZATION_BATCH] for j in range(0, len(ks), REALIZATION_BATCH)):
-            for frame in self.realization_batch(columns, [{"k": k, "noise": not instruments, "instruments": instruments}
-                                                     for k in batch]):
+        for batch in (ks[j : j + REALIZATION_BATCH] for j in range(0, len(ks), REALIZATION_BATCH)):
+            for frame in self.realization_batch(
+                columns, [{"k": k, "noise": not instruments, "instruments": instruments} for k in batch]
+            ):
                 row = [0.0] * len(groups)
                 shared: dict[tuple, list[int]] = {}  # coefficients with the same terms share the design
                 for g, (_, terms) in enumerate(groups):
@@ -472,8 +569,14 @@ class NoiseFloor:
         keep = w > 1e-12 * max(float(w.max()), 1e-300)
         return v[:, keep] * np.sqrt(w[keep])
 
-    def reach(self, causes: list[tuple[str, list, np.ndarray]], data: pd.DataFrame,
-              radius: float | None = None, weights=None, beside: dict | None = None) -> list[dict]:
+    def reach(
+        self,
+        causes: list[tuple[str, list, np.ndarray]],
+        data: pd.DataFrame,
+        radius: float | None = None,
+        weights=None,
+        beside: dict | None = None,
+    ) -> list[dict]:
         """What the remaining instrument errors can make of each cause's fitted shape.
 
         For a cause on coefficient ``c`` with terms ``T`` and fitted contribution ``f``
@@ -507,13 +610,14 @@ class NoiseFloor:
         shown = [(ch, e) for ch, e in self.unmeasured if any(ch in lg.data for lg in self.logs)]
         axes = self.instrument_axes()
         # the residuals along each axis and of each unmeasured error, in one spread over the workers
-        specs = ([{"k": 0, "noise": False, "errors": a} for a in axes.T]
-                 + [{"k": 0, "noise": False, "errors": np.array([unit[e]]), "names": [(ch, e)]} for ch, e in shown])
+        specs = [{"k": 0, "noise": False, "errors": a} for a in axes.T] + [
+            {"k": 0, "noise": False, "errors": np.array([unit[e]]), "names": [(ch, e)]} for ch, e in shown
+        ]
         frames = self._spread("_frames", specs) if specs else []
-        resp = frames[:axes.shape[1]]
+        resp = frames[: axes.shape[1]]
         se = np.sqrt(np.diag(self.uncertain_cov)) if resp else np.zeros(0)
         to_axes = np.linalg.pinv(axes) if resp else np.zeros((0, 0))
-        blind = [(ch, e, r) for (ch, e), r in zip(shown, frames[axes.shape[1]:])]
+        blind = [(ch, e, r) for (ch, e), r in zip(shown, frames[axes.shape[1] :])]
         out = []
         for c, terms, f in causes:
             f = np.asarray(f, float) - np.mean(f)
@@ -558,30 +662,48 @@ class NoiseFloor:
                 for j, (ch, err) in enumerate(self.uncertain):
                     k, share = alone(seen @ to_axes[:, j] * se[j])  # one standard error of this error alone
                     left = float(self.uncertain_left[j])
-                    alts.append({"channel": ch, "error": err, "needs": k * se[j], "needs_se": k - left / se[j],
-                                 "se": float(se[j]), "left": left, "explains_pct": share,
-                                 "channel_left_se": self.channel_left_se(ch),
-                                 **({"declared": True} if (ch, err) in self.declared else {})})
+                    alts.append(
+                        {
+                            "channel": ch,
+                            "error": err,
+                            "needs": k * se[j],
+                            "needs_se": k - left / se[j],
+                            "se": float(se[j]),
+                            "left": left,
+                            "explains_pct": share,
+                            "channel_left_se": self.channel_left_se(ch),
+                            **({"declared": True} if (ch, err) in self.declared else {}),
+                        }
+                    )
             for ch, err, r in blind:  # errors the data compatibility could not measure: no standard error
                 k, share = alone(through_terms(r[f"r_{c}"].to_numpy()[:, None])[:, 0])
-                alts.append({"channel": ch, "error": err, "needs": k * unit[err], "needs_se": 0.0,
-                             "se": float("nan"), "explains_pct": share, "unmeasured": True})
+                alts.append(
+                    {
+                        "channel": ch,
+                        "error": err,
+                        "needs": k * unit[err],
+                        "needs_se": 0.0,
+                        "se": float("nan"),
+                        "explains_pct": share,
+                        "unmeasured": True,
+                    }
+                )
             alts.sort(key=lambda a: -a["explains_pct"])
             out.append({"made": float(np.ptp(made)), "left": float(np.ptp(f - made)), "alternatives": alts})
         return out
 
 
-
 def _trust_region(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
     """``argmin |a z - b|`` subject to ``|z| <= radius``."""
     from scipy.optimize import brentq
+
     u, s, vt = np.linalg.svd(a, full_matrices=False)
     keep = s > 1e-10 * max(float(s.max(initial=0.0)), 1e-300)
     u, s, vt = u[:, keep], s[keep], vt[keep]
     ub = u.T @ b
 
     def z(lam: float) -> np.ndarray:
-        return vt.T @ (s * ub / (s ** 2 + lam))
+        return vt.T @ (s * ub / (s**2 + lam))
 
     if not len(s) or np.linalg.norm(z(0.0)) <= radius:
         return z(0.0) if len(s) else np.zeros(a.shape[1])

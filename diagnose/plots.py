@@ -2,6 +2,7 @@
 
 Fixed margins rather than a layout engine: the diagnosis draws a hundred of these, and
 constrained layout took half of their time."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,8 +15,13 @@ from diagnose.result import Diagnosis
 from identify.figures import emptied_axes, new_figure
 
 LABEL = {"CL": "$C_L$", "CD": "$C_D$", "Cm": "$C_m$ (about AERORP)"}
-RESPONSE_CHANNELS = (("theta_deg", "pitch [deg]"), ("alpha_deg", "alpha [deg]"), ("q_dps", "q [deg/s]"),
-                     ("tas_kt", "TAS [kt]"), ("alt_ft", "altitude [ft]"))
+RESPONSE_CHANNELS = (
+    ("theta_deg", "pitch [deg]"),
+    ("alpha_deg", "alpha [deg]"),
+    ("q_dps", "q [deg/s]"),
+    ("tas_kt", "TAS [kt]"),
+    ("alt_ft", "altitude [ft]"),
+)
 RESPONSE_SIZE, HISTORY_SIZE, RESIDUALS_SIZE = (10, 11), (10, 7), (15, 4.5)  # [in]
 
 
@@ -76,8 +82,14 @@ def plot_residuals(diag: Diagnosis, axes=None):
     return axes[0].figure
 
 
-def plot_response(data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None, title: str, axes=None,
-                  band: dict | None = None):
+def plot_response(
+    data: pd.DataFrame,
+    before: pd.DataFrame,
+    after: pd.DataFrame | None,
+    title: str,
+    axes=None,
+    band: dict | None = None,
+):
     """Measured response against the model (and the extended model), same inputs and start.
 
     Parameters
@@ -154,15 +166,29 @@ def save_overview(diag: Diagnosis, folder: Path) -> None:
     fig.savefig(folder / "residuals_vs_cause.png", dpi=100)
 
 
-def save_log_plots(name: str, data: pd.DataFrame, before: pd.DataFrame, after: pd.DataFrame | None,
-                   flown_before: pd.DataFrame | None, flown_after: pd.DataFrame | None, folder: Path,
-                   band: dict | None = None) -> None:
+def save_log_plots(
+    name: str,
+    data: pd.DataFrame,
+    before: pd.DataFrame,
+    after: pd.DataFrame | None,
+    flown_before: pd.DataFrame | None,
+    flown_after: pd.DataFrame | None,
+    folder: Path,
+    band: dict | None = None,
+) -> None:
     """A held-out log's residual history (``residuals_<name>.png``) and, if it was replayed, its
     response (``response_<name>.png``), in ``folder``; one figure of each kind is reused per process."""
-    fig = plot_residual_history(before, after, f"held out: {name}",
-                                axes=emptied_axes("residual_history", HISTORY_SIZE, history_axes))
+    fig = plot_residual_history(
+        before, after, f"held out: {name}", axes=emptied_axes("residual_history", HISTORY_SIZE, history_axes)
+    )
     fig.savefig(folder / f"residuals_{name}.png", dpi=90)
     if flown_before is not None:
-        fig = plot_response(data, flown_before, flown_after, f"held out: {name}, same start and inputs",
-                            axes=emptied_axes("response", RESPONSE_SIZE, response_axes), band=band)
+        fig = plot_response(
+            data,
+            flown_before,
+            flown_after,
+            f"held out: {name}, same start and inputs",
+            axes=emptied_axes("response", RESPONSE_SIZE, response_axes),
+            band=band,
+        )
         fig.savefig(folder / f"response_{name}.png", dpi=90)

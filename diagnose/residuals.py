@@ -8,6 +8,7 @@ the full x and z offset, so a lift or drag discrepancy does not leak into Cm.
 Both sides and the candidate variables then pass through the identification's
 zero-phase low-pass filter.
 """
+
 from __future__ import annotations
 
 
@@ -90,8 +91,14 @@ def measured_arrays(coef, meta: dict, evaluator) -> dict[str, np.ndarray]:
     k = g["S_ft2"] / evaluator.S
     cg_x, cg_z = g.get("cg_x_in", evaluator.cg_in[0]), g.get("cg_z_in", evaluator.cg_in[2])
     cm = np.asarray(coef["Cm"]) * k * g["cbar_ft"] / evaluator.cbar
-    cm = moment_transfer(cm, np.asarray(coef["Cx"]) * k, np.asarray(coef["Cz"]) * k,
-                         evaluator.aerorp_in[0] - cg_x, evaluator.aerorp_in[2] - cg_z, evaluator.cbar)
+    cm = moment_transfer(
+        cm,
+        np.asarray(coef["Cx"]) * k,
+        np.asarray(coef["Cz"]) * k,
+        evaluator.aerorp_in[0] - cg_x,
+        evaluator.aerorp_in[2] - cg_z,
+        evaluator.cbar,
+    )
     return {"CL": np.asarray(coef["CL"]) * k, "CD": np.asarray(coef["CD"]) * k, "Cm": cm}
 
 
@@ -105,8 +112,9 @@ def signature_arrays(data: pd.DataFrame, meta: dict, evaluator) -> dict[str, np.
     return {f"thrust_{c}": moved[c] for c in COEFFS}
 
 
-def delay_signature(data: pd.DataFrame, evaluator, cl: np.ndarray, model: np.ndarray,
-                    channel: str = "alpha_deg") -> dict[str, np.ndarray]:
+def delay_signature(
+    data: pd.DataFrame, evaluator, cl: np.ndarray, model: np.ndarray, channel: str = "alpha_deg"
+) -> dict[str, np.ndarray]:
     """What a time shift of ``channel`` adds to each residual, per second of delay [1/s].
 
     A vane ``tau`` late reads ``x(t - tau)``; the model evaluated there misses
@@ -156,8 +164,9 @@ def kept(n: int, dt: float, step: int | None = None) -> np.ndarray:
     return np.arange(edge, n - edge, step)
 
 
-def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), wait: bool = True,
-                  correct=None):
+def residual_data(
+    logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), wait: bool = True, correct=None
+):
     """Measured minus model coefficients at the measured states, for every log.
 
     The logs are evaluated in chunks spread over ``evaluator.jobs`` worker processes, each
@@ -170,18 +179,28 @@ def residual_data(logs: list[Log], evaluator, step: int | None = None, delays: t
     """
     if not logs:
         raise ValueError("no logs to compute residuals of")
-    parts = by_log_chunks(_chunk_residual_data, list(enumerate(logs)), evaluator, getattr(evaluator, "jobs", 1),
-                          step, delays, correct, wait=wait)
+    parts = by_log_chunks(
+        _chunk_residual_data,
+        list(enumerate(logs)),
+        evaluator,
+        getattr(evaluator, "jobs", 1),
+        step,
+        delays,
+        correct,
+        wait=wait,
+    )
     return pd.concat(parts, ignore_index=True) if wait else (lambda: pd.concat(parts(), ignore_index=True))
 
 
-def _chunk_residual_data(numbered: list[tuple[int, Log]], evaluator, step: int | None, delays: tuple,
-                         correct) -> list[pd.DataFrame]:
+def _chunk_residual_data(
+    numbered: list[tuple[int, Log]], evaluator, step: int | None, delays: tuple, correct
+) -> list[pd.DataFrame]:
     return [_residual_data([lg for _, lg in numbered], evaluator, step, delays, numbered[0][0], correct)]
 
 
-def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: tuple = (),
-                   offset: int = 0, correct=None) -> pd.DataFrame:
+def _residual_data(
+    logs: list[Log], evaluator, step: int | None = None, delays: tuple = (), offset: int = 0, correct=None
+) -> pd.DataFrame:
     """Measured minus model coefficients at the measured states, for every log
     (each through ``correct`` first, if given).
 
@@ -207,8 +226,11 @@ def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: 
         meas = measured_arrays(coefficient_arrays(d, log.meta), log.meta, evaluator)
         cl = meas["CL"]
         pred = evaluator.evaluate_array(evaluator.inputs(d, cl))
-        both = _lowpassed({**meas, **{f"model_{c}": pred[:, j] for j, c in enumerate(COEFFS)}},
-                          [*COEFFS, *(f"model_{c}" for c in COEFFS)], dt)
+        both = _lowpassed(
+            {**meas, **{f"model_{c}": pred[:, j] for j, c in enumerate(COEFFS)}},
+            [*COEFFS, *(f"model_{c}" for c in COEFFS)],
+            dt,
+        )
         var = variable_arrays(d, log.meta, pred[:, 0])
         var.update(_lowpassed(var, [v for v in FILTERED if v in var], dt))
         sig = signature_arrays(d, log.meta, evaluator)
@@ -216,9 +238,12 @@ def _residual_data(logs: list[Log], evaluator, step: int | None = None, delays: 
             sig.update(delay_signature(d, evaluator, cl, pred, ch))
         sig = _lowpassed(sig, sig, dt)
         keep = kept(len(d), dt, step)
-        row = {"log": np.full(len(keep), offset + i), "t_s": t[keep],
-               "maneuver": np.full(len(keep), log.maneuver, dtype=object),
-               "point": np.full(len(keep), log.point, dtype=object)}
+        row = {
+            "log": np.full(len(keep), offset + i),
+            "t_s": t[keep],
+            "maneuver": np.full(len(keep), log.maneuver, dtype=object),
+            "point": np.full(len(keep), log.point, dtype=object),
+        }
         row.update((v, var[v][keep]) for v in VARIABLES)
         row.update((c, x[keep]) for c, x in sig.items())
         for c in COEFFS:

@@ -7,6 +7,7 @@ is a strong discrepancy that the error does not settle. The thresholds (``settle
 ``strong_f``, ``strong_gain``) are :class:`diagnose.config.DiagnosisSettings`', read from
 :func:`diagnose.config.current`.
 """
+
 from __future__ import annotations
 
 from diagnose.config import current
@@ -34,25 +35,37 @@ def instrument_verdict(cause) -> None:
     within = instrument_fits_better(c)
     if within and (c.verdict["accepted"] or c.verdict.get("unconfirmed")):
         open_ = _strong(c) and not instrument_settles(c)
-        c.verdict.update(accepted=False, unconfirmed=open_, reason=within + (
-            f"; not by the {s.settled_se:g} standard errors that settle it, and the discrepancy itself is strong "
-            f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})" if open_ else ""))
+        c.verdict.update(
+            accepted=False,
+            unconfirmed=open_,
+            reason=within
+            + (
+                f"; not by the {s.settled_se:g} standard errors that settle it, and the discrepancy itself is strong "
+                f"(F = {c.evidence['F']:.4g}, held-out gain x{c.verdict['holdout_gain']:.2f})"
+                if open_
+                else ""
+            ),
+        )
 
 
 def _sensor_rivals(cause, measured: bool) -> tuple[dict, list[dict]]:
     """The cause's instrument-error alternatives the data compatibility measured (``measured``) or could
     not, by (channel, error), and its sensor rivals among them."""
-    alts = {(a["channel"], a["error"]): a for a in cause.evidence.get("sensor_alternatives", [])
-            if bool(a.get("unmeasured")) != measured}
-    return alts, [r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor"
-                  and (r["channel"], r["error"]) in alts]
+    alts = {
+        (a["channel"], a["error"]): a
+        for a in cause.evidence.get("sensor_alternatives", [])
+        if bool(a.get("unmeasured")) != measured
+    }
+    return alts, [
+        r for r in cause.evidence.get("rivals", []) if r["kind"] == "sensor" and (r["channel"], r["error"]) in alts
+    ]
 
 
 def _settled(r: dict, coefficient: str) -> bool:
     """A sensor rival better by ``settled_se`` overall that the cause's own
     coefficient does not favour the other way by as much."""
     s = current()
-    return r["separation_se"] <= -s.settled_se and r["by_coefficient"].get(coefficient, 0.0) < s.settled_se ** 2
+    return r["separation_se"] <= -s.settled_se and r["by_coefficient"].get(coefficient, 0.0) < s.settled_se**2
 
 
 def _better_sensor(cause, measured: bool) -> str:
@@ -71,7 +84,7 @@ def _better_sensor(cause, measured: bool) -> str:
         if not measured:
             return r["separation_se"] <= -s.settled_se
         own = r["by_coefficient"].get(cause.coefficient, 0.0)
-        return _settled(r, cause.coefficient) or (r["separation_se"] <= -s.preferred_se and own <= -s.preferred_se ** 2)
+        return _settled(r, cause.coefficient) or (r["separation_se"] <= -s.preferred_se and own <= -(s.preferred_se**2))
 
     better = [r for r in rivals if wins(r)]
     if not better:
@@ -80,12 +93,16 @@ def _better_sensor(cause, measured: bool) -> str:
     a = alts[(r["channel"], r["error"])]
     error = f"{r['channel']} {r['error']} {a['needs']:+.3g}"
     if measured:
-        return (f"an instrument error within the data compatibility's reach fits the residuals better: {error} "
-                f"({abs(a['needs_se']):.1f} standard errors; {-r['separation_se']:.1f} standard errors better, "
-                f"fitted to CL, CD, Cm and the data compatibility together)")
-    return (f"an instrument error the data compatibility could not measure fits the residuals better: {error} "
-            f"({-r['separation_se']:.1f} standard errors better, fitted to CL, CD and Cm together); "
-            f"`campaign plan` designs the flight that measures it")
+        return (
+            f"an instrument error within the data compatibility's reach fits the residuals better: {error} "
+            f"({abs(a['needs_se']):.1f} standard errors; {-r['separation_se']:.1f} standard errors better, "
+            f"fitted to CL, CD, Cm and the data compatibility together)"
+        )
+    return (
+        f"an instrument error the data compatibility could not measure fits the residuals better: {error} "
+        f"({-r['separation_se']:.1f} standard errors better, fitted to CL, CD and Cm together); "
+        f"`campaign plan` designs the flight that measures it"
+    )
 
 
 def instrument_fits_better(cause) -> str:

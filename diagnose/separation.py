@@ -15,6 +15,7 @@ rows (T-optimal discrimination, Atkinson and Fedorov 1975), less what A's fitted
 (:func:`left`). The old rows enter through these sums, which ``diagnosis.json`` stores; a flight
 adds its own.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -42,16 +43,25 @@ UNIT = {"bias": 0.1, "scale": 0.01, "delay": 0.01}
 
 def term_to_dict(t: Term) -> dict:
     """A :class:`Term` as JSON (infinite clipping ranges as null)."""
-    return {"kind": t.kind, "variables": list(t.variables), "knots": list(t.knots), "centers": list(t.centers),
-            "ranges": [[None if not np.isfinite(x) else float(x) for x in r] for r in t.ranges]}
+    return {
+        "kind": t.kind,
+        "variables": list(t.variables),
+        "knots": list(t.knots),
+        "centers": list(t.centers),
+        "ranges": [[None if not np.isfinite(x) else float(x) for x in r] for r in t.ranges],
+    }
 
 
 def term_from_dict(d: dict) -> Term:
     """The inverse of :func:`term_to_dict`."""
     inf = {0: -np.inf, 1: np.inf}
-    return Term(d["kind"], tuple(d["variables"]), tuple(float(k) for k in d["knots"]),
-                tuple(float(c) for c in d["centers"]),
-                tuple(tuple(inf[i] if x is None else float(x) for i, x in enumerate(r)) for r in d["ranges"]))
+    return Term(
+        d["kind"],
+        tuple(d["variables"]),
+        tuple(float(k) for k in d["knots"]),
+        tuple(float(c) for c in d["centers"]),
+        tuple(tuple(inf[i] if x is None else float(x) for i, x in enumerate(r)) for r in d["ranges"]),
+    )
 
 
 @dataclass(frozen=True)
@@ -87,14 +97,27 @@ class Hypothesis:
         return self.channel, self.error
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "kind": self.kind, "coefficient": self.coefficient,
-                "terms": [term_to_dict(t) for t in self.terms], "channel": self.channel, "error": self.error,
-                "prior": None if self.prior is None else [float(x) for x in self.prior]}
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "coefficient": self.coefficient,
+            "terms": [term_to_dict(t) for t in self.terms],
+            "channel": self.channel,
+            "error": self.error,
+            "prior": None if self.prior is None else [float(x) for x in self.prior],
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> Hypothesis:
-        return cls(d["name"], d["kind"], d.get("coefficient", ""), tuple(term_from_dict(t) for t in d["terms"]),
-                   d.get("channel", ""), d.get("error", ""), None if d.get("prior") is None else tuple(d["prior"]))
+        return cls(
+            d["name"],
+            d["kind"],
+            d.get("coefficient", ""),
+            tuple(term_from_dict(t) for t in d["terms"]),
+            d.get("channel", ""),
+            d.get("error", ""),
+            None if d.get("prior") is None else tuple(d["prior"]),
+        )
 
 
 class Stack:
@@ -164,8 +187,11 @@ class Stack:
 
 def _prior_rows(hs: tuple[Hypothesis, Hypothesis]) -> list[tuple[int, float, float]]:
     """(which hypothesis, 1 / se, estimate / se) of each measured instrument error among ``hs``."""
-    return [(i, 1.0 / h.prior[1], h.prior[0] / h.prior[1]) for i, h in enumerate(hs)
-            if h.kind == "sensor" and h.prior is not None and h.prior[1] > 0]
+    return [
+        (i, 1.0 / h.prior[1], h.prior[0] / h.prior[1])
+        for i, h in enumerate(hs)
+        if h.kind == "sensor" and h.prior is not None and h.prior[1] > 0
+    ]
 
 
 def left(stats: dict) -> float:
@@ -206,7 +232,7 @@ def _blocks(stack: Stack, hs, residuals: bool = True) -> list[tuple]:
         k, j, ends = len(at), len(at), []
         for width in widths:
             start = k if same else j
-            ends.append(np.r_[np.arange(k), start:start + width])
+            ends.append(np.r_[np.arange(k), start : start + width])
             j = start + width
 
         def make(i: int = i, c: str = c) -> np.ndarray:
@@ -217,13 +243,14 @@ def _blocks(stack: Stack, hs, residuals: bool = True) -> list[tuple]:
                 cols.append(stack.frame[f"r_{c}"].to_numpy(float)[:, None])
             tri = []
             for lo in range(0, stack.n, QR_ROWS):
-                m = np.hstack([x[lo:lo + QR_ROWS] for x in cols]) * stack.w[i]
+                m = np.hstack([x[lo : lo + QR_ROWS] for x in cols]) * stack.w[i]
                 ok = np.isfinite(m).all(axis=1)
                 m = m if ok.all() else m[ok]
                 if len(m):
                     tri.append(np.linalg.qr(m, mode="r"))
             width = sum(x.shape[1] for x in cols)
             return np.linalg.qr(np.vstack(tri), mode="r") if tri else np.zeros((0, width))
+
         key = (i, residuals)  # the nuisance alone is the same in every pair of the stack
         r = make() if any(widths) else stack._triangles.get(key)
         r = stack._triangles.setdefault(key, make()) if r is None else r
@@ -283,8 +310,9 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
             rows.append(np.zeros((1, widths[k])))
             rows[-1][0, -1] = w if i == k else 0.0
         zs.append(rows)
-    fits = [_min_norm(np.vstack(z), np.concatenate(y), max(3 * stack.n + len(priors), widths[k]))
-            for k, z in enumerate(zs)]
+    fits = [
+        _min_norm(np.vstack(z), np.concatenate(y), max(3 * stack.n + len(priors), widths[k])) for k, z in enumerate(zs)
+    ]
     thetas = [th for th, _ in fits]
     fitted = [[zb @ th for zb in z] for z, th in zip(zs, thetas)]  # each block's part of the residual's span
     # RSS within each block's span (what lies outside it, the same for both, cancels in every difference)
@@ -296,19 +324,31 @@ def pair(stack: Stack, a: Hypothesis, b: Hypothesis) -> dict:
     stats = [_sums(zs[1], zs[0], fitted[0]), _sums(zs[0], zs[1], fitted[1])]
     for st in stats:
         st["V"] = np.linalg.pinv(st["H"], rcond=1e-12, hermitian=True)
-    return {"cause": a.name, "rival": b.name, "kind": b.kind, "hypotheses": [a.to_dict(), b.to_dict()],
-            "separation_se": float(np.sign(d) * np.sqrt(abs(d))), "predicted_se": min(left(s) for s in stats),
-            "by_coefficient": by, "theta": [t.tolist() for t in thetas], "weights": stack.w.tolist(),
-            "stats": [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in stats]}
+    return {
+        "cause": a.name,
+        "rival": b.name,
+        "kind": b.kind,
+        "hypotheses": [a.to_dict(), b.to_dict()],
+        "separation_se": float(np.sign(d) * np.sqrt(abs(d))),
+        "predicted_se": min(left(s) for s in stats),
+        "by_coefficient": by,
+        "theta": [t.tolist() for t in thetas],
+        "weights": stack.w.tolist(),
+        "stats": [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in st.items()} for st in stats],
+    }
 
 
 def _sums(zb: list[np.ndarray], za: list[np.ndarray], za_hat: list[np.ndarray]) -> dict:
     """The sums of one way over some rows, block by block: the rival's design ``zb``, the truth's ``za``
     and its prediction ``za_hat`` make ``G = zb'zb``, ``b = zb'za_hat``, ``c = za_hat'za_hat``,
     ``H = za'za`` and ``C = zb'za``."""
-    return {"G": sum(x.T @ x for x in zb), "b": sum(x.T @ f for x, f in zip(zb, za_hat)),
-            "c": float(sum(f @ f for f in za_hat)), "H": sum(x.T @ x for x in za),
-            "C": sum(u.T @ v for u, v in zip(zb, za))}
+    return {
+        "G": sum(x.T @ x for x in zb),
+        "b": sum(x.T @ f for x, f in zip(zb, za_hat)),
+        "c": float(sum(f @ f for f in za_hat)),
+        "H": sum(x.T @ x for x in za),
+        "C": sum(u.T @ v for u, v in zip(zb, za)),
+    }
 
 
 def unclipped(t: Term) -> Term:
@@ -321,8 +361,10 @@ def predicted(stack: Stack, doc: dict) -> list[dict]:
     """The sums of a :func:`pair` document's two ways over ``stack``'s rows (new data: the fits of
     the old ones taken as the truth, their terms :func:`unclipped`; no instrument-error
     observation), to add to the old sums."""
-    hs = [replace(h, terms=tuple(unclipped(t) for t in h.terms))
-          for h in (Hypothesis.from_dict(d) for d in doc["hypotheses"])]
+    hs = [
+        replace(h, terms=tuple(unclipped(t) for t in h.terms))
+        for h in (Hypothesis.from_dict(d) for d in doc["hypotheses"])
+    ]
     blocks = _blocks(stack, hs, residuals=False)
     zs = [_design_of(blocks, k, stack.width(h)) for k, h in enumerate(hs)]
     out = []
@@ -379,8 +421,13 @@ def compat_prior(compat, channel: str, error: str) -> tuple[float, float] | None
 def signatures(floor, keys) -> dict:
     """(channel, error) -> the residuals (3, n) one unit of each error makes in ``floor``'s logs."""
     keys = sorted(set(keys))
-    frames = floor.realization_batch(set(), [{"k": 0, "noise": False, "errors": np.array([UNIT[e]]),
-                                              "names": [(ch, e)]} for ch, e in keys]) if keys else []
+    frames = (
+        floor.realization_batch(
+            set(), [{"k": 0, "noise": False, "errors": np.array([UNIT[e]]), "names": [(ch, e)]} for ch, e in keys]
+        )
+        if keys
+        else []
+    )
     return {k: np.stack([f[f"r_{c}"].to_numpy(float) for c in COEFFS]) / UNIT[k[1]] for k, f in zip(keys, frames)}
 
 
@@ -390,8 +437,9 @@ def refined_alike(rival: Term, term: Term, pool: list[Term], data: pd.DataFrame 
     return (tail_twin(rival, data) or rival) if data is not None and term not in pool else rival
 
 
-def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], compat,
-                     data: pd.DataFrame | None = None) -> list[Hypothesis]:
+def rival_hypotheses(
+    cause, result, pool: list[Term], alternatives: list[dict], compat, data: pd.DataFrame | None = None
+) -> list[Hypothesis]:
     """A cause's rivals: the instrument errors the verdict names beside it (``sensor_alternatives``:
     they alone make most of it at a plausible size), and each term nearly as strong as one of its
     terms when that entered (the cause with that term swapped), and, for a term in CL, the same term in
@@ -405,30 +453,48 @@ def rival_hypotheses(cause, result, pool: list[Term], alternatives: list[dict], 
     out = []
     pairs = flown_together(data) if data is not None else []  # a variable flown with another: that one too
     for a in alternatives:
-        out.append(Hypothesis(f"{a['channel']} {a['error']}", "sensor", channel=a["channel"], error=a["error"],
-                              prior=compat_prior(compat, a["channel"], a["error"])))
+        out.append(
+            Hypothesis(
+                f"{a['channel']} {a['error']}",
+                "sensor",
+                channel=a["channel"],
+                error=a["error"],
+                prior=compat_prior(compat, a["channel"], a["error"]),
+            )
+        )
     by_label = {t.label: t for t in pool}
     for t in cause.terms:
         close = [by_label.get(a["term"]) for a in result.close.get(t.label, [])]
         twin = in_alpha(t, pool)  # always rivals: they fit alike (``state_se``)
-        states = (([twin] if twin is not None else []) + in_alpha_and_mach(t, pool) + in_flow_states(t, pool)
-                  + in_alpha_for_mach(t, pool) + (in_partner(t, pool, pairs) if pairs else []))
+        states = (
+            ([twin] if twin is not None else [])
+            + in_alpha_and_mach(t, pool)
+            + in_flow_states(t, pool)
+            + in_alpha_for_mach(t, pool)
+            + (in_partner(t, pool, pairs) if pairs else [])
+        )
         states = list(dict.fromkeys(states))
         for r in close + [u for u in states if u not in close]:
             if r is None:
                 continue
             r = refined_alike(r, t, pool, data)
             terms = tuple(r if u == t else u for u in cause.terms)
-            out.append(Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
-                                  cause.coefficient, terms))
+            out.append(
+                Hypothesis(
+                    f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero", cause.coefficient, terms
+                )
+            )
     return out
 
 
 def finer(term: Term, pool: list[Term]) -> Term:
     """``term`` in its variable with twice the knots (a knot between each two): for a term that is not
     smooth, the pool's smooth term in the same variable so refined (``term`` itself if there is none)."""
-    base = term if term.kind == "smooth" else next(
-        (t for t in pool if t.kind == "smooth" and t.variables == term.variables), None)
+    base = (
+        term
+        if term.kind == "smooth"
+        else next((t for t in pool if t.kind == "smooth" and t.variables == term.variables), None)
+    )
     if base is None:
         return term
     k = np.asarray(base.knots, float)
@@ -447,15 +513,25 @@ def wider_hypotheses(cause, pool: list[Term], data: pd.DataFrame | None = None) 
     30 to it (``tests/test_plan.py``)."""
     out = []
     for t in cause.terms:
-        fine = Hypothesis(f"{cause.coefficient}: finer", "aero", cause.coefficient,
-                          tuple(finer(t, pool) if u == t else u for u in cause.terms))
+        fine = Hypothesis(
+            f"{cause.coefficient}: finer",
+            "aero",
+            cause.coefficient,
+            tuple(finer(t, pool) if u == t else u for u in cause.terms),
+        )
         for w in widened(t, pool):
             w = refined_alike(w, t, pool, data)
             if w in cause.terms:
                 continue
             terms = tuple(w if u == t else u for u in cause.terms)
-            out.append((Hypothesis(f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero",
-                                   cause.coefficient, terms), fine))
+            out.append(
+                (
+                    Hypothesis(
+                        f"{cause.coefficient}: {' + '.join(u.label for u in terms)}", "aero", cause.coefficient, terms
+                    ),
+                    fine,
+                )
+            )
     return out
 
 
@@ -478,8 +554,12 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
     lags : Lags
     """
     aero = [c for c in causes if c.kind == "aero" and (c.verdict.get("accepted") or c.verdict.get("unconfirmed"))]
-    rivals = {id(c): rival_hypotheses(c, results[c.coefficient], pools[c.coefficient],
-                                      c.evidence.get("sensor_alternatives", []), compat, data) for c in aero}
+    rivals = {
+        id(c): rival_hypotheses(
+            c, results[c.coefficient], pools[c.coefficient], c.evidence.get("sensor_alternatives", []), compat, data
+        )
+        for c in aero
+    }
     wider = {id(c): wider_hypotheses(c, pools[c.coefficient], data) for c in aero}
     if not any(rivals.values()) and not any(wider.values()):
         return []
@@ -494,10 +574,15 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
         mine = Hypothesis(c.label, "aero", c.coefficient, tuple(c.terms))
         for h, fine in wider[id(c)]:
             c.evidence.setdefault("wider_rivals", []).append(
-                {"rival": h.name, "kind": "aero", "term": next(t.label for t in h.terms if t not in c.terms),
-                 "replaces": next(t.label for t in c.terms if t not in h.terms),
-                 "separation_se": pair(stack, mine, h)["separation_se"],
-                 "finer_separation_se": pair(stack, fine, h)["separation_se"]})
+                {
+                    "rival": h.name,
+                    "kind": "aero",
+                    "term": next(t.label for t in h.terms if t not in c.terms),
+                    "replaces": next(t.label for t in c.terms if t not in h.terms),
+                    "separation_se": pair(stack, mine, h)["separation_se"],
+                    "finer_separation_se": pair(stack, fine, h)["separation_se"],
+                }
+            )
         for h in rivals[id(c)]:
             doc = pair(stack, mine, h)
             doc["context"] = {k: [term_to_dict(t) for t in v] for k, v in context.items()}
@@ -505,10 +590,18 @@ def cause_rivals(causes, results: dict, pools: dict, data: pd.DataFrame, floor, 
             swapped = [t.label for t in h.terms if t not in c.terms]
             replaced = [t.label for t in c.terms if t not in h.terms] if h.kind == "aero" else []
             c.evidence.setdefault("rivals", []).append(
-                {"rival": h.name, "kind": h.kind, "term": swapped[0] if swapped else None,
-                 "replaces": replaced[0] if replaced else None,
-                 "channel": h.channel or None, "error": h.error or None, "separation_se": doc["separation_se"],
-                 "predicted_se": doc["predicted_se"], "by_coefficient": doc["by_coefficient"]})
+                {
+                    "rival": h.name,
+                    "kind": h.kind,
+                    "term": swapped[0] if swapped else None,
+                    "replaces": replaced[0] if replaced else None,
+                    "channel": h.channel or None,
+                    "error": h.error or None,
+                    "separation_se": doc["separation_se"],
+                    "predicted_se": doc["predicted_se"],
+                    "by_coefficient": doc["by_coefficient"],
+                }
+            )
     return out
 
 
@@ -544,19 +637,34 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
         def in_states(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
             # the term in CL or a trimmed control, the rival in the model's own states
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
-            return (old is not None and new is not None and ("CL" in old.variables and "CL" not in new.variables
-                                                             and set(old.variables) - {"CL"} <= set(new.variables)
-                                                             or new in in_flow_states(old, pool)))
+            return (
+                old is not None
+                and new is not None
+                and (
+                    "CL" in old.variables
+                    and "CL" not in new.variables
+                    and set(old.variables) - {"CL"} <= set(new.variables)
+                    or new in in_flow_states(old, pool)
+                )
+            )
 
         def and_mach(r: dict, own: dict = own, by_label: dict = by_label, pool: list = pool) -> bool:
             # a rival in alpha and Mach together for a term in CL alone
             old, new = own.get(r.get("replaces")), by_label.get(r["term"])
             return old is not None and new is not None and new in in_alpha_and_mach(old, pool)
 
-        better = [r for r in c.evidence.get("rivals", []) if r["kind"] == "aero" and r["term"]
-                  and (r["separation_se"] <= -s.swap_se or in_states(r) and r["separation_se"] < s.state_se)]
-        better += [r for r in c.evidence.get("wider_rivals", [])
-                   if max(r["separation_se"], r["finer_separation_se"]) <= -s.wider_se]
+        better = [
+            r
+            for r in c.evidence.get("rivals", [])
+            if r["kind"] == "aero"
+            and r["term"]
+            and (r["separation_se"] <= -s.swap_se or in_states(r) and r["separation_se"] < s.state_se)
+        ]
+        better += [
+            r
+            for r in c.evidence.get("wider_rivals", [])
+            if max(r["separation_se"], r["finer_separation_se"]) <= -s.wider_se
+        ]
         plain = {r.get("replaces") for r in better if not and_mach(r)}
         better = [r for r in better if not and_mach(r) or r.get("replaces") not in plain]  # Mach if alpha will not do
         if not better:
@@ -566,8 +674,11 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
 
         def put(x: dict, own: dict = own, by_label: dict = by_label) -> set[str]:
             # the variables a rival puts in place of the term's
-            return set(by_label[x["term"]].variables) - set(own[x["replaces"]].variables) if x["term"] in by_label \
-                and x.get("replaces") in own else set()
+            return (
+                set(by_label[x["term"]].variables) - set(own[x["replaces"]].variables)
+                if x["term"] in by_label and x.get("replaces") in own
+                else set()
+            )
 
         for label in own:  # the cause's other terms in CL give way alike: to the same state as the first if they can
             alike = [x for x in better if x.get("replaces") == label != r.get("replaces") and in_states(x)]
@@ -577,8 +688,9 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
             old = [t for t in c.terms if t.label == x.get("replaces")]
             if old and x["term"] in by_label and x["term"] not in taken.setdefault(c.coefficient, set()) | set(own):
                 taken[c.coefficient].add(x["term"])
-                out.setdefault(c.coefficient, {})[old[0]] = refined_alike(by_label[x["term"]], old[0],
-                                                                          pools[c.coefficient], data)
+                out.setdefault(c.coefficient, {})[old[0]] = refined_alike(
+                    by_label[x["term"]], old[0], pools[c.coefficient], data
+                )
     return out
 
 

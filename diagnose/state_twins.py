@@ -2,6 +2,7 @@
 has (:func:`diagnose.separation.rival_hypotheses`). The model's tables are written in alpha and Mach; CL is
 its output, and the trim sets the elevator and the stabilizer from the states, so a term in either fits
 alike to its twin in the states."""
+
 from __future__ import annotations
 
 from diagnose.terms import Term

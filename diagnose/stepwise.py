@@ -1,5 +1,6 @@
 """Forward-backward stepwise regression of a coefficient's residual on candidate terms, with partial
 F-tests on the effective number of independent samples (SIDPAC's stepwise regression)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ class Lags:
 
     def __init__(self, log_id: np.ndarray, max_lag: int = 300) -> None:
         from scipy.fft import next_fast_len
+
         n = len(log_id)
         starts = np.flatnonzero(np.r_[True, log_id[1:] != log_id[:-1]]) if n else np.zeros(0, int)
         self.max_lag = max_lag
@@ -31,6 +33,7 @@ class Lags:
     def n_eff(self, resid: np.ndarray) -> float:
         """Effective number of independent samples: N / (1 + 2 sum rho_k), rho up to its first zero."""
         from scipy import fft
+
         n = len(resid)
         e = resid - resid.mean()
         r0 = float(e @ e) / n
@@ -39,9 +42,9 @@ class Lags:
         z = np.zeros(self.nfft)
         z[self.pos] = e
         f = fft.rfft(z)
-        rho = fft.irfft(f.real ** 2 + f.imag ** 2, self.nfft)[1:self.max_lag + 1] / n / r0
+        rho = fft.irfft(f.real**2 + f.imag**2, self.nfft)[1 : self.max_lag + 1] / n / r0
         stop = np.flatnonzero(rho <= 0)
-        tau = 1.0 + 2.0 * float(np.sum(rho[:stop[0] if stop.size else len(rho)]))
+        tau = 1.0 + 2.0 * float(np.sum(rho[: stop[0] if stop.size else len(rho)]))
         return max(n / tau, 2.0)
 
 
@@ -64,6 +67,7 @@ def _compact(x: np.ndarray):
     """A design matrix as it is cheapest to hold: sparse (CSR) if most of it is zero (the hat
     columns of a smooth term), else dense."""
     from scipy import sparse
+
     return sparse.csr_array(x) if np.count_nonzero(x) < 0.5 * x.size else x
 
 
@@ -124,7 +128,7 @@ class Gram:
         at = 1
         for t in terms:
             k = self.designs[t].shape[1]
-            r = r - self.designs[t] @ beta[at:at + k]
+            r = r - self.designs[t] @ beta[at : at + k]
             at += k
         return Fit(list(terms), beta, r, float(r @ r))
 
@@ -170,8 +174,10 @@ def f_logsf(f: float, d1: float, d2: float) -> float:
     c, d = 1.0, 1.0 / clip(1.0 - (a + b) * x / (a + 1.0))
     h = d
     for m in range(1, 10000):
-        for aa in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
-                   -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+        for aa in (
+            m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1)),
+        ):
             d = 1.0 / clip(1.0 + aa * d)
             c = clip(1.0 + aa / c)
             h *= d * c
@@ -198,7 +204,9 @@ def rank_on(rows: list[dict], alpha_in: float) -> None:
     rows.sort(key=lambda r: (r["p_value"], -r["F"]))
     if rows and rows[0]["p_value"] < alpha_in:
         width = rows[0]["term"].width
-        best = min((r for r in rows if r["p_value"] < alpha_in and r["term"].width == width), key=lambda r: r["fit"].rss)
+        best = min(
+            (r for r in rows if r["p_value"] < alpha_in and r["term"].width == width), key=lambda r: r["fit"].rss
+        )
         rows.sort(key=lambda r: r is not best)  # stable: the others keep their order
 
 
@@ -221,7 +229,7 @@ class StepwiseResult:
         i = 1
         for t in self.terms:
             if t == term:
-                return self.beta[i:i + t.width]
+                return self.beta[i : i + t.width]
             i += t.width
         raise KeyError(term.label)
 
@@ -232,9 +240,17 @@ class StepwiseResult:
         return out
 
 
-def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: float | None = None,  # noqa: C901
-             min_reduction: float | None = None, max_terms: int | None = None, lags: Lags | None = None,
-             gram: Gram | None = None, split: bool = True) -> StepwiseResult:
+def stepwise(  # noqa: C901
+    data: pd.DataFrame,
+    coefficient: str,
+    terms: list[Term],
+    alpha_in: float | None = None,
+    min_reduction: float | None = None,
+    max_terms: int | None = None,
+    lags: Lags | None = None,
+    gram: Gram | None = None,
+    split: bool = True,
+) -> StepwiseResult:
     """Forward-backward stepwise regression of ``r_<coefficient>`` on candidate terms.
 
     A term enters if its partial F-test (on the effective sample size of the
@@ -269,27 +285,58 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
         p_now = 1 + sum(t.width for t in chosen)
         rows = []
         for t in terms:
-            if t in chosen or any(c.variables == t.variables and (
-                    c.kind == "smooth" and t.kind in ("linear", "quadratic", "smooth")
-                    or c.kind == "quadratic" and t.kind == "linear") for c in chosen):
+            if t in chosen or any(
+                c.variables == t.variables
+                and (
+                    c.kind == "smooth"
+                    and t.kind in ("linear", "quadratic", "smooth")
+                    or c.kind == "quadratic"
+                    and t.kind == "linear"
+                )
+                for c in chosen
+            ):
                 continue
             big = gram.fit(chosen + [t], coefficient)
             n_eff = lags.n_eff(big.resid)
             f, p = f_test(current, big, t.width, n_eff, p_now + t.width)
             big.resid = None  # a round holds every candidate's fit; the chosen one's residual is recomputed
-            rows.append({"term": t, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                         "n_eff": n_eff, "fit": big, "dof": max(n_eff - p_now - t.width, 1.0)})
+            rows.append(
+                {
+                    "term": t,
+                    "F": f,
+                    "p_value": p,
+                    "rss_reduction": (current.rss - big.rss) / rss0,
+                    "n_eff": n_eff,
+                    "fit": big,
+                    "dof": max(n_eff - p_now - t.width, 1.0),
+                }
+            )
         if not rows:
             return None, None, rows
         rank_on(rows, alpha_in)
         best = rows[0]
         # prefer a leaner term on a subset of the same variables if it does as well
-        leaner = sorted((r for r in rows if set(r["term"].variables) <= set(best["term"].variables)
-                         and r["term"].width < best["term"].width and r["p_value"] < alpha_in),
-                        key=lambda r: r["term"].width)
+        leaner = sorted(
+            (
+                r
+                for r in rows
+                if set(r["term"].variables) <= set(best["term"].variables)
+                and r["term"].width < best["term"].width
+                and r["p_value"] < alpha_in
+            ),
+            key=lambda r: r["term"].width,
+        )
         for lean in leaner:
-            if f_test(lean["fit"], best["fit"], best["term"].width - lean["term"].width,
-                       best["n_eff"], p_now + best["term"].width)[1] > alpha_in:
+            if (
+                f_test(
+                    lean["fit"],
+                    best["fit"],
+                    best["term"].width - lean["term"].width,
+                    best["n_eff"],
+                    p_now + best["term"].width,
+                )[1]
+                > alpha_in
+            ):
                 best = lean
                 break
         entered = best  # its rivals are those nearly as strong as it, unrefined
@@ -300,15 +347,28 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             big.resid = None
             if f_test(best["fit"], big, twin.width - best["term"].width, n_eff, p_now + twin.width)[1] < alpha_in:
                 f, p = f_test(current, big, twin.width, n_eff, p_now + twin.width)
-                best = {"term": twin, "F": f, "p_value": p, "rss_reduction": (current.rss - big.rss) / rss0,
-                        "n_eff": n_eff, "fit": big, "dof": max(n_eff - p_now - twin.width, 1.0)}
+                best = {
+                    "term": twin,
+                    "F": f,
+                    "p_value": p,
+                    "rss_reduction": (current.rss - big.rss) / rss0,
+                    "n_eff": n_eff,
+                    "fit": big,
+                    "dof": max(n_eff - p_now - twin.width, 1.0),
+                }
         return best, entered, rows
 
     def rivals(best: dict, entered: dict, rows: list[dict]) -> list[dict]:
         mine = set(best["term"].variables)
-        return [{"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]} for r in rows
-                if r is not entered and r["p_value"] < alpha_in and r["F"] >= s.rival_f_ratio * entered["F"]
-                and not set(r["term"].variables) <= mine and not mine <= set(r["term"].variables)][:3]
+        return [
+            {"term": r["term"].label, "F": r["F"], "F_ratio": r["F"] / entered["F"]}
+            for r in rows
+            if r is not entered
+            and r["p_value"] < alpha_in
+            and r["F"] >= s.rival_f_ratio * entered["F"]
+            and not set(r["term"].variables) <= mine
+            and not mine <= set(r["term"].variables)
+        ][:3]
 
     def replace() -> bool:
         """Sequential replacement: each chosen term taken out in turn and the search's choice put in
@@ -323,9 +383,14 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
                 continue
             u = best["term"]
             better = best["fit"].rss < current.rss * (1 - 1e-9) and u.width <= t.width
-            leaner = (set(u.variables) <= set(t.variables) and u.width < t.width and f_test(
-                best["fit"], current, t.width - u.width, lags.n_eff(current.resid),
-                1 + sum(c.width for c in chosen))[1] > alpha_in)
+            leaner = (
+                set(u.variables) <= set(t.variables)
+                and u.width < t.width
+                and f_test(
+                    best["fit"], current, t.width - u.width, lags.n_eff(current.resid), 1 + sum(c.width for c in chosen)
+                )[1]
+                > alpha_in
+            )
             parts = len(connected(rest + [u])) > causes
             if (better or leaner) and (split or not parts):
                 if parts:
@@ -344,9 +409,16 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             if best is None:
                 break
             if not alternatives:
-                alternatives = [{"term": r["term"].label, "F": r["F"], "p_value": r["p_value"],
-                                 "log10_p": f_logsf(r["F"], r["term"].width, r["dof"]) / np.log(10.0),
-                                 "rss_reduction_pct": 100 * r["rss_reduction"]} for r in rows[:8]]
+                alternatives = [
+                    {
+                        "term": r["term"].label,
+                        "F": r["F"],
+                        "p_value": r["p_value"],
+                        "log10_p": f_logsf(r["F"], r["term"].width, r["dof"]) / np.log(10.0),
+                        "rss_reduction_pct": 100 * r["rss_reduction"],
+                    }
+                    for r in rows[:8]
+                ]
             if best["p_value"] >= alpha_in or best["rss_reduction"] < min_reduction:
                 break
             close[best["term"].label] = rivals(best, entered, rows)
@@ -355,8 +427,7 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
             for t in list(chosen[:-1]):  # backward step
                 rest = [c for c in chosen if c != t]
                 small = gram.fit(rest, coefficient)
-                _, p = f_test(small, current, t.width, lags.n_eff(current.resid),
-                               1 + sum(c.width for c in chosen))
+                _, p = f_test(small, current, t.width, lags.n_eff(current.resid), 1 + sum(c.width for c in chosen))
                 if p >= alpha_in or (small.rss - current.rss) / rss0 < min_reduction / 2:
                     chosen.remove(t)
                     current = small
@@ -365,9 +436,19 @@ def stepwise(data: pd.DataFrame, coefficient: str, terms: list[Term], alpha_in: 
     current = fit_terms(y, [_dense(designs[c]) for c in chosen], chosen)  # the answer itself by a rank-revealing solver
     n_eff = lags.n_eff(current.resid)
     evidence = _evidence(current, chosen, lambda rest: gram.fit(rest, coefficient), n_eff)
-    rms_after = float(np.sqrt(np.mean(current.resid ** 2)))
-    return StepwiseResult(coefficient, chosen, current.beta, evidence, alternatives, rms_before, rms_after, n_eff,
-                          {t.label: close.get(t.label, []) for t in chosen}, splits)
+    rms_after = float(np.sqrt(np.mean(current.resid**2)))
+    return StepwiseResult(
+        coefficient,
+        chosen,
+        current.beta,
+        evidence,
+        alternatives,
+        rms_before,
+        rms_after,
+        n_eff,
+        {t.label: close.get(t.label, []) for t in chosen},
+        splits,
+    )
 
 
 def _evidence(current: Fit, chosen: list[Term], without, n_eff: float, which: list[Term] | None = None) -> dict:
@@ -378,8 +459,12 @@ def _evidence(current: Fit, chosen: list[Term], without, n_eff: float, which: li
     for t in chosen if which is None else which:
         small = without([c for c in chosen if c != t])
         f, p = f_test(small, current, t.width, n_eff, p_all)
-        evidence[t.label] = {"F": f, "p_value": p, "dof": [t.width, max(n_eff - p_all, 1.0)],
-                             "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss)}
+        evidence[t.label] = {
+            "F": f,
+            "p_value": p,
+            "dof": [t.width, max(n_eff - p_all, 1.0)],
+            "rss_reduction_pct": 100.0 * (1.0 - current.rss / small.rss),
+        }
     return evidence
 
 
@@ -391,8 +476,24 @@ def refit(res: StepwiseResult, keep: list[Term], data: pd.DataFrame) -> Stepwise
     new = [t for t in keep if t.label not in res.evidence]
     evidence = {k: v for k, v in res.evidence.items() if k in {t.label for t in keep}}
     if new:
-        evidence.update(_evidence(fit, list(keep), lambda rest: fit_terms(y, [t.design(data) for t in rest], rest),
-                                  Lags(data["log"].to_numpy()).n_eff(fit.resid), new))
-    return StepwiseResult(res.coefficient, list(keep), fit.beta, evidence,
-                          res.alternatives, res.rms_before, float(np.sqrt(np.mean(fit.resid ** 2))), res.n_eff,
-                          {k: v for k, v in res.close.items() if k in {t.label for t in keep}}, res.splits)
+        evidence.update(
+            _evidence(
+                fit,
+                list(keep),
+                lambda rest: fit_terms(y, [t.design(data) for t in rest], rest),
+                Lags(data["log"].to_numpy()).n_eff(fit.resid),
+                new,
+            )
+        )
+    return StepwiseResult(
+        res.coefficient,
+        list(keep),
+        fit.beta,
+        evidence,
+        res.alternatives,
+        res.rms_before,
+        float(np.sqrt(np.mean(fit.resid**2))),
+        res.n_eff,
+        {k: v for k, v in res.close.items() if k in {t.label for t in keep}},
+        res.splits,
+    )

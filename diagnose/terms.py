@@ -1,5 +1,6 @@
 """The candidate terms of a residual: every logged variable, linear and smooth (a piecewise-linear
 basis), and pairwise interactions; and the sensor-error signatures that compete with them."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -63,8 +64,9 @@ class Term:
         v = " x ".join(self.variables)
         if self.kind == "smooth_x_linear":
             return f"smooth({self.variables[0]}) x {self.variables[1]}"
-        return {"linear": f"linear({v})", "quadratic": f"quadratic({v})", "smooth": f"smooth({v})",
-                "product": v}[self.kind]
+        return {"linear": f"linear({v})", "quadratic": f"quadratic({v})", "smooth": f"smooth({v})", "product": v}[
+            self.kind
+        ]
 
     def _lin(self, frame: pd.DataFrame, i: int) -> np.ndarray:
         v = self.variables[i]
@@ -92,8 +94,13 @@ class Term:
 
     @property
     def width(self) -> int:
-        return {"linear": 1, "quadratic": 2, "product": 3, "smooth": len(self.knots) - 1,
-                "smooth_x_linear": 2 * (len(self.knots) - 1)}[self.kind]
+        return {
+            "linear": 1,
+            "quadratic": 2,
+            "product": 3,
+            "smooth": len(self.knots) - 1,
+            "smooth_x_linear": 2 * (len(self.knots) - 1),
+        }[self.kind]
 
 
 def connected(terms: list[Term]) -> list[list[Term]]:
@@ -181,8 +188,9 @@ def candidate_terms(data: pd.DataFrame, coefficient: str | None = None) -> list[
     if "gear_norm" in shaped:
         for b in shaped:
             if b != "gear_norm":
-                terms.append(Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]),
-                                  ((0.0, 1.0), rng[b])))
+                terms.append(
+                    Term("smooth_x_linear", ("gear_norm", b), GEAR_KNOTS, (0.0, center[b]), ((0.0, 1.0), rng[b]))
+                )
     for a, b in (("alpha_deg", "mach"), ("mach", "alpha_deg")):
         if a in smooth_knots and b in shaped:
             terms.append(Term("smooth_x_linear", (a, b), smooth_knots[a], (0.0, center[b]), (rng[a], rng[b])))

@@ -8,6 +8,7 @@ logs ``flown_together_within``, are flown together: each cause in one of them ge
 is marked confounded in the report. The flap angle and Mach, set per condition, have their own test
 (:mod:`diagnose.flap_mach`).
 """
+
 from __future__ import annotations
 
 from itertools import combinations
@@ -54,8 +55,11 @@ def flown_together(data: pd.DataFrame, corr: float | None = None, within_corr: f
     corr = s.flown_together_corr if corr is None else corr
     within_corr = s.flown_together_within if within_corr is None else within_corr
     live = [v for v in TESTED if v in data]
-    within = {v: data[v].to_numpy(float) - data.groupby("log")[v].transform("mean").to_numpy(float)
-              for v in live} if "log" in data else {}
+    within = (
+        {v: data[v].to_numpy(float) - data.groupby("log")[v].transform("mean").to_numpy(float) for v in live}
+        if "log" in data
+        else {}
+    )
     live = [v for v in live if v in within and float(np.nanstd(within[v])) >= s.min_std.get(v, 0.0)]
     out = []
     for a, b in combinations(live, 2):
@@ -79,8 +83,12 @@ def in_partner(term: Term, pool: list[Term], pairs: list[dict]) -> list[Term]:
             if u in term.variables:
                 continue
             want = tuple(u if w == v else w for w in term.variables)
-            same = [t for t in pool if t.kind == term.kind and (t.variables == want or (
-                t.kind == "product" and sorted(t.variables) == sorted(want)))]
+            same = [
+                t
+                for t in pool
+                if t.kind == term.kind
+                and (t.variables == want or (t.kind == "product" and sorted(t.variables) == sorted(want)))
+            ]
             out += [t for t in same[:1] if t not in out]
     return out
 
@@ -99,8 +107,12 @@ def confounded_note(cause, pairs: list[dict], settled_se: float) -> dict | None:
         if r.get("kind") != "aero" or not r.get("term"):
             continue
         used = {v for p in mine for v in p["variables"] if v in r["term"]}
-        swapped = any(u not in own and v in own and v not in r["term"] for p in mine
-                      for u, v in (p["variables"], p["variables"][::-1]) if u in used)
+        swapped = any(
+            u not in own and v in own and v not in r["term"]
+            for p in mine
+            for u, v in (p["variables"], p["variables"][::-1])
+            if u in used
+        )
         if swapped:
             width = sum(v in r["term"] for v in (*TESTED, "CL", "flap_deg", "gear_norm", "adothat_rad"))
             rivals.append({"rival": r["rival"], "separation_se": r["separation_se"], "variables": width})
@@ -125,9 +137,11 @@ def confounded_text(note: dict) -> str:
     pairs = pairs.replace("; ", ", and ") if len(note["pairs"]) == 2 else pairs
     if note["rivals"]:
         best = note["rivals"][0]
-        how = (f"its reading {best['rival']} is {best['separation_se']:+.1f} standard errors behind"
-               + (", which these data settle" if best["settled"] else
-                  " (`campaign plan` designs the flight that separates them)"))
+        how = f"its reading {best['rival']} is {best['separation_se']:+.1f} standard errors behind" + (
+            ", which these data settle"
+            if best["settled"]
+            else " (`campaign plan` designs the flight that separates them)"
+        )
     else:
         how = "no reading in the other variable could be fitted in its place"
     return f"   confounded: the fitted logs fly {pairs} together: {how}"

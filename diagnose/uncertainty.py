@@ -1,4 +1,5 @@
 """The extension's parameter covariance and draws from it, for Monte Carlo bands on replays."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -33,8 +34,10 @@ def draws(diag: Diagnosis, n: int, seed: int = 0) -> list[Diagnosis]:
     covs = {c: beta_covariance(r, diag.data) for c, r in diag.results.items() if r.terms}
     out = []
     for _ in range(n):
-        results = {c: replace(r, beta=rng.multivariate_normal(r.beta, covs[c], method="eigh")) if c in covs else r
-                   for c, r in diag.results.items()}
+        results = {
+            c: replace(r, beta=rng.multivariate_normal(r.beta, covs[c], method="eigh")) if c in covs else r
+            for c, r in diag.results.items()
+        }
         out.append(replace(diag, results=results))
     return out
 
@@ -69,7 +72,8 @@ def pass_probability(flown: dict[str, np.ndarray], measured: dict[str, np.ndarra
     ok = None
     for ch in TOLERANCES:
         err = np.abs(flown[ch] - measured[ch])[:, np.isfinite(measured[ch])]
-        inside = np.isfinite(err).all(axis=1) & (np.nan_to_num(err, nan=np.inf).max(axis=1, initial=0.0)
-                                                 <= tolerance(ch, measured[ch]))
+        inside = np.isfinite(err).all(axis=1) & (
+            np.nan_to_num(err, nan=np.inf).max(axis=1, initial=0.0) <= tolerance(ch, measured[ch])
+        )
         ok = inside if ok is None else ok & inside
     return float(np.mean(ok))

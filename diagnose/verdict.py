@@ -1,5 +1,6 @@
 """The verdict on each candidate cause: significant, beyond what instrument noise and errors make,
 better on data it was not fitted on."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -31,8 +32,11 @@ def rank(verdict: dict) -> tuple[int, int, float]:
     tested = gain is not None and np.isfinite(gain)
     size = verdict.get("size_over_floor", 0.0)
     strong = size >= s.strong_over_floor
-    return (0 if tested and gain > 1.0 else 2 if tested else 1, 0 if strong else 1,
-            -(np.nan_to_num(verdict.get("explains_pct", 0.0)) if strong else size))
+    return (
+        0 if tested and gain > 1.0 else 2 if tested else 1,
+        0 if strong else 1,
+        -(np.nan_to_num(verdict.get("explains_pct", 0.0)) if strong else size),
+    )
 
 
 def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.ndarray:
@@ -42,9 +46,14 @@ def contribution(res: StepwiseResult, cause: Cause, data: pd.DataFrame) -> np.nd
     return c - held_constant(c)
 
 
-def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
-                 strong: bool | None = None, group: str = "condition",
-                 where: float | None = None) -> tuple[float, list[int], dict]:
+def holdout_gain(
+    res: StepwiseResult,
+    cause: Cause,
+    data: pd.DataFrame,
+    strong: bool | None = None,
+    group: str = "condition",
+    where: float | None = None,
+) -> tuple[float, list[int], dict]:
     """Leave-one-condition-out (or leave-one-log-out, ``group``) check of one cause on every
     condition flown.
 
@@ -170,8 +179,11 @@ def holdout_gain(res: StepwiseResult, cause: Cause, data: pd.DataFrame,
 
     gain, by = against([t for t in res.terms if t not in cause.terms])
     earlier = [t for t in res.terms[:first] if t not in cause.terms]
-    if len(earlier) + len(own) < len(res.terms) and not gain >= s.strong_gain and _alone(
-            y, design_matrix(earlier, data), x_own) >= s.alone_share * cause.size:
+    if (
+        len(earlier) + len(own) < len(res.terms)
+        and not gain >= s.strong_gain
+        and _alone(y, design_matrix(earlier, data), x_own) >= s.alone_share * cause.size
+    ):
         g, b = against(earlier)
         if g >= s.strong_gain:
             gain, by = g, b
@@ -183,14 +195,16 @@ def _repeats(res: StepwiseResult, cause: Cause, data: pd.DataFrame, strong: bool
     (:func:`holdout_gain` by log): over the logs where the cause acts, and over their rows where it
     departs from the model by ``departs_share`` of its size."""
     s = current()
-    return (holdout_gain(res, cause, data, strong, group="log")[0],
-            holdout_gain(res, cause, data, strong, group="log", where=s.departs_share)[0])
+    return (
+        holdout_gain(res, cause, data, strong, group="log")[0],
+        holdout_gain(res, cause, data, strong, group="log", where=s.departs_share)[0],
+    )
 
 
 def _alone(y: np.ndarray, x_rest: np.ndarray, x_own: np.ndarray) -> float:
     """The size (range) of the ``x_own`` part of a least-squares fit of ``y`` on ``x_rest`` and ``x_own``."""
     beta = np.linalg.lstsq(np.hstack([x_rest, x_own]), y, rcond=None)[0]
-    return float(np.ptp(x_own @ beta[x_rest.shape[1]:]))
+    return float(np.ptp(x_own @ beta[x_rest.shape[1] :]))
 
 
 def _bracketed(data: pd.DataFrame, out: np.ndarray, variables: list[str]) -> np.ndarray:
@@ -232,17 +246,32 @@ def main_effect(cause: Cause, res: StepwiseResult, data: pd.DataFrame) -> tuple[
     cx, cy = along(own, fit, data, v)
     held = held_constant(part)
     part, cy = part - held, cy - held
-    cut = replace(cause, variables=[v], terms=own, shape=shape_of(cx, cy), peak=float(np.max(np.abs(part))),
-                  size=float(np.ptp(part)), curve={v: cx.tolist(), f"d{cause.coefficient}": np.asarray(cy).tolist(),
-                                                   "others_at_median": {}},
-                  evidence={**cause.evidence, "cut_from": cause.label,
-                            "terms": {t.label: cause.evidence["terms"].get(t.label, {}) for t in own}})
+    cut = replace(
+        cause,
+        variables=[v],
+        terms=own,
+        shape=shape_of(cx, cy),
+        peak=float(np.max(np.abs(part))),
+        size=float(np.ptp(part)),
+        curve={v: cx.tolist(), f"d{cause.coefficient}": np.asarray(cy).tolist(), "others_at_median": {}},
+        evidence={
+            **cause.evidence,
+            "cut_from": cause.label,
+            "terms": {t.label: cause.evidence["terms"].get(t.label, {}) for t in own},
+        },
+    )
     return cut, fit
 
 
-def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.DataFrame,
-          floors: list[np.ndarray], eiv: list[float] | None = None, reach: list[dict] | None = None,
-          data: pd.DataFrame | None = None) -> None:
+def judge(
+    causes: list[Cause],
+    results: dict[str, StepwiseResult],
+    data_all: pd.DataFrame,
+    floors: list[np.ndarray],
+    eiv: list[float] | None = None,
+    reach: list[dict] | None = None,
+    data: pd.DataFrame | None = None,
+) -> None:
     """Fill each cause's verdict: significant, beyond what noise and instrument errors make,
     better on held-out logs where it acts by ``replicate_gain``, each log left out in turn and
     predicted from the others, its own condition's repeats among them (or by ``departs_gain``
@@ -300,81 +329,132 @@ def judge(causes: list[Cause], results: dict[str, StepwiseResult], data_all: pd.
         if not cause.evidence["p_value"] < alpha_in:
             reasons.append(f"not significant (p = {cause.evidence['p_value']:.2g}, needs < {alpha_in:g})")
         if not cause.size > floor:
-            reasons.append(f"no larger than instrument noise makes it (size {cause.size:.3g}, noise floor "
-                           f"{floor:.3g})")
+            reasons.append(f"no larger than instrument noise makes it (size {cause.size:.3g}, noise floor {floor:.3g})")
         elif not beyond > floor:
             made_by = len(reasons)  # where the reach's reason stands
-            reasons.append(f"instrument errors within {s.reach_se:g} standard errors of the data compatibility "
-                           f"make all but {beyond:.3g} of it (size {cause.size:.3g}, noise floor {floor:.3g})")
+            reasons.append(
+                f"instrument errors within {s.reach_se:g} standard errors of the data compatibility "
+                f"make all but {beyond:.3g} of it (size {cause.size:.3g}, noise floor {floor:.3g})"
+            )
         # an effect that departs from the model at one condition alone, or that no condition left out can
         # test, the other conditions cannot confirm or refute; that condition's repeats still can
         tested = {c: g for c, g in by_condition.items() if np.isfinite(g)}
         alone = (len(by_condition) == 1 or (bool(by_condition) and not tested)) and not repeated
         strong = beyond >= s.strong_over_floor * floor
         if not repeated:
-            where_departs = (f", x{departs:.3f} where it departs, needs x{s.departs_gain}" if np.isfinite(departs)
-                             else "")
+            where_departs = (
+                f", x{departs:.3f} where it departs, needs x{s.departs_gain}" if np.isfinite(departs) else ""
+            )
             if len(by_condition) == 1:
-                reasons.append(f"acts at one condition only ({next(iter(by_condition))}): no other condition "
-                               f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{s.replicate_gain}"
-                               f"{where_departs})")
+                reasons.append(
+                    f"acts at one condition only ({next(iter(by_condition))}): no other condition "
+                    f"can confirm it, nor its repeats (x{replicate:.3f}, needs x{s.replicate_gain}"
+                    f"{where_departs})"
+                )
             elif not np.isfinite(replicate):
                 reasons.append("no held-out data where it acts")
             else:
-                by_conditions = (f"x{gain:.3f} with each condition left out" if np.isfinite(gain) else
-                                 "no condition it acts on can be left out with its terms still estimable")
-                reasons.append(f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
-                               f"x{s.replicate_gain}{where_departs}; {by_conditions})")
-        alts = [a for a in rc["alternatives"] if a["explains_pct"] >= s.sensor_alternative_pct
-                and abs(a["needs_se"]) <= s.sensor_alternative_se
-                and (not a.get("unmeasured") or abs(a["needs"]) <= s.unmeasured_plausible[a["error"]])][:3]
+                by_conditions = (
+                    f"x{gain:.3f} with each condition left out"
+                    if np.isfinite(gain)
+                    else "no condition it acts on can be left out with its terms still estimable"
+                )
+                reasons.append(
+                    f"does not improve held-out logs (x{replicate:.3f} with each left out, needs "
+                    f"x{s.replicate_gain}{where_departs}; {by_conditions})"
+                )
+        alts = [
+            a
+            for a in rc["alternatives"]
+            if a["explains_pct"] >= s.sensor_alternative_pct
+            and abs(a["needs_se"]) <= s.sensor_alternative_se
+            and (not a.get("unmeasured") or abs(a["needs"]) <= s.unmeasured_plausible[a["error"]])
+        ][:3]
         if alts:
             cause.evidence["sensor_alternatives"] = alts
         # a discrepancy many times the noise floor that improves held-out data is there, whatever
         # makes it: when instrument errors could make it all, it is named with them, not dismissed
         # ... unless the data compatibility measured the one error that makes it, at that size, and left it
-        measured = [a for a in alts if a.get("left") and abs(a["needs_se"]) <= s.reach_se
-                    and a["explains_pct"] >= s.measured_pct
-                    and ((made_by is not None and abs(a["left"]) >= s.reach_se * a["se"])
-                         or a.get("channel_left_se", 0.0) >= s.measured_channel_se)][:1]
-        mimicked = (cause.size >= s.strong_over_floor * floor and not beyond > floor and len(reasons) == 1
-                    and cause.evidence["p_value"] < alpha_in and gain >= s.strong_gain and not alone and not measured)
+        measured = [
+            a
+            for a in alts
+            if a.get("left")
+            and abs(a["needs_se"]) <= s.reach_se
+            and a["explains_pct"] >= s.measured_pct
+            and (
+                (made_by is not None and abs(a["left"]) >= s.reach_se * a["se"])
+                or a.get("channel_left_se", 0.0) >= s.measured_channel_se
+            )
+        ][:1]
+        mimicked = (
+            cause.size >= s.strong_over_floor * floor
+            and not beyond > floor
+            and len(reasons) == 1
+            and cause.evidence["p_value"] < alpha_in
+            and gain >= s.strong_gain
+            and not alone
+            and not measured
+        )
         for a in measured:
             together = f"{a['channel']}'s errors together {a.get('channel_left_se', 0.0):.1f} standard errors from none"
             if made_by is None:
-                reasons.append(f"the data compatibility measured {together} and left them uncorrected, and its "
-                               f"{a['error']} alone makes {a['explains_pct']:.0f} % of it (it needs {a['needs']:+.3g}, "
-                               f"measured {a['left']:+.3g} +- {a['se']:.2g}): that error, not the model")
+                reasons.append(
+                    f"the data compatibility measured {together} and left them uncorrected, and its "
+                    f"{a['error']} alone makes {a['explains_pct']:.0f} % of it (it needs {a['needs']:+.3g}, "
+                    f"measured {a['left']:+.3g} +- {a['se']:.2g}): that error, not the model"
+                )
             else:
                 alone_se = abs(a["left"]) >= s.reach_se * a["se"]
-                reasons[made_by] += (f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} "
-                                     f"+- {a['se']:.2g}{'' if alone_se else f' ({together})'} and left it uncorrected, "
-                                     f"and that makes it (it needs {a['needs']:+.3g})")
+                reasons[made_by] += (
+                    f"; the data compatibility measured {a['channel']} {a['error']} at {a['left']:+.3g} "
+                    f"+- {a['se']:.2g}{'' if alone_se else f' ({together})'} and left it uncorrected, "
+                    f"and that makes it (it needs {a['needs']:+.3g})"
+                )
         if mimicked:
             made = ", ".join(f"{a['channel']} {a['error']} {a['needs']:+.3g}" for a in alts)
-            reasons[0] += (f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
-                           f"is wrong ({made or 'a combination of those errors'} would make it)")
+            reasons[0] += (
+                f"; a discrepancy all the same (x{gain:.2f} on held-out data): the model or an instrument "
+                f"is wrong ({made or 'a combination of those errors'} would make it)"
+            )
         clear = strong or (beyond >= s.clear_over_floor * floor and cause.evidence.get("F", 0.0) >= s.strong_f)
-        refuted = (bool(np.isfinite(replicate))
-                   and max(replicate, departs if np.isfinite(departs) else -np.inf) < s.refuted_gain)
+        refuted = (
+            bool(np.isfinite(replicate))
+            and max(replicate, departs if np.isfinite(departs) else -np.inf) < s.refuted_gain
+        )
         weak = cause.evidence.get("F", 0.0) < s.one_condition_f
         if alone and clear and not refuted and weak and len(reasons) == 1:
-            reasons[0] += (f"; F = {cause.evidence.get('F', 0.0):.3g}, below the {s.one_condition_f:g} a discrepancy "
-                           "at one condition needs")
-        unseen = (cause.kind == "aero" and beyond >= s.clear_over_floor * floor
-                  and cause.evidence.get("F", 0.0) >= s.held_out_f and not repeated)
+            reasons[0] += (
+                f"; F = {cause.evidence.get('F', 0.0):.3g}, below the {s.one_condition_f:g} a discrepancy "
+                "at one condition needs"
+            )
+        unseen = (
+            cause.kind == "aero"
+            and beyond >= s.clear_over_floor * floor
+            and cause.evidence.get("F", 0.0) >= s.held_out_f
+            and not repeated
+        )
         if unseen and len(reasons) == 1:
-            reasons[0] += (f"; a discrepancy all the same (F = {cause.evidence['F']:.4g}, {beyond / floor:.1f} times its "
-                           f"noise floor beyond instrument errors), in a shape these data do not confirm")
-        cause.verdict = {"accepted": not reasons, "reason": "; ".join(reasons), "noise_floor": floor,
-                         "unconfirmed": ((alone and clear and not refuted and not weak) or unseen) and len(reasons) == 1 or mimicked,
-                         "instrument_errors_make": rc["made"], "beyond_instrument_errors": beyond,
-                         "noise_sizes": [float(v) for v in null], "errors_in_variables_factor": factor,
-                         "holdout_gain": gain,
-                         "holdout_gain_by_condition": by_condition,
-                         "holdout_logs": acting, "size_over_floor": beyond / floor,
-                         "explains_pct": cause.evidence.get("rss_reduction_pct", 0.0), "replicate_gain": replicate,
-                         "replicate_gain_where_departs": departs}
+            reasons[0] += (
+                f"; a discrepancy all the same (F = {cause.evidence['F']:.4g}, {beyond / floor:.1f} times its "
+                f"noise floor beyond instrument errors), in a shape these data do not confirm"
+            )
+        cause.verdict = {
+            "accepted": not reasons,
+            "reason": "; ".join(reasons),
+            "noise_floor": floor,
+            "unconfirmed": ((alone and clear and not refuted and not weak) or unseen) and len(reasons) == 1 or mimicked,
+            "instrument_errors_make": rc["made"],
+            "beyond_instrument_errors": beyond,
+            "noise_sizes": [float(v) for v in null],
+            "errors_in_variables_factor": factor,
+            "holdout_gain": gain,
+            "holdout_gain_by_condition": by_condition,
+            "holdout_logs": acting,
+            "size_over_floor": beyond / floor,
+            "explains_pct": cause.evidence.get("rss_reduction_pct", 0.0),
+            "replicate_gain": replicate,
+            "replicate_gain_where_departs": departs,
+        }
 
 
 def implausible(cause: Cause) -> str:
@@ -389,7 +469,9 @@ def implausible(cause: Cause) -> str:
     bound = bounds.get(key)
     if bound is None or abs(cause.estimate) <= bound:
         return ""
-    shown = (f"{100 * cause.estimate:+.1f} %" if cause.error == "scale" else f"{cause.estimate:+.3g} {unit or 's'}")
+    shown = f"{100 * cause.estimate:+.1f} %" if cause.error == "scale" else f"{cause.estimate:+.3g} {unit or 's'}"
     limit = f"+-{100 * bound:g} %" if cause.error == "scale" else f"+-{bound:g} {unit or 's'}"
-    return (f"a {cause.channel} {cause.error} of {shown} is beyond what an instrument of its kind can be off "
-            f"({limit}): a reading the data do not support, not a measurement")
+    return (
+        f"a {cause.channel} {cause.error} of {shown} is beyond what an instrument of its kind can be off "
+        f"({limit}): a reading the data do not support, not a measurement"
+    )

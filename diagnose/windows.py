@@ -1,5 +1,6 @@
 """Spans of a measured log that replays are started and judged by: where the gear moves, how long the
 log flies before its inputs move, and a channel's noise level. Data only."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -6,6 +6,7 @@
 - ``docs/generated/settings.md``: the diagnosis's decision thresholds, from
   :class:`diagnose.config.DiagnosisSettings` (each field's own documentation).
 """
+
 from __future__ import annotations
 
 import importlib.util

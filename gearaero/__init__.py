@@ -33,6 +33,7 @@ Jupyter kernel work as well (on Linux and macOS; on Windows, guard the script).
 Units are in the names (``alpha_deg``, ``q_dps``, ``thrust_lbf``); JSBSim property names are
 verbatim.
 """
+
 from __future__ import annotations
 
 from aircraft import SHIPPED_737
@@ -65,11 +66,34 @@ from infra.provenance import version as _version
 __version__ = _version()
 
 __all__ = [  # noqa: RUF022 (grouped as the API reads: help() shows the start of it)
-    "__version__", "SHIPPED_737", "UserError", "LogError", "Log", "FRAME_COLUMNS", "DiagnosisSettings",
+    "__version__",
+    "SHIPPED_737",
+    "UserError",
+    "LogError",
+    "Log",
+    "FRAME_COLUMNS",
+    "DiagnosisSettings",
     "CompatSettings",
-    "read_logs", "log_from_frame", "write_logs",
-    "fly", "identify", "model", "diagnose", "plan", "report",
-    "CampaignResult", "IdentificationResult", "ModelResult", "DiagnosisResult", "PlanResult", "ReportResult",
-    "plot_fit", "plot_increments", "plot_alpha_transitions", "plot_residuals", "plot_response",
-    "plot_residual_history", "plot_replay",
+    "read_logs",
+    "log_from_frame",
+    "write_logs",
+    "fly",
+    "identify",
+    "model",
+    "diagnose",
+    "plan",
+    "report",
+    "CampaignResult",
+    "IdentificationResult",
+    "ModelResult",
+    "DiagnosisResult",
+    "PlanResult",
+    "ReportResult",
+    "plot_fit",
+    "plot_increments",
+    "plot_alpha_transitions",
+    "plot_residuals",
+    "plot_response",
+    "plot_residual_history",
+    "plot_replay",
 ]

@@ -8,6 +8,7 @@ with ``summary()`` and ``to_dict()``. What a command prints, a job logs (the ``g
 logger, level INFO). Bad input raises :class:`UserError` with one line naming the file and the
 field; nothing already on disk is overwritten.
 """
+
 from __future__ import annotations
 
 import logging
@@ -33,6 +34,7 @@ def _say(into: list):
     def say(text: str) -> None:
         into.append(text)
         LOG.info(text)
+
     return say
 
 
@@ -45,10 +47,22 @@ def _folder(data) -> Path | None:
     return None
 
 
-def fly(matrix: str | Path | None = None, out: str | Path | None = None, *, jobs: int = 1,  # noqa: PLR0913
-        noise: str | None = None, instruments: str | Path | None = None, aircraft: str | Path | None = None,
-        effects: str | Path | None = None, seed: int = 0, identify: bool = True, replay: bool = True,
-        cases: str | Path | None = None, cluster: str | None = None, progress: bool = False) -> CampaignResult:
+def fly(  # noqa: PLR0913
+    matrix: str | Path | None = None,
+    out: str | Path | None = None,
+    *,
+    jobs: int = 1,
+    noise: str | None = None,
+    instruments: str | Path | None = None,
+    aircraft: str | Path | None = None,
+    effects: str | Path | None = None,
+    seed: int = 0,
+    identify: bool = True,
+    replay: bool = True,
+    cases: str | Path | None = None,
+    cluster: str | None = None,
+    progress: bool = False,
+) -> CampaignResult:
     """Fly a flight-test campaign: trim and fly every status point of a matrix, identify the gear models
     and replay the Part 60 cases on them, and write the report (``campaign run``).
 
@@ -94,18 +108,39 @@ def fly(matrix: str | Path | None = None, out: str | Path | None = None, *, jobs
     """
     from campaign.orchestration.job import flight_config, run_job
     from campaign.orchestration.store import holding
+
     m, config = flight_config(matrix, aircraft, effects, seed, noise, instruments)
     folder = Path(out) if out is not None else Path("results") / m.name
     said: list[str] = []
     with holding(folder, "run"):
-        status = run_job(m, config, folder, jobs, progress=progress, cluster=cluster, identify=identify,
-                         replay=replay, cases_file=cases, say=_say(said), warn=LOG.warning)
+        status = run_job(
+            m,
+            config,
+            folder,
+            jobs,
+            progress=progress,
+            cluster=cluster,
+            identify=identify,
+            replay=replay,
+            cases_file=cases,
+            say=_say(said),
+            warn=LOG.warning,
+        )
     return CampaignResult(folder, status, said)
 
 
-def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: int = 1, plots: str = "paper",
-             model: str | Path | None = None, reuse: bool = True, structure: str | Path | None = None,
-             max_iterations: int | None = None) -> IdentificationResult:
+def identify(
+    data,
+    out: str | Path | None = None,
+    *,
+    method: str = "ee",
+    jobs: int = 1,
+    plots: str = "paper",
+    model: str | Path | None = None,
+    reuse: bool = True,
+    structure: str | Path | None = None,
+    max_iterations: int | None = None,
+) -> IdentificationResult:
     """Identify the aerodynamic models from measured logs (``campaign identify``): eq. (1) coefficients
     after the data compatibility, eq. (3) fits per excitation manoeuvre, the linear (eq. 4) and
     nonlinear (eqs. 8-9) gear models, and their JSBSim XML merged into the model.
@@ -147,18 +182,30 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
     """
     from campaign.orchestration.job import convergence_lines, identify_job, time_domain_options
     from campaign.orchestration.store import holding
+
     folder = _folder(data)
     if folder is not None:
         from identify.pipeline import up_to_date
+
         if reuse and out is None and model is None and (folder / "manifest.json").exists():
-            kept = up_to_date(folder, plots, method, time_domain_options(method, structure, max_iterations),
-                              max_iterations)
+            kept = up_to_date(
+                folder, plots, method, time_domain_options(method, structure, max_iterations), max_iterations
+            )
             if kept:
                 LOG.info(f"identification in {kept}: made from these logs already, kept")
                 return IdentificationResult(kept, {}, None, kept=True)
         with holding(folder, "identify"):
-            files, ident = identify_job(folder, Path(out) if out else None, model, plots, jobs, method, say=LOG.info,
-                                        structure=structure, max_iterations=max_iterations)
+            files, ident = identify_job(
+                folder,
+                Path(out) if out else None,
+                model,
+                plots,
+                jobs,
+                method,
+                say=LOG.info,
+                structure=structure,
+                max_iterations=max_iterations,
+            )
         return IdentificationResult(Path(files["json"]).parent, files, ident)
     logs = list(data) if isinstance(data, Sequence) else None
     if not logs or not all(isinstance(lg, Log) for lg in logs):
@@ -167,12 +214,14 @@ def identify(data, out: str | Path | None = None, *, method: str = "ee", jobs: i
         raise UserError("identify: out: needed for logs given in memory (the folder to write into)")
     from campaign.simulation.aircraft import check_aircraft_folder
     from identify.pipeline import identify_into
+
     if model:
         check_aircraft_folder(model)
     shape = time_domain_options(method, structure, max_iterations)
     try:
-        files, ident = identify_into(logs, Path(out), model, plots, jobs, method, structure=shape,
-                                     max_iterations=max_iterations)
+        files, ident = identify_into(
+            logs, Path(out), model, plots, jobs, method, structure=shape, max_iterations=max_iterations
+        )
     except LogError as exc:
         raise UserError(str(exc)) from None
     except ValueError as exc:  # an estimator's option
@@ -206,15 +255,26 @@ def model(identification, out: str | Path, *, name: str | None = None) -> ModelR
         ``to_dict()`` (``model.json``).
     """
     from campaign.modelling.build import build_model
+
     folder = identification.folder if isinstance(identification, IdentificationResult) else Path(identification)
     said: list[str] = []
     built = build_model(folder, Path(out), name, say=_say(said))
     return ModelResult(built.folder, built.name, said)
 
 
-def diagnose(data, model: str | Path, out: str | Path, settings=None, *, plots: str = "key", jobs: int = 1,
-             refine: str | None = None, bands: int = 0, cluster: str | None = None,
-             progress: bool = False) -> DiagnosisResult:
+def diagnose(
+    data,
+    model: str | Path,
+    out: str | Path,
+    settings=None,
+    *,
+    plots: str = "key",
+    jobs: int = 1,
+    refine: str | None = None,
+    bands: int = 0,
+    cluster: str | None = None,
+    progress: bool = False,
+) -> DiagnosisResult:
     """Find what a model gets wrong in measured data, extend it, and measure the gain (``campaign
     diagnose``).
 
@@ -261,19 +321,37 @@ def diagnose(data, model: str | Path, out: str | Path, settings=None, *, plots: 
     """
     from campaign.diagnosis.run import run_diagnosis
     from campaign.orchestration.job import html_report
+
     if isinstance(data, CampaignResult):
         data = data.folder
     elif isinstance(data, (list, tuple)):
         data = [d.folder if isinstance(d, CampaignResult) else d for d in data]
     out = Path(out)
-    doc = run_diagnosis(data, Path(model), out, plots=plots, jobs=jobs, progress=progress, cluster=cluster,
-                        refine=refine, bands=bands, settings=settings)
+    doc = run_diagnosis(
+        data,
+        Path(model),
+        out,
+        plots=plots,
+        jobs=jobs,
+        progress=progress,
+        cluster=cluster,
+        refine=refine,
+        bands=bands,
+        settings=settings,
+    )
     html_report(out, LOG.info, LOG.warning)
     return DiagnosisResult(out, doc)
 
 
-def plan(diagnosis, out: str | Path | None = None, *, budget_min: float | None = None,
-         matrix: str | Path | None = None, jobs: int = 1, progress: bool = False) -> PlanResult:
+def plan(
+    diagnosis,
+    out: str | Path | None = None,
+    *,
+    budget_min: float | None = None,
+    matrix: str | Path | None = None,
+    jobs: int = 1,
+    progress: bool = False,
+) -> PlanResult:
     """Design the flights that separate the rival explanations a diagnosis could not tell apart
     (``campaign plan``): candidates are flown on the model, and those that separate the rivals most
     per flight minute are chosen within the budget.
@@ -300,9 +378,11 @@ def plan(diagnosis, out: str | Path | None = None, *, budget_min: float | None =
         ``to_dict()`` (``plan.json``).
     """
     from campaign.design.plan import plan as design
+
     folder = diagnosis.folder if isinstance(diagnosis, DiagnosisResult) else Path(diagnosis)
-    result = design(folder, Path(out) if out else None, budget_min, str(matrix) if matrix else None, jobs,
-                    progress=progress)
+    result = design(
+        folder, Path(out) if out else None, budget_min, str(matrix) if matrix else None, jobs, progress=progress
+    )
     result.pop("text", None)
     return PlanResult(Path(out) if out else folder / "plan", result)
 
@@ -324,6 +404,7 @@ def report(folder) -> ReportResult:
         ``path``, ``kind`` and ``first_page`` (the summary's rows).
     """
     from campaign.reports.report import part60_results, write_report
+
     if isinstance(folder, (CampaignResult, DiagnosisResult)):
         folder = folder.folder
     folder = Path(folder)
@@ -332,6 +413,7 @@ def report(folder) -> ReportResult:
     path = write_report(folder)
     if (folder / "diagnosis.json").exists():
         import json
+
         doc = json.loads((folder / "diagnosis.json").read_text())
         return ReportResult(path, "diagnosis", [{"verdict": doc["verdict"]}])
     return ReportResult(path, "campaign", part60_results(folder))

@@ -1,4 +1,5 @@
 """Measured logs: read from files, made from a pandas DataFrame, written as Parquet."""
+
 from __future__ import annotations
 
 import re
@@ -39,6 +40,7 @@ def read_logs(path: str | Path) -> list[Log]:
         One line naming the file, and the field, column or row that is wrong.
     """
     from campaign.diagnosis.run import load_data
+
     return load_data(Path(path))
 
 
@@ -56,15 +58,29 @@ def _accuracy_value(path: str, where: str, value, unit: str) -> float:
     return _number(where, value)
 
 
-def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slugft2: float,  # noqa: C901, PLR0913
-                   mass_slug: float | None = None, ixx_slugft2: float = 0.0, izz_slugft2: float = 0.0,
-                   ixz_slugft2: float = 0.0, b_ft: float = 0.0, thrust_z_arm_ft: float = 0.0,
-                   cg_x_in: float | None = None, cg_z_in: float | None = None, aerorp_x_in: float | None = None,
-                   aerorp_z_in: float | None = None, latitude_deg: float | None = None,
-                   gravity_fps2: float | None = None,
-                   sensor_positions_ft: dict[str, Iterable[float]] | None = None,
-                   instrument_accuracy: dict[str, dict[str, float]] | None = None, name: str | None = None,
-                   maneuver: str | None = None) -> Log:
+def log_from_frame(  # noqa: C901, PLR0913
+    frame: pd.DataFrame,
+    *,
+    S_ft2: float,
+    cbar_ft: float,
+    iyy_slugft2: float,
+    mass_slug: float | None = None,
+    ixx_slugft2: float = 0.0,
+    izz_slugft2: float = 0.0,
+    ixz_slugft2: float = 0.0,
+    b_ft: float = 0.0,
+    thrust_z_arm_ft: float = 0.0,
+    cg_x_in: float | None = None,
+    cg_z_in: float | None = None,
+    aerorp_x_in: float | None = None,
+    aerorp_z_in: float | None = None,
+    latitude_deg: float | None = None,
+    gravity_fps2: float | None = None,
+    sensor_positions_ft: dict[str, Iterable[float]] | None = None,
+    instrument_accuracy: dict[str, dict[str, float]] | None = None,
+    name: str | None = None,
+    maneuver: str | None = None,
+) -> Log:
     """A measured log from a pandas DataFrame in the log schema, checked as a file's would be.
 
     Parameters
@@ -137,6 +153,7 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
     from campaign.simulation.catalog import LOG_COLUMNS
     from campaign.simulation.instruments import POSITIONED
     from identify.logs import checked
+
     if not isinstance(frame, pd.DataFrame):
         raise UserError(f"log_from_frame: frame: expected a pandas DataFrame, found {type(frame).__name__}")
     missing = [c for c in FRAME_COLUMNS if c not in frame.columns]
@@ -144,21 +161,33 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
         raise UserError(f"log_from_frame: column {missing[0]!r} missing (needed: {', '.join(FRAME_COLUMNS)})")
     if "mass_slug" not in frame.columns and mass_slug is None:
         raise UserError("log_from_frame: mass_slug: give it as a column or as a number")
-    air = {"S": _number("S_ft2", S_ft2, True), "cbar": _number("cbar_ft", cbar_ft, True),
-           "iyy": _number("iyy_slugft2", iyy_slugft2, True), "ixx": _number("ixx_slugft2", ixx_slugft2),
-           "izz": _number("izz_slugft2", izz_slugft2), "ixz": _number("ixz_slugft2", ixz_slugft2),
-           "b": _number("b_ft", b_ft), "thrust_z_arm": _number("thrust_z_arm_ft", thrust_z_arm_ft)}
+    air = {
+        "S": _number("S_ft2", S_ft2, True),
+        "cbar": _number("cbar_ft", cbar_ft, True),
+        "iyy": _number("iyy_slugft2", iyy_slugft2, True),
+        "ixx": _number("ixx_slugft2", ixx_slugft2),
+        "izz": _number("izz_slugft2", izz_slugft2),
+        "ixz": _number("ixz_slugft2", ixz_slugft2),
+        "b": _number("b_ft", b_ft),
+        "thrust_z_arm": _number("thrust_z_arm_ft", thrust_z_arm_ft),
+    }
     if mass_slug is not None:
         air["mass"] = _number("mass_slug", mass_slug, True)
-    for key, value in (("cg_x", cg_x_in), ("cg_z", cg_z_in), ("aerorp_x", aerorp_x_in), ("aerorp_z", aerorp_z_in),
-                       ("latitude", latitude_deg)):
+    for key, value in (
+        ("cg_x", cg_x_in),
+        ("cg_z", cg_z_in),
+        ("aerorp_x", aerorp_x_in),
+        ("aerorp_z", aerorp_z_in),
+        ("latitude", latitude_deg),
+    ):
         if value is not None:
             air[key] = _number(f"{key}_{'deg' if key == 'latitude' else 'in'}", value)
     positions = []
     for ch, xyz in (sensor_positions_ft or {}).items():
         if ch not in POSITIONED:
-            raise UserError(f"log_from_frame: sensor_positions_ft.{ch}: a position applies only to "
-                            f"{', '.join(POSITIONED)}")
+            raise UserError(
+                f"log_from_frame: sensor_positions_ft.{ch}: a position applies only to {', '.join(POSITIONED)}"
+            )
         xyz = list(xyz)
         if len(xyz) != 3:
             raise UserError(f"log_from_frame: sensor_positions_ft.{ch}: expected [x, y, z] [ft]")
@@ -169,8 +198,9 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
             v = pd.to_numeric(frame[c], errors="coerce").to_numpy(dtype=float)
             bad = np.flatnonzero(~np.isfinite(v))
             if bad.size:
-                raise UserError(f"log_from_frame: column {c!r}, row {bad[0] + 1}: not a finite number "
-                                f"({frame[c].iloc[bad[0]]!r})")
+                raise UserError(
+                    f"log_from_frame: column {c!r}, row {bad[0] + 1}: not a finite number ({frame[c].iloc[bad[0]]!r})"
+                )
             cols[c] = v
     t = pd.to_numeric(frame["t_s"], errors="coerce").to_numpy(dtype=float)
     if len(t) < 10:
@@ -186,9 +216,14 @@ def log_from_frame(frame: pd.DataFrame, *, S_ft2: float, cbar_ft: float, iyy_slu
     if gravity_fps2 is not None:
         air["gravity"] = check_gravity("log_from_frame", "gravity_fps2", _number("gravity_fps2", gravity_fps2))
     accuracy = parse_accuracy("log_from_frame", instrument_accuracy or {}, _accuracy_value, schema_unit)
-    log, meta = schema_log(name or "log", t - t[0], cols, air, positions,
-                           extra={"imported": {"source": "a pandas DataFrame"},
-                                  **({"instrument_accuracy": accuracy} if accuracy else {})})
+    log, meta = schema_log(
+        name or "log",
+        t - t[0],
+        cols,
+        air,
+        positions,
+        extra={"imported": {"source": "a pandas DataFrame"}, **({"instrument_accuracy": accuracy} if accuracy else {})},
+    )
     if maneuver is not None:
         meta["maneuver"] = maneuver
     if name is None:
@@ -223,6 +258,7 @@ def write_logs(logs: Iterable[Log], folder: str | Path) -> list[Path]:
         If a file of that name exists, or two logs have one name.
     """
     from campaign.orchestration.store import write_log
+
     folder = Path(folder)
     logs = list(logs)
     names = [Path(lg.path).name for lg in logs]

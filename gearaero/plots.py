@@ -1,5 +1,6 @@
 """Plots. Each takes ``ax=`` or ``axes=`` (a new pyplot figure of the caller's backend if not
 given), returns the figure, and never chooses a matplotlib backend."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,8 +8,15 @@ from pathlib import Path
 from diagnose.plots import plot_residual_history, plot_residuals, plot_response
 from identify.plots import plot_alpha_transitions, plot_fit, plot_increments
 
-__all__ = ["plot_fit", "plot_increments", "plot_alpha_transitions", "plot_residuals", "plot_response",
-           "plot_residual_history", "plot_replay"]
+__all__ = [
+    "plot_fit",
+    "plot_increments",
+    "plot_alpha_transitions",
+    "plot_residuals",
+    "plot_response",
+    "plot_residual_history",
+    "plot_replay",
+]
 
 
 def plot_replay(campaign, case: str, loop: str = "open", axes=None):
@@ -33,6 +41,7 @@ def plot_replay(campaign, case: str, loop: str = "open", axes=None):
     """
     from campaign.errors import UserError
     from campaign.replays.report import load_bands, load_replays, plot_case
+
     folder = Path(getattr(campaign, "folder", campaign))
     replays = {k: v for k, v in load_replays(folder, [case]).items() if k[0] == case and k[2] == loop}
     if (case, "reference", loop) not in replays:

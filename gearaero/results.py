@@ -1,5 +1,6 @@
 """What each job of :mod:`gearaero` returns: the files it wrote, read back, with ``summary()`` (text)
 and ``to_dict()`` (JSON-ready)."""
+
 from __future__ import annotations
 
 import json
@@ -120,12 +121,19 @@ class CampaignResult:
         man = self.manifest
         failed = {p["id"]: p["reason"] for p in man["points"] if p["status"] != "ok"}
         m = self.metrics
-        return {"folder": str(self.folder), "campaign": man.get("campaign"), "tool": man.get("tool"),
-                "status": self.status, "complete": man.get("complete"), "points": len(man["points"]),
-                "points_ok": len(man["points"]) - len(failed), "failed": failed,
-                "identification": str(self.folder / "identification") if self.identification else None,
-                "replays": None if m is None else m.drop(columns=["tool"], errors="ignore").to_dict("records"),
-                "report": str(self.report) if self.report else None}
+        return {
+            "folder": str(self.folder),
+            "campaign": man.get("campaign"),
+            "tool": man.get("tool"),
+            "status": self.status,
+            "complete": man.get("complete"),
+            "points": len(man["points"]),
+            "points_ok": len(man["points"]) - len(failed),
+            "failed": failed,
+            "identification": str(self.folder / "identification") if self.identification else None,
+            "replays": None if m is None else m.drop(columns=["tool"], errors="ignore").to_dict("records"),
+            "report": str(self.report) if self.report else None,
+        }
 
     def summary(self) -> str:
         """What the run said (points flown, identification, Part 60 replay table, report)."""
@@ -165,6 +173,7 @@ class DiagnosisResult:
         """The :class:`diagnose.config.DiagnosisSettings` the diagnosis was made with (``diagnosis.json``
         records them)."""
         from diagnose.config import recorded
+
         return recorded(self.document)
 
     @property

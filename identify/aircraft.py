@@ -23,6 +23,7 @@ surface positions through the standard properties: ``fcs/elevator-cmd-norm`` mov
 
 This module writes XML only; it reads no logs and runs no JSBSim.
 """
+
 from __future__ import annotations
 
 import math
@@ -104,10 +105,15 @@ class PointModel:
         has them, with ``const``."""
         r = self.reference
         da = (np.asarray(alpha_deg, float) - r["alpha_deg"]) * D2R
-        return {"const": np.ones_like(da), "dalpha_rad": da, "qhat_rad": np.asarray(qhat_rad, float),
-                "delevator_rad": (np.asarray(elevator_deg, float) - r["elevator_deg"]) * D2R,
-                "dstabilizer_rad": (np.asarray(stabilizer_deg, float) - r["stabilizer_deg"]) * D2R,
-                "dmach": np.asarray(mach, float) - r["mach"], "dalpha2_rad2": da ** 2}
+        return {
+            "const": np.ones_like(da),
+            "dalpha_rad": da,
+            "qhat_rad": np.asarray(qhat_rad, float),
+            "delevator_rad": (np.asarray(elevator_deg, float) - r["elevator_deg"]) * D2R,
+            "dstabilizer_rad": (np.asarray(stabilizer_deg, float) - r["stabilizer_deg"]) * D2R,
+            "dmach": np.asarray(mach, float) - r["mach"],
+            "dalpha2_rad2": da**2,
+        }
 
     def fitted(self, coeff: str, regressors: dict[str, np.ndarray]) -> np.ndarray:
         """``params x regressors`` of one coefficient [-]."""
@@ -115,8 +121,12 @@ class PointModel:
 
     def method_text(self) -> str:
         """How the parameters were estimated, e.g. ``output error (converged)``."""
-        parts = sorted({f"{METHOD_NAMES.get(self.methods[c], self.methods[c])}"
-                        f"{'' if self.converged[c] else ', not converged'}" for c in COEFFS})
+        parts = sorted(
+            {
+                f"{METHOD_NAMES.get(self.methods[c], self.methods[c])}{'' if self.converged[c] else ', not converged'}"
+                for c in COEFFS
+            }
+        )
         return "; ".join(parts)
 
 
@@ -131,14 +141,17 @@ def point_models(doc: dict, where: str) -> list[PointModel]:
     """
     points = doc.get("points") if isinstance(doc, dict) else None
     if not isinstance(points, dict) or not points:
-        raise IdentificationError(f"{where}: points: no point fits (the aerodynamics a model is made of); "
-                                  "identify logs of excitation manoeuvres first")
+        raise IdentificationError(
+            f"{where}: points: no point fits (the aerodynamics a model is made of); "
+            "identify logs of excitation manoeuvres first"
+        )
     out = []
     for name, p in points.items():
         ref = p.get("reference") if isinstance(p, dict) else None
         if not isinstance(ref, dict) or any(not _number(ref.get(k)) for k in REFERENCE_FIELDS):
-            raise IdentificationError(f"{where}: points.{name}.reference: missing or not numbers "
-                                      f"({', '.join(REFERENCE_FIELDS)})")
+            raise IdentificationError(
+                f"{where}: points.{name}.reference: missing or not numbers ({', '.join(REFERENCE_FIELDS)})"
+            )
         params, methods, converged = {}, {}, {}
         for c in COEFFS:
             fit = p.get(c)
@@ -147,17 +160,27 @@ def point_models(doc: dict, where: str) -> list[PointModel]:
                 raise IdentificationError(f"{where}: points.{name}.{c}.params: missing or not numbers")
             unknown = set(got) - {"const", *REGRESSORS}
             if unknown:
-                raise IdentificationError(f"{where}: points.{name}.{c}.params.{min(unknown)}: not an eq. (3) "
-                                          "regressor")
+                raise IdentificationError(f"{where}: points.{name}.{c}.params.{min(unknown)}: not an eq. (3) regressor")
             params[c] = {k: float(v) for k, v in got.items()}
             methods[c] = str(fit.get("method", doc.get("method", "ee")))
             converged[c] = bool(fit.get("converged", True))
         cond = p.get("condition")
-        condition = (tuple(float(cond[k]) for k in ("alt_ft", "mach", "flap_deg"))
-                     if isinstance(cond, dict) and all(_number(cond.get(k)) for k in ("alt_ft", "mach", "flap_deg"))
-                     else None)
-        out.append(PointModel(name, condition, p.get("gear") == "down", {k: float(ref[k]) for k in REFERENCE_FIELDS},
-                              params, methods, converged))
+        condition = (
+            tuple(float(cond[k]) for k in ("alt_ft", "mach", "flap_deg"))
+            if isinstance(cond, dict) and all(_number(cond.get(k)) for k in ("alt_ft", "mach", "flap_deg"))
+            else None
+        )
+        out.append(
+            PointModel(
+                name,
+                condition,
+                p.get("gear") == "down",
+                {k: float(ref[k]) for k in REFERENCE_FIELDS},
+                params,
+                methods,
+                converged,
+            )
+        )
     return out
 
 
@@ -231,15 +254,20 @@ def blend(points: list[PointModel], surface: GearSurface | None = None) -> list[
     for p in points:
         _, mach, flap = p.condition
         cells[(round(flap / FLAP_STEP_DEG) * FLAP_STEP_DEG, round(mach / MACH_STEP) * MACH_STEP)][
-            "down" if p.gear_down else "up"].append(p)
+            "down" if p.gear_down else "up"
+        ].append(p)
     flap_keys = sorted({f for f, _ in cells})
-    flap_nodes = tuple(float(np.mean([p.condition[2] for (f, _), c in cells.items() if f == fk
-                                      for p in c["up"] + c["down"]])) for fk in flap_keys)
+    flap_nodes = tuple(
+        float(np.mean([p.condition[2] for (f, _), c in cells.items() if f == fk for p in c["up"] + c["down"]]))
+        for fk in flap_keys
+    )
     out = []
     for i, fk in enumerate(flap_keys):
         mach_keys = sorted(m for f, m in cells if f == fk)
-        mach_nodes = tuple(float(np.mean([p.condition[1] for p in cells[(fk, mk)]["up"] + cells[(fk, mk)]["down"]]))
-                           for mk in mach_keys)
+        mach_nodes = tuple(
+            float(np.mean([p.condition[1] for p in cells[(fk, mk)]["up"] + cells[(fk, mk)]["down"]]))
+            for mk in mach_keys
+        )
         for j, mk in enumerate(mach_keys):
             cell = cells[(fk, mk)]
             if surface is not None:
@@ -263,18 +291,24 @@ def blend_text(shares: list[tuple[PointModel, Share]], surface_kind: str | None)
     machs = sorted({m for _, s in shares for m in s.machs})
     cells = {(s.flap_index, s.mach_index) for _, s in shares}
     if len(shares) == 1:
-        text = (f"One point model ({shares[0][0].point}) at every condition: its regressors about its own "
-                "reference state, extrapolated as fitted beyond the states flown.")
+        text = (
+            f"One point model ({shares[0][0].point}) at every condition: its regressors about its own "
+            "reference state, extrapolated as fitted beyond the states flown."
+        )
     elif len(cells) == 1 and not any(s.gear for _, s in shares):
-        text = (f"{len(shares)} point models of one condition ({', '.join(p.point for p, _ in shares)}): their mean "
-                "at every condition, each with its regressors about its own reference state, extrapolated as "
-                "fitted beyond the states flown.")
+        text = (
+            f"{len(shares)} point models of one condition ({', '.join(p.point for p, _ in shares)}): their mean "
+            "at every condition, each with its regressors about its own reference state, extrapolated as "
+            "fitted beyond the states flown."
+        )
     else:
-        text = (f"{len(shares)} point models blended: linear in Mach between the conditions of each flap setting "
-                f"(Mach {', '.join(f'{m:g}' for m in machs)}), linear in flap between flap settings "
-                f"({', '.join(f'{f:g}' for f in flaps)} deg), equal shares for models at one Mach and flap; outside "
-                "the Mach and flap flown the nearest condition's model holds, and each model's regressors "
-                "extrapolate as fitted.")
+        text = (
+            f"{len(shares)} point models blended: linear in Mach between the conditions of each flap setting "
+            f"(Mach {', '.join(f'{m:g}' for m in machs)}), linear in flap between flap settings "
+            f"({', '.join(f'{f:g}' for f in flaps)} deg), equal shares for models at one Mach and flap; outside "
+            "the Mach and flap flown the nearest condition's model holds, and each model's regressors "
+            "extrapolate as fitted."
+        )
     if surface_kind:
         text += f" Gear: the identified {surface_kind} gear model added to the gear-up models."
     elif any(s.gear for _, s in shares):
@@ -308,8 +342,11 @@ def _table(parent: ET.Element, prop: str, rows: list[tuple[float, float]]) -> No
 
 def _tent(parent: ET.Element, prop: str, nodes: tuple[float, ...], i: int) -> None:
     """A weight 1 at ``nodes[i]``, falling linearly to 0 at its neighbours (held beyond the ends)."""
-    rows = ([(nodes[i - 1], 0.0)] if i > 0 else []) + [(nodes[i], 1.0)] + (
-        [(nodes[i + 1], 0.0)] if i < len(nodes) - 1 else [])
+    rows = (
+        ([(nodes[i - 1], 0.0)] if i > 0 else [])
+        + [(nodes[i], 1.0)]
+        + ([(nodes[i + 1], 0.0)] if i < len(nodes) - 1 else [])
+    )
     _table(parent, prop, rows)
 
 
@@ -325,8 +362,10 @@ def _point_functions(aero: ET.Element, k: int, p: PointModel, share: Share) -> d
     base = f"aero/function/point-{k}"
     r = p.reference
     used = {reg for c in COEFFS for reg in p.params[c]}
-    where = (f"{p.point} (gear {'down' if p.gear_down else 'up'}, {p.condition[0]:g} ft, Mach {p.condition[1]:g}, "
-             f"flap {p.condition[2]:g} deg)")
+    where = (
+        f"{p.point} (gear {'down' if p.gear_down else 'up'}, {p.condition[0]:g} ft, Mach {p.condition[1]:g}, "
+        f"flap {p.condition[2]:g} deg)"
+    )
     devs = {}
     if used & {"dalpha_rad", "dalpha2_rad2"}:
         devs["dalpha_rad"] = (f"{base}/dalpha-rad", "aero/alpha-rad", r["alpha_deg"] * D2R, None)
@@ -338,8 +377,9 @@ def _point_functions(aero: ET.Element, k: int, p: PointModel, share: Share) -> d
         devs["dmach"] = (f"{base}/dmach", "velocities/mach", r["mach"], None)
     for name, prop, ref, scale in devs.values():
         fn = _el(aero, "function", name=name)
-        _el(fn, "description", f"{where}: {prop} less its reference value {ref!r}"
-                               + (" [deg], in rad" if scale else ""))
+        _el(
+            fn, "description", f"{where}: {prop} less its reference value {ref!r}" + (" [deg], in rad" if scale else "")
+        )
         holder = fn if scale is None else _el(fn, "product")
         diff = _el(holder, "difference")
         _prop(diff, prop)
@@ -353,9 +393,13 @@ def _point_functions(aero: ET.Element, k: int, p: PointModel, share: Share) -> d
         names[c] = name
         fn = _el(aero, "function", name=name)
         missing = sorted(set(REGRESSORS) - set(p.params[c]))
-        _el(fn, "description", f"{c} of {where}: eq. (3) by {p.method_text()}"
-                               + (f"; not identifiable, left out: {', '.join(missing)}" if missing else "")
-                               + (f"; fitted over {flown}" if flown else ""))
+        _el(
+            fn,
+            "description",
+            f"{c} of {where}: eq. (3) by {p.method_text()}"
+            + (f"; not identifiable, left out: {', '.join(missing)}" if missing else "")
+            + (f"; fitted over {flown}" if flown else ""),
+        )
         total = _el(fn, "sum")
         _el(total, "value", p.params[c]["const"] + share.offset.get(c, 0.0))
         for reg, v in p.params[c].items():
@@ -391,8 +435,7 @@ def _weighted(parent: ET.Element, share: Share, function: str) -> None:
     _prop(term, function)
 
 
-def _aerodynamics(top: ET.Element, shares, surface: GearSurface | None, surface_kind: str | None,
-                  how: str) -> None:
+def _aerodynamics(top: ET.Element, shares, surface: GearSurface | None, surface_kind: str | None, how: str) -> None:
     aero = _el(top, "aerodynamics")
     names = [_point_functions(aero, k, p, s) for k, (p, s) in enumerate(shares, 1)]
     for c in COEFFS:
@@ -430,8 +473,16 @@ def _aerodynamics(top: ET.Element, shares, surface: GearSurface | None, surface_
             _el(prod, "value", value)
 
 
-def _surface(channel: ET.Element, name: str, command: str, lo: float, hi: float, output: str,
-             scale: float = 1.0, centred: bool = True) -> None:
+def _surface(
+    channel: ET.Element,
+    name: str,
+    command: str,
+    lo: float,
+    hi: float,
+    output: str,
+    scale: float = 1.0,
+    centred: bool = True,
+) -> None:
     clip = _el(channel, "summer", name=f"fcs/{name}-cmd-clipped")
     _el(clip, "input", command)
     c = _el(clip, "clipto")
@@ -452,13 +503,20 @@ def _surface(channel: ET.Element, name: str, command: str, lo: float, hi: float,
 
 def control_ranges(points: list[PointModel]) -> dict[str, float]:
     """Full-command surface ranges [deg]: the defaults, widened to a tenth beyond the logged positions."""
+
     def widest(ch: str, default: float) -> float:
-        seen = [abs(v) for p in points for v in p.flown.get(ch, ())] + [abs(p.condition[2]) for p in points
-                                                                      if ch == "flap_deg"]
+        seen = [abs(v) for p in points for v in p.flown.get(ch, ())] + [
+            abs(p.condition[2]) for p in points if ch == "flap_deg"
+        ]
         return max([default] + [math.ceil(1.1 * v) for v in seen])
-    return {"elevator": widest("elevator_deg", ELEVATOR_MAX_DEG), "stabilizer": widest("stabilizer_deg",
-                                                                                      STABILIZER_MAX_DEG),
-            "flap": widest("flap_deg", FLAP_MAX_DEG), "aileron": AILERON_MAX_DEG, "rudder": RUDDER_MAX_DEG}
+
+    return {
+        "elevator": widest("elevator_deg", ELEVATOR_MAX_DEG),
+        "stabilizer": widest("stabilizer_deg", STABILIZER_MAX_DEG),
+        "flap": widest("flap_deg", FLAP_MAX_DEG),
+        "aileron": AILERON_MAX_DEG,
+        "rudder": RUDDER_MAX_DEG,
+    }
 
 
 def _flight_controls(top: ET.Element, ranges: dict[str, float], gear: GearTravel) -> None:
@@ -493,9 +551,15 @@ def _flight_controls(top: ET.Element, ranges: dict[str, float], gear: GearTravel
     _el(shape, "output", "gear/gear-pos-norm")
 
 
-def aircraft_xml(name: str, points: list[PointModel], airframe: Airframe, surface: GearSurface | None = None,
-                 surface_kind: str | None = None, gear: GearTravel | None = None,
-                 source: str = "") -> tuple[ET.ElementTree, list[str]]:
+def aircraft_xml(
+    name: str,
+    points: list[PointModel],
+    airframe: Airframe,
+    surface: GearSurface | None = None,
+    surface_kind: str | None = None,
+    gear: GearTravel | None = None,
+    source: str = "",
+) -> tuple[ET.ElementTree, list[str]]:
     """The aircraft file and what it says of itself (the lines the command prints).
 
     Parameters
@@ -527,14 +591,20 @@ def aircraft_xml(name: str, points: list[PointModel], airframe: Airframe, surfac
     notes = [
         f"aerodynamics: {len(points)} identified point model(s), eq. (3) by {'; '.join(methods)}",
         f"interpolation: {how}",
-        "lateral-directional: nominal, not identified (" + ", ".join(f"{c} {v:g}" for _, c, _, v in NOMINAL_LATERAL)
+        "lateral-directional: nominal, not identified ("
+        + ", ".join(f"{c} {v:g}" for _, c, _, v in NOMINAL_LATERAL)
         + " /rad)",
-        (f"thrust: external force along body x, {a.thrust_z_arm_ft:g} ft above the CG; set "
-         "external_reactions/thrust/magnitude [lbf] from thrust_lbf (no engine, no throttle)"),
+        (
+            f"thrust: external force along body x, {a.thrust_z_arm_ft:g} ft above the CG; set "
+            "external_reactions/thrust/magnitude [lbf] from thrust_lbf (no engine, no throttle)"
+        ),
         f"mass: {a.weight_lb:.0f} lb ({a.empty_lb:.0f} lb empty, the rest a point mass 'payload' at the CG); "
-        + ", ".join(f"{k} {v:.6g}" for k, v in a.inertia.items()) + " slug ft^2",
-        (f"geometry: S {a.S_ft2:.6g} ft^2, cbar {a.cbar_ft:.6g} ft, span {a.span_ft:.6g} ft; CG and AERORP at "
-         f"x {cg_x:g} in, z {cg_z:g} in (the identified Cm is about the CG)"),
+        + ", ".join(f"{k} {v:.6g}" for k, v in a.inertia.items())
+        + " slug ft^2",
+        (
+            f"geometry: S {a.S_ft2:.6g} ft^2, cbar {a.cbar_ft:.6g} ft, span {a.span_ft:.6g} ft; CG and AERORP at "
+            f"x {cg_x:g} in, z {cg_z:g} in (the identified Cm is about the CG)"
+        ),
         f"gear: travel {gear.time_s:g} s, {gear.source}",
     ]
     if a.nominal:
@@ -566,10 +636,24 @@ def aircraft_xml(name: str, points: list[PointModel], airframe: Airframe, surfac
     # JSBSim needs a contact; one without friction, stiff, under the CG: the aircraft flies
     contact = _el(ground, "contact", type="STRUCTURE", name="BELLY")
     _location(contact, None, cg_x, 0.0, cg_z - 12.0 * max(0.1 * a.span_ft, 1.0))
-    for tag, v in (("static_friction", 0.0), ("dynamic_friction", 0.0), ("spring_coeff", 10.0 * a.weight_lb),
-                   ("damping_coeff", a.weight_lb)):
-        _el(contact, tag, v, **({"unit": "LBS/FT"} if tag == "spring_coeff" else
-                                {"unit": "LBS/FT/SEC"} if tag == "damping_coeff" else {}))
+    for tag, v in (
+        ("static_friction", 0.0),
+        ("dynamic_friction", 0.0),
+        ("spring_coeff", 10.0 * a.weight_lb),
+        ("damping_coeff", a.weight_lb),
+    ):
+        _el(
+            contact,
+            tag,
+            v,
+            **(
+                {"unit": "LBS/FT"}
+                if tag == "spring_coeff"
+                else {"unit": "LBS/FT/SEC"}
+                if tag == "damping_coeff"
+                else {}
+            ),
+        )
     ext = _el(top, "external_reactions")
     thrust = _el(ext, "force", name="thrust", frame="BODY")
     _location(thrust, None, cg_x, 0.0, cg_z + 12.0 * a.thrust_z_arm_ft)

@@ -7,6 +7,7 @@ and lateral acceleration it is eq. (1b)). Cm follows eq. (1c), less the thrust
 line's moment, so it is the aerodynamic pitching moment about the CG. The
 body-axis force coefficients Cx and Cz come along: a moment transfer needs them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,8 +56,7 @@ def coefficient_arrays(data: pd.DataFrame, meta: dict, qdot_dps2: np.ndarray | N
     cd = (-(fx * np.cos(a) + fz * np.sin(a)) * np.cos(b) - fy * np.sin(b)) / qs
     p, q, r = (data[c].to_numpy() * D2R for c in ("p_dps", "q_dps", "r_dps"))
     qdot = (pitch_acceleration(data) if qdot_dps2 is None else qdot_dps2) * D2R
-    moment = (inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r
-              + inertia["ixz"] * (p ** 2 - r ** 2))
+    moment = inertia["iyy"] * qdot + (inertia["ixx"] - inertia["izz"]) * p * r + inertia["ixz"] * (p**2 - r**2)
     # thrust along body x, its line thrust_z_arm_ft above the CG: M = -z * T
     moment_thrust = -g.get("thrust_z_arm_ft", 0.0) * data["thrust_lbf"].to_numpy()
     cm = (moment - moment_thrust) / (qs * cbar)
@@ -78,8 +78,7 @@ def _sideslip(data: pd.DataFrame) -> tuple[np.ndarray | float, np.ndarray | floa
     ``beta_deg`` and ``ay_fps2``."""
     if "beta_deg" not in data or "ay_fps2" not in data:
         return 0.0, 0.0
-    return (data["beta_deg"].to_numpy() * D2R,
-            data["mass_slug"].to_numpy() * data["ay_fps2"].to_numpy())
+    return (data["beta_deg"].to_numpy() * D2R, data["mass_slug"].to_numpy() * data["ay_fps2"].to_numpy())
 
 
 def lift_coefficient(data: pd.DataFrame, meta: dict) -> np.ndarray:
@@ -101,9 +100,16 @@ def thrust_share(data: pd.DataFrame, meta: dict) -> pd.DataFrame:
     qs = data["qbar_psf"].to_numpy() * g["S_ft2"]
     t = data["thrust_lbf"].to_numpy()
     b = _sideslip(data)[0]
-    return pd.DataFrame({"CL": -t * np.sin(a) / qs, "CD": t * np.cos(a) * np.cos(b) / qs,
-                         "Cm": g.get("thrust_z_arm_ft", 0.0) * t / (qs * g["cbar_ft"]), "Cx": -t / qs,
-                         "Cz": np.zeros(len(t))}, index=data.index)
+    return pd.DataFrame(
+        {
+            "CL": -t * np.sin(a) / qs,
+            "CD": t * np.cos(a) * np.cos(b) / qs,
+            "Cm": g.get("thrust_z_arm_ft", 0.0) * t / (qs * g["cbar_ft"]),
+            "Cx": -t / qs,
+            "Cz": np.zeros(len(t)),
+        },
+        index=data.index,
+    )
 
 
 def qhat(data: pd.DataFrame, meta: dict) -> np.ndarray:

@@ -5,6 +5,7 @@ The file uses the effects format (``<effects><axis name=...><function>``), so
 copy of a model aircraft with its own gear terms (aero functions that read
 ``gear/gear-pos-norm``) replaced by the identified ones.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -84,8 +85,9 @@ def gear_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float]) -
     for coeff in COEFFS:
         axis = ET.SubElement(root, "axis", name=AXIS[coeff])
         fn = ET.SubElement(axis, "function", name=function_name(kind, coeff))
-        ET.SubElement(fn, "description").text = (
-            f"Identified {kind} landing-gear increment of {coeff} (eq. {'4' if kind == 'linear' else '9'})")
+        ET.SubElement(
+            fn, "description"
+        ).text = f"Identified {kind} landing-gear increment of {coeff} (eq. {'4' if kind == 'linear' else '9'})"
         top = ET.SubElement(fn, "sum") if coeff == "Cm" else fn
         prod = ET.SubElement(top, "product")
         _prop(prod, "aero/qbar-psf")
@@ -99,8 +101,10 @@ def gear_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float]) -
             _surface_table(term, surface, flap, coeff)
         if coeff == "Cm":
             # the lift and drag functions are forces: (arm / cbar) * force / (qbar S) * qbar S cbar = arm * force
-            for arm, terms in ((arm_ft[0], (("CL", "cos", 1.0), ("CD", "sin", 1.0))),
-                               (arm_ft[1], (("CL", "sin", 1.0), ("CD", "cos", -1.0)))):
+            for arm, terms in (
+                (arm_ft[0], (("CL", "cos", 1.0), ("CD", "sin", 1.0))),
+                (arm_ft[1], (("CL", "sin", 1.0), ("CD", "cos", -1.0))),
+            ):
                 if arm == 0.0:
                     continue
                 transfer = ET.SubElement(top, "product")
@@ -118,8 +122,9 @@ def gear_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float]) -
 
 def write_effects(surface: GearSurface, kind: str, arm_ft: tuple[float, float], path: Path) -> Path:
     root = gear_effects(surface, kind, arm_ft)
-    Path(path).write_text(f"<?xml version=\"1.0\"?>\n<!-- written by campaign identify -->\n"
-                          f"{ET.tostring(root, encoding='unicode')}\n")
+    Path(path).write_text(
+        f'<?xml version="1.0"?>\n<!-- written by campaign identify -->\n{ET.tostring(root, encoding="unicode")}\n'
+    )
     return Path(path)
 
 
@@ -146,8 +151,9 @@ def merge_into_aircraft(model_dir: Path, effects_path: Path, out_root: Path, rep
     axes = {a.get("name"): a for a in aero.findall("axis")}
     for axis in axes.values() if replace_gear else ():
         for fn in list(axis.findall("function")):
-            if any(p.text and p.text.strip() == GEAR for p in fn.iter("property")) or \
-               any(v.text and v.text.strip() == GEAR for v in fn.iter("independentVar")):
+            if any(p.text and p.text.strip() == GEAR for p in fn.iter("property")) or any(
+                v.text and v.text.strip() == GEAR for v in fn.iter("independentVar")
+            ):
                 axis.remove(fn)
     for axis_el in ET.parse(effects_path).getroot():
         axis = axes.get(axis_el.get("name"))

@@ -2,6 +2,7 @@
 
 matplotlib builds a figure's axes and their ticks slowly: a report figure redrawn on the
 emptied axes of the last one costs half of a new one, and gives the same pixels."""
+
 from __future__ import annotations
 
 from typing import Callable
@@ -24,6 +25,7 @@ def new_figure(figsize: tuple[float, float]):
         Width and height [in].
     """
     import matplotlib.pyplot as plt
+
     return plt.figure(figsize=figsize)
 
 

@@ -13,6 +13,7 @@ sec. 10.2). ``g`` is the effective gravity of the data, which includes the
 centrifugal part of the Earth's rotation: it is fitted so that the integrated
 alpha rate follows the measured alpha.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -38,10 +39,17 @@ def _terms(data: pd.DataFrame) -> dict[str, np.ndarray]:
     u, v, w = vt * np.cos(a) * np.cos(b), vt * np.sin(b), vt * np.sin(a) * np.cos(b)
     p, q, r = _col(data, "p_dps", D2R), _col(data, "q_dps", D2R), _col(data, "r_dps", D2R)
     th, ph = _col(data, "theta_deg", D2R), _col(data, "phi_deg", D2R)
-    return {"u": u, "v": v, "w": w,
-            "ud0": r * v - q * w + _col(data, "ax_fps2"), "udg": -np.sin(th),
-            "vd0": p * w - r * u + _col(data, "ay_fps2"), "vdg": np.cos(th) * np.sin(ph),
-            "wd0": q * u - p * v + _col(data, "az_fps2"), "wdg": np.cos(th) * np.cos(ph)}
+    return {
+        "u": u,
+        "v": v,
+        "w": w,
+        "ud0": r * v - q * w + _col(data, "ax_fps2"),
+        "udg": -np.sin(th),
+        "vd0": p * w - r * u + _col(data, "ay_fps2"),
+        "vdg": np.cos(th) * np.sin(ph),
+        "wd0": q * u - p * v + _col(data, "az_fps2"),
+        "wdg": np.cos(th) * np.cos(ph),
+    }
 
 
 def effective_gravity(data: pd.DataFrame) -> float:
@@ -91,8 +99,8 @@ def angle_rates(data: pd.DataFrame, lag_s: float = 0.0, g_fps2: float | None = N
         rates = [np.interp(t - lag_s, t, x) for x in rates]
     ud, vd, wd = rates
     u, v, w = k["u"], k["v"], k["w"]
-    uw2 = u ** 2 + w ** 2
-    vt = np.sqrt(uw2 + v ** 2)
+    uw2 = u**2 + w**2
+    vt = np.sqrt(uw2 + v**2)
     vt_dot = (u * ud + v * vd + w * wd) / vt
     alpha_dot = (u * wd - w * ud) / uw2
     beta_dot = (vd * vt - v * vt_dot) / (vt * np.sqrt(uw2))
@@ -134,7 +142,7 @@ def odd_extension(x: np.ndarray, pad: int, anchor: int) -> np.ndarray:
     w_first, w_last = _end_weights(m)
     left = w_first @ x[:m]
     right = w_last @ x[-m:]
-    return np.concatenate([2 * left - x[pad:0:-1], x, 2 * right - x[-2:-pad - 2:-1]])
+    return np.concatenate([2 * left - x[pad:0:-1], x, 2 * right - x[-2 : -pad - 2 : -1]])
 
 
 def smooth_derivative(t: np.ndarray, x: np.ndarray, lead_s: float = 0.0) -> np.ndarray:
@@ -155,8 +163,11 @@ def smooth_derivative(t: np.ndarray, x: np.ndarray, lead_s: float = 0.0) -> np.n
     anchor = int(round(ANCHOR_S / dt))
     x = np.asarray(x, dtype=float)
     # columns (one spline solve for all) each extended on its own: the same numbers as one at a time
-    xe = odd_extension(x, pad, anchor) if x.ndim == 1 else np.column_stack([odd_extension(np.ascontiguousarray(c), pad, anchor)
-                                                                             for c in x.T])
+    xe = (
+        odd_extension(x, pad, anchor)
+        if x.ndim == 1
+        else np.column_stack([odd_extension(np.ascontiguousarray(c), pad, anchor) for c in x.T])
+    )
     te = np.concatenate([t[0] - dt * np.arange(pad, 0, -1), t, t[-1] + dt * np.arange(1, pad + 1)])
     k = min(5, len(xe) - 1 - (len(xe) % 2 == 0))
     return make_interp_spline(te, xe, k=k).derivative()(t + lead_s)
@@ -198,9 +209,13 @@ def measured_wind(data: pd.DataFrame) -> np.ndarray | None:
     ph, th, ps = _col(data, "phi_deg", D2R), _col(data, "theta_deg", D2R), _col(data, "psi_deg", D2R)
     cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
     # body to north-east-down (the transpose of the 3-2-1 Euler rotation)
-    rows = np.stack([
-        np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], axis=-1),
-        np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], axis=-1),
-        np.stack([-sth, sph * cth, cph * cth], axis=-1)], axis=1)
+    rows = np.stack(
+        [
+            np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], axis=-1),
+            np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], axis=-1),
+            np.stack([-sth, sph * cth, cph * cth], axis=-1),
+        ],
+        axis=1,
+    )
     air = np.einsum("nij,nj->ni", rows, body)
     return data[list(WIND_CHANNELS)].to_numpy(dtype=float) - air

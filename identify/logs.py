@@ -2,6 +2,7 @@
 
 This module knows the log schema only; it never imports the flying code.
 """
+
 from __future__ import annotations
 
 import json
@@ -13,21 +14,47 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 REQUIRED_COLUMNS: tuple[str, ...] = (
-    "t_s", "alt_ft", "tas_kt", "mach", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps",
-    "ax_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
-    "flap_deg", "gear_norm", "mass_slug",
+    "t_s",
+    "alt_ft",
+    "tas_kt",
+    "mach",
+    "alpha_deg",
+    "theta_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "ax_fps2",
+    "az_fps2",
+    "qbar_psf",
+    "thrust_lbf",
+    "elevator_deg",
+    "stabilizer_deg",
+    "flap_deg",
+    "gear_norm",
+    "mass_slug",
 )
 #: Channels a log may lack; what takes their place.
-DERIVED = {"qdot_dps2": "derivative of the quintic spline through q_dps, half a JSBSim frame ahead, "
-                        "low-passed at 3 Hz with the coefficients"}
+DERIVED = {
+    "qdot_dps2": "derivative of the quintic spline through q_dps, half a JSBSim frame ahead, "
+    "low-passed at 3 Hz with the coefficients"
+}
 TRANSITIONS = ("gear_extension", "gear_retraction")
 #: Manoeuvres flown for the data compatibility (air-data calibration), not for eq. (3) fits.
 CALIBRATION = ("level_turn",)
 REQUIRED_META = ("point", "maneuver", "status_point", "inertia_slugft2", "geometry")
 #: Physically plausible ranges; a value outside is a unit or sign mistake.
-PLAUSIBLE = {"alpha_deg": (-30.0, 60.0), "mach": (0.0, 3.0), "tas_kt": (0.0, 2000.0), "qbar_psf": (0.0, 3000.0),
-             "gear_norm": (-0.01, 1.01), "flap_deg": (-1.0, 60.0), "mass_slug": (1.0, 1e5),
-             "theta_deg": (-90.0, 90.0), "elevator_deg": (-45.0, 45.0), "stabilizer_deg": (-30.0, 30.0)}
+PLAUSIBLE = {
+    "alpha_deg": (-30.0, 60.0),
+    "mach": (0.0, 3.0),
+    "tas_kt": (0.0, 2000.0),
+    "qbar_psf": (0.0, 3000.0),
+    "gear_norm": (-0.01, 1.01),
+    "flap_deg": (-1.0, 60.0),
+    "mass_slug": (1.0, 1e5),
+    "theta_deg": (-90.0, 90.0),
+    "elevator_deg": (-45.0, 45.0),
+    "stabilizer_deg": (-30.0, 30.0),
+}
 
 
 class LogError(ValueError):
@@ -135,8 +162,10 @@ def _validate(path: str, df: pd.DataFrame, meta: dict) -> None:
         lo, hi = PLAUSIBLE.get(col, (-np.inf, np.inf))
         out = np.flatnonzero((values < lo) | (values > hi))
         if out.size:
-            raise LogError(f"{path}: column {col!r}, row {out[0] + 1}: {values[out[0]]:g} is outside "
-                           f"{lo:g}..{hi:g} (units? the column's unit is in its name)")
+            raise LogError(
+                f"{path}: column {col!r}, row {out[0] + 1}: {values[out[0]]:g} is outside "
+                f"{lo:g}..{hi:g} (units? the column's unit is in its name)"
+            )
     if len(df) < 10:
         raise LogError(f"{path}: only {len(df)} rows")
 

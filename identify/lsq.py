@@ -9,6 +9,7 @@ formula, which would understate them: they follow Morelli & Klein (Aircraft
 System Identification, 2016, sec. 5.2) -- the residual autocorrelation
 weighted by the regressors' cross-products.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -60,7 +61,7 @@ class LSResults:
 
     @property
     def resid_rms(self) -> float:
-        return self.kept[2] if self.resid is None else float(np.sqrt(np.mean(self.resid ** 2)))
+        return self.kept[2] if self.resid is None else float(np.sqrt(np.mean(self.resid**2)))
 
     @property
     def rel_error_pct(self) -> float:
@@ -70,12 +71,12 @@ class LSResults:
     def slim(self) -> "LSResults":
         """The same results without the per-sample arrays (measured, fitted, residual), their
         statistics kept: what a campaign of thousands of points holds of each fit."""
-        return replace(self, resid=None, fitted=None, y=None,
-                       kept=(self.nobs, self.resid_max, self.resid_rms, self.rel_error_pct))
+        return replace(
+            self, resid=None, fitted=None, y=None, kept=(self.nobs, self.resid_max, self.resid_rms, self.rel_error_pct)
+        )
 
     def conf_int(self, n_sigma: float = 2.0) -> pd.DataFrame:
-        return pd.DataFrame({"lower": self.params - n_sigma * self.bse,
-                             "upper": self.params + n_sigma * self.bse})
+        return pd.DataFrame({"lower": self.params - n_sigma * self.bse, "upper": self.params + n_sigma * self.bse})
 
     def to_dict(self) -> dict:
         return {
@@ -83,18 +84,24 @@ class LSResults:
             "bse": {k: float(v) for k, v in self.bse.items()},
             "se": {k: float(v) for k, v in (self.bse if self.bse_white is None else self.bse_white).items()},
             "se_coloured": {k: float(v) for k, v in self.bse.items()},
-            "method": self.method, "converged": self.converged,
-            "rsquared": self.rsquared, "resid_max": self.resid_max, "resid_rms": self.resid_rms,
-            "rel_error_pct": self.rel_error_pct, "nobs": self.nobs,
+            "method": self.method,
+            "converged": self.converged,
+            "rsquared": self.rsquared,
+            "resid_max": self.resid_max,
+            "resid_rms": self.resid_rms,
+            "rel_error_pct": self.rel_error_pct,
+            "nobs": self.nobs,
             "unexcited": dict(self.unexcited),
         }
 
     def summary(self) -> str:
         by = "" if self.method == "ee" else f" ({self.method})"
-        lines = [f"{self.name}{by}: N = {self.nobs}, R^2 = {self.rsquared:.6f}, "
-                 f"residual max {self.resid_max:.3g}, RMS {self.resid_rms:.3g}, "
-                 f"relative {self.rel_error_pct:.2f} %",
-                 f"  {'parameter':<20}{'estimate':>14}{'std err':>12}{'t':>10}"]
+        lines = [
+            f"{self.name}{by}: N = {self.nobs}, R^2 = {self.rsquared:.6f}, "
+            f"residual max {self.resid_max:.3g}, RMS {self.resid_rms:.3g}, "
+            f"relative {self.rel_error_pct:.2f} %",
+            f"  {'parameter':<20}{'estimate':>14}{'std err':>12}{'t':>10}",
+        ]
         for k in self.params.index:
             t = self.params[k] / self.bse[k] if self.bse[k] > 0 else np.inf
             lines.append(f"  {k:<20}{self.params[k]:>14.6g}{self.bse[k]:>12.3g}{t:>10.1f}")
@@ -118,12 +125,12 @@ def lagged_gram(x: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     """
     n = len(e)
     lags = min(lags, n - 1)
-    r = np.array([e[k:] @ e[:n - k] / n for k in range(lags + 1)])
+    r = np.array([e[k:] @ e[: n - k] / n for k in range(lags + 1)])
     crossing = np.flatnonzero(r <= 0.0)
     last = int(crossing[0]) - 1 if crossing.size else lags
     # sum_k r_k (G_k + G_k'), G_k = sum_i x_(i+k) x_i', is Z'X + X'Z with Z_i = sum_k r_k x_(i+k):
     # the lags as one FIR filter over the reversed regressors instead of a product per lag
-    z = lfilter(np.concatenate([[0.0], r[1:last + 1]]), [1.0], x[::-1], axis=0)[::-1]
+    z = lfilter(np.concatenate([[0.0], r[1 : last + 1]]), [1.0], x[::-1], axis=0)[::-1]
     return r[0] * (x.T @ x) + z.T @ x + x.T @ z
 
 
@@ -165,8 +172,7 @@ class LeastSquares:
     name : str
     """
 
-    def __init__(self, y, X: pd.DataFrame, min_std: dict | None = None, hac_lags: int = 240,
-                 name: str = "y") -> None:
+    def __init__(self, y, X: pd.DataFrame, min_std: dict | None = None, hac_lags: int = 240, name: str = "y") -> None:
         self.y = np.asarray(y, dtype=float)
         self.X = X
         self.min_std = min_std or {}
@@ -201,10 +207,19 @@ class LeastSquares:
         cov = colored_residual_cov(x, resid, self.hac_lags)
         white = float(resid @ resid) / max(len(resid) - x.shape[1], 1) * np.linalg.inv(x.T @ x)
         ss_tot = float(np.sum((self.y - self.y.mean()) ** 2))
-        r2 = 1.0 - float(np.sum(resid ** 2)) / ss_tot if ss_tot > 0 else float("nan")
-        return LSResults(self.name, pd.Series(theta, index=keep), pd.Series(np.sqrt(np.diag(cov)), index=keep),
-                         unexcited, r2, resid, fitted, self.y, cov,
-                         bse_white=pd.Series(np.sqrt(np.diag(white)), index=keep))
+        r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else float("nan")
+        return LSResults(
+            self.name,
+            pd.Series(theta, index=keep),
+            pd.Series(np.sqrt(np.diag(cov)), index=keep),
+            unexcited,
+            r2,
+            resid,
+            fitted,
+            self.y,
+            cov,
+            bse_white=pd.Series(np.sqrt(np.diag(white)), index=keep),
+        )
 
 
 def solve_normal(gram: np.ndarray, xty: np.ndarray) -> np.ndarray:

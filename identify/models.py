@@ -7,6 +7,7 @@ Before the fits, the coefficients and the regressors pass through the same
 zero-phase low-pass filter: a linear relation between them is unchanged, while
 sensor noise in the regressors (which biases least squares) shrinks.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -26,13 +27,24 @@ from identify.lsq import LeastSquares, LSResults
 
 COEFFS = ("CL", "CD", "Cm")
 REGRESSORS = ("dalpha_rad", "qhat_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2")
-PARAM_SUFFIX = {"const": "0", "dalpha_rad": "alpha_per_rad", "qhat_rad": "q_per_rad",
-                "delevator_rad": "de_per_rad", "dstabilizer_rad": "dh_per_rad", "dmach": "mach",
-                "dalpha2_rad2": "alpha2_per_rad2"}
+PARAM_SUFFIX = {
+    "const": "0",
+    "dalpha_rad": "alpha_per_rad",
+    "qhat_rad": "q_per_rad",
+    "delevator_rad": "de_per_rad",
+    "dstabilizer_rad": "dh_per_rad",
+    "dmach": "mach",
+    "dalpha2_rad2": "alpha2_per_rad2",
+}
 #: A regressor varying less than this (std over the manoeuvre) was not excited.
-MIN_STD = {"dalpha_rad": 0.05 * D2R, "qhat_rad": 1e-5, "delevator_rad": 0.05 * D2R,
-           "dstabilizer_rad": 0.05 * D2R, "dmach": 0.002,
-           "dalpha2_rad2": (0.5 * D2R) ** 2}
+MIN_STD = {
+    "dalpha_rad": 0.05 * D2R,
+    "qhat_rad": 1e-5,
+    "delevator_rad": 0.05 * D2R,
+    "dstabilizer_rad": 0.05 * D2R,
+    "dmach": 0.002,
+    "dalpha2_rad2": (0.5 * D2R) ** 2,
+}
 CUTOFF_HZ = 3.0
 EDGE_S = 0.25  # dropped at both ends of a filtered record (filter start-up)
 GRID = np.round(np.linspace(0.0, 1.0, 21), 10)
@@ -61,7 +73,7 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarra
     z = zi.reshape((-1,) + (1,) * (ext.ndim - 1))
     y, _ = lfilter(b, a, ext, axis=0, zi=z * ext[:1])
     y, _ = lfilter(b, a, y[::-1], axis=0, zi=z * y[-1:])
-    return y[::-1][pad:pad + len(x)]
+    return y[::-1][pad : pad + len(x)]
 
 
 def sample_interval(log: Log) -> float:
@@ -87,13 +99,20 @@ def _steady_head(log: Log, seconds: float = 1.0) -> pd.DataFrame:
 
 def _reference(frame: pd.DataFrame, source: str) -> Reference:
     n = max(len(frame), 1)
-    se = (("dalpha_rad", float(frame.alpha_deg.std(ddof=1)) * D2R / np.sqrt(n)),
-          ("delevator_rad", float(frame.elevator_deg.std(ddof=1)) * D2R / np.sqrt(n)),
-          ("dstabilizer_rad", float(frame.stabilizer_deg.std(ddof=1)) * D2R / np.sqrt(n)),
-          ("dmach", float(frame.mach.std(ddof=1)) / np.sqrt(n)))
-    return Reference(float(frame.alpha_deg.mean()), float(frame.elevator_deg.mean()),
-                     float(frame.stabilizer_deg.mean()), float(frame.mach.mean()), source,
-                     tuple((k, v if np.isfinite(v) else 0.0) for k, v in se))
+    se = (
+        ("dalpha_rad", float(frame.alpha_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+        ("delevator_rad", float(frame.elevator_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+        ("dstabilizer_rad", float(frame.stabilizer_deg.std(ddof=1)) * D2R / np.sqrt(n)),
+        ("dmach", float(frame.mach.std(ddof=1)) / np.sqrt(n)),
+    )
+    return Reference(
+        float(frame.alpha_deg.mean()),
+        float(frame.elevator_deg.mean()),
+        float(frame.stabilizer_deg.mean()),
+        float(frame.mach.mean()),
+        source,
+        tuple((k, v if np.isfinite(v) else 0.0) for k, v in se),
+    )
 
 
 def reference_order(logs: list) -> dict[tuple, tuple[list, object]]:
@@ -122,15 +141,18 @@ def reference_of(candidates, fallback: Log) -> Reference:
 def regressors(log: Log, ref: Reference) -> pd.DataFrame:
     """Eq. (3) regressors [rad] about the reference state, with a constant."""
     d = log.data
-    return pd.DataFrame({
-        "const": 1.0,
-        "dalpha_rad": (d["alpha_deg"] - ref.alpha_deg) * D2R,
-        "qhat_rad": qhat(d, log.meta),
-        "delevator_rad": (d["elevator_deg"] - ref.elevator_deg) * D2R,
-        "dstabilizer_rad": (d["stabilizer_deg"] - ref.stabilizer_deg) * D2R,
-        "dmach": d["mach"] - ref.mach,
-        "dalpha2_rad2": ((d["alpha_deg"] - ref.alpha_deg) * D2R) ** 2,
-    }, index=d.index)
+    return pd.DataFrame(
+        {
+            "const": 1.0,
+            "dalpha_rad": (d["alpha_deg"] - ref.alpha_deg) * D2R,
+            "qhat_rad": qhat(d, log.meta),
+            "delevator_rad": (d["elevator_deg"] - ref.elevator_deg) * D2R,
+            "dstabilizer_rad": (d["stabilizer_deg"] - ref.stabilizer_deg) * D2R,
+            "dmach": d["mach"] - ref.mach,
+            "dalpha2_rad2": ((d["alpha_deg"] - ref.alpha_deg) * D2R) ** 2,
+        },
+        index=d.index,
+    )
 
 
 def filtered_frame(log: Log, frame: pd.DataFrame) -> pd.DataFrame:
@@ -173,29 +195,39 @@ class PointFit:
         """Parameters like the paper's Table 2: one row per coefficient, '' where not identifiable."""
         rows = {}
         for c, res in self.fits.items():
-            rows[c] = [f"{res.params[r]:.6g}" if r in res.params.index else "n/i"
-                       for r in ("const", *REGRESSORS)]
+            rows[c] = [f"{res.params[r]:.6g}" if r in res.params.index else "n/i" for r in ("const", *REGRESSORS)]
         return pd.DataFrame(rows, index=[PARAM_SUFFIX[r] for r in ("const", *REGRESSORS)]).T
 
     def summary(self) -> str:
-        head = (f"{self.point} ({'gear down' if self.gear_down else 'gear up'}), regressors about "
-                f"alpha {self.reference.alpha_deg:.3f} deg, elevator {self.reference.elevator_deg:.3f} deg, "
-                f"stabilizer {self.reference.stabilizer_deg:.3f} deg")
+        head = (
+            f"{self.point} ({'gear down' if self.gear_down else 'gear up'}), regressors about "
+            f"alpha {self.reference.alpha_deg:.3f} deg, elevator {self.reference.elevator_deg:.3f} deg, "
+            f"stabilizer {self.reference.stabilizer_deg:.3f} deg"
+        )
         lines = [head]
         names = {"oe": "output error", "fe": "filter error"}
         if self.failure:
-            lines.append(f"NOT CONVERGED by {names.get(self.failure['method'], self.failure['method'])}: "
-                         f"{self.failure['reason']}; the estimates below are the equation error's (ee)")
+            lines.append(
+                f"NOT CONVERGED by {names.get(self.failure['method'], self.failure['method'])}: "
+                f"{self.failure['reason']}; the estimates below are the equation error's (ee)"
+            )
         elif self.timedomain:
             td = self.timedomain
-            lines.append(f"by {names.get(td['method'], td['method'])} ({td['method']}), converged in {td['iterations']} "
-                         f"iterations, records fitted together: {', '.join(td['records'])}")
-            lines.append("  structure: " + ", ".join(f"{c} {' '.join(t)}" for c, t in td["structure"]["terms"].items()
-                                                      if t) + f"; states {' '.join(td['structure']['states'])}")
+            lines.append(
+                f"by {names.get(td['method'], td['method'])} ({td['method']}), converged in {td['iterations']} "
+                f"iterations, records fitted together: {', '.join(td['records'])}"
+            )
+            lines.append(
+                "  structure: "
+                + ", ".join(f"{c} {' '.join(t)}" for c, t in td["structure"]["terms"].items() if t)
+                + f"; states {' '.join(td['structure']['states'])}"
+            )
             if td["structure"]["left_out"]:
                 lines.append("  left out: " + "; ".join(f"{k}: {v}" for k, v in td["structure"]["left_out"].items()))
             if td.get("derivatives"):
-                lines.append("  dimensional derivatives: " + ", ".join(f"{k} {v:.4g}" for k, v in td["derivatives"].items()))
+                lines.append(
+                    "  dimensional derivatives: " + ", ".join(f"{k} {v:.4g}" for k, v in td["derivatives"].items())
+                )
         return "\n".join(lines + [self.fits[c].summary() for c in COEFFS])
 
 
@@ -205,14 +237,23 @@ def fit_baseline(log: Log, ref: Reference) -> PointFit:
     inner = slice(edge, len(log.data) - edge)
     y = filtered_frame(log, coefficients(log.data, log.meta)).iloc[inner]
     x = filtered_frame(log, regressors(log, ref)).iloc[inner]
-    fits = {c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / sample_interval(log))), name=c).fit()
-            for c in COEFFS}
+    fits = {
+        c: LeastSquares(y[c], x, MIN_STD, hac_lags=int(round(2.0 / sample_interval(log))), name=c).fit() for c in COEFFS
+    }
     for res in fits.values():
         # C0 is the coefficient at the reference state, itself a mean of measured samples
         extra = sum((res.params[r] * se) ** 2 for r, se in ref.se if r in res.params.index)
         res.bse["const"] = float(np.sqrt(res.bse["const"] ** 2 + extra))
-    return PointFit(log.point, log.path, log.condition, log.gear_down, ref, fits,
-                    float(_steady_head(log).alpha_deg.mean()), log.data["t_s"].to_numpy()[inner])
+    return PointFit(
+        log.point,
+        log.path,
+        log.condition,
+        log.gear_down,
+        ref,
+        fits,
+        float(_steady_head(log).alpha_deg.mean()),
+        log.data["t_s"].to_numpy()[inner],
+    )
 
 
 @dataclass
@@ -232,12 +273,16 @@ class LinearGearModel:
         return self.c0_dn[coeff] - self.c0_up[coeff]
 
     def to_dict(self) -> dict:
-        return {"condition": {"alt_ft": self.condition[0], "mach": self.condition[1],
-                              "flap_deg": self.condition[2]},
-                "alpha_trim_deg": self.alpha_trim_deg,
-                "derivatives": self.derivatives, "C0_gearup": self.c0_up, "C0_gearDn": self.c0_dn,
-                "C0_gearup_bse": self.c0_up_bse, "C0_gearDn_bse": self.c0_dn_bse,
-                "increment": {c: self.increment(c) for c in COEFFS}}
+        return {
+            "condition": {"alt_ft": self.condition[0], "mach": self.condition[1], "flap_deg": self.condition[2]},
+            "alpha_trim_deg": self.alpha_trim_deg,
+            "derivatives": self.derivatives,
+            "C0_gearup": self.c0_up,
+            "C0_gearDn": self.c0_dn,
+            "C0_gearup_bse": self.c0_up_bse,
+            "C0_gearDn_bse": self.c0_dn_bse,
+            "increment": {c: self.increment(c) for c in COEFFS},
+        }
 
 
 def linear_models(fits) -> dict[tuple, LinearGearModel]:
@@ -246,8 +291,10 @@ def linear_models(fits) -> dict[tuple, LinearGearModel]:
     by_cond: dict[tuple, dict[bool, tuple]] = {}
     for f in fits:
         by_cond.setdefault(f.condition, {})[f.gear_down] = (
-            f.alpha_trim_deg, {c: {r: f.param(c, r) for r in ("const", *REGRESSORS)} for c in COEFFS},
-            {c: float(f.fits[c].bse["const"]) for c in COEFFS})
+            f.alpha_trim_deg,
+            {c: {r: f.param(c, r) for r in ("const", *REGRESSORS)} for c in COEFFS},
+            {c: float(f.fits[c].bse["const"]) for c in COEFFS},
+        )
     out = {}
     for cond, pair in by_cond.items():
         if True not in pair or False not in pair:
@@ -260,8 +307,15 @@ def linear_models(fits) -> dict[tuple, LinearGearModel]:
                 vals = [v for v in (up[c][r], dn[c][r]) if v is not None]
                 if vals:
                     deriv[c][r] = float(np.mean(vals))
-        out[cond] = LinearGearModel(cond, alpha_up, deriv, {c: up[c]["const"] for c in COEFFS},
-                                    {c: dn[c]["const"] for c in COEFFS}, up_bse, dn_bse)
+        out[cond] = LinearGearModel(
+            cond,
+            alpha_up,
+            deriv,
+            {c: up[c]["const"] for c in COEFFS},
+            {c: dn[c]["const"] for c in COEFFS},
+            up_bse,
+            dn_bse,
+        )
     return out
 
 
@@ -282,15 +336,18 @@ class Increments:
     se: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"gear_norm": self.grid.tolist(), **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
-                "alpha_trim_deg": self.alpha_trim_deg}
+        return {
+            "gear_norm": self.grid.tolist(),
+            **{f"d{c}": self.smooth[c].tolist() for c in COEFFS},
+            "alpha_trim_deg": self.alpha_trim_deg,
+        }
 
     def slim(self, samples: int = 200) -> "Increments":
         """The same increments with the per-sample series cut to the gear's travel, at most
         ``samples`` of them (what Fig. 11 draws), and the raw increments dropped: what a campaign of
         thousands of points holds."""
         moving = np.flatnonzero((self.gear_norm > 0.0) & (self.gear_norm < 1.0))
-        moving = moving[::max(1, -(-len(moving) // samples))]
+        moving = moving[:: max(1, -(-len(moving) // samples))]
         return replace(self, gear_norm=self.gear_norm[moving], alpha_deg=self.alpha_deg[moving], raw={})
 
 
@@ -315,8 +372,17 @@ def increments(log: Log, derivatives: dict[str, dict[str, float]]) -> Increments
         raw[c] = f
     g = d["gear_norm"].to_numpy()
     fitted = {c: _spline_on_grid(g, raw[c]) for c in COEFFS}
-    return Increments(log.point, log.condition, ref.alpha_deg, g, raw, GRID, {c: v for c, (v, _) in fitted.items()},
-                      d["alpha_deg"].to_numpy(), {c: se for c, (_, se) in fitted.items()})
+    return Increments(
+        log.point,
+        log.condition,
+        ref.alpha_deg,
+        g,
+        raw,
+        GRID,
+        {c: v for c, (v, _) in fitted.items()},
+        d["alpha_deg"].to_numpy(),
+        {c: se for c, (_, se) in fitted.items()},
+    )
 
 
 def _spline_on_grid(g: np.ndarray, f: np.ndarray, bins: int = 100) -> tuple[np.ndarray, float]:
@@ -414,7 +480,7 @@ class GearSurface:
         """Standard errors of :attr:`coef` ``[(flap, c)]`` [-], shape (n_grid, n_terms): the scale of the
         draws (their Student-t spread is wider by ``sqrt(dof / (dof - 2))`` where that is finite)."""
         b = self.basis.get((flap, c))
-        return np.zeros_like(self.coef[(flap, c)]) if b is None or not len(b) else np.sqrt(np.sum(b ** 2, axis=0))
+        return np.zeros_like(self.coef[(flap, c)]) if b is None or not len(b) else np.sqrt(np.sum(b**2, axis=0))
 
     def draw(self, rng: np.random.Generator) -> "GearSurface":
         """The surface with its coefficients drawn from their covariance."""
@@ -433,22 +499,30 @@ class GearSurface:
 
     def to_arrays(self) -> dict:
         """Everything :meth:`from_arrays` needs, as JSON-ready lists."""
-        return {**self.to_dict(), "coef": {f"{f}/{c}": v.tolist() for (f, c), v in self.coef.items()},
-                "basis": {f"{f}/{c}": v.tolist() for (f, c), v in self.basis.items()},
-                "dof": {f"{f}/{c}": v if np.isfinite(v) else None for (f, c), v in self.dof.items()}}
+        return {
+            **self.to_dict(),
+            "coef": {f"{f}/{c}": v.tolist() for (f, c), v in self.coef.items()},
+            "basis": {f"{f}/{c}": v.tolist() for (f, c), v in self.basis.items()},
+            "dof": {f"{f}/{c}": v if np.isfinite(v) else None for (f, c), v in self.dof.items()},
+        }
 
     @classmethod
     def from_arrays(cls, d: dict) -> "GearSurface":
         def key(k: str) -> tuple[float, str]:
             f, c = k.split("/")
             return float(f), c
-        return cls(np.array(d["grid"]), [float(f) for f in d["flaps"]], {key(k): v for k, v in d["designs"].items()},
-                   {key(k): np.array(v) for k, v in d["coef"].items()},
-                   {float(f): tuple(v) for f, v in d["alpha_range_deg"].items()},
-                   {float(f): tuple(v) for f, v in d["mach_range"].items()},
-                   {key(k): v for k, v in d["cv_rmse"].items()},
-                   {key(k): np.array(v).reshape(-1, *np.shape(d["coef"][k])) for k, v in d["basis"].items()},
-                   {key(k): np.inf if v is None else float(v) for k, v in d.get("dof", {}).items()})
+
+        return cls(
+            np.array(d["grid"]),
+            [float(f) for f in d["flaps"]],
+            {key(k): v for k, v in d["designs"].items()},
+            {key(k): np.array(v) for k, v in d["coef"].items()},
+            {float(f): tuple(v) for f, v in d["alpha_range_deg"].items()},
+            {float(f): tuple(v) for f, v in d["mach_range"].items()},
+            {key(k): v for k, v in d["cv_rmse"].items()},
+            {key(k): np.array(v).reshape(-1, *np.shape(d["coef"][k])) for k, v in d["basis"].items()},
+            {key(k): np.inf if v is None else float(v) for k, v in d.get("dof", {}).items()},
+        )
 
     def table_range(self, flap: int) -> tuple[tuple[float, float], tuple[float, float]]:
         """Alpha [deg] and Mach intervals the tables span (data plus margins)."""
@@ -473,18 +547,22 @@ class GearSurface:
             return self._at_flap(flaps[-1], c, alpha_deg, mach)
         i = int(np.searchsorted(flaps, flap_deg)) - 1
         w = (flap_deg - flaps[i]) / (flaps[i + 1] - flaps[i])
-        return ((1 - w) * self._at_flap(flaps[i], c, alpha_deg, mach)
-                + w * self._at_flap(flaps[i + 1], c, alpha_deg, mach))
+        return (1 - w) * self._at_flap(flaps[i], c, alpha_deg, mach) + w * self._at_flap(
+            flaps[i + 1], c, alpha_deg, mach
+        )
 
     def __call__(self, c: str, gear_norm: float, alpha_deg: float, mach: float, flap_deg: float) -> float:
         return float(np.interp(gear_norm, self.grid, self.curve(c, alpha_deg, mach, flap_deg)))
 
     def to_dict(self) -> dict:
-        return {"grid": self.grid.tolist(), "flaps": self.flaps,
-                "designs": {f"{f}/{c}": d for (f, c), d in self.designs.items()},
-                "cv_rmse": {f"{f}/{c}": v for (f, c), v in self.cv_rmse.items()},
-                "alpha_range_deg": {str(f): list(v) for f, v in self.alpha_range.items()},
-                "mach_range": {str(f): list(v) for f, v in self.mach_range.items()}}
+        return {
+            "grid": self.grid.tolist(),
+            "flaps": self.flaps,
+            "designs": {f"{f}/{c}": d for (f, c), d in self.designs.items()},
+            "cv_rmse": {f"{f}/{c}": v for (f, c), v in self.cv_rmse.items()},
+            "alpha_range_deg": {str(f): list(v) for f, v in self.alpha_range.items()},
+            "mach_range": {str(f): list(v) for f, v in self.mach_range.items()},
+        }
 
 
 def fit_surface(curves: list[tuple]) -> GearSurface:

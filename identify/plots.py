@@ -1,6 +1,7 @@
 """Identification plots (paper Figs. 6-9, 11, 12). Each takes ``ax=`` and returns the figure.
 
 Fixed margins rather than a layout engine: constrained layout took half of their time."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -93,10 +94,13 @@ def plot_alpha_transitions(incs: list[Increments], ax=None):
     lo, hi = trims.min(), max(trims.max(), trims.min() + 1e-9)
     for inc in incs:
         moving = (inc.gear_norm > 0.0) & (inc.gear_norm < 1.0)
-        ax.plot(inc.gear_norm[moving], inc.alpha_deg[moving] - inc.alpha_trim_deg, lw=0.8,
-                color=cmap((inc.alpha_trim_deg - lo) / (hi - lo)))
-    ax.figure.colorbar(ScalarMappable(cmap=cmap, norm=Normalize(lo, hi)), ax=ax,
-                       label=r"trim $\alpha$ [deg]")
+        ax.plot(
+            inc.gear_norm[moving],
+            inc.alpha_deg[moving] - inc.alpha_trim_deg,
+            lw=0.8,
+            color=cmap((inc.alpha_trim_deg - lo) / (hi - lo)),
+        )
+    ax.figure.colorbar(ScalarMappable(cmap=cmap, norm=Normalize(lo, hi)), ax=ax, label=r"trim $\alpha$ [deg]")
     ax.set_xlabel(r"normalized gear position $\delta_{LG}$ [-]")
     ax.set_ylabel(r"$\alpha - \alpha_{trim}$ [deg]")
     ax.set_title(f"Angle of attack during gear transitions ({len(incs)} status points)")

@@ -13,6 +13,7 @@ record's values (no drag). A user names one in TOML (:func:`load_structure`)::
     CL = ["const", "dalpha_rad", "qhat_rad", "delevator_rad"]
     Cm = ["const", "dalpha_rad", "qhat_rad", "delevator_rad"]
 """
+
 from __future__ import annotations
 
 import tomllib
@@ -76,9 +77,14 @@ class Structure:
         return replace(self, terms=terms, left_out={**self.left_out, f"{coeff} {term}": why})
 
     def to_dict(self) -> dict:
-        return {"source": self.source, "states": list(self.states), "outputs": list(self.outputs),
-                "inputs": list(self.inputs), "terms": {c: list(self.terms.get(c, ())) for c in COEFFS},
-                "left_out": dict(self.left_out)}
+        return {
+            "source": self.source,
+            "states": list(self.states),
+            "outputs": list(self.outputs),
+            "inputs": list(self.inputs),
+            "terms": {c: list(self.terms.get(c, ())) for c in COEFFS},
+            "left_out": dict(self.left_out),
+        }
 
     def describe(self) -> str:
         """One line: the states and each coefficient's terms."""
@@ -93,9 +99,13 @@ class Structure:
 #: damping. Each fit leaves out the terms its records do not excite, and the lift and drag control
 #: and curvature terms on which it and the equation error disagree
 #: (:func:`identify.timedomain.supported`, :func:`identify.timedomain.disagreement`).
-DEFAULT = Structure({"CL": ("const", "dalpha_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2"),
-                     "CD": ("const", "dalpha_rad", "dmach", "dalpha2_rad2"),
-                     "Cm": TERMS})
+DEFAULT = Structure(
+    {
+        "CL": ("const", "dalpha_rad", "delevator_rad", "dstabilizer_rad", "dmach", "dalpha2_rad2"),
+        "CD": ("const", "dalpha_rad", "dmach", "dalpha2_rad2"),
+        "Cm": TERMS,
+    }
+)
 
 
 def load_structure(path: str | Path) -> Structure:
@@ -123,12 +133,17 @@ def load_structure(path: str | Path) -> Structure:
 
     states = names("states", OUTPUTS, list(STATE_SETS["longitudinal"]))
     if set(states) not in [set(s) for s in STATE_SETS.values()]:
-        raise StructureError(f"{path}: states: {states} is neither the longitudinal states "
-                             f"{list(STATE_SETS['longitudinal'])} nor the short period's {list(STATE_SETS['short period'])}")
+        raise StructureError(
+            f"{path}: states: {states} is neither the longitudinal states "
+            f"{list(STATE_SETS['longitudinal'])} nor the short period's {list(STATE_SETS['short period'])}"
+        )
     states = next(s for s in STATE_SETS.values() if set(s) == set(states))
     short = states == STATE_SETS["short period"]
-    outputs = names("outputs", SHORT_PERIOD_OUTPUTS if short else OUTPUTS,
-                    list(SHORT_PERIOD_OUTPUTS[:2] if short else DEFAULT.outputs))
+    outputs = names(
+        "outputs",
+        SHORT_PERIOD_OUTPUTS if short else OUTPUTS,
+        list(SHORT_PERIOD_OUTPUTS[:2] if short else DEFAULT.outputs),
+    )
     inputs = names("inputs", INPUTS, list(INPUTS))
     table = doc.get("terms")
     if not isinstance(table, dict):

@@ -18,6 +18,7 @@ A fit that does not converge is not reported as one: the point keeps its equatio
 estimates, labelled ``ee``, and :attr:`identify.models.PointFit.failure` says which method failed
 and why.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -42,13 +43,28 @@ RATE_HZ = 10.0
 MAX_RATE_HZ = 25.0
 D2R = np.pi / 180.0
 #: eq. (3) regressors as the longitudinal model names them
-MODEL_REGRESSOR = {"const": "1", "dalpha_rad": "alpha", "qhat_rad": "qhat_v", "delevator_rad": "elevator_rad",
-                   "dstabilizer_rad": "stabilizer_rad", "dmach": "mach", "dalpha2_rad2": "alpha2"}
+MODEL_REGRESSOR = {
+    "const": "1",
+    "dalpha_rad": "alpha",
+    "qhat_rad": "qhat_v",
+    "delevator_rad": "elevator_rad",
+    "dstabilizer_rad": "stabilizer_rad",
+    "dmach": "mach",
+    "dalpha2_rad2": "alpha2",
+}
 #: log channel -> (model name, factor to the model's unit)
-CHANNEL = {"tas_kt": ("V", FT_PER_KT), "alpha_deg": ("alpha_rad", D2R), "theta_deg": ("theta_rad", D2R),
-           "q_dps": ("q_rps", D2R), "qdot_dps2": ("qdot_rps2", D2R), "ax_fps2": ("ax", 1.0), "az_fps2": ("az", 1.0),
-           "elevator_deg": ("elevator_rad", D2R), "stabilizer_deg": ("stabilizer_rad", D2R),
-           "thrust_lbf": ("thrust", 1.0)}
+CHANNEL = {
+    "tas_kt": ("V", FT_PER_KT),
+    "alpha_deg": ("alpha_rad", D2R),
+    "theta_deg": ("theta_rad", D2R),
+    "q_dps": ("q_rps", D2R),
+    "qdot_dps2": ("qdot_rps2", D2R),
+    "ax_fps2": ("ax", 1.0),
+    "az_fps2": ("az", 1.0),
+    "elevator_deg": ("elevator_rad", D2R),
+    "stabilizer_deg": ("stabilizer_rad", D2R),
+    "thrust_lbf": ("thrust", 1.0),
+}
 #: starting process-noise standard deviations per state, as a share of the state's scatter over the record
 #: (per sqrt(s)): the filter error's own start, refined with the parameters
 F0_SHARE = 0.2
@@ -79,8 +95,9 @@ def _record(log: Log, structure: Structure) -> tuple[Record, dict]:
     d = log.data
     dt = sample_interval(log)
     step = 1 if dt * MAX_RATE_HZ > 0.99 else max(1, int(round(1.0 / (RATE_HZ * dt))))
-    chans = list(dict.fromkeys([*structure.outputs, *structure.states, *structure.inputs, "tas_kt", "alpha_deg",
-                                "theta_deg"]))
+    chans = list(
+        dict.fromkeys([*structure.outputs, *structure.states, *structure.inputs, "tas_kt", "alpha_deg", "theta_deg"])
+    )
     raw = np.column_stack([_channel(d, c) for c in chans])
     # resampled, a record is low-passed first as eq. (3)'s are; at its own rate it is fitted as measured (the
     # estimators take the measurement noise as white, and a low-pass filter colours it)
@@ -92,10 +109,14 @@ def _record(log: Log, structure: Structure) -> tuple[Record, dict]:
     z = smooth[list(structure.outputs)].to_numpy()
     x0 = smooth[list(structure.states)].to_numpy()[0]
     rec = Record(u, z, dt * step, x0, name=log.point, t_s=d["t_s"].to_numpy()[::step])
-    return rec, {"rho": rho, "v": float(smooth["tas_kt"].mean()), "gamma_rad": float(np.mean(smooth["theta_deg"]
-                                                                                         - smooth["alpha_deg"])),
-                 "mass": float(d["mass_slug"].mean()), "g": effective_gravity(d),
-                 "scatter": smooth[list(structure.states)].std().to_numpy()}
+    return rec, {
+        "rho": rho,
+        "v": float(smooth["tas_kt"].mean()),
+        "gamma_rad": float(np.mean(smooth["theta_deg"] - smooth["alpha_deg"])),
+        "mass": float(d["mass_slug"].mean()),
+        "g": effective_gravity(d),
+        "scatter": smooth[list(structure.states)].std().to_numpy(),
+    }
 
 
 def group_model(logs: Sequence[Log], fits: Sequence[PointFit], structure: Structure):
@@ -115,15 +136,33 @@ def group_model(logs: Sequence[Log], fits: Sequence[PointFit], structure: Struct
     ref = fits[0].reference
     air = {k: float(np.mean([a[k] for a in airs])) for k in ("rho", "v", "gamma_rad", "mass", "g")}
     air["scatter"] = np.mean([a["scatter"] for a in airs], axis=0)
-    airframe = Airframe(mass=air["mass"], area=g["S_ft2"], chord=g["cbar_ft"], iyy=inertia["iyy"], v0=air["v"],
-                        thrust_angle_rad=0.0, thrust_arm=-g.get("thrust_z_arm_ft", 0.0), g=air["g"])
+    airframe = Airframe(
+        mass=air["mass"],
+        area=g["S_ft2"],
+        chord=g["cbar_ft"],
+        iyy=inertia["iyy"],
+        v0=air["v"],
+        thrust_angle_rad=0.0,
+        thrust_arm=-g.get("thrust_z_arm_ft", 0.0),
+        g=air["g"],
+    )
     terms = {c: [MODEL_REGRESSOR[t] for t in structure.terms.get(c, ())] for c in COEFFS}
-    offsets = {"alpha_rad": ref.alpha_deg * D2R, "elevator_rad": ref.elevator_deg * D2R,
-               "stabilizer_rad": ref.stabilizer_deg * D2R, "mach": ref.mach, "gamma_rad": air["gamma_rad"]}
+    offsets = {
+        "alpha_rad": ref.alpha_deg * D2R,
+        "elevator_rad": ref.elevator_deg * D2R,
+        "stabilizer_rad": ref.stabilizer_deg * D2R,
+        "mach": ref.mach,
+        "gamma_rad": air["gamma_rad"],
+    }
     inputs = tuple(CHANNEL[c][0] for c in structure.inputs) + ("rho", "a")
-    model = longitudinal(airframe, terms, inputs=inputs, offsets=offsets,
-                         outputs=[CHANNEL[c][0] for c in structure.outputs],
-                         states=[CHANNEL[c][0] for c in structure.states])
+    model = longitudinal(
+        airframe,
+        terms,
+        inputs=inputs,
+        offsets=offsets,
+        outputs=[CHANNEL[c][0] for c in structure.outputs],
+        states=[CHANNEL[c][0] for c in structure.states],
+    )
     start = {}
     for c in structure.fitted:
         for t in structure.terms[c]:
@@ -149,8 +188,12 @@ def supported(logs: Sequence[Log], fits: Sequence[PointFit], structure: Structur
         if spread < MIN_CURVATURE_DEG2:
             for c in structure.fitted:
                 if "dalpha2_rad2" in structure.terms[c]:
-                    structure = structure.without(c, "dalpha2_rad2", f"not excited (alpha squared varies {spread:.2g} "
-                                                  f"deg^2 apart from alpha, below {MIN_CURVATURE_DEG2:g})")
+                    structure = structure.without(
+                        c,
+                        "dalpha2_rad2",
+                        f"not excited (alpha squared varies {spread:.2g} "
+                        f"deg^2 apart from alpha, below {MIN_CURVATURE_DEG2:g})",
+                    )
     return structure
 
 
@@ -161,7 +204,7 @@ def curvature_deg2(logs: Sequence[Log], fits: Sequence[PointFit]) -> float:
     a, a2 = np.vstack(parts).T
     x = np.column_stack([np.ones_like(a), a])
     rest = a2 - x @ np.linalg.lstsq(x, a2, rcond=None)[0]
-    return float(np.std(rest)) / D2R ** 2
+    return float(np.std(rest)) / D2R**2
 
 
 def disagreement(res, fits: Sequence[PointFit], used: Structure) -> list[tuple[str, str, str]]:
@@ -179,12 +222,18 @@ def disagreement(res, fits: Sequence[PointFit], used: Structure) -> list[tuple[s
             ee = [(float(f.fits[c].params[t]), float(f.fits[c].bse[t])) for f in fits if t in f.fits[c].params.index]
             if not ee:
                 continue
-            v_ee, se_ee = np.mean([v for v, _ in ee]), np.sqrt(np.mean([se ** 2 for _, se in ee]))
+            v_ee, se_ee = np.mean([v for v, _ in ee]), np.sqrt(np.mean([se**2 for _, se in ee]))
             name = param_name(c, t)
             v, se = float(res.params[name]), float(res.bse_coloured[name])
             if not np.isfinite(v) or abs(v - v_ee) > AGREE_SE * np.hypot(se, se_ee):
-                found.append((c, t, f"equation error and {NAMES[res.method]} disagree on it ({v_ee:.3g} +- "
-                                    f"{se_ee:.2g} against {v:.3g} +- {se:.2g}): the records do not determine it"))
+                found.append(
+                    (
+                        c,
+                        t,
+                        f"equation error and {NAMES[res.method]} disagree on it ({v_ee:.3g} +- "
+                        f"{se_ee:.2g} against {v:.3g} +- {se:.2g}): the records do not determine it",
+                    )
+                )
     return found
 
 
@@ -193,8 +242,9 @@ def estimator(model, records, start, method: str, air: dict, max_iter: int | Non
     outputs = set(model.outputs)
     kw = {} if max_iter is None else {"max_iter": max_iter}
     if method == "oe":
-        return OutputError(model, records, start, x0_free=model.states, biases=[b for b in BIASED if b in outputs],
-                           **kw)
+        return OutputError(
+            model, records, start, x0_free=model.states, biases=[b for b in BIASED if b in outputs], **kw
+        )
     if method == "fe":
         return FilterError(model, records, start, F0_SHARE * np.maximum(air["scatter"], 1e-6), **kw)
     raise ValueError(f"method must be one of {METHODS}, not {method!r}")
@@ -207,18 +257,28 @@ def derivatives(params: dict, air: dict, geometry: dict, iyy: float) -> dict:
     qs = 0.5 * air["rho"] * air["v"] ** 2 * geometry["S_ft2"]
     c, v, m = geometry["cbar_ft"], air["v"], air["mass"]
     out = {}
-    for term, name, scale in (("dalpha_rad", "alpha_per_s", 1.0), ("qhat_rad", "q", c / (2 * v)),
-                              ("delevator_rad", "de_per_s", 1.0), ("dstabilizer_rad", "dh_per_s", 1.0)):
+    for term, name, scale in (
+        ("dalpha_rad", "alpha_per_s", 1.0),
+        ("qhat_rad", "q", c / (2 * v)),
+        ("delevator_rad", "de_per_s", 1.0),
+        ("dstabilizer_rad", "dh_per_s", 1.0),
+    ):
         if ("CL", term) in params:
             out[f"Z_{name}"] = -qs * params[("CL", term)] * scale / (m * v)
         if ("Cm", term) in params:
             out[f"M_{name}".replace("_per_s", "_per_s2") if term != "qhat_rad" else "M_q_per_s"] = (
-                qs * c * params[("Cm", term)] * scale / iyy)
+                qs * c * params[("Cm", term)] * scale / iyy
+            )
     return out
 
 
-def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, structure: Structure = DEFAULT,
-                 max_iter: int | None = None) -> list[PointFit]:
+def refine_group(
+    logs: Sequence[Log],
+    fits: Sequence[PointFit],
+    method: str,
+    structure: Structure = DEFAULT,
+    max_iter: int | None = None,
+) -> list[PointFit]:
     """The eq. (3) fits of one status point's ``logs`` re-estimated together by output error
     (``oe``) or filter error (``fe``).
 
@@ -265,11 +325,18 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
         for term in split:
             used = used.without(*term)
     info = {"method": method, "records": [log.point for log in logs], "structure": used.to_dict()}
-    info.update(converged=bool(res.converged), iterations=res.iterations, reason=res.reason, cost=res.cost,
-                R={k: float(v) for k, v in res.R.items()})
+    info.update(
+        converged=bool(res.converged),
+        iterations=res.iterations,
+        reason=res.reason,
+        cost=res.cost,
+        R={k: float(v) for k, v in res.R.items()},
+    )
     if not res.converged or not np.all(np.isfinite(res.params)):
-        return [replace(f, failure={"method": method, "reason": res.reason or "no finite estimates"},
-                        timedomain=info) for f in fits]
+        return [
+            replace(f, failure={"method": method, "reason": res.reason or "no finite estimates"}, timedomain=info)
+            for f in fits
+        ]
     est = {(c, t): float(res.params[param_name(c, t)]) for c in used.fitted for t in used.terms[c]}
     g = logs[0].meta["geometry"]
     info["derivatives"] = derivatives(est, air, g, logs[0].meta["inertia_slugft2"]["iyy"])
@@ -296,16 +363,26 @@ def refine_group(logs: Sequence[Log], fits: Sequence[PointFit], method: str, str
             for t in fit.fits[c].params.index:
                 if t not in terms:
                     unexcited[t] = used.left_out.get(f"{c} {t}", f"not in the {NAMES[method]} structure")
-            new[c] = replace(fit.fits[c], params=params, bse=bse,
-                             bse_white=pd.Series(res.bse[names_c].to_numpy(), index=terms),
-                             resid=resid, fitted=fitted, y=y[c].to_numpy(), unexcited=unexcited,
-                             rsquared=1.0 - float(resid @ resid) / ss_tot if ss_tot > 0 else float("nan"),
-                             cov=None, method=method, converged=True)
+            new[c] = replace(
+                fit.fits[c],
+                params=params,
+                bse=bse,
+                bse_white=pd.Series(res.bse[names_c].to_numpy(), index=terms),
+                resid=resid,
+                fitted=fitted,
+                y=y[c].to_numpy(),
+                unexcited=unexcited,
+                rsquared=1.0 - float(resid @ resid) / ss_tot if ss_tot > 0 else float("nan"),
+                cov=None,
+                method=method,
+                converged=True,
+            )
         out.append(replace(fit, fits=new, timedomain=info))
     return out
 
 
-def refine_point(log: Log, fit: PointFit, method: str, structure: Structure = DEFAULT,
-                 max_iter: int | None = None) -> PointFit:
+def refine_point(
+    log: Log, fit: PointFit, method: str, structure: Structure = DEFAULT, max_iter: int | None = None
+) -> PointFit:
     """:func:`refine_group` of one log."""
     return refine_group([log], [fit], method, structure, max_iter)[0]

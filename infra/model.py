@@ -5,6 +5,7 @@ flight-control outputs move with each measured control (its own control
 schedules, measured by sweeping its commands through its own FCS), and which
 properties its longitudinal aerodynamics read. Nothing here assumes our 737.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -82,7 +83,7 @@ def unsafe_xml(path: Path) -> str | None:
             continue
         posix = PurePosixPath(ref.replace("\\", "/"))
         if posix.is_absolute() or PureWindowsPath(ref).is_absolute() or ".." in posix.parts:
-            return f"<{el.tag} file=\"{ref}\">: reaches outside the aircraft folder (refused)"
+            return f'<{el.tag} file="{ref}">: reaches outside the aircraft folder (refused)'
     return None
 
 
@@ -222,7 +223,6 @@ def abandon_models(tb) -> None:
             if isinstance(value, jsbsim.FGFDMExec):
                 abandon(value)
         tb = tb.tb_next
-
 
 
 def copy_model(model_dir: Path, root: Path) -> tuple[Path, ET.ElementTree]:
@@ -389,8 +389,11 @@ def control_schedules(fdm, watched: set[str]) -> dict[str, Schedule]:
                 table[i] = [n.get_double_value() for n in nodes]
             fdm[command] = 0.0 if lo < 0 else lo
             fdm.run()
-            moved = {p: table[:, j] for j, p in enumerate(present)
-                     if p not in (position, command) and float(np.ptp(table[:, j])) > 1e-12}
+            moved = {
+                p: table[:, j]
+                for j, p in enumerate(present)
+                if p not in (position, command) and float(np.ptp(table[:, j])) > 1e-12
+            }
             out[ch] = Schedule(ch, position, scale, cmds, pos, moved)
     finally:
         fdm.set_trim_status(False)

@@ -23,6 +23,7 @@ matrices are small and the cores are the workers' (:func:`one_blas_thread`).
 Inside :func:`on_cluster` the same calls go to a Dask cluster instead (dask.distributed's own
 futures); a folder the tasks read travels with them as data (:func:`ship`, :func:`landed`).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -108,6 +109,7 @@ def warm(modules: Iterable[str]) -> None:
     if ctx.get_start_method() != "forkserver":
         return
     from multiprocessing import forkserver
+
     ctx.set_forkserver_preload(sorted(set(modules)))
     # the server and its forks ignore Ctrl-C (an ignored signal stays ignored across exec): the
     # terminal sends it to the whole process group, and the caller ends its workers itself
@@ -149,6 +151,7 @@ def one_blas_thread() -> None:
     for var in BLAS_THREAD_VARIABLES:
         os.environ[var] = "1"
     from threadpoolctl import threadpool_limits
+
     threadpool_limits(limits=1, user_api="blas")
 
 
@@ -162,6 +165,7 @@ def trim_memory() -> None:
 
 def _malloc_trim():
     import ctypes
+
     try:
         return ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):  # not glibc
@@ -214,10 +218,12 @@ class _ByValue:
 
     def __init__(self, func: Callable) -> None:
         import cloudpickle
+
         self.blob = cloudpickle.dumps(func)
 
     def __call__(self, *args):
         import cloudpickle
+
         return cloudpickle.loads(self.blob)(*args)
 
 
@@ -286,6 +292,7 @@ def submit(func: Callable, calls: list[tuple], jobs: int) -> list[Future]:
 
     def start() -> list[Future]:
         return [executor(jobs).submit(_in, cwd, func, args) for args in calls]
+
     try:
         return start()
     except BrokenProcessPool:  # a worker died in an earlier call
@@ -366,8 +373,9 @@ class Ahead:
 
     def _collect(self, ctx, func: Callable, calls: list[tuple]) -> None:
         recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls, self._nice),
-                           daemon=True)
+        proc = ctx.Process(
+            target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls, self._nice), daemon=True
+        )
         proc.start()
         self._proc = proc
         send.close()
@@ -480,8 +488,11 @@ class Shipment:
 def ship(folder: Path, extra: tuple[tuple[str, bytes], ...] = ()) -> Shipment:
     """``folder``'s files (caches left out; and ``extra`` files beside it, by name) as data."""
     folder = Path(folder)
-    files = tuple((rel, f.read_bytes()) for f in sorted(folder.rglob("*"))
-                  if f.is_file() and "__pycache__" not in (rel := f.relative_to(folder).as_posix()))
+    files = tuple(
+        (rel, f.read_bytes())
+        for f in sorted(folder.rglob("*"))
+        if f.is_file() and "__pycache__" not in (rel := f.relative_to(folder).as_posix())
+    )
     digest = hashlib.sha256()
     for rel, data in files + tuple(("../" + n, b) for n, b in extra):
         digest.update(rel.encode() + b"\0" + hashlib.sha256(data).digest())

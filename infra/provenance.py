@@ -3,6 +3,7 @@
 The version is single-sourced in ``pyproject.toml`` and read from the installed package's
 metadata (``importlib.metadata``).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache

@@ -5,6 +5,7 @@ Each threshold is a field of a frozen dataclass made by :func:`setting` (or ``da
 value was calibrated. :func:`documented` writes the class's ``Attributes`` section from them, and
 :func:`rows` and :func:`markdown_table` give the documentation's table: each field is described once.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -66,8 +67,7 @@ def rows(cls: type, prefix: str = "") -> list[dict[str, str]]:
         if dataclasses.is_dataclass(value):
             out += rows(type(value), f"{prefix}{f.name}.")
         elif "guards" in f.metadata:
-            out.append({"name": prefix + f.name, "default": _shown(value),
-                        **{k: f.metadata[k] for k in KEYS}})
+            out.append({"name": prefix + f.name, "default": _shown(value), **{k: f.metadata[k] for k in KEYS}})
     return out
 
 
@@ -103,10 +103,13 @@ def documented(cls: type) -> type:
 def markdown_table(cls: type) -> str:
     """The documentation's table of ``cls``'s settings: name, default and unit, what it guards, how it
     was calibrated."""
+
     def cell(text: str) -> str:
         return text.replace("|", "\\|") or "none recorded"
 
     out = ["| setting | default | unit | what it guards | how it was calibrated |", "|---|---|---|---|---|"]
-    out += [f"| `{r['name']}` | {cell(r['default'])} | {cell(r['unit'])} | {cell(r['guards'])} | "
-            f"{cell(r['calibration'])} |" for r in rows(cls)]
+    out += [
+        f"| `{r['name']}` | {cell(r['default'])} | {cell(r['unit'])} | {cell(r['guards'])} | {cell(r['calibration'])} |"
+        for r in rows(cls)
+    ]
     return "\n".join(out) + "\n"

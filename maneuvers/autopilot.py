@@ -7,6 +7,7 @@ instrumentation. The engine gives it the inertial speed, equal to the true
 airspeed in still air; in turbulence the airspeed's gusts, differentiated for
 the damping term, would drive the throttle from stop to stop.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -33,8 +34,9 @@ class HoldGains:
     rudder_per_deg: float = 0.1
 
 
-def bank_hold(gains: HoldGains, bank_cmd_deg: float, phi_deg: float, p_dps: float,
-              beta_deg: float) -> tuple[float, float]:
+def bank_hold(
+    gains: HoldGains, bank_cmd_deg: float, phi_deg: float, p_dps: float, beta_deg: float
+) -> tuple[float, float]:
     """Lateral hold of a level turn: aileron to the commanded bank (roll-rate damped), rudder
     against sideslip. JSBSim's convention: a positive aileron or rudder command rolls or yaws right.
 
@@ -64,9 +66,17 @@ class HoldAutopilot:
         Trimmed dynamic pressure, for the gain schedule [psf].
     """
 
-    def __init__(self, gains: HoldGains, dt: float, h_ref_ft: float, v_ref_fps: float,
-                 theta_ref_deg: float, elevator_trim_deg: float, throttle_trim: float,
-                 qbar_psf: float) -> None:
+    def __init__(
+        self,
+        gains: HoldGains,
+        dt: float,
+        h_ref_ft: float,
+        v_ref_fps: float,
+        theta_ref_deg: float,
+        elevator_trim_deg: float,
+        throttle_trim: float,
+        qbar_psf: float,
+    ) -> None:
         self.g = gains
         self.dt = dt
         self.h_ref = h_ref_ft
@@ -79,8 +89,7 @@ class HoldAutopilot:
         self.v_int = 0.0
         self.v_prev = v_ref_fps
 
-    def step(self, h_ft: float, hdot_fps: float, v_fps: float, theta_deg: float,
-             q_dps: float) -> tuple[float, float]:
+    def step(self, h_ft: float, hdot_fps: float, v_fps: float, theta_deg: float, q_dps: float) -> tuple[float, float]:
         """One update from the latest states.
 
         Returns
@@ -93,8 +102,9 @@ class HoldAutopilot:
         g = self.g
         e_h = self.h_ref - h_ft
         self.h_int += e_h * self.dt
-        theta_cmd = (self.theta_ref + g.h_deg_per_ft * e_h - g.hdot_deg_per_fps * hdot_fps
-                     + g.h_int_deg_per_ft_s * self.h_int)
+        theta_cmd = (
+            self.theta_ref + g.h_deg_per_ft * e_h - g.hdot_deg_per_fps * hdot_fps + g.h_int_deg_per_ft_s * self.h_int
+        )
         pitch = g.theta_deg_per_deg * (theta_cmd - theta_deg) - g.q_deg_per_dps * q_dps
         elevator = self.de0 - self.schedule * pitch
 

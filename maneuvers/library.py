@@ -3,6 +3,7 @@
 A manoeuvre is a frozen, picklable description. :meth:`Maneuver.program`
 turns it into step-indexed signals for a given time step.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -183,8 +184,9 @@ class GearTransition(Maneuver):
         start = self.gear_initial(False)
         gear: Signal = Constant(start) + Step(pre, self.gear_final - start)
         post = _steps(self.post_s, dt)
-        return Program(Constant(0.0), Constant(0.0), gear, self.hold, pre + post, post,
-                       pre + _steps(self.max_travel_s, dt) + post)
+        return Program(
+            Constant(0.0), Constant(0.0), gear, self.hold, pre + post, post, pre + _steps(self.max_travel_s, dt) + post
+        )
 
 
 @dataclass(frozen=True)
@@ -229,12 +231,25 @@ class Recorded(Maneuver):
             t_rec = np.arange(len(self.elevator_deg)) * self.dt_s
             t_sim = np.arange(int(round(t_rec[-1] / dt)) + 1) * dt
             held = np.searchsorted(t_rec, t_sim + 1e-9 * dt, side="right") - 1
-            signals = tuple(tuple(np.asarray(s, dtype=float)[held]) if i == 2  # the gear command: held
-                            else tuple(np.interp(t_sim, t_rec, s)) for i, s in enumerate(signals))
+            signals = tuple(
+                tuple(np.asarray(s, dtype=float)[held])
+                if i == 2  # the gear command: held
+                else tuple(np.interp(t_sim, t_rec, s))
+                for i, s in enumerate(signals)
+            )
         elevator, stabilizer, gear, throttle = signals[:4]
         n = len(elevator)
-        return Program(Sampled(elevator), Sampled(stabilizer), Sampled(gear), False, n, None, n, Sampled(throttle),
-                       np.column_stack(signals[4:]) if wind else None)
+        return Program(
+            Sampled(elevator),
+            Sampled(stabilizer),
+            Sampled(gear),
+            False,
+            n,
+            None,
+            n,
+            Sampled(throttle),
+            np.column_stack(signals[4:]) if wind else None,
+        )
 
 
 @dataclass(frozen=True)
@@ -276,14 +291,20 @@ class Multisine(Maneuver):
         if not 0 < self.f_lo_hz < self.f_hi_hz <= 5.0:
             raise ValueError(f"the band must satisfy 0 < f_lo_hz < f_hi_hz <= 5 Hz, not {self.f_lo_hz}-{self.f_hi_hz}")
         inputs = 2 if self.stabilizer_amplitude_deg > 0 else 1
-        harmonics = int(np.floor(self.f_hi_hz * self.duration_s + 1e-9)) - max(
-            1, int(np.ceil(self.f_lo_hz * self.duration_s - 1e-9))) + 1
+        harmonics = (
+            int(np.floor(self.f_hi_hz * self.duration_s + 1e-9))
+            - max(1, int(np.ceil(self.f_lo_hz * self.duration_s - 1e-9)))
+            + 1
+        )
         if harmonics < 2 * inputs:
-            raise ValueError(f"the band {self.f_lo_hz:g}-{self.f_hi_hz:g} Hz holds {max(harmonics, 0)} harmonics "
-                             f"of 1/{self.duration_s:g} s: fewer than 2 per input (widen it or lengthen duration_s)")
+            raise ValueError(
+                f"the band {self.f_lo_hz:g}-{self.f_hi_hz:g} Hz holds {max(harmonics, 0)} harmonics "
+                f"of 1/{self.duration_s:g} s: fewer than 2 per input (widen it or lengthen duration_s)"
+            )
 
     def program(self, dt: float, amplitude_scale: float = 1.0) -> Program:
         from maneuvers.multisine import multisine_signals
+
         lead, n = _steps(self.lead_s, dt), _steps(self.duration_s, dt)
         peaks = (self.amplitude_deg * amplitude_scale,)
         if self.stabilizer_amplitude_deg > 0:
@@ -325,8 +346,9 @@ class LevelTurn(Maneuver):
 
     def __post_init__(self) -> None:
         if not 0.0 < abs(self.bank_deg) <= 25.0:
-            raise ValueError(f"bank_deg must be within 0 < |bank| <= 25 deg (the envelope stops at 30), "
-                             f"not {self.bank_deg!r}")
+            raise ValueError(
+                f"bank_deg must be within 0 < |bank| <= 25 deg (the envelope stops at 30), not {self.bank_deg!r}"
+            )
         if not 0.0 < self.heading_deg <= 720.0:
             raise ValueError(f"heading_deg must be within 0 < heading <= 720 deg, not {self.heading_deg!r}")
         if self.roll_s <= 0 or self.turn_s < 0:

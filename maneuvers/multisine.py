@@ -8,6 +8,7 @@ al., "Peak factor minimization using a time-frequency domain swapping algorithm"
 Instrum. Meas. 1988), and finally every phase moves by one time shift per input so that the
 input starts, and so ends, at zero.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,7 +21,7 @@ from maneuvers.signals import Signal
 
 def relative_peak_factor(u: np.ndarray) -> float:
     """``(max - min) / (2 sqrt(2) rms)``: 1 for a single sinusoid [-]."""
-    rms = float(np.sqrt(np.mean(u ** 2)))
+    rms = float(np.sqrt(np.mean(u**2)))
     return float(np.ptp(u)) / (2.0 * np.sqrt(2.0) * rms) if rms > 0 else float("inf")
 
 
@@ -56,6 +57,7 @@ def optimized_phases(ks: tuple[int, ...], starts: int = 12) -> tuple[tuple[float
     exact peak factor, before or after the polish, wins.
     """
     from scipy.optimize import minimize
+
     k = np.asarray(ks, dtype=float)
     amps = np.ones(len(k))
     samples = max(512, 32 * int(k.max()))
@@ -138,24 +140,30 @@ class MultisineSignal(Signal):
         on = (k >= self.start) & (k < self.start + self.n)
         t = (k[on] - self.start) / self.n
         out = np.zeros(len(k))
-        out[on] = self.peak * _synth(np.asarray(self.harmonics, float), np.ones(len(self.harmonics)),
-                                     np.asarray(self.phases), t) / self.norm
+        out[on] = (
+            self.peak
+            * _synth(np.asarray(self.harmonics, float), np.ones(len(self.harmonics)), np.asarray(self.phases), t)
+            / self.norm
+        )
         return out
 
     def value(self, k: int) -> float:
         return float(self.series(k, k + 1)[0])
 
 
-def multisine_signals(n: int, dt_s: float, f_lo_hz: float, f_hi_hz: float, peaks: tuple[float, ...],
-                      start: int = 0) -> tuple[list[MultisineSignal], list[float]]:
+def multisine_signals(
+    n: int, dt_s: float, f_lo_hz: float, f_hi_hz: float, peaks: tuple[float, ...], start: int = 0
+) -> tuple[list[MultisineSignal], list[float]]:
     """One orthogonal multisine per entry of ``peaks`` over ``n`` steps from ``start``, with the
     harmonics of ``1 / (n dt_s)`` in ``[f_lo_hz, f_hi_hz]`` interleaved between them; and their
     relative peak factors."""
     T = n * dt_s
     k_lo, k_hi = max(1, int(np.ceil(f_lo_hz * T - 1e-9))), int(np.floor(f_hi_hz * T + 1e-9))
     if k_hi - k_lo + 1 < 2 * len(peaks):
-        raise ValueError(f"the band {f_lo_hz:g}-{f_hi_hz:g} Hz holds {max(k_hi - k_lo + 1, 0)} harmonics of "
-                         f"1/{T:g} s: fewer than 2 per input; widen it or lengthen duration_s")
+        raise ValueError(
+            f"the band {f_lo_hz:g}-{f_hi_hz:g} Hz holds {max(k_hi - k_lo + 1, 0)} harmonics of "
+            f"1/{T:g} s: fewer than 2 per input; widen it or lengthen duration_s"
+        )
     out, rpfs = [], []
     t = np.arange(n) / n
     for ks, peak in zip(share_harmonics(k_lo, k_hi, len(peaks)), peaks):

@@ -1,4 +1,5 @@
 """Composable input signals evaluated by integer step index."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -22,8 +22,11 @@ FAST_TIER = Path(__file__).with_name("fast_tier.json")
 
 
 def pytest_addoption(parser):
-    parser.addoption("--fast", action="store_true",
-                     help="the fast tier only: no JSBSim flight, campaign or worker process (tests/fast_tier.json)")
+    parser.addoption(
+        "--fast",
+        action="store_true",
+        help="the fast tier only: no JSBSim flight, campaign or worker process (tests/fast_tier.json)",
+    )
 
 
 def pytest_collection_modifyitems(config, items):
@@ -42,6 +45,7 @@ class FlightInFastTier(AssertionError):
 def _refuse(what: str):
     def refuse(*args, **kwargs):
         raise FlightInFastTier(f"{what} in the fast tier: take this test out of {FAST_TIER.name}")
+
     return refuse
 
 
@@ -53,6 +57,7 @@ def _in_tmp(tmp_path, monkeypatch, request):
 
         import campaign.simulation.engine as engine
         import infra.pool as pool
+
         monkeypatch.setattr(engine, "fly", _refuse("a JSBSim flight"))
         monkeypatch.setattr(engine, "trimmed_fdm", _refuse("a JSBSim trim"))
         monkeypatch.setattr(pool, "executor", _refuse("a worker process"))
@@ -66,8 +71,12 @@ def matrix():
 
 def config_for(effects=DEFAULT_EFFECTS, **kw):
     m = load_matrix()
-    return FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(effects)),
-                        maneuver_params=m.maneuver_params, clmax_by_flap=m.clmax_by_flap, **kw)
+    return FlightConfig(
+        AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(effects)),
+        maneuver_params=m.maneuver_params,
+        clmax_by_flap=m.clmax_by_flap,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="session")
@@ -81,10 +90,12 @@ def bare_config():
 
 
 SMALL_MATRIX = matrix_toml(
-    [("up", 0, 0.3, [2000, 10000]), ("down", 5, 0.3, 2000)], "small",
+    [("up", 0, 0.3, [2000, 10000]), ("down", 5, 0.3, 2000)],
+    "small",
     '[defaults]\nmaneuvers_gear_up = ["doublet"]\nmaneuvers_gear_down = ["doublet", "gear_extension"]\n'
     "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"
-    "[stall.clmax_by_flap]\n0 = 1.45\n5 = 1.90\n")
+    "[stall.clmax_by_flap]\n0 = 1.45\n5 = 1.90\n",
+)
 
 
 @pytest.fixture
@@ -102,6 +113,7 @@ def short_tmp():
     import shutil
     import tempfile
     from pathlib import Path
+
     d = Path(tempfile.mkdtemp(prefix="gt-"))
     yield d
     shutil.rmtree(d, ignore_errors=True)

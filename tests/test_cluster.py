@@ -1,5 +1,6 @@
 """A campaign on a Dask cluster (a LocalCluster on 127.0.0.1): the same logs as a local run, bit for bit;
 a point whose worker dies fails alone; a scheduler that does not answer is one line."""
+
 import json
 import os
 
@@ -15,10 +16,15 @@ from campaign.validation.support import matrix_toml, one_line_error
 @pytest.fixture(scope="module")
 def cluster():
     # one task per worker thread, and a worker's death fails its task at once
-    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.scheduler.allowed-failures": 0}):
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address="127.0.0.1:0", silence_logs=50) as c:
+    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0, "distributed.scheduler.allowed-failures": 0}):
+        with LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            silence_logs=50,
+        ) as c:
             yield c
 
 
@@ -47,8 +53,13 @@ def test_a_point_that_kills_its_worker_fails_alone(tmp_path, cluster):
     from campaign.simulation.matrix import load_matrix
 
     matrix = load_matrix(str(_matrix(tmp_path)))
-    config = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects("none")), 0, load_profile("none"),
-                          matrix.maneuver_params, matrix.clmax_by_flap)
+    config = FlightConfig(
+        AircraftSource(str(DEFAULT_AIRCRAFT), load_effects("none")),
+        0,
+        load_profile("none"),
+        matrix.maneuver_params,
+        matrix.clmax_by_flap,
+    )
     doomed = matrix.points[1].id
 
     def killer(point, cfg):  # pickled by value: the worker aborts on one point, as a segfault would
@@ -76,6 +87,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
     one_line_error(capsys, argv + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
     assert not (tmp_path / "c").exists()  # not even the folder, nor its lock
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     out = tmp_path.parent / f"{tmp_path.name}-d"  # not inside --data
     diag = ["diagnose", "--data", str(tmp_path), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]
     one_line_error(capsys, diag + ["--cluster", "nonsense"], "--cluster", "tcp://HOST:PORT")
@@ -84,17 +96,26 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
 
 def test_replays_on_the_cluster_equal_local_replays_bit_for_bit(tmp_path, cluster):
     import shutil
+
     m = tmp_path / "m.toml"
-    m.write_text(matrix_toml([(g, 5, 0.3, 2000) for g in ("up", "down")], "r",
-                             "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n"))
+    m.write_text(
+        matrix_toml(
+            [(g, 5, 0.3, 2000) for g in ("up", "down")],
+            "r",
+            "[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.gear_extension]\npost_s = 5.0\n",
+        )
+    )
     local = tmp_path / "local"
     assert main(["run", "--matrix", str(m), "--out", str(local), "--no-replay", "--quiet"]) == 0
     shutil.copytree(local, tmp_path / "dask")
     assert main(["replay", str(local), "--case", "landing-135kt", "--jobs", "2"]) == 0
-    assert main(["replay", str(tmp_path / "dask"), "--case", "landing-135kt", "--cluster",
-                 cluster.scheduler_address]) == 0
-    a, b = ({p.name: p.read_bytes() for p in (tmp_path / f / "replays").rglob("*") if p.is_file()}
-            for f in ("local", "dask"))
+    assert (
+        main(["replay", str(tmp_path / "dask"), "--case", "landing-135kt", "--cluster", cluster.scheduler_address]) == 0
+    )
+    a, b = (
+        {p.name: p.read_bytes() for p in (tmp_path / f / "replays").rglob("*") if p.is_file()}
+        for f in ("local", "dask")
+    )
     assert len([k for k in a if k.endswith(".parquet")]) == 6 and a == b
 
 
@@ -105,6 +126,7 @@ def test_diagnosis_on_the_cluster_equals_a_local_one_bit_for_bit(tmp_path, clust
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS
     from campaign.validation.hidden import DIAG_MATRIX
     from campaign.validation.support import run_matrix
+
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), str(DEFAULT_EFFECTS), noise="flight-test", seed=5)
     common = ["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--no-plots", "--quiet"]
     runs = {"one": ["--jobs", "1"], "two": ["--jobs", "2"], "dask": ["--cluster", cluster.scheduler_address]}

@@ -6,6 +6,7 @@ turbulence; errors not injected must not be applied; what the manoeuvres
 cannot separate is reported as such, with the reason. In turbulence the
 air-data time shifts are such: the aircraft's answer to the gusts biases them.
 """
+
 import json
 from pathlib import Path
 
@@ -20,23 +21,28 @@ from campaign.validation.hidden import DIAG_MATRIX
 from campaign.validation.support import run_matrix
 
 #: (channel.error, value in the profile's terms, value as the compatibility reports it)
-INJECTED = {"alpha_deg.bias": ("alpha_deg", "bias", 0.5, 0.5),
-            "alpha_deg.scale": ("alpha_deg", "scale", 1.05, 0.05),
-            "alpha_deg.delay": ("alpha_deg", "delay_s", 0.05, 0.05),
-            "theta_deg.scale": ("theta_deg", "scale", 1.02, 0.02),
-            "theta_deg.delay": ("theta_deg", "delay_s", 0.04, 0.04),
-            "q_dps.bias": ("q_dps", "bias", 0.05, 0.05),
-            "p_dps.bias": ("p_dps", "bias", -0.03, -0.03),
-            "ax_fps2.bias": ("ax_fps2", "bias", 0.05, 0.05),
-            "az_fps2.bias": ("az_fps2", "bias", 0.15, 0.15)}
+INJECTED = {
+    "alpha_deg.bias": ("alpha_deg", "bias", 0.5, 0.5),
+    "alpha_deg.scale": ("alpha_deg", "scale", 1.05, 0.05),
+    "alpha_deg.delay": ("alpha_deg", "delay_s", 0.05, 0.05),
+    "theta_deg.scale": ("theta_deg", "scale", 1.02, 0.02),
+    "theta_deg.delay": ("theta_deg", "delay_s", 0.04, 0.04),
+    "q_dps.bias": ("q_dps", "bias", 0.05, 0.05),
+    "p_dps.bias": ("p_dps", "bias", -0.03, -0.03),
+    "ax_fps2.bias": ("ax_fps2", "bias", 0.05, 0.05),
+    "az_fps2.bias": ("az_fps2", "bias", 0.15, 0.15),
+}
 
 
 def _profile(sigma_fps: float) -> str:
     channels = {}
     for ch, key, v, _ in INJECTED.values():
         channels.setdefault(ch, []).append(f"{key} = {v!r}")
-    return ('extends = "flight-test"\n' + f"[turbulence]\nsigma_fps = {sigma_fps}\n"
-            + "".join(f"[channels.{c}]\n" + "\n".join(kv) + "\n" for c, kv in channels.items()))
+    return (
+        'extends = "flight-test"\n'
+        + f"[turbulence]\nsigma_fps = {sigma_fps}\n"
+        + "".join(f"[channels.{c}]\n" + "\n".join(kv) + "\n" for c, kv in channels.items())
+    )
 
 
 @pytest.mark.parametrize("sigma_fps", [0.0, 1.5], ids=["still-air", "turbulence"])
@@ -83,6 +89,7 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     from diagnose.diagnosis import diagnose
     from diagnose.evaluate import ModelEvaluator
     from diagnose.residuals import residual_data
+
     data = run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=42)
     res = estimate(load_data(data))
     assert not res.applied, res.summary()
@@ -96,8 +103,9 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
     timed = corrected.residuals(res, delays=("alpha_deg",))
     served = corrected.residuals(res)
     assert len(corrected._memo) == 1 and "alphadelay_CL" in timed and "alphadelay_CL" not in served
-    assert [lg.meta["corrections"] for lg in corrected.logs(res)] == [res.correct(lg).meta["corrections"]
-                                                                     for lg in train]
+    assert [lg.meta["corrections"] for lg in corrected.logs(res)] == [
+        res.correct(lg).meta["corrections"] for lg in train
+    ]
     fresh = residual_data([res.correct(lg) for lg in train], ModelEvaluator(DEFAULT_AIRCRAFT))
     pd.testing.assert_frame_equal(served, fresh, check_exact=False, rtol=1e-10, atol=1e-12)
     timed.loc[:, "r_CL"] = 0.0  # a caller's change does not reach the memo
@@ -113,6 +121,7 @@ def test_perfect_instruments_in_turbulence_need_no_correction(tmp_path):
 
 def test_logs_without_the_kinematic_channels_say_why(tmp_path):
     from dataclasses import replace
+
     one = DIAG_MATRIX.split("[[points]]")
     data = run_matrix(tmp_path, one[0] + "[[points]]" + one[1], str(DEFAULT_AIRCRAFT))
     logs = [replace(lg, data=lg.data.drop(columns=["phi_deg"])) for lg in load_data(data)]
@@ -126,6 +135,7 @@ def test_a_full_circle_measures_the_airspeed_error_in_turbulence(tmp_path):
     wind from trading with them, and the standard error holds the mean gust the splines leave out
     (on seeds 2-11 of benchmarks/turn_airspeed.py; seed 12 is this test's own)."""
     from campaign.validation.support import TURN_MATRIX
+
     prof = tmp_path / "p.toml"
     prof.write_text('extends = "flight-test"\n[channels.tas_kt]\nscale = 1.03\n')
     logs = load_data(run_matrix(tmp_path, TURN_MATRIX, str(DEFAULT_AIRCRAFT), noise=str(prof), seed=12))
@@ -144,8 +154,10 @@ def test_a_full_circle_measures_the_airspeed_error_in_turbulence(tmp_path):
 
 def test_logs_that_all_turn_leave_the_airspeed_error_unmeasured(tmp_path):
     """The gusts' prior comes from straight logs: with none, the airspeed error is not claimed."""
-    text = ('name = "turns"\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
-            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = [0.3, 0.4]\nalt_ft = 10000\nmaneuvers = ["level_turn"]\n')
+    text = (
+        'name = "turns"\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
+        '[[points]]\ngear = "up"\nflap_deg = 0\nmach = [0.3, 0.4]\nalt_ft = 10000\nmaneuvers = ["level_turn"]\n'
+    )
     res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=5)))
     by = {p.name: p for p in res.parameters}
     for name in ("tas_kt.bias", "tas_kt.scale"):
@@ -158,19 +170,36 @@ def test_a_correction_chosen_over_its_confounded_partner_keeps_its_uncertainty()
     with the standard error of that reading; the covariance blocks hold only the bias. Left out,
     a 6.3 % scale corrected as 7.0 +- 0.8 % named "CL vs alpha" with nothing hidden."""
     from identify.compat.result import CompatResult, Parameter
-    bias = Parameter("alpha_deg", "bias", "deg", 0.61, 0.06, reason="confounded with alpha_deg.scale: the "
-                     "estimate holds both (not applied)", confounded_with="alpha_deg.scale")
-    scale = Parameter("alpha_deg", "scale", "-", 0.070, 0.008, reason="not separable from alpha_deg.bias",
-                      confounded_with="alpha_deg.bias")
+
+    bias = Parameter(
+        "alpha_deg",
+        "bias",
+        "deg",
+        0.61,
+        0.06,
+        reason="confounded with alpha_deg.scale: the estimate holds both (not applied)",
+        confounded_with="alpha_deg.scale",
+    )
+    scale = Parameter(
+        "alpha_deg",
+        "scale",
+        "-",
+        0.070,
+        0.008,
+        reason="not separable from alpha_deg.bias",
+        confounded_with="alpha_deg.bias",
+    )
     q = Parameter("q_dps", "bias", "deg/s", 0.05, 0.002)
-    compat = CompatResult([bias, scale, q], covariance=[(["alpha_deg.bias", "q_dps.bias"], np.diag([0.06, 0.002]) ** 2)])
+    compat = CompatResult(
+        [bias, scale, q], covariance=[(["alpha_deg.bias", "q_dps.bias"], np.diag([0.06, 0.002]) ** 2)]
+    )
     names, cov = compat.uncertainty()
     assert ("alpha_deg", "scale") not in names  # not applied: the reach leaves it to the residuals
     names, cov = compat.choose("alpha_deg.scale", "the CL residual agrees").uncertainty()
     assert names[:2] == [("alpha_deg", "bias"), ("q_dps", "bias")]
     assert ("alpha_deg", "scale") in names
     np.testing.assert_allclose(np.sqrt(cov[names.index(("alpha_deg", "scale"))].max()), 0.008)
-    np.testing.assert_allclose(np.diag(cov)[:2], [0.06 ** 2, 0.002 ** 2])
+    np.testing.assert_allclose(np.diag(cov)[:2], [0.06**2, 0.002**2])
 
 
 def test_no_instrument_error_is_taken_as_larger_than_plausible():
@@ -178,9 +207,10 @@ def test_no_instrument_error_is_taken_as_larger_than_plausible():
     bias) counts with the standard error that puts the plausible 5 deg at 2 of them, its correlation kept;
     a well-measured error keeps its own."""
     from identify.compat.result import CompatResult, Parameter
+
     beta = Parameter("beta_deg", "bias", "deg", 5.4, 10.3)
     ay = Parameter("ay_fps2", "bias", "ft/s^2", 0.0002, 0.0004)
-    cov = np.array([[10.3 ** 2, 0.5 * 10.3 * 0.0004], [0.5 * 10.3 * 0.0004, 0.0004 ** 2]])
+    cov = np.array([[10.3**2, 0.5 * 10.3 * 0.0004], [0.5 * 10.3 * 0.0004, 0.0004**2]])
     compat = CompatResult([beta, ay], covariance=[(["beta_deg.bias", "ay_fps2.bias"], cov)])
     names, raw = compat.uncertainty()
     np.testing.assert_allclose(raw, cov)
@@ -200,6 +230,7 @@ def test_a_correction_the_logs_do_not_all_carry_is_not_applied_on_the_kinematics
 
     from campaign.diagnosis.run import split
     from campaign.validation.support import matrix_toml, pairs
+
     a320 = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
     prof = tmp_path / "turbulence.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 1.5\n')
@@ -211,13 +242,16 @@ def test_a_correction_the_logs_do_not_all_carry_is_not_applied_on_the_kinematics
         assert p.identifiable and abs(p.estimate) / p.se_one_step >= 5.0, (name, p.estimate, p.se_one_step)
         assert p.se > 3 * p.se_one_step and not p.applied, res.summary()
     doc = res.to_dict()
-    assert doc["parameters"][[q["channel"] + "." + q["error"] for q in doc["parameters"]].index(
-        "alpha_deg.scale")]["se_one_step"] is not None
+    assert (
+        doc["parameters"][[q["channel"] + "." + q["error"] for q in doc["parameters"]].index("alpha_deg.scale")][
+            "se_one_step"
+        ]
+        is not None
+    )
     assert "one-step jackknife" in res.summary()
 
 
-def test_the_estimate_is_the_same_bit_for_bit_without_its_shortcuts_and_as_if_converged_further(tmp_path,
-                                                                                                 monkeypatch):
+def test_the_estimate_is_the_same_bit_for_bit_without_its_shortcuts_and_as_if_converged_further(tmp_path, monkeypatch):
     """The estimate differences a Jacobian column in an air-data error on that channel's rows alone and
     keeps the attitude of its last few evaluations. Without either (every column differenced on every
     row, nothing kept) it gives the same estimates, standard errors and covariances, bit for bit (3 ft/s:
@@ -226,13 +260,15 @@ def test_the_estimate_is_the_same_bit_for_bit_without_its_shortcuts_and_as_if_co
     the standard error."""
     import identify.compat.fit as fit
     import identify.compat.reconstruction as rc
+
     prof = tmp_path / "p.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
     logs = load_data(run_matrix(tmp_path, DIAG_MATRIX, str(DEFAULT_AIRCRAFT), noise=str(prof), seed=3))
 
     def seen(res) -> str:
         return repr([(p.name, p.estimate, p.se, p.identifiable, p.reason) for p in res.parameters]) + repr(
-            [(names, cov.tobytes()) for names, cov in res.covariance])
+            [(names, cov.tobytes()) for names, cov in res.covariance]
+        )
 
     fast = estimate(logs)
     assert fast.get("alpha_deg.delay").estimate != 0.0
@@ -243,7 +279,11 @@ def test_the_estimate_is_the_same_bit_for_bit_without_its_shortcuts_and_as_if_co
     monkeypatch.setattr(rc, "CONVERGED", 1e-12)
     further = estimate(logs)
     assert [(p.name, p.identifiable, p.reason) for p in further.parameters] == [
-        (p.name, p.identifiable, p.reason) for p in fast.parameters]
-    moved = {p.name: (abs(p.estimate - q.estimate) / q.se, abs(p.se - q.se) / q.se)
-             for p, q in zip(fast.parameters, further.parameters) if q.identifiable}
+        (p.name, p.identifiable, p.reason) for p in fast.parameters
+    ]
+    moved = {
+        p.name: (abs(p.estimate - q.estimate) / q.se, abs(p.se - q.se) / q.se)
+        for p, q in zip(fast.parameters, further.parameters)
+        if q.identifiable
+    }
     assert moved and max(max(m) for m in moved.values()) < 1e-3, moved

@@ -1,5 +1,6 @@
 """Two variables flown together: a cause in one of them is confounded with the other, and the plan flies
 what separates them."""
+
 from __future__ import annotations
 
 import json
@@ -15,14 +16,18 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Four conditions, each flown as a level deceleration only: the throttle eased back by 0.3 under the
 #: altitude hold, 30 s; alpha rises 2 to 3 deg as Mach falls 0.03 to 0.04.
 DECELERATIONS = matrix_toml(
-    [("up", 5, [0.28, 0.32, 0.36, 0.40], 5000)], "decel",
+    [("up", 5, [0.28, 0.32, 0.36, 0.40], 5000)],
+    "decel",
     '[defaults]\nmaneuvers_gear_up = ["deceleration"]\n[maneuvers.deceleration]\nthrottle_cut = 0.3\n'
-    "duration_s = 30.0\n[stall.clmax_by_flap]\n5 = 1.90\n")
+    "duration_s = 30.0\n[stall.clmax_by_flap]\n5 = 1.90\n",
+)
 #: What the plan may fly next: a 2-3-1-1 (alpha moves, Mach does not) or another deceleration.
 CANDIDATES = matrix_toml(
-    [("up", 5, [0.28, 0.40], 5000)], "next",
+    [("up", 5, [0.28, 0.40], 5000)],
+    "next",
     '[defaults]\nmaneuvers_gear_up = ["doublet", "deceleration"]\n[maneuvers.doublet]\ntail_s = 2.0\n'
-    "stabilizer_amplitude_deg = 0.0\n[stall.clmax_by_flap]\n5 = 1.90\n")
+    "stabilizer_amplitude_deg = 0.0\n[stall.clmax_by_flap]\n5 = 1.90\n",
+)
 
 
 def test_a_lift_in_alpha_flown_in_decelerations_is_confounded_and_the_plan_flies_doublets(tmp_path):
@@ -33,11 +38,47 @@ def test_a_lift_in_alpha_flown_in_decelerations_is_confounded_and_the_plan_flies
     (tmp_path / "m.toml").write_text(DECELERATIONS)
     (tmp_path / "next.toml").write_text(CANDIDATES)
     effect = ROOT / "tests" / "data" / "lift_alpha_linear.xml"
-    assert main(["run", "--matrix", str(tmp_path / "m.toml"), "--effects", str(effect), "--noise", "flight-test",
-                 "--seed", "3", "--out", str(tmp_path / "data"), "--no-identify", "--no-replay", "--quiet",
-                 "--jobs", "2"]) == 0
-    assert main(["diagnose", "--data", str(tmp_path / "data"), "--model", str(DEFAULT_AIRCRAFT), "--out",
-                 str(tmp_path / "d"), "--no-plots", "--quiet", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(tmp_path / "m.toml"),
+                "--effects",
+                str(effect),
+                "--noise",
+                "flight-test",
+                "--seed",
+                "3",
+                "--out",
+                str(tmp_path / "data"),
+                "--no-identify",
+                "--no-replay",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(tmp_path / "data"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "d"),
+                "--no-plots",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     pair = next(p for p in doc["moved_together"] if set(p["variables"]) == {"alpha_deg", "mach"})
     assert pair["corr"] < -0.9
@@ -47,11 +88,31 @@ def test_a_lift_in_alpha_flown_in_decelerations_is_confounded_and_the_plan_flies
     other = ({"alpha_deg", "mach"} - set(lift["variables"])).pop()
     assert any(other in r["rival"] and not r["settled"] for r in note["rivals"]), note
     text = (tmp_path / "d" / "diagnosis.txt").read_text()
-    assert "flown together, across the fitted logs and within them" in text and "confounded: the fitted logs fly" in text
-    assert main(["plan", "--diagnosis", str(tmp_path / "d"), "--matrix", str(tmp_path / "next.toml"),
-                 "--out", str(tmp_path / "plan"), "--jobs", "2", "--quiet"]) == 0
+    assert (
+        "flown together, across the fitted logs and within them" in text and "confounded: the fitted logs fly" in text
+    )
+    assert (
+        main(
+            [
+                "plan",
+                "--diagnosis",
+                str(tmp_path / "d"),
+                "--matrix",
+                str(tmp_path / "next.toml"),
+                "--out",
+                str(tmp_path / "plan"),
+                "--jobs",
+                "2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     plan = json.loads((tmp_path / "plan" / "plan.json").read_text())
     assert any(f["maneuver"] == "doublet" for f in plan["flights"]), plan["flights"]
-    mine = [r for r in plan["rivals"] if r["cause"] == f"{lift['coefficient']} vs {', '.join(lift['variables'])}"
-            and other in r["rival"]]
+    mine = [
+        r
+        for r in plan["rivals"]
+        if r["cause"] == f"{lift['coefficient']} vs {', '.join(lift['variables'])}" and other in r["rival"]
+    ]
     assert mine and all(r["planned_se"] > max(r["now_se"], DEFAULTS.settled_se) for r in mine), mine

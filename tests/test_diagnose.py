@@ -6,6 +6,7 @@ noise); the diagnosis sees only the logs and the bare model. Sensor faults are
 injected through instrument profiles and must be named as sensor faults, with
 their size. Only these tests read the overlay or the profile, to score the answer.
 """
+
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -43,8 +44,14 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, see
         assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
 
-SENSOR_CASES = [("alpha_bias", 0.4, None), ("alpha_scale", 0.06, None), ("alpha_delay", 0.06, None),
-                ("accel_bias", 0.06, "ax_fps2"), ("accel_bias", 0.15, "az_fps2"), ("thrust_scale", -0.05, None)]
+SENSOR_CASES = [
+    ("alpha_bias", 0.4, None),
+    ("alpha_scale", 0.06, None),
+    ("alpha_delay", 0.06, None),
+    ("accel_bias", 0.06, "ax_fps2"),
+    ("accel_bias", 0.15, "az_fps2"),
+    ("thrust_scale", -0.05, None),
+]
 
 
 #: The vane bias alone is left to the tests that name it beside a drag (below), refine it from 2.6 standard errors
@@ -52,8 +59,9 @@ SENSOR_CASES = [("alpha_bias", 0.4, None), ("alpha_scale", 0.06, None), ("alpha_
 FLOWN_SENSOR_CASES = [c for c in SENSOR_CASES if c[0] != "alpha_bias"]
 
 
-@pytest.mark.parametrize("family, value, channel", FLOWN_SENSOR_CASES,
-                         ids=[f"{f}-{c or v}" for f, v, c in FLOWN_SENSOR_CASES])
+@pytest.mark.parametrize(
+    "family, value, channel", FLOWN_SENSOR_CASES, ids=[f"{f}-{c or v}" for f, v, c in FLOWN_SENSOR_CASES]
+)
 def test_sensor_fault_is_named_as_a_sensor_fault_with_its_size(tmp_path, family, value, channel):
     """No aerodynamic cause may be invented for it; the estimate holds the injected error within
     2 standard errors or 10 %. A vane's time shift is measurable in calm air only (see the next test)."""
@@ -104,8 +112,15 @@ def test_a_vane_bias_the_kinematics_measure_short_is_refined_from_2_6_standard_e
     kinematics' estimate, so the bias is refined to what the residuals need, nearer the truth."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.hidden import DIAG_MATRIX, diagnose_overlay, discrepancies
-    doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 4500069,
-                           channels="[channels.alpha_deg]\nbias = 0.40241062049587184\n")
+
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        DEFAULT_AIRCRAFT,
+        DIAG_MATRIX,
+        4500069,
+        channels="[channels.alpha_deg]\nbias = 0.40241062049587184\n",
+    )
     assert not discrepancies(doc), doc["summary"]
     comp = {p["channel"] + "." + p["error"]: p for p in doc["data_compatibility"]["parameters"]}
     bias = comp["alpha_deg.bias"]
@@ -153,10 +168,12 @@ def test_noise_alone_is_no_discrepancy(tmp_path, seed):
 
 def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     from campaign.validation.hidden import fly_data
+
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
     data, _ = fly_data(tmp_path / "w", hidden, seed=5)
     out = tmp_path / "report"
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "1. CD vs gear_norm" in text
@@ -177,13 +194,36 @@ def test_diagnose_cli_writes_report_json_extension_and_plots(tmp_path, capsys):
     # by default, plots of the held-out manoeuvres where the first cause acts, and only those
     plotted = sorted(Path(p).stem for p in doc["plotted_logs"])
     assert plotted == sorted(Path(p).stem for p in doc["gain"]["cause_exercised_in"])
-    assert sorted(p.stem[len("response_"):] for p in (out / "plots").glob("response_*.png")) == plotted
-    assert sorted(p.stem[len("residuals_"):] for p in (out / "plots").glob("residuals_*.png")
-                  if p.stem != "residuals_vs_cause") == plotted
+    assert sorted(p.stem[len("response_") :] for p in (out / "plots").glob("response_*.png")) == plotted
+    assert (
+        sorted(
+            p.stem[len("residuals_") :]
+            for p in (out / "plots").glob("residuals_*.png")
+            if p.stem != "residuals_vs_cause"
+        )
+        == plotted
+    )
     # two workers (residuals, noise floor, replays and plots spread out) give the same diagnosis
     out2 = tmp_path / "report2"
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out2),
-                 "--jobs", "2", "--quiet", "--plots", "all"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out2),
+                "--jobs",
+                "2",
+                "--quiet",
+                "--plots",
+                "all",
+            ]
+        )
+        == 0
+    )
     doc2 = json.loads((out2 / "diagnosis.json").read_text())
     _same(doc, doc2, "", skip={"path", "model", "extension", "extension_xml", "summary", "plotted_logs"})
     # --plots all: every held-out manoeuvre
@@ -215,9 +255,11 @@ def _same(a, b, where: str, skip=()) -> None:
 def test_diagnose_bad_inputs(tmp_path, capsys):
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.hidden import fly_data
+
     data, _ = fly_data(tmp_path / "w", None, seed=3)
     # a CSV log with a bad value: file, column and row named
     from identify.logs import read_parquet
+
     log = read_parquet(min(data.glob("*.parquet")))
     csv_dir = tmp_path / "csv"
     csv_dir.mkdir()
@@ -225,14 +267,29 @@ def test_diagnose_bad_inputs(tmp_path, capsys):
     bad.loc[41, "qbar_psf"] = "n/a"
     bad.to_csv(csv_dir / "flight1.csv", index=False)
     (csv_dir / "flight1.json").write_text(json.dumps(log.meta))
-    assert main(["diagnose", "--data", str(csv_dir), "--model", str(DEFAULT_AIRCRAFT), "--out",
-                 str(tmp_path / "o1")]) == 2
+    assert (
+        main(["diagnose", "--data", str(csv_dir), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "o1")]) == 2
+    )
     err = capsys.readouterr().err
     assert "flight1.csv" in err and "'qbar_psf'" in err and "row 42" in err and err.count("\n") == 1
-    assert main(["diagnose", "--data", str(tmp_path / "missing"), "--model", str(DEFAULT_AIRCRAFT), "--out",
-                 str(tmp_path / "o2")]) == 2
-    assert main(["diagnose", "--data", str(data), "--model", str(tmp_path / "nomodel"), "--out",
-                 str(tmp_path / "o3")]) == 2
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(tmp_path / "missing"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "o2"),
+            ]
+        )
+        == 2
+    )
+    assert (
+        main(["diagnose", "--data", str(data), "--model", str(tmp_path / "nomodel"), "--out", str(tmp_path / "o3")])
+        == 2
+    )
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o3").exists()
     capsys.readouterr()
     one = min(data.glob("*.parquet"))  # one log: one flight condition, none to hold out
@@ -254,11 +311,15 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
     from campaign.simulation.engine import FlightConfig, fly
     from campaign.simulation.matrix import load_matrix
     from identify.logs import Log
+
     m = load_matrix()
     src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS))
     for man in ("gear_extension", "doublet"):
-        f = fly(m.point("h10000_m0.30_f00_gdn"), man, FlightConfig(src, maneuver_params=m.maneuver_params,
-                                                                   clmax_by_flap=m.clmax_by_flap))
+        f = fly(
+            m.point("h10000_m0.30_f00_gdn"),
+            man,
+            FlightConfig(src, maneuver_params=m.maneuver_params, clmax_by_flap=m.clmax_by_flap),
+        )
         again = replay(Log("x", f.log, f.meta), src)
         assert (again.gear_norm.to_numpy() == f.log.gear_norm.to_numpy()).all()
         assert np.max(np.abs(again.theta_deg - f.log.theta_deg)) < 0.01, man
@@ -279,12 +340,14 @@ def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
     from campaign.simulation.matrix import load_matrix
     from diagnose.gain import replay_errors
     from identify.logs import Log
+
     still = tmp_path / "still.toml"
     still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
     m = load_matrix()
     src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
-    f = fly(m.point("h10000_m0.30_f00_gup"), "doublet", FlightConfig(src, 3, str(still), m.maneuver_params,
-                                                                    m.clmax_by_flap))
+    f = fly(
+        m.point("h10000_m0.30_f00_gup"), "doublet", FlightConfig(src, 3, str(still), m.maneuver_params, m.clmax_by_flap)
+    )
     assert np.median(np.diff(f.log.t_s)) == pytest.approx(0.02)
     again = replay(Log("x", f.log, f.meta), src)
     assert again.t_s.iloc[-1] == pytest.approx(f.log.t_s.iloc[-1], abs=0.01)
@@ -296,6 +359,7 @@ def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():
     """The smooth terms' piecewise-linear basis, built in one pass, against its definition (np.interp
     of each knot's indicator) on uneven knots, at the knots, outside them and at NaN."""
     from diagnose.terms import hats
+
     rng = np.random.default_rng(1)
     for _ in range(50):
         knots = tuple(np.sort(rng.choice(np.linspace(-5.0, 5.0, 1001), rng.integers(3, 12), replace=False)))
@@ -316,12 +380,12 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
     from campaign.validation.shapes import SHAPES, shape
     from diagnose.config import DEFAULTS
     from diagnose.terms import candidate_terms
+
     rng = np.random.default_rng(0)
     trims = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 8.0, 12.0]
-    alpha = np.concatenate([t + 1.2 * np.sin(np.linspace(0, 6 * np.pi, 600)) * rng.uniform(0.3, 1, 600)
-                            for t in trims])
+    alpha = np.concatenate([t + 1.2 * np.sin(np.linspace(0, 6 * np.pi, 600)) * rng.uniform(0.3, 1, 600) for t in trims])
     frame = pd.DataFrame({"alpha_deg": alpha})
-    smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(alpha_deg)"]
+    (smooth,) = [t for t in candidate_terms(frame) if t.label == "smooth(alpha_deg)"]
     assert np.diff(smooth.knots).min() >= DEFAULTS.min_knot_spacing * np.ptp(alpha) - 1e-9
     x = np.column_stack([np.ones(len(alpha)), smooth.design(frame)])
     left = []
@@ -330,7 +394,7 @@ def test_a_smooth_term_resolves_any_shape_of_the_grammar_wherever_the_data_are()
         y = y - y.mean()
         if y.std() > 1e-9:
             beta = np.linalg.lstsq(x, y, rcond=None)[0]
-            left.append(np.sum((y - x @ beta) ** 2) / np.sum(y ** 2))
+            left.append(np.sum((y - x @ beta) ** 2) / np.sum(y**2))
     assert np.quantile(left, 0.9) < 0.08, (smooth.knots, np.quantile(left, 0.9))
 
 
@@ -356,10 +420,11 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
     from campaign.validation.shapes import SHAPES, shape
     from diagnose.config import DEFAULTS
     from diagnose.terms import candidate_terms, tail_twin
+
     rng = np.random.default_rng(0)
     elev = _elevator_as_the_a320_flies_it(rng)
     frame = pd.DataFrame({"elevator_deg": elev})
-    smooth, = [t for t in candidate_terms(frame) if t.label == "smooth(elevator_deg)"]
+    (smooth,) = [t for t in candidate_terms(frame) if t.label == "smooth(elevator_deg)"]
     twin = tail_twin(smooth, frame)
     assert twin.label == smooth.label and set(smooth.knots) < set(twin.knots)
     assert np.diff(twin.knots).min() >= DEFAULTS.tail_spacing * np.ptp(elev) - 1e-9
@@ -373,7 +438,7 @@ def test_a_smooth_term_refined_with_the_tails_knots_resolves_a_shape_only_the_ta
             y = y - y.mean()
             if y.std() > 1e-9:
                 beta = np.linalg.lstsq(x, y, rcond=None)[0]
-                left[term].append(np.sum((y - x @ beta) ** 2) / np.sum(y ** 2))
+                left[term].append(np.sum((y - x @ beta) ** 2) / np.sum(y**2))
     assert len(left[twin]) > 100
     assert np.quantile(left[smooth], 0.9) > 0.3
     assert np.quantile(left[twin], 0.9) < 0.08, (twin.knots, np.quantile(left[twin], 0.9))
@@ -387,6 +452,7 @@ def test_the_stepwise_search_refines_a_smooth_term_with_the_tails_knots_only_if_
 
     from diagnose.stepwise import stepwise
     from diagnose.terms import candidate_terms, tail_twin
+
     rng = np.random.default_rng(2)
     elev = _elevator_as_the_a320_flies_it(rng)
     log = np.repeat(np.arange(11), len(elev) // 11)
@@ -395,7 +461,7 @@ def test_the_stepwise_search_refines_a_smooth_term_with_the_tails_knots_only_if_
     for y, refined in ((-0.02 * np.clip((elev + 3.0) / 2.0, 0, 1) + noise, True), (wave + noise, False)):
         frame = pd.DataFrame({"elevator_deg": elev, "log": log, "r_CD": y})
         terms = [t for t in candidate_terms(frame, "CD") if t.variables == ("elevator_deg",)]
-        smooth, = [t for t in terms if t.kind == "smooth"]
+        (smooth,) = [t for t in terms if t.kind == "smooth"]
         res = stepwise(frame, "CD", terms)
         assert [tail_twin(smooth, frame) if refined else smooth] == res.terms, [t.knots for t in res.terms]
 
@@ -414,14 +480,24 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
 
     from diagnose.stepwise import stepwise
     from diagnose.terms import candidate_terms
+
     rng = np.random.default_rng(seed)
     frames, n = [], 600
     for i, (mach, gear) in enumerate([(m, g) for m in (0.3, 0.4, 0.5) for g in (0.0, 1.0)] * 2):
         t = np.arange(n) / 60.0
         cl = 0.5 * (0.3 / mach) ** 2 + 0.06 * np.sin(2 * np.pi * 0.4 * t) + rng.normal(0, 0.003, n)
         slow = lfilter([1.0], [1.0, -0.995], rng.normal(0, 4e-5, n))
-        frames.append(pd.DataFrame({"log": i, "gear_norm": gear, "mach": mach + rng.normal(0, 0.001, n), "CL": cl,
-                                    "r_CD": 0.01 * gear * (mach - 0.2) / 0.3 + slow + rng.normal(0, 1e-4, n)}))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "log": i,
+                    "gear_norm": gear,
+                    "mach": mach + rng.normal(0, 0.001, n),
+                    "CL": cl,
+                    "r_CD": 0.01 * gear * (mach - 0.2) / 0.3 + slow + rng.normal(0, 1e-4, n),
+                }
+            )
+        )
     frame = pd.concat(frames, ignore_index=True)
     res = stepwise(frame, "CD", candidate_terms(frame, "CD"))
     first = {a["term"]: a for a in res.alternatives}
@@ -431,8 +507,9 @@ def test_the_stepwise_search_puts_first_of_terms_as_wide_the_one_that_leaves_lea
     assert res.alternatives[0]["term"] == "gear_norm x mach"
     assert [t.label for t in res.terms] == ["gear_norm x mach"]
     # with one term (later steps here took gear x CL back out; in 9,400,050 they named it)
-    assert [t.label for t in stepwise(frame, "CD", candidate_terms(frame, "CD"), max_terms=1).terms] == \
-        ["gear_norm x mach"]
+    assert [t.label for t in stepwise(frame, "CD", candidate_terms(frame, "CD"), max_terms=1).terms] == [
+        "gear_norm x mach"
+    ]
 
 
 def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
@@ -446,6 +523,7 @@ def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
     from scipy import special, stats
 
     from diagnose.stepwise import f_logsf
+
     for d2 in (12.0, 80.0, 400.0, 1900.0, 9000.0):
         for f in np.geomspace(20.0, 1e6, 60):
             a, x = d2 / 2, d2 / (d2 + 4 * f)
@@ -456,8 +534,13 @@ def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
             for f in np.geomspace(20.0, 1e4, 25):
                 a, b = d2 / 2, d1 / 2
                 x = d2 / (d2 + d1 * f)
-                series = (a * np.log(x) + b * np.log1p(-x) - np.log(a) - special.betaln(a, b)
-                          + np.log(special.hyp2f1(a + b, 1.0, a + 1.0, x)))
+                series = (
+                    a * np.log(x)
+                    + b * np.log1p(-x)
+                    - np.log(a)
+                    - special.betaln(a, b)
+                    + np.log(special.hyp2f1(a + b, 1.0, a + 1.0, x))
+                )
                 if -3000 * np.log(10.0) < series < np.log(1e-280):  # the continued fraction's range
                     assert f_logsf(f, d1, d2) == pytest.approx(series, rel=1e-12), (f, d1, d2)
     assert stats.f.sf(1791.0, 2, 1900.0) == 0.0 and f_logsf(1791.0, 2, 1900.0) == pytest.approx(-1006.635306, abs=1e-5)
@@ -467,7 +550,7 @@ def test_the_f_distribution_tail_is_exact_where_scipy_underflows():
         assert np.all(np.diff(v) < 0), (d1, d2)
         switch = int(np.argmax(v < np.log(1e-280)))
         assert switch > 10, (d1, d2)
-        bend = np.diff(v, 2)[switch - 6:switch + 4]  # the curvature is smooth across the switch: no step
+        bend = np.diff(v, 2)[switch - 6 : switch + 4]  # the curvature is smooth across the switch: no step
         k = np.arange(len(bend))
         off = bend - np.polyval(np.polyfit(k, bend, 2), k)
         assert bend.min() > 0 and np.max(np.abs(off)) < 1e-5 * bend.mean(), (d1, d2, off / bend.mean())
@@ -478,14 +561,23 @@ def _cm_step_in_alpha_growing_with_mach(seed):
     """Twelve logs at six Mach numbers trimmed at falling alpha, the alpha swinging half a degree, and a
     pitching moment step in alpha growing with Mach, 10 times the noise: p-values that underflow."""
     import pandas as pd
+
     rng = np.random.default_rng(seed)
     frames, n = [], 600
     for i, (mach, trim) in enumerate([(0.25, 8.0), (0.3, 6.5), (0.4, 4.5), (0.5, 3.2), (0.6, 2.4), (0.7, 1.8)] * 2):
         swing = 0.5 * np.sin(2 * np.pi * 0.3 * np.arange(n) / 60.0)
         a = trim + swing + rng.normal(0, 0.05, n)
         m = mach - 0.004 * swing + rng.normal(0, 0.001, n)
-        frames.append(pd.DataFrame({"log": i, "alpha_deg": a, "mach": m,
-                                    "r_Cm": 0.01 * (a > 5.0) * (m - 0.2) / 0.5 + rng.normal(0, 1e-3, n)}))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "log": i,
+                    "alpha_deg": a,
+                    "mach": m,
+                    "r_Cm": 0.01 * (a > 5.0) * (m - 0.2) / 0.5 + rng.normal(0, 1e-3, n),
+                }
+            )
+        )
     return pd.concat(frames, ignore_index=True)
 
 
@@ -494,20 +586,26 @@ def test_a_cause_whose_p_value_underflows_reports_it_in_logs():
     from diagnose.causes import name_causes
     from diagnose.stepwise import Lags, stepwise
     from diagnose.terms import candidate_terms
+
     frame = _cm_step_in_alpha_growing_with_mach(0)
     pool = candidate_terms(frame, "Cm")
     res = stepwise(frame, "Cm", pool)
     first = res.alternatives[0]
     assert first["p_value"] == 0.0 and -1e4 < first["log10_p"] < -308
-    assert all(a["log10_p"] == pytest.approx(np.log10(a["p_value"]), rel=1e-9) for a in res.alternatives if a["p_value"] > 0)
+    assert all(
+        a["log10_p"] == pytest.approx(np.log10(a["p_value"]), rel=1e-9) for a in res.alternatives if a["p_value"] > 0
+    )
     only = stepwise(frame, "Cm", [t for t in pool if t.label == "smooth(alpha_deg) x mach"])
     (cause,) = name_causes({"Cm": only}, frame, Lags(frame["log"].to_numpy()))
     assert cause.evidence["p_value"] == 0.0 and -1e4 < cause.evidence["log10_p"] < -308
 
 
-@pytest.mark.xfail(strict=True, reason="ranked by the exact log p this case would be named right, but among "
-                   "fits alike the log p follows the effective sample sizes and wider terms come first (the "
-                   "stock-737 gear-drag test would name gear x elevator); the ranking keeps the F-test's order")
+@pytest.mark.xfail(
+    strict=True,
+    reason="ranked by the exact log p this case would be named right, but among "
+    "fits alike the log p follows the effective sample sizes and wider terms come first (the "
+    "stock-737 gear-drag test would name gear x elevator); the ranking keeps the F-test's order",
+)
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_stepwise_search_ranks_candidates_whose_p_values_underflow_by_their_exact_logs(seed):
     """A pitching moment step in alpha, growing with Mach (:func:`_cm_step_in_alpha_growing_with_mach`).
@@ -517,6 +615,7 @@ def test_the_stepwise_search_ranks_candidates_whose_p_values_underflow_by_their_
     logs the effect's form is the strongest."""
     from diagnose.stepwise import stepwise
     from diagnose.terms import candidate_terms
+
     frame = _cm_step_in_alpha_growing_with_mach(seed)
     res = stepwise(frame, "Cm", candidate_terms(frame, "Cm"))
     first = {a["term"]: a for a in res.alternatives}
@@ -540,25 +639,41 @@ def test_a_smooth_term_that_varies_with_another_variable_is_named_by_the_one_tha
     from diagnose.causes import name_causes
     from diagnose.stepwise import Lags, StepwiseResult, fit_terms
     from diagnose.terms import Term
+
     rng = np.random.default_rng(4)
     frames = []
     for i, (mach, trim) in enumerate([(0.2, 9.0), (0.3, 6.0), (0.4, 4.0), (0.5, 2.5)]):
         swing = 1.5 * np.sin(np.linspace(0.0, 6 * np.pi, 600))
-        frames.append(pd.DataFrame({"log": i, "alpha_deg": trim + swing + rng.normal(0, 0.05, 600),
-                                    "mach": mach - 0.004 * swing + rng.normal(0, 0.001, 600)}))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "log": i,
+                    "alpha_deg": trim + swing + rng.normal(0, 0.05, 600),
+                    "mach": mach - 0.004 * swing + rng.normal(0, 0.001, 600),
+                }
+            )
+        )
     data = pd.concat(frames, ignore_index=True)
     a, m = data.alpha_deg.to_numpy(), data.mach.to_numpy()
-    effect = {"alpha_deg": np.sign(a - 5.0) * np.clip(np.abs(a - 5.0) - 1.0, 0.0, None),
-              "mach": 0.02 * (m > 0.33)}[truth]
+    effect = {"alpha_deg": np.sign(a - 5.0) * np.clip(np.abs(a - 5.0) - 1.0, 0.0, None), "mach": 0.02 * (m > 0.33)}[
+        truth
+    ]
     data["r_Cm"] = effect + rng.normal(0, 0.002, len(data))
     smooth, linear = term
     knots = tuple(np.quantile(data[smooth], np.linspace(0, 1, 6)))
-    t = Term("smooth_x_linear", term, knots, (0.0, float(data[linear].median())),
-             ((float(data[smooth].min()), float(data[smooth].max())), (float(data[linear].min()),
-                                                                         float(data[linear].max()))))
+    t = Term(
+        "smooth_x_linear",
+        term,
+        knots,
+        (0.0, float(data[linear].median())),
+        (
+            (float(data[smooth].min()), float(data[smooth].max())),
+            (float(data[linear].min()), float(data[linear].max())),
+        ),
+    )
     fit = fit_terms(data.r_Cm.to_numpy(), [t.design(data)], [t])
     res = StepwiseResult("Cm", [t], fit.beta, {t.label: {}}, [], 0.0, 0.0, len(data))
-    cause, = name_causes({"Cm": res}, data, Lags(data["log"].to_numpy()))
+    (cause,) = name_causes({"Cm": res}, data, Lags(data["log"].to_numpy()))
     assert cause.variables == [truth, linear if truth == smooth else smooth]
 
 
@@ -566,10 +681,22 @@ def _needing_a_vane_scale(coefficient: str, needs: float, se: float, explains_pc
     """A significant aero cause above its floor, and its reach: an alpha-vane scale of ``needs`` (the
     kinematics' standard error ``se``) explains ``explains_pct`` % of it."""
     from types import SimpleNamespace
-    c = SimpleNamespace(kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02,
-                        verdict={"noise_floor": 0.001})
-    return c, {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": needs, "needs_se": needs / se,
-                                 "se": se, "explains_pct": explains_pct}]}
+
+    c = SimpleNamespace(
+        kind="aero", coefficient=coefficient, evidence={"p_value": 0.0}, size=0.02, verdict={"noise_floor": 0.001}
+    )
+    return c, {
+        "alternatives": [
+            {
+                "channel": "alpha_deg",
+                "error": "scale",
+                "needs": needs,
+                "needs_se": needs / se,
+                "se": se,
+                "explains_pct": explains_pct,
+            }
+        ]
+    }
 
 
 def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_block_a_refinement():
@@ -579,6 +706,7 @@ def test_a_cause_that_would_need_a_correction_the_kinematics_rule_out_does_not_b
     and the scale is refined. Had CD needed -2 % (2.4 standard errors), the coefficients would disagree."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
+
     scale = Parameter("alpha_deg", "scale", "-", 0.01105, 0.01318)
     compat = CompatResult([Parameter("alpha_deg", "bias", "deg", 0.1208, 0.0502), scale])
 
@@ -601,13 +729,26 @@ def test_two_coefficients_that_agree_refine_beside_a_third_that_needs_more_of_th
     that agree refine it to -7.4 %; the third no longer vetoes. Needing +2.8 %, it still would."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
-    compat = CompatResult([Parameter("alpha_deg", "scale", "-", -0.05682, 0.02233,
-                                     chosen="2.5 standard errors from the kinematics; the CL residual agrees")])
+
+    compat = CompatResult(
+        [
+            Parameter(
+                "alpha_deg",
+                "scale",
+                "-",
+                -0.05682,
+                0.02233,
+                chosen="2.5 standard errors from the kinematics; the CL residual agrees",
+            )
+        ]
+    )
     assert compat.get("alpha_deg.scale").applied
     for cd, refined in ((-0.02797, True), (0.02797, False)):
-        pairs = [_needing_a_vane_scale("Cm", -0.01658, 0.02233, 100.0),
-                 _needing_a_vane_scale("CL", -0.01727, 0.02233, 97.0),
-                 _needing_a_vane_scale("CD", cd, 0.02233, 89.0)]
+        pairs = [
+            _needing_a_vane_scale("Cm", -0.01658, 0.02233, 100.0),
+            _needing_a_vane_scale("CL", -0.01727, 0.02233, 97.0),
+            _needing_a_vane_scale("CD", cd, 0.02233, 89.0),
+        ]
         out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
         assert (out is not None) == refined
         if refined:
@@ -622,6 +763,7 @@ def test_a_refinement_may_shrink_a_correction_the_data_carry_toward_none_but_not
     would grow the correction to 5.7 %, 5.4 standard errors past it: not refined."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
+
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.02897, 0.005212)])
     assert compat.get("alpha_deg.scale").applied
 
@@ -643,6 +785,7 @@ def test_three_coefficients_that_agree_may_refine_a_correction_further_than_two(
     the 5.3 three may refine (``agree_all_se``) and past the 3.5 two may (``agree_se``)."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
+
     compat = CompatResult([Parameter("alpha_deg", "scale", "-", 0.01192, 0.0075)])
 
     def cause(coefficient, needs):
@@ -663,11 +806,19 @@ def test_a_cause_its_own_held_out_logs_refute_does_not_veto_what_two_others_agre
     out with a gain, it still does."""
     from diagnose.arbitration import residual_refinement
     from identify.compat.result import CompatResult, Parameter
-    compat = CompatResult([Parameter("alpha_deg", "bias", "deg", 0.2123, 0.06395, chosen="the CL residual agrees"),
-                           Parameter("alpha_deg", "scale", "-", -0.001627, 0.02729)])
+
+    compat = CompatResult(
+        [
+            Parameter("alpha_deg", "bias", "deg", 0.2123, 0.06395, chosen="the CL residual agrees"),
+            Parameter("alpha_deg", "scale", "-", -0.001627, 0.02729),
+        ]
+    )
     for replicate, refined in ((1.012, True), (1.3, False)):
-        pairs = [_needing_a_vane_scale("CL", 0.04863, 0.02729, 100.0), _needing_a_vane_scale("Cm", 0.04541, 0.02729, 100.0),
-                 _needing_a_vane_scale("CD", -0.01754, 0.02729, 100.0)]
+        pairs = [
+            _needing_a_vane_scale("CL", 0.04863, 0.02729, 100.0),
+            _needing_a_vane_scale("Cm", 0.04541, 0.02729, 100.0),
+            _needing_a_vane_scale("CD", -0.01754, 0.02729, 100.0),
+        ]
         pairs[2][0].verdict.update(replicate_gain=replicate, replicate_gain_where_departs=1.038)
         out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
         assert (out is not None) == refined
@@ -685,8 +836,19 @@ def test_a_refinement_several_coefficients_need_is_vetoed_by_a_residual_growing_
 
     from diagnose.arbitration import refinement_stands, residual_refinement
     from identify.compat.result import CompatResult, Parameter
-    compat = CompatResult([Parameter("alpha_deg", "scale", "-", -0.04951, 0.0127,
-                                     chosen="3.9 standard errors from the kinematics; the CL residual agrees")])
+
+    compat = CompatResult(
+        [
+            Parameter(
+                "alpha_deg",
+                "scale",
+                "-",
+                -0.04951,
+                0.0127,
+                chosen="3.9 standard errors from the kinematics; the CL residual agrees",
+            )
+        ]
+    )
     assert compat.get("alpha_deg.scale").applied
     pairs = [_needing_a_vane_scale(c, 0.0489, 0.0127, 100.0) for c in ("CL", "CD", "Cm")]
     out = residual_refinement(compat, [c for c, _ in pairs], [r for _, r in pairs])
@@ -695,12 +857,13 @@ def test_a_refinement_several_coefficients_need_is_vetoed_by_a_residual_growing_
     t = np.linspace(0.0, 20.0, 2000)
 
     def residuals(cl_mean, cl, cd, cm):
-        return pd.DataFrame({"r_CL": cl_mean + cl * np.sin(t), "r_CD": cd * np.sin(1.3 * t),
-                             "r_Cm": cm * np.sin(0.7 * t)})
+        return pd.DataFrame(
+            {"r_CL": cl_mean + cl * np.sin(t), "r_CD": cd * np.sin(1.3 * t), "r_Cm": cm * np.sin(0.7 * t)}
+        )
 
     before = residuals(0.016, 0.014, 0.0023, 0.0021)
     unmasked = residuals(0.0318, 0.0054, 0.00035, 0.0011)
-    assert np.sqrt(np.mean(unmasked.r_CL ** 2)) > 1.6 * np.sqrt(np.mean(before.r_CL ** 2))
+    assert np.sqrt(np.mean(unmasked.r_CL**2)) > 1.6 * np.sqrt(np.mean(before.r_CL**2))
     assert refinement_stands(out, before, unmasked) is out.compat
     assert refinement_stands(out, before, residuals(0.0318, 0.0054, 0.0026, 0.0011)) is None  # CD x1.13
 
@@ -715,19 +878,25 @@ def test_one_coefficient_adjusts_only_a_correction_the_kinematics_made_and_needs
 
     from diagnose.arbitration import refinement_stands, residual_refinement
     from identify.compat.result import CompatResult, Parameter
+
     bias = Parameter("alpha_deg", "bias", "deg", -0.5892, 0.03064)
-    scale = Parameter("alpha_deg", "scale", "-", 0.01977, 0.005911, confounded_with="alpha_deg.bias",
-                      reason="confounded")
+    scale = Parameter(
+        "alpha_deg", "scale", "-", 0.01977, 0.005911, confounded_with="alpha_deg.bias", reason="confounded"
+    )
     assert bias.applied and not scale.applied
     c, r = _needing_a_vane_scale("CD", 0.0746, 0.03064, 100.0)
-    r["alternatives"] = [dict(r["alternatives"][0], error="bias"),
-                         dict(r["alternatives"][0], error="scale", needs=0.006573, se=0.005911)]
+    r["alternatives"] = [
+        dict(r["alternatives"][0], error="bias"),
+        dict(r["alternatives"][0], error="scale", needs=0.006573, se=0.005911),
+    ]
     out = residual_refinement(CompatResult([bias, scale]), [c], [r])
     assert out.name == "alpha_deg.bias" and out.coefficients == ("CD",)
     assert out.compat.get("alpha_deg.bias").estimate == pytest.approx(-0.5146)
     assert out.compat.get("alpha_deg.scale").estimate == scale.estimate
-    assert residual_refinement(CompatResult([bias.__class__("alpha_deg", "bias", "deg", -0.02, 0.03064), scale]),
-                               [c], [r]) is None
+    assert (
+        residual_refinement(CompatResult([bias.__class__("alpha_deg", "bias", "deg", -0.02, 0.03064), scale]), [c], [r])
+        is None
+    )
 
     def residuals(cl, cd, cm):
         return pd.DataFrame({"r_CL": cl, "r_CD": cd, "r_Cm": cm})
@@ -746,6 +915,7 @@ def test_channel_noise_finds_each_channels_white_noise_under_smooth_signals():
 
     from diagnose.noise_floor import channel_noise
     from identify.logs import Log
+
     rng = np.random.default_rng(3)
     sigma = {"alpha_deg": 0.05, "q_dps": 0.2, "tas_kt": 0.5, "thrust_lbf": 40.0}
     logs = []
@@ -772,8 +942,23 @@ def test_noise_floor_realizations_drawn_together_equal_each_drawn_alone(tmp_path
     from diagnose.evaluate import ModelEvaluator
     from diagnose.noise_floor import NoiseFloor, channel_noise
     from identify.logs import read_campaign
-    assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
-                 "--no-identify", "--quiet"]) == 0
+
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(small_matrix),
+                "--out",
+                str(tmp_path / "c"),
+                "--noise",
+                "flight-test",
+                "--no-identify",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     logs = read_campaign(tmp_path / "c")
     assert logs and all("qdot_dps2" not in lg.data for lg in logs)
     ev = ModelEvaluator(DEFAULT_AIRCRAFT)
@@ -801,8 +986,23 @@ def test_the_errors_in_variables_factor_is_measured_per_variable(tmp_path, small
     from diagnose.evaluate import ModelEvaluator
     from diagnose.noise_floor import NoiseFloor, channel_noise
     from identify.logs import Log, read_campaign
-    assert main(["run", "--matrix", str(small_matrix), "--out", str(tmp_path / "c"), "--noise", "flight-test",
-                 "--no-identify", "--quiet"]) == 0
+
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(small_matrix),
+                "--out",
+                str(tmp_path / "c"),
+                "--noise",
+                "flight-test",
+                "--no-identify",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     logs = read_campaign(tmp_path / "c")
     rng = np.random.default_rng(7)
     swamped = []
@@ -828,13 +1028,32 @@ def test_refine_oe_in_still_air_keeps_a_right_extension_and_measures_it(tmp_path
     fitted logs, written beside it, and its gain reported beside the first one's."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.hidden import fly_data
+
     still = tmp_path / "still.toml"
     still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
     data, _ = fly_data(tmp_path / "w", hidden, seed=5, instruments=str(still))
     out = tmp_path / "report"
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
-                 "--no-plots", "--quiet", "--jobs", "2", "--refine", "oe"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out),
+                "--no-plots",
+                "--quiet",
+                "--jobs",
+                "2",
+                "--refine",
+                "oe",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     doc = json.loads((out / "diagnosis.json").read_text())
     r = doc["refine"]
@@ -864,13 +1083,35 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     from identify.compat import estimate
     from identify.kinematics import measured_wind
     from identify.logs import read_campaign
+
     prof = tmp_path / "t3.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp_path / "w", matrix_toml(pairs((0, 0.3, [2000, 10000])), "w3"), str(DEFAULT_AIRCRAFT),
-                      noise=str(prof), seed=4)
+    data = run_matrix(
+        tmp_path / "w",
+        matrix_toml(pairs((0, 0.3, [2000, 10000])), "w3"),
+        str(DEFAULT_AIRCRAFT),
+        noise=str(prof),
+        seed=4,
+    )
     out = tmp_path / "report"
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
-                 "--no-plots", "--quiet", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out),
+                "--no-plots",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["wind"] and all(w["replayed_in"] == "measured wind" for w in doc["wind"].values())
     assert set(doc["replays"]) == set(doc["wind"])
@@ -885,8 +1126,9 @@ def test_held_out_replays_fly_in_the_measured_wind(tmp_path, capsys):
     still = [replay_errors(c.data, replay(c, src, wind=False)) for c in map(compat.correct, logs[:3])]
     assert max(e["theta_deg"] for e in still) > 1.0
     # noise-free logs carry no wind: their replays stay in still air, exact
-    clean = read_campaign(run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "c"),
-                                     str(DEFAULT_AIRCRAFT)))[0]
+    clean = read_campaign(run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "c"), str(DEFAULT_AIRCRAFT)))[
+        0
+    ]
     assert np.abs(measured_wind(clean.data)).max() < 1e-3 and log_wind(clean) is None
 
 
@@ -896,11 +1138,29 @@ def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, 
     lies inside it nearly all the time; the pass probability and the shaded plot are reported."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.hidden import fly_data
+
     hidden = make("gear_bump", np.random.default_rng(5), "CD")
     data, _ = fly_data(tmp_path / "w", hidden, seed=5)
     out = tmp_path / "report"
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
-                 "--quiet", "--jobs", "2", "--bands", "20"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out),
+                "--quiet",
+                "--jobs",
+                "2",
+                "--bands",
+                "20",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((out / "diagnosis.json").read_text())
     assert set(doc["bands"]) == set(doc["gain"]["cause_exercised_in"])
     for name, b in doc["bands"].items():
@@ -911,8 +1171,22 @@ def test_bands_from_the_extensions_covariance_cover_a_perturbed_model(tmp_path, 
     assert "Monte Carlo bands" in capsys.readouterr().out
     assert not (out / ".bands").exists()
     capsys.readouterr()
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "x"),
-                 "--bands", "5"]) == 2
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "x"),
+                "--bands",
+                "5",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "--bands" in err and err.count("\n") == 1 and not (tmp_path / "x").exists()
 
@@ -921,11 +1195,13 @@ def _alpha_slope_logs(rng: np.random.Generator, offsets: list[float]):
     """Residual data of one log per offset: a CL slope of 0.01 per deg of alpha (2 to 8 deg), 1e-4 of noise,
     and the log's offset."""
     import pandas as pd
+
     frames = []
     for i, off in enumerate(offsets):
         a = rng.uniform(2.0, 8.0, 500)
-        frames.append(pd.DataFrame({"log": i, "alpha_deg": a,
-                                    "r_CL": 0.01 * (a - 5.0) + off + rng.normal(0.0, 1e-4, 500)}))
+        frames.append(
+            pd.DataFrame({"log": i, "alpha_deg": a, "r_CL": 0.01 * (a - 5.0) + off + rng.normal(0.0, 1e-4, 500)})
+        )
     return pd.concat(frames, ignore_index=True)
 
 
@@ -937,6 +1213,7 @@ def test_the_held_out_check_takes_the_fit_off_and_tells_what_it_does_not_carry()
     from diagnose.held_out import held_out_check
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
+
     rng = np.random.default_rng(0)
     data = _alpha_slope_logs(rng, [0.0, 0.0, 0.0])
     term = Term("linear", ("alpha_deg",), (), (5.0,), ((2.0, 8.0),))
@@ -966,6 +1243,7 @@ def test_the_held_out_condition_is_one_the_fitted_ones_bracket():
 
     def log(c, gear="up"):
         return SimpleNamespace(condition=c, transition=False, gear_down=gear == "down")
+
     a320 = [log(c) for c in ((5000.0, 0.3, 0.0), (10000.0, 0.5, 0.0), (5000.0, 0.3, 15.0))]
     assert [lg.condition for lg in split(a320)[1]] == [(5000.0, 0.3, 0.0)]
     four = [log(c) for c in ((2000.0, 0.2, 30.0), (2000.0, 0.3, 0.0), (10000.0, 0.3, 0.0), (10000.0, 0.5, 0.0))]
@@ -978,9 +1256,11 @@ def test_the_held_out_condition_is_one_the_fitted_ones_bracket():
 def _trimmed(condition, lo, mid, hi, gear="up"):
     """A log at ``condition`` whose angle of attack [deg] runs from ``lo`` to ``hi`` about ``mid``."""
     import pandas as pd
+
     alpha = np.concatenate([np.linspace(lo, mid, 50), np.full(100, mid), np.linspace(mid, hi, 50)])
-    return SimpleNamespace(condition=condition, transition=False, gear_down=gear == "down",
-                           data=pd.DataFrame({"alpha_deg": alpha}))
+    return SimpleNamespace(
+        condition=condition, transition=False, gear_down=gear == "down", data=pd.DataFrame({"alpha_deg": alpha})
+    )
 
 
 def test_the_fit_keeps_every_mach_number_apart_from_the_flap_and_the_highest_alpha():
@@ -991,9 +1271,18 @@ def test_the_fit_keeps_every_mach_number_apart_from_the_flap_and_the_highest_alp
     10,000 ft trims above what the rest fly, and a Cm rise above 9 deg had F 3 in the fit; the
     condition held out is one the fit brackets."""
     from campaign.diagnosis.run import split
-    a320 = [_trimmed(*c) for c in (((5000.0, 0.3, 0.0), 6.1, 8.0, 9.5), ((5000.0, 0.3, 15.0), 4.8, 5.9, 7.0),
-                                   ((10000.0, 0.4, 0.0), 3.4, 4.7, 5.6), ((10000.0, 0.5, 0.0), 0.5, 1.9, 3.2),
-                                   ((19500.0, 0.4, 0.0), 6.5, 8.0, 9.4), ((21000.0, 0.5, 0.0), 3.1, 4.8, 5.8))]
+
+    a320 = [
+        _trimmed(*c)
+        for c in (
+            ((5000.0, 0.3, 0.0), 6.1, 8.0, 9.5),
+            ((5000.0, 0.3, 15.0), 4.8, 5.9, 7.0),
+            ((10000.0, 0.4, 0.0), 3.4, 4.7, 5.6),
+            ((10000.0, 0.5, 0.0), 0.5, 1.9, 3.2),
+            ((19500.0, 0.4, 0.0), 6.5, 8.0, 9.4),
+            ((21000.0, 0.5, 0.0), 3.1, 4.8, 5.8),
+        )
+    ]
     train, held = split(a320)
     assert [lg.condition for lg in held] == [(10000.0, 0.4, 0.0)]
     clean = {lg.condition[1] for lg in train if lg.condition[2] == 0.0}
@@ -1001,9 +1290,16 @@ def test_the_fit_keeps_every_mach_number_apart_from_the_flap_and_the_highest_alp
     # four of them: the only Mach 0.4 held out blurs no more than Mach 0.3 left at flap 15, and stays
     four = [lg for lg in a320 if lg.condition[0] in (5000.0, 10000.0)]
     assert [lg.condition for lg in split(four)[1]] == [(10000.0, 0.4, 0.0)]
-    ours = [_trimmed(*c) for c in (((2000.0, 0.2, 30.0), 3.6, 6.0, 8.7), ((2000.0, 0.3, 0.0), 3.6, 6.6, 9.3),
-                                   ((10000.0, 0.3, 0.0), 6.2, 9.5, 12.4), ((10000.0, 0.5, 0.0), -1.6, 1.9, 4.6),
-                                   ((17000.0, 0.4, 0.0), 2.7, 6.4, 9.1))]
+    ours = [
+        _trimmed(*c)
+        for c in (
+            ((2000.0, 0.2, 30.0), 3.6, 6.0, 8.7),
+            ((2000.0, 0.3, 0.0), 3.6, 6.6, 9.3),
+            ((10000.0, 0.3, 0.0), 6.2, 9.5, 12.4),
+            ((10000.0, 0.5, 0.0), -1.6, 1.9, 4.6),
+            ((17000.0, 0.4, 0.0), 2.7, 6.4, 9.1),
+        )
+    ]
     train, held = split(ours)
     assert [lg.condition for lg in held] == [(2000.0, 0.3, 0.0)]
     assert max(float(lg.data.alpha_deg.max()) for lg in train) > 12.0

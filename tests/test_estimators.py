@@ -1,5 +1,6 @@
 """Output error and filter error on real flight data, against the published estimates
 (Jategaonkar 2015's code package; the data and their source are in tests/data/)."""
+
 from pathlib import Path
 
 import numpy as np
@@ -13,15 +14,40 @@ from identify.estimators.models import SHORT_PERIOD_PARAMS, Airframe, longitudin
 DATA = Path(__file__).parent / "data"
 D2R = np.pi / 180
 
-ATTAS_PUBLISHED = dict(zip(SHORT_PERIOD_PARAMS, (-8.98779e-3, -4.83362e-1, 1.04198e-1, 6.76322e-1,
-                                                 4.75234e-1, -4.92651, -2.00573, -7.20806)))
+ATTAS_PUBLISHED = dict(
+    zip(
+        SHORT_PERIOD_PARAMS,
+        (-8.98779e-3, -4.83362e-1, 1.04198e-1, 6.76322e-1, 4.75234e-1, -4.92651, -2.00573, -7.20806),
+    )
+)
 ATTAS_START = (-2.52504e-3, -2.13832e-1, 2.78189e-2, 1.66147e-1, 2.71618e-1, -2.73646, -1.08034, -3.18940)
 
-HFB_PUBLISHED_FE = {"CD0": 0.1227, "CDV": -0.0645, "CDalpha": 0.3201, "CL0": -0.0929, "CLV": 0.1487,
-                    "CLalpha": 4.328, "Cm0": 0.1119, "CmV": 0.00395, "Cmalpha": -0.9679, "Cmqhat": -34.71,
-                    "Cmde_rad": -1.529}
-HFB_START = (5.67516e-3, 7.72612e-3, 6.74256e-1, -3.18267e-1, 2.60317e-1, 5.37576, 4.98218e-2, 1.89182e-2,
-             -4.98586e-1, -2.58439e1, -9.90687e-1)
+HFB_PUBLISHED_FE = {
+    "CD0": 0.1227,
+    "CDV": -0.0645,
+    "CDalpha": 0.3201,
+    "CL0": -0.0929,
+    "CLV": 0.1487,
+    "CLalpha": 4.328,
+    "Cm0": 0.1119,
+    "CmV": 0.00395,
+    "Cmalpha": -0.9679,
+    "Cmqhat": -34.71,
+    "Cmde_rad": -1.529,
+}
+HFB_START = (
+    5.67516e-3,
+    7.72612e-3,
+    6.74256e-1,
+    -3.18267e-1,
+    2.60317e-1,
+    5.37576,
+    4.98218e-2,
+    1.89182e-2,
+    -4.98586e-1,
+    -2.58439e1,
+    -9.90687e-1,
+)
 HFB_X0 = (106.023, 0.111685, 0.104887, -3.32659e-3)
 
 
@@ -30,14 +56,17 @@ def attas_records(package_start: bool = True) -> list[Record]:
     record's first sample, as the package's ``mDefCase11`` sets them."""
     raw = [scipy.io.loadmat(DATA / f"fAttasElv{i}.mat")[f"fAttasElv{i}"] for i in (1, 2)]
     zs = [np.c_[d[:, 12], d[:, 7]] * D2R for d in raw]
-    return [Record(d[:, 21:22] * D2R, z, 0.04, zs[0][0] if package_start else z[0], name=f"elv{i}")
-            for i, (d, z) in enumerate(zip(raw, zs), 1)]
+    return [
+        Record(d[:, 21:22] * D2R, z, 0.04, zs[0][0] if package_start else z[0], name=f"elv{i}")
+        for i, (d, z) in enumerate(zip(raw, zs), 1)
+    ]
 
 
 def hfb():
     d = np.loadtxt(DATA / "hfb320_1_10.asc")
-    airframe = Airframe(mass=7472.0, area=30.097, chord=2.43, iyy=91389.0, v0=104.67,
-                        thrust_angle_rad=0.0524, thrust_arm=-0.641)
+    airframe = Airframe(
+        mass=7472.0, area=30.097, chord=2.43, iyy=91389.0, v0=104.67, thrust_angle_rad=0.0524, thrust_arm=-0.641
+    )
     terms = {"CD": ["1", "V", "alpha"], "CL": ["1", "V", "alpha"], "Cm": ["1", "V", "alpha", "qhat", "de_rad"]}
     model = longitudinal(airframe, terms, inputs=("de_rad", "thrust"), offsets={"rho": 0.792})
     return model, Record(d[:, [1, 3]], d[:, 4:11], 0.1, HFB_X0, name="hfb320")
@@ -135,15 +164,21 @@ def test_identify_method_fe_on_turbulent_737_logs(tmp_path, capsys):
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.cli import main
     from campaign.validation.support import matrix_toml, pairs, run_matrix
-    data = run_matrix(tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "one"), str(DEFAULT_AIRCRAFT),
-                      noise="flight-test", seed=5)
+
+    data = run_matrix(
+        tmp_path / "c", matrix_toml(pairs((0, 0.3, [2000])), "one"), str(DEFAULT_AIRCRAFT), noise="flight-test", seed=5
+    )
     assert main(["identify", str(data), "--out", str(tmp_path / "fe"), "--method", "fe", "--plots", "none"]) == 0
     assert "identification (fe)" in capsys.readouterr().out
     doc = json.loads((tmp_path / "fe" / "identification.json").read_text())
     assert doc["method"] == "fe"
     arm = (638.95 - 635.84) / 155.81
-    truth = {("CL", "dalpha_rad"): 5.5, ("Cm", "dalpha_rad"): -1.3 - 5.5 * arm, ("Cm", "qhat_rad"): -25 - 4.5 * arm,
-             ("Cm", "delevator_rad"): -1.4 - 0.4 * arm}
+    truth = {
+        ("CL", "dalpha_rad"): 5.5,
+        ("Cm", "dalpha_rad"): -1.3 - 5.5 * arm,
+        ("Cm", "qhat_rad"): -25 - 4.5 * arm,
+        ("Cm", "delevator_rad"): -1.4 - 0.4 * arm,
+    }
     for point in ("h02000_m0.30_f00_gup", "h02000_m0.30_f00_gdn"):
         pt = doc["points"][point]
         for c in ("CL", "CD", "Cm"):

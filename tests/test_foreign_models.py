@@ -6,6 +6,7 @@ instruments (turbulence, 50 Hz, no qdot) over many seeds; with terms of its own 
 diagnosis must name that coefficient and variable first and invent nothing on
 another coefficient. Only these tests read the aircraft XML to check the answers.
 """
+
 import json
 from pathlib import Path
 
@@ -33,9 +34,14 @@ def _truth(log: pd.DataFrame, meta: dict) -> pd.DataFrame:
     """JSBSim's own aero coefficients of a flown log, Cm about AERORP."""
     g = meta["geometry"]
     qs = log.qbar_psf * g["S_ft2"]
-    cm = moment_transfer(log.truth_m_aero_lbfft / (qs * g["cbar_ft"]), log.truth_fx_aero_lbf / qs,
-                         log.truth_fz_aero_lbf / qs, g["aerorp_x_in"] - g["cg_x_in"],
-                         g["aerorp_z_in"] - g["cg_z_in"], g["cbar_ft"])
+    cm = moment_transfer(
+        log.truth_m_aero_lbfft / (qs * g["cbar_ft"]),
+        log.truth_fx_aero_lbf / qs,
+        log.truth_fz_aero_lbf / qs,
+        g["aerorp_x_in"] - g["cg_x_in"],
+        g["aerorp_z_in"] - g["cg_z_in"],
+        g["cbar_ft"],
+    )
     return pd.DataFrame({"CL": log.truth_fwz_aero_lbf / qs, "CD": log.truth_fwx_aero_lbf / qs, "Cm": cm})
 
 
@@ -44,12 +50,19 @@ def test_evaluator_reproduces_jsbsims_own_forces(name, flap):
     """Every property the aero reads, alpha-dot and CL^2 as JSBSim has them, the full AERORP offset:
     a 2-3-1-1 and a gear extension come back to 1e-6 in CL, CD and Cm."""
     folder = DEFAULT_AIRCRAFT if name == "ours" else STOCK / name
-    cfg = FlightConfig(AircraftSource(str(folder), load_effects(None)), 0, "none",
-                       (("doublet", (("tail_s", 2.0),)), ("gear_extension", (("post_s", 5.0),))), (),
-                       record_truth=True)
+    cfg = FlightConfig(
+        AircraftSource(str(folder), load_effects(None)),
+        0,
+        "none",
+        (("doublet", (("tail_s", 2.0),)), ("gear_extension", (("post_s", 5.0),))),
+        (),
+        record_truth=True,
+    )
     ev = ModelEvaluator(folder)
-    for point, man in ((StatusPoint(5000.0, 0.35, flap, False), "doublet"),
-                       (StatusPoint(3000.0, 0.3, flap, True), "gear_extension")):
+    for point, man in (
+        (StatusPoint(5000.0, 0.35, flap, False), "doublet"),
+        (StatusPoint(3000.0, 0.3, flap, True), "gear_extension"),
+    ):
         f = fly(point, man, cfg)
         assert np.allclose(f.log.flap_deg, flap, atol=1e-9)  # the aircraft's own flap angle
         pred = ev.predict(f.log, coefficients(f.log, f.meta)["CL"].to_numpy())
@@ -69,21 +82,30 @@ def test_evaluator_reads_properties_given_the_short_way():
     assert "propulsion/engine/prop-induced-velocity_fps" in {u.name for u in ModelEvaluator(STOCK / "p51d").unset}
 
 
-@pytest.mark.parametrize("folder, without", [(DEFAULT_AIRCRAFT, True), (STOCK / "B747", True),
-                                             (STOCK / "J3Cub", False),  # reads the propeller's induced velocity
-                                             (STOCK / "p51d", False),  # the same, through <p>
-                                             (STOCK / "OV10", False)])  # reads a throttle, which only an engine has
-def test_evaluation_copy_leaves_out_engines_and_contacts_only_if_the_aerodynamics_need_none(folder, without,
-                                                                                             monkeypatch):
+@pytest.mark.parametrize(
+    "folder, without",
+    [
+        (DEFAULT_AIRCRAFT, True),
+        (STOCK / "B747", True),
+        (STOCK / "J3Cub", False),  # reads the propeller's induced velocity
+        (STOCK / "p51d", False),  # the same, through <p>
+        (STOCK / "OV10", False),
+    ],
+)  # reads a throttle, which only an engine has
+def test_evaluation_copy_leaves_out_engines_and_contacts_only_if_the_aerodynamics_need_none(
+    folder, without, monkeypatch
+):
     import xml.etree.ElementTree as ET
 
     import diagnose.evaluate as evaluate
+
     ev = ModelEvaluator(folder)
     top = ET.parse(ev._tmp / "eval" / "aircraft" / folder.name / f"{folder.name}.xml").getroot()
     assert (not top.findall("propulsion/engine") and not top.findall("ground_reactions/contact")) == without
     if without:  # the same coefficients, to the bit, as with them, on a flown log's states
-        cfg = FlightConfig(AircraftSource(str(folder), load_effects(None)), 0, "none",
-                           (("doublet", (("tail_s", 2.0),)),), ())
+        cfg = FlightConfig(
+            AircraftSource(str(folder), load_effects(None)), 0, "none", (("doublet", (("tail_s", 2.0),)),), ()
+        )
         f = fly(StatusPoint(4000.0, 0.3, 0, True), "doublet", cfg)
         cl = coefficients(f.log, f.meta)["CL"].to_numpy()
         monkeypatch.setattr(evaluate, "WITHOUT_ENGINES", ())
@@ -136,10 +158,12 @@ def stock_737_noisy(tmp_path_factory):
     return run_matrix(tmp_path_factory.mktemp("noisy"), CLEAN, str(STOCK / "737"), noise="flight-test", seed=31)
 
 
-@pytest.mark.parametrize("function, scale, coefficient, variable", OWN_TERMS,
-                         ids=[f"{f.split('/')[-1]}x{s:g}" for f, s, *_ in OWN_TERMS])
-def test_stock_737_own_terms_changed_in_the_model_are_named(stock_737_noisy, tmp_path, function, scale,
-                                                            coefficient, variable):
+@pytest.mark.parametrize(
+    "function, scale, coefficient, variable", OWN_TERMS, ids=[f"{f.split('/')[-1]}x{s:g}" for f, s, *_ in OWN_TERMS]
+)
+def test_stock_737_own_terms_changed_in_the_model_are_named(
+    stock_737_noisy, tmp_path, function, scale, coefficient, variable
+):
     """The data are the stock 737's; the model is a copy with one of its own terms removed or scaled."""
     model = scaled_copy(STOCK / "737", tmp_path, function, scale)
     train, held = split(load_data(stock_737_noisy))
@@ -168,8 +192,22 @@ def test_diagnosis_json_says_no_discrepancy_with_the_largest_candidate(stock_737
     from html import escape
 
     from campaign.cli import main
-    assert main(["diagnose", "--data", str(stock_737_noisy), "--model", str(STOCK / "737"), "--out",
-                 str(tmp_path / "r"), "--no-plots"]) == 0
+
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(stock_737_noisy),
+                "--model",
+                str(STOCK / "737"),
+                "--out",
+                str(tmp_path / "r"),
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "r" / "diagnosis.json").read_text())
     assert doc["verdict"] == "no significant discrepancy" and doc["causes"] == [] and doc["extension"] is None
     assert doc["largest_rejected"]["candidate"] and doc["largest_rejected"]["reason"]
@@ -195,13 +233,19 @@ def test_a_drag_the_held_out_condition_alone_flies_is_told_though_no_cause_is_na
     Nothing is named (the fitted logs hold no discrepancy), and the held-out check tells the drag, in CD
     alone, with the held-out log and how many times the fitted logs' worst it leaves."""
     train, held = split(load_data(stock_737_noisy))
-    (alt, mach, flap), = {lg.condition for lg in held}
+    ((alt, mach, flap),) = {lg.condition for lg in held}
     fx = tmp_path / "held_only.xml"
-    fx.write_text(f'''<effects><axis name="DRAG"><function name="aero/coefficient/held-only">
+    fx.write_text(f"""<effects><axis name="DRAG"><function name="aero/coefficient/held-only">
   <product><property>aero/qbar-psf</property><property>metrics/Sw-sqft</property><value>{HELD_ONLY_DCD}</value>
-  </product></function></axis></effects>''')
-    data = run_matrix(tmp_path / "held", matrix_toml(pairs((flap, mach, alt)), "clean"), str(STOCK / "737"),
-                      str(fx), noise="flight-test", seed=31)
+  </product></function></axis></effects>""")
+    data = run_matrix(
+        tmp_path / "held",
+        matrix_toml(pairs((flap, mach, alt)), "clean"),
+        str(STOCK / "737"),
+        str(fx),
+        noise="flight-test",
+        seed=31,
+    )
     diag = diagnose(train, ModelEvaluator(STOCK / "737"), load_data(data))
     assert not [c.label for c in diag.causes if c.kind == "aero"], [c.label for c in diag.causes]
     check = diag.held_out_check
@@ -220,6 +264,7 @@ def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp
     from campaign.simulation.engine import new_fdm
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs, write_outputs
+
     ident = identify_logs(read_campaign(stock_737_clean))
     assert ident.arm_ft[1] == pytest.approx(64 / 12, abs=0.5)
     files = write_outputs(ident, tmp_path / "id", STOCK / "737", plots="none")
@@ -230,13 +275,23 @@ def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp
     for alpha, mach in ((a_lo + 1, m_lo + 0.05), (0.5 * (a_lo + a_hi), 0.5 * (m_lo + m_hi)), (a_hi - 1, m_hi - 0.05)):
         out = {}
         for g in (0.0, 1.0):
-            for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha, "gear/gear-cmd-norm": g,
-                         "gear/gear-pos-norm": g}.items():
+            for k, v in {
+                "ic/h-sl-ft": 5000.0,
+                "ic/mach": mach,
+                "ic/alpha-deg": alpha,
+                "gear/gear-cmd-norm": g,
+                "gear/gear-pos-norm": g,
+            }.items():
                 fdm[k] = v
             fdm.run_ic()
             qs = fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"]
-            out[g] = np.array([fdm["forces/fwz-aero-lbs"] / qs, fdm["forces/fwx-aero-lbs"] / qs,
-                               fdm["moments/m-aero-lbsft"] / (qs * fdm["metrics/cbarw-ft"])])
+            out[g] = np.array(
+                [
+                    fdm["forces/fwz-aero-lbs"] / qs,
+                    fdm["forces/fwx-aero-lbs"] / qs,
+                    fdm["moments/m-aero-lbsft"] / (qs * fdm["metrics/cbarw-ft"]),
+                ]
+            )
         got = out[1.0] - out[0.0]
         want = [surface(c, 1.0, alpha, mach, 0.0) - surface(c, 0.0, alpha, mach, 0.0) for c in ("CL", "CD", "Cm")]
         # 1e-6, not 1e-9: the stock 737's own induced drag answers the identified lift increment (3e-7)
@@ -249,8 +304,12 @@ def test_exported_gear_model_flies_the_identified_increments_about_a_high_aerorp
 def test_logs_the_model_cannot_be_set_to_are_one_line(tmp_path, capsys):
     """A320 logs at flap 15 against the stock 737, which has no flap angle: exit 2, one line, nothing written."""
     from campaign.cli import main
-    data = run_matrix(tmp_path, matrix_toml([("up", 15, 0.3, 5000), ("up", 0, 0.4, 5000)], "f",
-                                            "[maneuvers.doublet]\ntail_s = 2.0\n"), str(STOCK / "A320"))
+
+    data = run_matrix(
+        tmp_path,
+        matrix_toml([("up", 15, 0.3, 5000), ("up", 0, 0.4, 5000)], "f", "[maneuvers.doublet]\ntail_s = 2.0\n"),
+        str(STOCK / "A320"),
+    )
     assert main(["diagnose", "--data", str(data), "--model", str(STOCK / "737"), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "flap_deg" in err and "fcs/flap-pos-deg" in err
@@ -266,8 +325,11 @@ def test_models_whose_other_parts_read_what_the_evaluation_removes_load(name, tm
     an abort fails the test and not the suite."""
     import subprocess
     import sys
-    code = (f"from diagnose.evaluate import ModelEvaluator; ev = ModelEvaluator({str(STOCK / name)!r}); "
-            "print(ev.fdm['aero/constants/volume-ft3_2_3'] if 'aero/constants/volume-ft3_2_3' in ev.names else '')")
+
+    code = (
+        f"from diagnose.evaluate import ModelEvaluator; ev = ModelEvaluator({str(STOCK / name)!r}); "
+        "print(ev.fdm['aero/constants/volume-ft3_2_3'] if 'aero/constants/volume-ft3_2_3' in ev.names else '')"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 0, done.stderr[-800:]
     if name == "Submarine_Scout":  # the declared value, not 0
@@ -278,13 +340,43 @@ def test_a_model_jsbsim_cannot_run_is_one_line(stock_737_clean, tmp_path, capsys
     """The DR.I reads FlightGear's /sim tree, which JSBSim alone lacks: exit 2, one line naming the
     folder, nothing written (it was a traceback)."""
     from campaign.validation.support import one_line_error
-    one_line_error(capsys, ["diagnose", "--data", str(stock_737_clean), "--model", str(STOCK / "dr1"), "--out",
-                            str(tmp_path / "d"), "--quiet"], str(STOCK / "dr1"), "/sim/model/pushback")
+
+    one_line_error(
+        capsys,
+        [
+            "diagnose",
+            "--data",
+            str(stock_737_clean),
+            "--model",
+            str(STOCK / "dr1"),
+            "--out",
+            str(tmp_path / "d"),
+            "--quiet",
+        ],
+        str(STOCK / "dr1"),
+        "/sim/model/pushback",
+    )
     assert not (tmp_path / "d").exists()
     (tmp_path / "m.toml").write_text(matrix_toml([("up", 0, 0.3, 5000)], "m", SHORT))
-    one_line_error(capsys, ["run", "--aircraft", str(STOCK / "dr1"), "--effects", "none", "--matrix",
-                            str(tmp_path / "m.toml"), "--out", str(tmp_path / "r"), "--jobs", "1", "--quiet"],
-                   str(STOCK / "dr1"), "/sim/model/pushback")
+    one_line_error(
+        capsys,
+        [
+            "run",
+            "--aircraft",
+            str(STOCK / "dr1"),
+            "--effects",
+            "none",
+            "--matrix",
+            str(tmp_path / "m.toml"),
+            "--out",
+            str(tmp_path / "r"),
+            "--jobs",
+            "1",
+            "--quiet",
+        ],
+        str(STOCK / "dr1"),
+        "/sim/model/pushback",
+    )
     assert not (tmp_path / "r").exists()
 
 
@@ -294,13 +386,30 @@ def test_a_model_jsbsim_cannot_load_is_one_line_not_an_abort(stock_737_clean, tm
     import shutil
     import subprocess
     import sys
+
     model = tmp_path / "Short_S23"
     shutil.copytree(STOCK / "Short_S23", model)
     xml = model / "Short_S23.xml"
     xml.write_text(xml.read_text().replace('<system file="hydrodynamics"/>', '<system file="no-such-system"/>'))
-    done = subprocess.run([sys.executable, "-m", "campaign.cli", "diagnose", "--data", str(stock_737_clean),
-                           "--model", str(model), "--out", str(tmp_path / "d"), "--quiet"],
-                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "campaign.cli",
+            "diagnose",
+            "--data",
+            str(stock_737_clean),
+            "--model",
+            str(model),
+            "--out",
+            str(tmp_path / "d"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert done.returncode == 2, done.stderr[-800:]
     assert done.stderr.count("\n") == 1 and "could not load" in done.stderr, done.stderr
     assert not (tmp_path / "d").exists()
@@ -311,6 +420,7 @@ def test_an_evaluator_leaves_no_temporary_copy_closed_or_not(tmp_path, monkeypat
     fails half way (the DR.I: 170 folders had gathered in the temporary directory)."""
     import gc
     import tempfile
+
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     ev = ModelEvaluator(DEFAULT_AIRCRAFT)
     assert len(list(tmp_path.glob("gearid-eval-*"))) == 1
@@ -341,8 +451,7 @@ def test_a_lift_change_with_alpha_on_a_drag_polar_is_not_taken_for_a_vane_scale(
     # +0.027 in CL, rising with alpha (6 knots)
     doc = diagnose_overlay(tmp_path, "lift_alpha_table.xml", STOCK / "737", CLEAN, 3000073)
     aero = discrepancies(doc)
-    assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), \
-        doc["summary"]
+    assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
     assert not any(c["kind"] == "sensor" and "alpha_deg" in c["label"] for c in doc["causes"]), doc["summary"]
 
 
@@ -352,11 +461,13 @@ def test_a_vane_scale_in_turbulence_is_not_named_as_drag_against_lift(tmp_path):
     CL, which carries the lift the turbulence leaves in the residuals, named "CD vs CL" (13.7 times
     its floor, x5.2 held out): a false positive. Against the model's CL at the measured states there
     is no aerodynamic discrepancy, and the vane scale is named."""
-    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 3300011,
-                           channels="[channels.alpha_deg]\nscale = 1.0464977372778514\n")
+    doc = diagnose_overlay(
+        tmp_path, None, STOCK / "737", CLEAN, 3300011, channels="[channels.alpha_deg]\nscale = 1.0464977372778514\n"
+    )
     assert not discrepancies(doc), doc["summary"]
-    assert any(c["kind"] == "sensor" and (c["channel"], c["error"]) == ("alpha_deg", "scale")
-               for c in doc["causes"]), doc["summary"]
+    assert any(c["kind"] == "sensor" and (c["channel"], c["error"]) == ("alpha_deg", "scale") for c in doc["causes"]), (
+        doc["summary"]
+    )
 
 
 def test_a_vane_scale_the_kinematics_barely_measure_is_tried_and_no_aero_cause_is_named(tmp_path):
@@ -370,11 +481,13 @@ def test_a_vane_scale_the_kinematics_barely_measure_is_tried_and_no_aero_cause_i
     that remainder fits better than any aerodynamic term, in CL, CD and Cm together. CL and Cm
     each need 1.7 % more scale, CD 2.8 %, and the two that agree refine it to 7.4 %."""
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
-    doc = diagnose_overlay(tmp_path, None, STOCK / "A320", matrix, 4300078,
-                           channels="[channels.alpha_deg]\nscale = 0.9277996585127768\n")
+    doc = diagnose_overlay(
+        tmp_path, None, STOCK / "A320", matrix, 4300078, channels="[channels.alpha_deg]\nscale = 0.9277996585127768\n"
+    )
     assert not discrepancies(doc), doc["summary"]
-    assert any(c["kind"] == "sensor" and (c["channel"], c["error"]) == ("alpha_deg", "scale")
-               for c in doc["causes"]), doc["summary"]
+    assert any(c["kind"] == "sensor" and (c["channel"], c["error"]) == ("alpha_deg", "scale") for c in doc["causes"]), (
+        doc["summary"]
+    )
 
 
 def test_a_term_that_fits_worse_than_its_rival_once_the_others_are_in_is_swapped(tmp_path):
@@ -411,8 +524,15 @@ def test_a_vane_scale_refined_beside_a_bias_the_residuals_chose_chooses_the_bias
     the CL residual chose the bias, which at the trim alphas stands in for the scale. CL and Cm each needed
     +4.7 % more scale, and "CL vs alpha" and "Cm vs alpha" were named. The scale is refined, the bias chosen
     beside it again (and is not), and nothing is named."""
-    doc = diagnose_overlay(tmp_path, None, DEFAULT_AIRCRAFT, DIAG_MATRIX, 6700233, sigma_fps=3.0,
-                           channels="[channels.alpha_deg]\nscale = 1.0483436456550328\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        DEFAULT_AIRCRAFT,
+        DIAG_MATRIX,
+        6700233,
+        sigma_fps=3.0,
+        channels="[channels.alpha_deg]\nscale = 1.0483436456550328\n",
+    )
     assert not discrepancies(doc), doc["summary"]
     alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
     assert alpha["scale"]["applied"] and alpha["scale"]["estimate"] == pytest.approx(0.048, abs=0.005), alpha
@@ -428,8 +548,9 @@ def test_a_vane_correction_that_grows_another_coefficients_residual_about_its_me
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
     doc = diagnose_overlay(tmp_path, "lift_alpha_table_mach.xml", STOCK / "A320", matrix, 7100074, sigma_fps=1.5)
     aero = discrepancies(doc)
-    assert aero and aero[0]["coefficient"] == "CL" and set(aero[0]["variables"][:2]) == {"alpha_deg", "mach"}, \
-        doc["summary"]
+    assert aero and aero[0]["coefficient"] == "CL" and set(aero[0]["variables"][:2]) == {"alpha_deg", "mach"}, doc[
+        "summary"
+    ]
     alpha = {p["error"]: p for p in doc["data_compatibility"]["parameters"] if p["channel"] == "alpha_deg"}
     assert not alpha["scale"]["applied"], alpha
 
@@ -442,8 +563,9 @@ def test_a_cause_whose_terms_in_cl_give_way_gives_way_whole_to_one_state(tmp_pat
     state: the drag is named in alpha and gear."""
     doc = diagnose_overlay(tmp_path, "drag_dip_gear_alpha.xml", STOCK / "737", CLEAN, 7100139, sigma_fps=3.0)
     aero = discrepancies(doc)
-    assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][:2] == ["alpha_deg", "gear_norm"], \
-        doc["summary"]
+    assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][:2] == ["alpha_deg", "gear_norm"], doc[
+        "summary"
+    ]
     assert not [c for c in aero[1:] if c["coefficient"] == "CD"], doc["summary"]
 
 
@@ -454,12 +576,18 @@ def test_a_vane_delay_the_residuals_cannot_time_from_none_is_timed_from_the_kine
     it came out at -371 ms and was not applied, and "CL vs adothat", 68 times its floor, was the first
     discrepancy. The kinematics' estimate, judged by the residuals, is applied and refined; the delay and
     the gear effect are named."""
-    doc = diagnose_overlay(tmp_path, "lift_gear_ramp_mach.xml", STOCK / "737", CLEAN, 5200118, sigma_fps=1.5,
-                           channels="[channels.alpha_deg]\ndelay_s = 0.08176788487125207\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        "lift_gear_ramp_mach.xml",
+        STOCK / "737",
+        CLEAN,
+        5200118,
+        sigma_fps=1.5,
+        channels="[channels.alpha_deg]\ndelay_s = 0.08176788487125207\n",
+    )
     aero = discrepancies(doc)
-    assert aero and aero[0]["coefficient"] == "CL" and aero[0]["variables"][:2] == ["gear_norm", "mach"], \
-        doc["summary"]
-    delay, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
+    assert aero and aero[0]["coefficient"] == "CL" and aero[0]["variables"][:2] == ["gear_norm", "mach"], doc["summary"]
+    (delay,) = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
     assert delay["error"] == "delay" and delay["estimate"] == pytest.approx(0.082, abs=0.01)
 
 
@@ -468,8 +596,15 @@ def test_a_gear_step_times_mach_is_named_by_both_when_they_fit_3_standard_errors
     engine deck 7.4 % short (seed 5,100,139 of the detection curve. The
     search took gear x CL first; gear x Mach fitted 4.4 standard errors better in its place, short of the
     5 that settle a rival, and "CD vs gear_norm, CL" was named. The better-fitting of the two is named."""
-    doc = diagnose_overlay(tmp_path, "drag_gear_step_mach.xml", STOCK / "737", CLEAN, 5100139, sigma_fps=3.0,
-                           channels="[channels.thrust_lbf]\nscale = 0.9257495745743786\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        "drag_gear_step_mach.xml",
+        STOCK / "737",
+        CLEAN,
+        5100139,
+        sigma_fps=3.0,
+        channels="[channels.thrust_lbf]\nscale = 0.9257495745743786\n",
+    )
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "CD", doc["summary"]
     assert aero[0]["variables"][0] == "gear_norm" and "mach" in aero[0]["variables"], doc["summary"]
@@ -494,8 +629,15 @@ def test_a_rival_of_a_term_refined_with_the_tails_knots_is_refined_alike(tmp_pat
     smooth(alpha)'s 1,382) and is refined with the tails' knots (F 3,404). Its rivals were taken
     within half of the refined F, so smooth(alpha) was none, and "Cm vs CL" was named. Rivals are those
     within half of the term as it entered, and refined alike: smooth(alpha) fits better and is named."""
-    doc = diagnose_overlay(tmp_path, "moment_alpha_table_refined.xml", STOCK / "737", CLEAN, 2000229, sigma_fps=1.5,
-                           channels="[channels.ax_fps2]\nbias = 0.05814900987858641\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        "moment_alpha_table_refined.xml",
+        STOCK / "737",
+        CLEAN,
+        2000229,
+        sigma_fps=1.5,
+        channels="[channels.ax_fps2]\nbias = 0.05814900987858641\n",
+    )
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "Cm" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
 
@@ -506,10 +648,17 @@ def test_a_vane_bias_corrected_too_far_that_only_drag_shows_is_refined_with_lift
     Only CD's causes show the remainder (CL takes it up in its intercept), and "CD vs alpha", 5.7 times its
     floor, was named. CD alone may adjust the correction the kinematics made; CL's residual RMS, several times
     smaller with it, is the second witness: the bias is refined to the truth and no aero cause is named."""
-    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 5000150, sigma_fps=1.5,
-                           channels="[channels.alpha_deg]\nbias = -0.5097957664146526\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        STOCK / "737",
+        CLEAN,
+        5000150,
+        sigma_fps=1.5,
+        channels="[channels.alpha_deg]\nbias = -0.5097957664146526\n",
+    )
     assert not discrepancies(doc), doc["summary"]
-    bias, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
+    (bias,) = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
     assert bias["error"] == "bias" and bias["estimate"] == pytest.approx(-0.51, abs=0.03)
     assert "residuals of CD need it" in bias["evidence"]["chosen_because"]
     assert "CL's residual RMS" in bias["evidence"]["chosen_because"]
@@ -523,11 +672,23 @@ def test_a_vane_bias_measured_too_few_standard_errors_to_correct_is_what_makes_t
     drag needs was 2.6 standard errors away, and "CD vs alpha, mach", 3 times its floor, was named.
     Centred where the logs hold the error as measured, it is 0.1 standard error away; and an error the
     kinematics measured, at the size the residual needs, is that error, not a discrepancy of the model."""
-    doc = diagnose_overlay(tmp_path, None, STOCK / "737", CLEAN, 5800160, sigma_fps=3.0,
-                           channels="[channels.alpha_deg]\nbias = 0.2654075794186915\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        STOCK / "737",
+        CLEAN,
+        5800160,
+        sigma_fps=3.0,
+        channels="[channels.alpha_deg]\nbias = 0.2654075794186915\n",
+    )
     assert not discrepancies(doc), doc["summary"]
-    alts = [a for c in doc["rejected"] if c["kind"] == "aero" and c["coefficient"] == "CD"
-            for a in c["evidence"].get("sensor_alternatives", []) if (a["channel"], a["error"]) == ("alpha_deg", "bias")]
+    alts = [
+        a
+        for c in doc["rejected"]
+        if c["kind"] == "aero" and c["coefficient"] == "CD"
+        for a in c["evidence"].get("sensor_alternatives", [])
+        if (a["channel"], a["error"]) == ("alpha_deg", "bias")
+    ]
     assert alts and abs(alts[0]["needs_se"]) < 1.0 and alts[0]["left"] == pytest.approx(0.265, abs=0.05), doc["summary"]
     assert "left it uncorrected" in doc["summary"]
 
@@ -539,10 +700,17 @@ def test_a_vane_scale_all_three_coefficients_put_past_the_kinematics_3_5_standar
     the 3.5 that two coefficients may refine. "Cm vs alpha", 40 times its floor, was named. Three that
     agree may refine it within 5.3: the scale is named, refined to the residuals' 4.0 %, and no aero cause."""
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
-    doc = diagnose_overlay(tmp_path, None, STOCK / "A320", matrix, 4100188, sigma_fps=3.0,
-                           channels="[channels.alpha_deg]\nscale = 1.0423181173545495\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        STOCK / "A320",
+        matrix,
+        4100188,
+        sigma_fps=3.0,
+        channels="[channels.alpha_deg]\nscale = 1.0423181173545495\n",
+    )
     assert not discrepancies(doc), doc["summary"]
-    scale, = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
+    (scale,) = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "alpha_deg"]
     assert scale["error"] == "scale" and scale["estimate"] == pytest.approx(0.0423, abs=0.005)
 
 
@@ -553,8 +721,15 @@ def test_a_term_standing_in_for_an_instrument_error_and_an_effect_is_replaced_by
     second, and "CD vs gear_norm, elevator" was named. In its place, the thrust signature fits better
     with fewer columns: the thrust scale and the drag table in alpha are named."""
     matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000)), "a320")
-    doc = diagnose_overlay(tmp_path, "drag_alpha_table_a320.xml", STOCK / "A320", matrix, 2000177, sigma_fps=1.5,
-                           channels="[channels.thrust_lbf]\nscale = 1.0405241539667454\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        "drag_alpha_table_a320.xml",
+        STOCK / "A320",
+        matrix,
+        2000177,
+        sigma_fps=1.5,
+        channels="[channels.thrust_lbf]\nscale = 1.0405241539667454\n",
+    )
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "alpha_deg", doc["summary"]
     scale = [c for c in doc["causes"] if c["kind"] == "sensor" and c["channel"] == "thrust_lbf"]
@@ -607,7 +782,8 @@ def test_a_stock_aircraft_without_a_point_mass_replays_its_own_logs(tmp_path):
     from campaign.diagnosis.run import replay
     from campaign.simulation.engine import TrimError, trimmed_fdm
     from diagnose.gain import replay_errors
-    text = matrix_toml([("up", 0, 0.3, 5000)], "a320", '[maneuvers.doublet]\ntail_s = 2.0\n')
+
+    text = matrix_toml([("up", 0, 0.3, 5000)], "a320", "[maneuvers.doublet]\ntail_s = 2.0\n")
     source = AircraftSource(str(STOCK / "A320"), load_effects(None))
     log = next(lg for lg in load_data(run_matrix(tmp_path, text, source.folder)) if lg.maneuver == "doublet")
     flown = replay(log, source)

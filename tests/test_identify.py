@@ -1,5 +1,6 @@
 """Identification against known truths: the model's XML, JSBSim's own forces,
 the stock 737, the reference overlay (read here, never by identify/)."""
+
 import fcntl
 import json
 import os
@@ -33,8 +34,7 @@ def _campaign(tmp_path_factory, name, text, aircraft=str(DEFAULT_AIRCRAFT), effe
     folder = tmp_path_factory.mktemp(name)
     (folder / "m.toml").write_text(text)
     m = load_matrix(folder / "m.toml")
-    cfg = FlightConfig(AircraftSource(aircraft, load_effects(effects)), seed, noise, m.maneuver_params,
-                       m.clmax_by_flap)
+    cfg = FlightConfig(AircraftSource(aircraft, load_effects(effects)), seed, noise, m.maneuver_params, m.clmax_by_flap)
     run_campaign(m, cfg, folder / "out", jobs=2, progress=False)
     return folder / "out"
 
@@ -46,6 +46,7 @@ def bare(tmp_path_factory):
 
 def test_eq1_cm_matches_jsbsim_moment(matrix):
     from tests.conftest import config_for
+
     f = fly(matrix.point("h05000_m0.40_f05_gdn"), "doublet", config_for(record_truth=True))
     c = coefficients(f.log, f.meta)
     qsc = f.log.qbar_psf * 1341.0 * 155.81 / 12
@@ -62,15 +63,26 @@ def test_eq1_drag_in_sideslip_matches_jsbsim_wind_axis_drag(tmp_path):
     (tmp_path / "m.toml").write_text(matrix_toml([("down", 15, 0.3, 5000)], "a320"))
     (tmp_path / "turbulent.toml").write_text("[turbulence]\nsigma_fps = 3.0\n")
     m = load_matrix(tmp_path / "m.toml")
-    cfg = FlightConfig(AircraftSource(a320, load_effects(None)), 9_404_310, str(tmp_path / "turbulent.toml"),
-                       m.maneuver_params, m.clmax_by_flap, record_truth=True)
+    cfg = FlightConfig(
+        AircraftSource(a320, load_effects(None)),
+        9_404_310,
+        str(tmp_path / "turbulent.toml"),
+        m.maneuver_params,
+        m.clmax_by_flap,
+        record_truth=True,
+    )
     f = fly(m.points[0], "doublet", cfg)
     c = coefficients(f.log, f.meta)
     qs = f.log.qbar_psf * f.meta["geometry"]["S_ft2"]
     drag = f.log.truth_fwx_aero_lbf / qs  # JSBSim holds the drag positive
     assert np.max(np.abs(c.CD - drag)) < 1e-9
-    body = -(f.log.truth_fx_aero_lbf * np.cos(f.log.alpha_deg * D2R)
-             + f.log.truth_fz_aero_lbf * np.sin(f.log.alpha_deg * D2R)) / qs
+    body = (
+        -(
+            f.log.truth_fx_aero_lbf * np.cos(f.log.alpha_deg * D2R)
+            + f.log.truth_fz_aero_lbf * np.sin(f.log.alpha_deg * D2R)
+        )
+        / qs
+    )
     assert np.abs(f.log.beta_deg).max() > 0.5 and np.mean(drag - body) > 3e-4  # eq. (1b) alone is off here
 
 
@@ -158,10 +170,18 @@ def reference_gear_down(tmp_path_factory):
     down = [p for p in m.points if p.gear_down]
     conds = {(p.alt_ft, p.mach, p.flap_deg) for p in down}
     pts = down + [p for p in m.points if not p.gear_down and (p.alt_ft, p.mach, p.flap_deg) in conds]
-    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)), 0, "none",
-                       m.maneuver_params, m.clmax_by_flap)
-    folder = _flown_once(tmp_path_factory, "reference_gear_down",
-                         lambda out: run_campaign(m, cfg, out, jobs=2, progress=False, points=pts))
+    cfg = FlightConfig(
+        AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(DEFAULT_EFFECTS)),
+        0,
+        "none",
+        m.maneuver_params,
+        m.clmax_by_flap,
+    )
+    folder = _flown_once(
+        tmp_path_factory,
+        "reference_gear_down",
+        lambda out: run_campaign(m, cfg, out, jobs=2, progress=False, points=pts),
+    )
     logs = read_campaign(folder)
     return folder, logs, identify_logs(logs)
 
@@ -185,6 +205,7 @@ def test_identification_streams_from_log_heads_to_the_same_answer(reference_gear
     the fits keep their series only for the points asked, and the increments only the gear's travel."""
     from identify.logs import LogHead, read_heads
     from identify.pipeline import write_outputs
+
     folder, logs, ident = reference_gear_down
     heads = read_heads(folder)
     assert all(isinstance(h, LogHead) for h in heads) and [h.path for h in heads] == [lg.path for lg in logs]
@@ -198,8 +219,15 @@ def test_identification_streams_from_log_heads_to_the_same_answer(reference_gear
         assert not inc.raw and np.all((inc.gear_norm > 0) & (inc.gear_norm < 1))
     for name, result in (("held", ident), ("streamed", streamed)):
         write_outputs(result, tmp_path / name, None, plots="none")
-    for f in ("identification.json", "baseline_parameters.csv", "baseline_fit_statistics.csv",
-              "linear_gear_model.csv", "gear_increments.csv", "summary.txt", "gear_nonlinear.xml"):
+    for f in (
+        "identification.json",
+        "baseline_parameters.csv",
+        "baseline_fit_statistics.csv",
+        "linear_gear_model.csv",
+        "gear_increments.csv",
+        "summary.txt",
+        "gear_nonlinear.xml",
+    ):
         assert (tmp_path / "held" / f).read_bytes() == (tmp_path / "streamed" / f).read_bytes(), f
 
 
@@ -208,6 +236,7 @@ def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tm
     JSBSim, gives the identified increments at states inside the tables."""
     folder, logs, ident = reference_gear_down
     from identify.pipeline import write_outputs
+
     files = write_outputs(ident, tmp_path / "id", DEFAULT_AIRCRAFT, plots="none")
     for kind, surface in (("linear", ident.linear_surface), ("nonlinear", ident.nonlinear_surface)):
         src = AircraftSource(files[f"aircraft_{kind}"], load_effects(None))
@@ -220,14 +249,24 @@ def test_exported_xml_flies_exactly_the_identified_model(reference_gear_down, tm
             states = {}
             for g in (0.0, gear):
                 theta = 2 / np.pi * np.arcsin(g)
-                for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": mach, "ic/alpha-deg": alpha,
-                             "gear/gear-cmd-norm": theta, "gear/theta-lg-norm": theta,
-                             "fcs/flap-cmd-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8,
-                             "fcs/flap-pos-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8}.items():
+                for k, v in {
+                    "ic/h-sl-ft": 5000.0,
+                    "ic/mach": mach,
+                    "ic/alpha-deg": alpha,
+                    "gear/gear-cmd-norm": theta,
+                    "gear/theta-lg-norm": theta,
+                    "fcs/flap-cmd-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8,
+                    "fcs/flap-pos-norm": [0, 1, 2, 5, 10, 15, 25, 30, 40].index(flap) / 8,
+                }.items():
                     fdm[k] = v
                 fdm.run_ic()
-                states[g] = (fdm["forces/fwz-aero-lbs"], fdm["forces/fwx-aero-lbs"], fdm["moments/m-aero-lbsft"],
-                             fdm["aero/qbar-psf"] * 1341.0, fdm["aero/alpha-deg"])
+                states[g] = (
+                    fdm["forces/fwz-aero-lbs"],
+                    fdm["forces/fwx-aero-lbs"],
+                    fdm["moments/m-aero-lbsft"],
+                    fdm["aero/qbar-psf"] * 1341.0,
+                    fdm["aero/alpha-deg"],
+                )
             (l1, d1, m1, qs, a1), (l0, d0, m0, *_) = states[gear], states[0.0]
             want = {c: surface(c, gear, a1, mach, flap) - surface(c, 0.0, a1, mach, flap) for c in ("CL", "CD", "Cm")}
             assert (l1 - l0) / qs == pytest.approx(want["CL"], abs=1e-9)
@@ -239,10 +278,18 @@ def test_identify_cli_writes_tables_json_xml_plots(reference_gear_down, capsys, 
     folder, _, _ = reference_gear_down
     out = tmp_path / "id"
     assert main(["identify", str(folder), "--out", str(out)]) == 0
-    for name in ("baseline_parameters.csv", "baseline_fit_statistics.csv", "linear_gear_model.csv",
-                 "gear_increments.csv", "summary.txt", "gear_linear.xml", "gear_nonlinear.xml",
-                 "plots/gear_increments.png", "plots/alpha_during_gear_transitions.png",
-                 "plots/fit_h02000_m0.30_f00_gup.png"):
+    for name in (
+        "baseline_parameters.csv",
+        "baseline_fit_statistics.csv",
+        "linear_gear_model.csv",
+        "gear_increments.csv",
+        "summary.txt",
+        "gear_linear.xml",
+        "gear_nonlinear.xml",
+        "plots/gear_increments.png",
+        "plots/alpha_during_gear_transitions.png",
+        "plots/fit_h02000_m0.30_f00_gup.png",
+    ):
         assert (out / name).stat().st_size > 0, name
     doc = json.loads((out / "identification.json").read_text())
     pt = doc["points"]["h02000_m0.30_f00_gdn"]
@@ -282,36 +329,57 @@ def test_csv_logs_with_sidecar_and_their_errors(reference_gear_down, tmp_path):
 
 
 def test_identify_never_imports_the_flying_code():
-    code = ("import sys, identify.pipeline, identify.plots, diagnose.diagnosis, diagnose.extension, "
-            "infra.model, identify.kinematics, diagnose.residuals, diagnose.noise_floor, "
-            "diagnose.plots, diagnose.evaluate; "
-            "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
-            "assert not bad, bad")
+    code = (
+        "import sys, identify.pipeline, identify.plots, diagnose.diagnosis, diagnose.extension, "
+        "infra.model, identify.kinematics, diagnose.residuals, diagnose.noise_floor, "
+        "diagnose.plots, diagnose.evaluate; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('campaign', 'maneuvers', 'jsbsim')]; "
+        "assert not bad, bad"
+    )
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
 def _fit_args(scale, n):
     from types import SimpleNamespace
+
     t = np.linspace(0.0, n / 10.0, n)
-    fits = {c: SimpleNamespace(fitted=scale * np.sin(t + i), y=scale * np.sin(t + i) + 0.01 * np.cos(9 * t),
-                               resid=0.01 * scale * np.cos(9 * t), resid_max=0.01 * scale, resid_rms=0.007 * scale,
-                               rsquared=0.999) for i, c in enumerate(("CL", "CD", "Cm"))}
+    fits = {
+        c: SimpleNamespace(
+            fitted=scale * np.sin(t + i),
+            y=scale * np.sin(t + i) + 0.01 * np.cos(9 * t),
+            resid=0.01 * scale * np.cos(9 * t),
+            resid_max=0.01 * scale,
+            resid_rms=0.007 * scale,
+            rsquared=0.999,
+        )
+        for i, c in enumerate(("CL", "CD", "Cm"))
+    }
     return (SimpleNamespace(fits=fits, point=f"p{n}", gear_down=n > 100), t)
 
 
 def _history_args(scale, n):
     import pandas as pd
+
     t = np.linspace(0.0, n / 10.0, n)
-    frame = pd.DataFrame({"t_s": t, **{f"r_{c}": scale * np.sin(t * (i + 1))
-                                       for i, c in enumerate(("CL", "CD", "Cm"))}})
+    frame = pd.DataFrame(
+        {"t_s": t, **{f"r_{c}": scale * np.sin(t * (i + 1)) for i, c in enumerate(("CL", "CD", "Cm"))}}
+    )
     return (frame, frame * 0.5 if n > 100 else None, f"held out {n}")
 
 
 def _response_args(scale, n):
     import pandas as pd
+
     t = np.linspace(0.0, n / 10.0, n)
-    frame = pd.DataFrame({"t_s": t, **{c: 100.0 * i + scale * np.sin(t) for i, c in
-                                        enumerate(("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft"))}})
+    frame = pd.DataFrame(
+        {
+            "t_s": t,
+            **{
+                c: 100.0 * i + scale * np.sin(t)
+                for i, c in enumerate(("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft"))
+            },
+        }
+    )
     return (frame, frame * 1.01, None if n > 100 else frame * 0.99, f"response {n}")
 
 
@@ -324,11 +392,12 @@ def test_a_figure_drawn_on_reused_axes_equals_a_new_one(tmp_path, kind):
     from diagnose import plots as dp
     from identify import plots as ip
     from identify.figures import emptied_axes
-    plot, size, layout, make = {"fit": (ip.plot_fit, ip.FIT_SIZE, ip.fit_axes, _fit_args),
-                                "residual_history": (dp.plot_residual_history, dp.HISTORY_SIZE, dp.history_axes,
-                                                     _history_args),
-                                "response": (dp.plot_response, dp.RESPONSE_SIZE, dp.response_axes,
-                                             _response_args)}[kind]
+
+    plot, size, layout, make = {
+        "fit": (ip.plot_fit, ip.FIT_SIZE, ip.fit_axes, _fit_args),
+        "residual_history": (dp.plot_residual_history, dp.HISTORY_SIZE, dp.history_axes, _history_args),
+        "response": (dp.plot_response, dp.RESPONSE_SIZE, dp.response_axes, _response_args),
+    }[kind]
     for i, args in enumerate((make(50.0, 300), make(0.2, 40))):
         plot(*args, axes=emptied_axes(f"test_{kind}", size, layout)).savefig(tmp_path / f"reused{i}.png", dpi=90)
         fig = plot(*args)
@@ -344,13 +413,14 @@ def test_lowpass_is_scipys_filtfilt_to_the_bit(shape):
 
     from identify.kinematics import ANCHOR_S, odd_extension
     from identify.models import CUTOFF_HZ, lowpass
+
     x = np.random.default_rng(len(shape)).standard_normal(shape).cumsum(axis=0)
     for dt in (0.02, 1 / 120):
         b, a = butter(4, CUTOFF_HZ * 2.0 * dt)
         pad = min(len(x) - 1, 3 * max(len(a), len(b)) * 20)
         for layout in (x, np.asfortranarray(x)):  # the last bits depend on the memory layout, in scipy's too
             ext = odd_extension(layout, pad, int(round(ANCHOR_S / dt)))
-            assert np.array_equal(lowpass(layout, dt), filtfilt(b, a, ext, axis=0, padtype=None)[pad:pad + len(x)])
+            assert np.array_equal(lowpass(layout, dt), filtfilt(b, a, ext, axis=0, padtype=None)[pad : pad + len(x)])
 
 
 @pytest.mark.parametrize("n", [0, 1, 5])
@@ -363,15 +433,32 @@ def test_outputs_written_piece_by_piece_equal_the_whole_to_the_byte(tmp_path, n)
     import pandas as pd
 
     from identify.pipeline import _LATER, _csv_in_chunks, _dump_streaming
-    points = [(f"p{i}", {"gear": "up", "CL": {"params": {"const": 0.1 * i, "q": float("nan")}, "nobs": i,
-                                                "unexcited": {}}, "list": [1.5, i]}) for i in range(n)]
-    doc = {"points": dict(points), "linear": {"a": [1, 2]}, "increments": dict(points[:2]), "notes": ["x\ny"],
-           "files": {}}
+
+    points = [
+        (
+            f"p{i}",
+            {
+                "gear": "up",
+                "CL": {"params": {"const": 0.1 * i, "q": float("nan")}, "nobs": i, "unexcited": {}},
+                "list": [1.5, i],
+            },
+        )
+        for i in range(n)
+    ]
+    doc = {
+        "points": dict(points),
+        "linear": {"a": [1, 2]},
+        "increments": dict(points[:2]),
+        "notes": ["x\ny"],
+        "files": {},
+    }
     f = io.StringIO()
     _dump_streaming({**doc, "points": _LATER[0], "increments": _LATER[1]}, [iter(points), iter(points[:2])], f)
     assert f.getvalue() == json.dumps(doc, indent=1, default=float) + "\n"
-    rows = [{"point": f"p{i}", "estimate": 0.1 * i if i % 2 else float("nan"), "ok": i % 2 == 1, "note": ""}
-            for i in range(n * 3)]
+    rows = [
+        {"point": f"p{i}", "estimate": 0.1 * i if i % 2 else float("nan"), "ok": i % 2 == 1, "note": ""}
+        for i in range(n * 3)
+    ]
     pd.DataFrame(rows).to_csv(tmp_path / "b.csv", index=False)
     for chunk in (1, 2, 4096):  # a chunk of one row has columns all NaN, all False: the same text
         _csv_in_chunks(tmp_path / "a.csv", iter(rows), chunk=chunk)
@@ -382,9 +469,18 @@ def _curves(rng, n, grid, sd_shift=0.002, sd_node=0.001):
     """Curves of a known eq. (9) surface, CL = (0.01 + 0.002 alpha) g^2, each condition with a random
     offset along the curve and noise at every node."""
     alpha, mach = rng.uniform(2, 8, n), rng.uniform(0.2, 0.5, n)
-    return [((5000, m, 5), a, grid, {c: (0.01 + 0.002 * a) * grid ** 2 + rng.normal(0, sd_shift) * grid
-                                     + rng.normal(0, sd_node, len(grid)) for c in ("CL", "CD", "Cm")})
-            for a, m in zip(alpha, mach)]
+    return [
+        (
+            (5000, m, 5),
+            a,
+            grid,
+            {
+                c: (0.01 + 0.002 * a) * grid**2 + rng.normal(0, sd_shift) * grid + rng.normal(0, sd_node, len(grid))
+                for c in ("CL", "CD", "Cm")
+            },
+        )
+        for a, m in zip(alpha, mach)
+    ]
 
 
 def test_gear_surface_draws_cover_the_true_surface_95pct_of_the_time():
@@ -392,6 +488,7 @@ def test_gear_surface_draws_cover_the_true_surface_95pct_of_the_time():
     of 300 draws holds the true coefficients 95 % of the time (not 70 %: draws too narrow; not
     100 %: too wide), and the draws' spread is the standard error the surface reports."""
     from identify.models import fit_surface
+
     rng = np.random.default_rng(7)
     grid = np.linspace(0.0, 1.0, 11)
     inside, ratio = [], []
@@ -410,6 +507,7 @@ def test_gear_surface_draws_cover_the_true_surface_95pct_of_the_time():
 
 def test_gear_surface_round_trips_through_json_and_falls_back_on_the_curves_errors():
     from identify.models import GearSurface, fit_surface
+
     rng = np.random.default_rng(3)
     grid = np.linspace(0.0, 1.0, 11)
     s = fit_surface(_curves(rng, 5, grid))
@@ -417,8 +515,9 @@ def test_gear_surface_round_trips_through_json_and_falls_back_on_the_curves_erro
     for k in s.coef:
         assert np.array_equal(back.coef[k], s.coef[k]) and np.array_equal(back.basis[k], s.basis[k])
         assert back.dof[k] == s.dof[k] and back.designs[k] == s.designs[k]
-    assert np.array_equal(back.draw(np.random.default_rng(1)).coef[(5, "CD")],
-                          s.draw(np.random.default_rng(1)).coef[(5, "CD")])
+    assert np.array_equal(
+        back.draw(np.random.default_rng(1)).coef[(5, "CD")], s.draw(np.random.default_rng(1)).coef[(5, "CD")]
+    )
     # one condition: no scatter to learn from, so the curve's own standard error is the band
     one = _curves(rng, 1, grid)[0]
     single = fit_surface([(*one, {c: np.full(len(grid), 0.004) for c in ("CL", "CD", "Cm")})])
@@ -432,6 +531,7 @@ def test_identification_writes_the_surfaces_with_their_covariance(reference_gear
     uncertainty (nonzero standard errors away from gear up)."""
     from identify.models import GearSurface
     from identify.pipeline import write_outputs
+
     out = tmp_path / "id"
     write_outputs(reference_gear_down[2], out, None, plots="none")
     doc = json.loads((out / "gear_surfaces.json").read_text())

@@ -5,6 +5,7 @@ What the instrumentation records is checked against the flight JSBSim flew
 rate, omitted channels and noise; turbulence against its own definition and
 against the wind JSBSim reports; bad profiles give one line and write nothing.
 """
+
 import json
 
 import numpy as np
@@ -46,8 +47,13 @@ def truth():
 def test_sensors_see_the_flight_where_they_sit(truth, tmp_path):
     """A vane 62 ft ahead reads atan((w - q x)/u); an accelerometer there adds -qdot x + p r x to az;
     lag, delay, scale and bias act as written; the recording leaves the flight alone."""
-    boom = _fly(_profile(tmp_path, "[channels.alpha_deg]\nposition_ft = [62.0, 0.0, 0.0]\n"
-                                   "[channels.az_fps2]\nposition_ft = [62.0, 0.0, 0.0]\n"))
+    boom = _fly(
+        _profile(
+            tmp_path,
+            "[channels.alpha_deg]\nposition_ft = [62.0, 0.0, 0.0]\n"
+            "[channels.az_fps2]\nposition_ft = [62.0, 0.0, 0.0]\n",
+        )
+    )
     t, log = truth.log, boom.log
     assert np.array_equal(t.theta_deg, log.theta_deg) and np.array_equal(t.q_dps, log.q_dps)
     v = t.tas_kt * 1.6878098571011957
@@ -62,16 +68,21 @@ def test_sensors_see_the_flight_where_they_sit(truth, tmp_path):
     assert np.abs(log.az_fps2 - want_az).max() < 1e-3
     assert np.abs(log.az_fps2 - t.az_fps2).max() > 0.5
 
-    p = _profile(tmp_path, "[channels.theta_deg]\nlag_s = 0.4\n[channels.q_dps]\ndelay_s = 0.1\n"
-                           "[channels.alpha_deg]\nscale = 1.05\nbias = 0.5\n", "e.toml")
+    p = _profile(
+        tmp_path,
+        "[channels.theta_deg]\nlag_s = 0.4\n[channels.q_dps]\ndelay_s = 0.1\n"
+        "[channels.alpha_deg]\nscale = 1.05\nbias = 0.5\n",
+        "e.toml",
+    )
     rec = record(t, None, p, DT_S, np.random.default_rng(0))
     x, y = t.theta_deg.to_numpy(), rec.theta_deg.to_numpy()
     ode = 0.4 * np.gradient(y, DT_S) + y - x  # tau dy/dt + y = x
     assert np.abs(ode[5:-5]).max() < 2e-3 * np.ptp(x) and np.abs(y - x).max() > 0.05
     assert np.allclose(rec.q_dps, np.interp(t.t_s - 0.1, t.t_s, t.q_dps), atol=1e-12)
     assert np.allclose(rec.alpha_deg, 1.05 * t.alpha_deg + 0.5, atol=1e-12)
-    assert rec.drop(columns=["theta_deg", "q_dps", "alpha_deg"]).equals(t.drop(columns=["theta_deg", "q_dps",
-                                                                                        "alpha_deg"]))
+    assert rec.drop(columns=["theta_deg", "q_dps", "alpha_deg"]).equals(
+        t.drop(columns=["theta_deg", "q_dps", "alpha_deg"])
+    )
 
 
 def test_rate_omit_and_noise(truth, tmp_path):
@@ -106,19 +117,21 @@ def test_a_user_profile_extends_a_shipped_one(tmp_path):
     assert _profile(tmp_path, 'extends = "flight-test"\n', "q.toml").sha256 == base.sha256  # what it does, not its name
 
 
-BAD = [("colour = 3\n", "colour"),
-       ("[channels.alpha_vane]\nnoise = 0.1\n", "channels.alpha_vane"),
-       ("[channels.alpha_deg]\nnoise = -0.1\n", "channels.alpha_deg.noise"),
-       ("[channels.alpha_deg]\nnoise = 'high'\n", "channels.alpha_deg.noise"),
-       ("[channels.alpha_deg]\nposition_ft = [62, 0]\n", "channels.alpha_deg.position_ft"),
-       ("[channels.q_dps]\nposition_ft = [1, 0, 0]\n", "channels.q_dps.position_ft"),
-       ("[channels.alpha_deg]\nlag = 0.1\n", "channels.alpha_deg.lag"),
-       ('omit = ["alpha_deg"]\n', "omit"),
-       ('extends = "wind-tunnel"\n', "extends"),
-       ("rate_hz = 0\n", "rate_hz"),
-       ("[turbulence]\nsigma_fps = -1\n", "turbulence.sigma_fps"),
-       ("[turbulence]\nseverity = 3\n", "turbulence.severity"),
-       ("rate_hz = = 50\n", "does not parse")]
+BAD = [
+    ("colour = 3\n", "colour"),
+    ("[channels.alpha_vane]\nnoise = 0.1\n", "channels.alpha_vane"),
+    ("[channels.alpha_deg]\nnoise = -0.1\n", "channels.alpha_deg.noise"),
+    ("[channels.alpha_deg]\nnoise = 'high'\n", "channels.alpha_deg.noise"),
+    ("[channels.alpha_deg]\nposition_ft = [62, 0]\n", "channels.alpha_deg.position_ft"),
+    ("[channels.q_dps]\nposition_ft = [1, 0, 0]\n", "channels.q_dps.position_ft"),
+    ("[channels.alpha_deg]\nlag = 0.1\n", "channels.alpha_deg.lag"),
+    ('omit = ["alpha_deg"]\n', "omit"),
+    ('extends = "wind-tunnel"\n', "extends"),
+    ("rate_hz = 0\n", "rate_hz"),
+    ("[turbulence]\nsigma_fps = -1\n", "turbulence.sigma_fps"),
+    ("[turbulence]\nseverity = 3\n", "turbulence.severity"),
+    ("rate_hz = = 50\n", "does not parse"),
+]
 
 
 @pytest.mark.parametrize("text, key", BAD, ids=[k for _, k in BAD])
@@ -126,8 +139,12 @@ def test_bad_profiles_are_one_line_and_fly_nothing(tmp_path, capsys, small_matri
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
     out = tmp_path / "out"
-    one_line_error(capsys, ["fly", "h02000_m0.30_f00_gup", "--matrix", str(small_matrix), "--out", str(out),
-                            "--instruments", str(bad)], "bad.toml", key)
+    one_line_error(
+        capsys,
+        ["fly", "h02000_m0.30_f00_gup", "--matrix", str(small_matrix), "--out", str(out), "--instruments", str(bad)],
+        "bad.toml",
+        key,
+    )
     assert not out.exists()
 
 
@@ -146,8 +163,9 @@ def test_resume_with_another_profile_is_refused(tmp_path, capsys, small_matrix):
     one_line_error(capsys, argv + ["--instruments", str(other)], "manifest.json", "instruments")
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert main(argv + ["--noise", "flight-test"]) == 0  # the same profile resumes: nothing to fly
-    assert {p: p.read_bytes() for p in out.glob("*.parquet")} == {p: b for p, b in before.items()
-                                                                  if p.suffix == ".parquet"}
+    assert {p: p.read_bytes() for p in out.glob("*.parquet")} == {
+        p: b for p, b in before.items() if p.suffix == ".parquet"
+    }
 
 
 def test_dryden_gusts_have_the_asked_intensity_and_scale():
@@ -163,8 +181,9 @@ def test_dryden_gusts_have_the_asked_intensity_and_scale():
         rho = float(x[:-lag] @ x[lag:] / (x @ x))
         assert rho == pytest.approx(np.exp(-c * v * 1.0 / l_w), abs=0.02)
     starts = dryden_gusts(2, DT_S, v, h, sigma, np.random.default_rng(np.arange(4000)))
-    assert np.std([dryden_gusts(2, DT_S, v, h, sigma, np.random.default_rng(k))[0, 2] for k in range(4000)]) \
-        == pytest.approx(sigma, rel=0.05) and starts.shape == (2, 3)
+    assert np.std(
+        [dryden_gusts(2, DT_S, v, h, sigma, np.random.default_rng(k))[0, 2] for k in range(4000)]
+    ) == pytest.approx(sigma, rel=0.05) and starts.shape == (2, 3)
     # low altitude: shorter scales, stronger horizontal gusts
     l_u, l_w, s_u = scales(500.0, sigma)
     assert l_w == 500.0 and l_u > l_w and s_u > sigma
@@ -175,12 +194,18 @@ def test_sigma_fps_is_the_vertical_gust_jsbsim_flies_in(tmp_path):
     """Three and a half minutes of a held gear extension in sigma_fps = 3: JSBSim's own total wind has
     that RMS, and the air data it computes answer to it (wind = inertial - air-relative velocity)."""
     p = _profile(tmp_path, "[turbulence]\nsigma_fps = 3.0\n")
-    f = _fly(p, StatusPoint(10000.0, 0.4, 0, True), "gear_extension",
-             (("gear_extension", (("post_s", 200.0),)),), record_truth=True)
+    f = _fly(
+        p,
+        StatusPoint(10000.0, 0.4, 0, True),
+        "gear_extension",
+        (("gear_extension", (("post_s", 200.0),)),),
+        record_truth=True,
+    )
     d = f.log
     assert d.truth_wind_down_fps.std() == pytest.approx(3.0, rel=0.15)
     assert d.truth_wind_north_fps.std() > 1.0 and d.truth_wind_east_fps.std() > 1.0
     from identify.kinematics import measured_wind
+
     wind = measured_wind(d)  # what the diagnosis's replays fly in
     truth = d[["truth_wind_north_fps", "truth_wind_east_fps", "truth_wind_down_fps"]].to_numpy()
     assert np.abs(wind - truth).max() < 0.05
@@ -199,15 +224,29 @@ def test_derived_pitch_acceleration_costs_little_in_cm(tmp_path):
         true = coefficients(d, f.meta)["Cm"].to_numpy()
         derived = coefficients(d.drop(columns=["qdot_dps2"]), f.meta)["Cm"].to_numpy()
         err = (lowpass(derived, 0.02) - lowpass(true, 0.02))[kept(len(d), 0.02)]
-        worst.append((float(np.sqrt(np.mean(err ** 2))), float(np.abs(err).max())))
+        worst.append((float(np.sqrt(np.mean(err**2))), float(np.abs(err).max())))
     rms, peak = np.max(worst, axis=0)
     assert rms < 1e-5 and peak < 5e-5, worst
 
 
 def test_the_shipped_profile_flies_and_logs_what_it_says(small_matrix, tmp_path):
     from campaign.orchestration.store import read_log
-    assert main(["fly", "h02000_m0.30_f00_gup", "--matrix", str(small_matrix), "--out", str(tmp_path / "o"),
-                 "--noise", "flight-test"]) == 0
+
+    assert (
+        main(
+            [
+                "fly",
+                "h02000_m0.30_f00_gup",
+                "--matrix",
+                str(small_matrix),
+                "--out",
+                str(tmp_path / "o"),
+                "--noise",
+                "flight-test",
+            ]
+        )
+        == 0
+    )
     log, meta = read_log(tmp_path / "o" / "h02000_m0.30_f00_gup__doublet.parquet")
     assert meta["sensor_positions_ft"]["alpha_deg"] == [62.0, 0.0, 0.0]
     assert meta["dt_s"] == 0.02 and "qdot_dps2" not in log

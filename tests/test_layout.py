@@ -1,4 +1,5 @@
 """The layout is the design: one package per job, data flowing one way, functions a person can read."""
+
 from __future__ import annotations
 
 import ast
@@ -32,7 +33,7 @@ def _imports(path: Path, module: str, known: set[str]) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
-                pkg = module.split(".")[:len(module.split(".")) - node.level + (path.name == "__init__.py")]
+                pkg = module.split(".")[: len(module.split(".")) - node.level + (path.name == "__init__.py")]
                 base = ".".join(pkg + ([base] if base else []))
             names = [base] + [f"{base}.{a.name}" for a in node.names]
         else:
@@ -59,23 +60,33 @@ def test_no_function_is_more_complex_than_a_person_reads():
     ruff = shutil.which("ruff", path=str(Path(sys.executable).parent)) or shutil.which("ruff")
     if ruff is None:
         pytest.skip("ruff is not installed (the test extra installs it)")
-    out = subprocess.run([ruff, "check", "--select", "C901,PLR0913", "--output-format", "concise", "."],
-                         cwd=ROOT, capture_output=True, text=True)
+    out = subprocess.run(
+        [ruff, "check", "--select", "C901,PLR0913", "--output-format", "concise", "."],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stdout
 
 
 def test_identify_never_imports_diagnose_or_campaign():
     graph = _graph()
-    wrong = {m: sorted(d for d in deps if d.split(".")[0] in ("diagnose", "campaign"))
-             for m, deps in graph.items() if m.split(".")[0] == "identify"}
+    wrong = {
+        m: sorted(d for d in deps if d.split(".")[0] in ("diagnose", "campaign"))
+        for m, deps in graph.items()
+        if m.split(".")[0] == "identify"
+    }
     assert not any(wrong.values()), wrong
 
 
 def test_diagnose_never_flies():
     """The diagnosis reads logs and evaluates the model; flying replays is the campaign's."""
     graph = _graph()
-    wrong = {m: sorted(d for d in deps if d.split(".")[0] in ("campaign", "maneuvers"))
-             for m, deps in graph.items() if m.split(".")[0] == "diagnose"}
+    wrong = {
+        m: sorted(d for d in deps if d.split(".")[0] in ("campaign", "maneuvers"))
+        for m, deps in graph.items()
+        if m.split(".")[0] == "diagnose"
+    }
     assert not any(wrong.values()), wrong
 
 
@@ -88,7 +99,7 @@ def test_no_circular_imports():
         state[m] = 1
         for d in sorted(graph.get(m, ())):
             if state.get(d) == 1:
-                cycles.append(path[path.index(d):] + [d] if d in path else [m, d])
+                cycles.append(path[path.index(d) :] + [d] if d in path else [m, d])
             elif d not in state:
                 visit(d, path + [d])
         state[m] = 2
@@ -104,8 +115,11 @@ def test_no_circular_imports():
 def test_infra_imports_no_science():
     """The process pool and model loading stand apart: they import none of the jobs above them."""
     graph = _graph()
-    wrong = {m: sorted(d for d in deps if d.split(".")[0] != "infra")
-             for m, deps in graph.items() if m.split(".")[0] == "infra"}
+    wrong = {
+        m: sorted(d for d in deps if d.split(".")[0] != "infra")
+        for m, deps in graph.items()
+        if m.split(".")[0] == "infra"
+    }
     assert not any(wrong.values()), wrong
 
 
@@ -113,7 +127,10 @@ def test_packages_follow_the_flow():
     """maneuvers <- campaign's flying; identify <- diagnose; nothing below imports what is above it."""
     graph = _graph()
     rank = {"maneuvers": 0, "identify": 1, "diagnose": 2}
-    wrong = [(m, d) for m, deps in graph.items() for d in deps
-             if m.split(".")[0] in rank and d.split(".")[0] in rank
-             and rank[d.split(".")[0]] > rank[m.split(".")[0]]]
+    wrong = [
+        (m, d)
+        for m, deps in graph.items()
+        for d in deps
+        if m.split(".")[0] in rank and d.split(".")[0] in rank and rank[d.split(".")[0]] > rank[m.split(".")[0]]
+    ]
     assert not wrong, wrong

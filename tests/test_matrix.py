@@ -25,17 +25,22 @@ def test_point_ids_are_stable_readable_and_pickle():
         p.mach = 0.4
 
 
-@pytest.mark.parametrize("text, field", [
-    ('name = "x"\nbogus = 1\n[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n', "bogus"),
-    ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\nmachh=1\n', "points[0].machh"),
-    ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.0\nalt_ft=2000\n', "points[0].mach"),
-    ('[[points]]\ngear="up"\nflap_deg=0\nmach=-0.2\nalt_ft=2000\n', "points[0].mach"),
-    ('[[points]]\ngear="up"\nflap_deg="5"\nmach=0.3\nalt_ft=2000\n', "points[0].flap_deg"),
-    ('[[points]\ngear="up"\n', "TOML does not parse"),
-    ('[[points]]\ngear="sideways"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n', "points[0].gear"),
-    ('[maneuvers.doublet]\namplitude=3\n[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n',
-     "maneuvers.doublet.amplitude"),
-])
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ('name = "x"\nbogus = 1\n[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n', "bogus"),
+        ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\nmachh=1\n', "points[0].machh"),
+        ('[[points]]\ngear="up"\nflap_deg=0\nmach=0.0\nalt_ft=2000\n', "points[0].mach"),
+        ('[[points]]\ngear="up"\nflap_deg=0\nmach=-0.2\nalt_ft=2000\n', "points[0].mach"),
+        ('[[points]]\ngear="up"\nflap_deg="5"\nmach=0.3\nalt_ft=2000\n', "points[0].flap_deg"),
+        ('[[points]\ngear="up"\n', "TOML does not parse"),
+        ('[[points]]\ngear="sideways"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n', "points[0].gear"),
+        (
+            '[maneuvers.doublet]\namplitude=3\n[[points]]\ngear="up"\nflap_deg=0\nmach=0.3\nalt_ft=2000\n',
+            "maneuvers.doublet.amplitude",
+        ),
+    ],
+)
 def test_bad_matrix_names_file_and_field(tmp_path, text, field):
     p = tmp_path / "bad.toml"
     p.write_text(text)
@@ -50,8 +55,12 @@ def test_a_left_turn_is_a_negative_bank_and_its_size_is_still_checked(tmp_path):
     f = tmp_path / "m.toml"
     f.write_text(head + "[maneuvers.level_turn]\nbank_deg = -20.0\n")
     assert load_matrix(f).params_for("level_turn") == {"bank_deg": -20.0}  # the time at full bank from the trim
-    for bad, said in (("bank_deg = -40.0", "bank_deg must be within"), ("bank_deg = 0", "bank_deg must be within"),
-                      ("turn_s = -5", "turn_s: must be > 0"), ("turn_s = 0", "turn_s: must be > 0")):
+    for bad, said in (
+        ("bank_deg = -40.0", "bank_deg must be within"),
+        ("bank_deg = 0", "bank_deg must be within"),
+        ("turn_s = -5", "turn_s: must be > 0"),
+        ("turn_s = 0", "turn_s: must be > 0"),
+    ):
         f.write_text(head + f"[maneuvers.level_turn]\n{bad}\n")
         with pytest.raises(UserError, match=said):
             load_matrix(f)

@@ -1,6 +1,7 @@
 """Output error and filter error on the user's path: real records imported with the documented
 channel maps and identified through ``campaign identify``, against the published estimates and
 independent runs (tests/data/README.md names the records and the published values)."""
+
 import json
 from pathlib import Path
 
@@ -13,11 +14,21 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
 EXAMPLES = ROOT / "docs" / "examples"
 #: eq. (3) names of the four derivatives the HFB-320 checks compare, and the package's names for them
-HFB_TERMS = {("CL", "dalpha_rad"): "CLalpha", ("Cm", "dalpha_rad"): "Cmalpha", ("Cm", "qhat_rad"): "Cmqhat",
-             ("Cm", "delevator_rad"): "Cmde_rad"}
+HFB_TERMS = {
+    ("CL", "dalpha_rad"): "CLalpha",
+    ("Cm", "dalpha_rad"): "Cmalpha",
+    ("Cm", "qhat_rad"): "Cmqhat",
+    ("Cm", "delevator_rad"): "Cmde_rad",
+}
 #: the dimensional derivatives the CLI reports and the package's short-period parameters
-TC11 = {"Z_alpha_per_s": "Zalpha", "Z_q": "Zq", "Z_de_per_s": "Zde", "M_alpha_per_s2": "Malpha",
-        "M_q_per_s": "Mq", "M_de_per_s2": "Mde"}
+TC11 = {
+    "Z_alpha_per_s": "Zalpha",
+    "Z_q": "Zq",
+    "Z_de_per_s": "Zde",
+    "M_alpha_per_s2": "Malpha",
+    "M_q_per_s": "Mq",
+    "M_de_per_s2": "Mde",
+}
 
 
 def _import(out: Path, *pairs) -> Path:
@@ -33,8 +44,11 @@ def hfb_import(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def attas_import(tmp_path_factory):
-    return _import(tmp_path_factory.mktemp("attas") / "attas", ("fAttasElv1.mat", "attas-elv1-map.toml"),
-                   ("fAttasElv2.mat", "attas-elv2-map.toml"))
+    return _import(
+        tmp_path_factory.mktemp("attas") / "attas",
+        ("fAttasElv1.mat", "attas-elv1-map.toml"),
+        ("fAttasElv2.mat", "attas-elv2-map.toml"),
+    )
 
 
 def _identify(folder: Path, out: Path, capsys, *options) -> tuple[int, str, dict]:
@@ -74,6 +88,7 @@ def test_hfb320_filter_error_through_the_cli_lands_on_the_published_estimates(hf
 def hfb_oe(hfb_import, tmp_path_factory):
     import io
     from contextlib import redirect_stdout
+
     out, said = tmp_path_factory.mktemp("oe") / "oe", io.StringIO()
     with redirect_stdout(said):
         code = main(["identify", str(hfb_import), "--out", str(out), "--plots", "none", "--method", "oe"])
@@ -97,6 +112,7 @@ def test_python_and_the_cli_run_one_estimator(hfb_oe, hfb_import, tmp_path):
     """gearaero.identify on the imported logs in memory and the command line give the same numbers:
     one code path (identify.timedomain through identify.pipeline)."""
     import gearaero
+
     _, _, doc = hfb_oe
     res = gearaero.identify(gearaero.read_logs(hfb_import), tmp_path / "py", method="oe", plots="none")
     assert res.not_converged == []
@@ -108,8 +124,9 @@ def test_python_and_the_cli_run_one_estimator(hfb_oe, hfb_import, tmp_path):
 
 
 def test_attas_output_error_through_the_cli_reproduces_the_published_short_period(attas_import, tmp_path, capsys):
-    code, text, doc = _identify(attas_import, tmp_path / "sp", capsys, "--method", "oe", "--structure",
-                                str(EXAMPLES / "short-period.toml"))
+    code, text, doc = _identify(
+        attas_import, tmp_path / "sp", capsys, "--method", "oe", "--structure", str(EXAMPLES / "short-period.toml")
+    )
     assert code == 0 and "output error: 2 of 2 point(s) converged" in text
     td = doc["points"]["fAttasElv1"]["timedomain"]
     assert td["records"] == ["fAttasElv1", "fAttasElv2"]  # the repeat is fitted together
@@ -146,14 +163,17 @@ def test_a_fit_that_does_not_converge_says_so_and_the_exit_code_too(hfb_import, 
     assert "NOT CONVERGED by output error" in points
 
 
-@pytest.mark.parametrize("body, needle", [
-    ("states = ['alpha_deg']\n[terms]\nCm = ['const']\n", "states:"),
-    ("[terms]\nCL = ['const', 'dbeta_rad']\n", "terms.CL: 'dbeta_rad' is not one of"),
-    ("inputs = ['thrust_lbf']\n[terms]\nCm = ['const', 'delevator_rad']\n", "needs the input 'elevator_deg'"),
-    ("states = ['alpha_deg', 'q_dps']\n[terms]\nCD = ['const']\n", "terms.CD: the short-period model has no drag"),
-    ("colour = 1\n", "colour: unknown key"),
-    ("[terms\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "body, needle",
+    [
+        ("states = ['alpha_deg']\n[terms]\nCm = ['const']\n", "states:"),
+        ("[terms]\nCL = ['const', 'dbeta_rad']\n", "terms.CL: 'dbeta_rad' is not one of"),
+        ("inputs = ['thrust_lbf']\n[terms]\nCm = ['const', 'delevator_rad']\n", "needs the input 'elevator_deg'"),
+        ("states = ['alpha_deg', 'q_dps']\n[terms]\nCD = ['const']\n", "terms.CD: the short-period model has no drag"),
+        ("colour = 1\n", "colour: unknown key"),
+        ("[terms\n", "not valid TOML"),
+    ],
+)
 def test_bad_structure_files_are_one_line(hfb_import, tmp_path, capsys, body, needle):
     path = tmp_path / "s.toml"
     path.write_text(body)
@@ -167,8 +187,10 @@ def test_bad_structure_files_are_one_line(hfb_import, tmp_path, capsys, body, ne
 def test_time_domain_options_are_refused_with_equation_error(hfb_import, tmp_path, capsys):
     assert main(["identify", str(hfb_import), "--out", str(tmp_path / "x"), "--max-iterations", "3"]) == 2
     assert "--max-iterations: applies to the time-domain methods" in capsys.readouterr().err
-    assert main(["identify", str(hfb_import), "--out", str(tmp_path / "x"), "--method", "oe",
-                 "--max-iterations", "0"]) == 2
+    assert (
+        main(["identify", str(hfb_import), "--out", str(tmp_path / "x"), "--method", "oe", "--max-iterations", "0"])
+        == 2
+    )
     assert "--max-iterations" in capsys.readouterr().err
 
 
@@ -179,6 +201,7 @@ def test_worker_processes_fit_as_this_process_does(hfb_oe, tmp_path):
 
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs
+
     shutil.copy(DATA / "hfb320_1_10.asc", tmp_path / "hfb_higher.asc")
     higher = tmp_path / "higher-map.toml"
     higher.write_text((EXAMPLES / "hfb320-map.toml").read_text().replace('alt_ft = "4300 m"', 'alt_ft = "4500 m"'))

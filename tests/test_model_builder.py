@@ -5,6 +5,7 @@ must load in JSBSim, trim at its record's start and, through the diagnosis's mod
 back the identification's fitted coefficients (params x regressors) at every logged state. The
 blend over conditions and the gear model are checked on point models written by hand.
 """
+
 import json
 import shutil
 from pathlib import Path
@@ -85,9 +86,20 @@ def _trims_and_holds(model: Path, log, pitch: str = "elevator") -> None:
     """The aircraft trims at the record's first second and stays there flying 5 s on its own."""
     d = log.data[log.data["t_s"] < 1.0].mean()
     fdm = load_fdm(_probe(model), model.name)
-    t = trim_model(fdm, d["alt_ft"], d["tas_kt"], d["theta_deg"] - d["alpha_deg"], d["flap_deg"], d["gear_norm"],
-                   d["elevator_deg"], d["stabilizer_deg"], d["thrust_lbf"], d["alpha_deg"],
-                   d["mass_slug"] * 32.174049, pitch)
+    t = trim_model(
+        fdm,
+        d["alt_ft"],
+        d["tas_kt"],
+        d["theta_deg"] - d["alpha_deg"],
+        d["flap_deg"],
+        d["gear_norm"],
+        d["elevator_deg"],
+        d["stabilizer_deg"],
+        d["thrust_lbf"],
+        d["alpha_deg"],
+        d["mass_slug"] * 32.174049,
+        pitch,
+    )
     assert abs(t.alpha_deg - d["alpha_deg"]) < 0.5 and abs(t.thrust_lbf / d["thrust_lbf"] - 1) < 0.2, t
     assert fdm[THRUST] == t.thrust_lbf
     alpha = []
@@ -118,15 +130,20 @@ def test_attas_aircraft_trims_and_gives_back_the_fit(tmp_path):
     doc = json.loads(text)
     assert "nominal" in " ".join(doc["notes"]) and doc["trims"][0]["point"] == "fAttasElv1"
     xml = (model / "attas.xml").read_text()
-    for said in ("nominal, not identified", "equation error", "external_reactions/thrust/magnitude",
-                 "One point model (fAttasElv1) at every condition"):
+    for said in (
+        "nominal, not identified",
+        "equation error",
+        "external_reactions/thrust/magnitude",
+        "One point model (fAttasElv1) at every condition",
+    ):
         assert said in xml, said
 
 
 def test_hfb320_aircraft_by_output_error(tmp_path):
     """The HFB-320 identified by output error (converged on this record), made through the Python API."""
-    model, log, point, text = _built(tmp_path, [DATA / "hfb320_1_10.asc"], DOCS / "hfb320-map.toml", "hfb320",
-                                     method="oe", api=True)
+    model, log, point, text = _built(
+        tmp_path, [DATA / "hfb320_1_10.asc"], DOCS / "hfb320-map.toml", "hfb320", method="oe", api=True
+    )
     assert point.methods == {"CL": "oe", "CD": "oe", "Cm": "oe"} and all(point.converged.values())
     assert "output error" in text and "trim at hfb320_1_10's start" in text, text
     err = _reproduces(model, log, point)
@@ -136,12 +153,27 @@ def test_hfb320_aircraft_by_output_error(tmp_path):
 
 def _point(name: str, mach: float, flap: float, gear_down: bool, k: float) -> PointModel:
     """A point model whose parameters scale with ``k``, all regressors identified."""
-    params = {c: {"const": s * k, "dalpha_rad": 5.0 * s, "qhat_rad": 10.0 * s, "delevator_rad": 0.5 * s * k,
-                  "dstabilizer_rad": 0.8 * s, "dmach": 0.1 * s * k, "dalpha2_rad2": 0.3 * s}
-              for c, s in (("CL", 1.0), ("CD", 0.1), ("Cm", -0.2))}
-    return PointModel(name, (5000.0, mach, flap), gear_down,
-                      {"alpha_deg": 2.0 + k, "elevator_deg": -1.0, "stabilizer_deg": 0.5, "mach": mach},
-                      params, {c: "ee" for c in params}, {c: True for c in params})
+    params = {
+        c: {
+            "const": s * k,
+            "dalpha_rad": 5.0 * s,
+            "qhat_rad": 10.0 * s,
+            "delevator_rad": 0.5 * s * k,
+            "dstabilizer_rad": 0.8 * s,
+            "dmach": 0.1 * s * k,
+            "dalpha2_rad2": 0.3 * s,
+        }
+        for c, s in (("CL", 1.0), ("CD", 0.1), ("Cm", -0.2))
+    }
+    return PointModel(
+        name,
+        (5000.0, mach, flap),
+        gear_down,
+        {"alpha_deg": 2.0 + k, "elevator_deg": -1.0, "stabilizer_deg": 0.5, "mach": mach},
+        params,
+        {c: "ee" for c in params},
+        {c: True for c in params},
+    )
 
 
 def _coefficients(root: Path, name: str, mach: float, flap_deg: float, gear: float) -> tuple[np.ndarray, dict]:
@@ -153,23 +185,39 @@ def _coefficients(root: Path, name: str, mach: float, flap_deg: float, gear: flo
     fdm["fcs/flap-cmd-norm"], fdm["gear/gear-cmd-norm"] = flap_deg / 40.0, gear
     fdm.set_trim_status(True)  # the gear at its command at once
     fdm.run_ic()
-    state = {"alpha_deg": fdm["aero/alpha-deg"], "qhat_rad": fdm["aero/ci2vel"] * fdm["velocities/q-aero-rad_sec"],
-             "elevator_deg": fdm["fcs/elevator-pos-deg"], "stabilizer_deg": fdm["fcs/stabilizer-pos-deg"],
-             "mach": fdm["velocities/mach"]}
+    state = {
+        "alpha_deg": fdm["aero/alpha-deg"],
+        "qhat_rad": fdm["aero/ci2vel"] * fdm["velocities/q-aero-rad_sec"],
+        "elevator_deg": fdm["fcs/elevator-pos-deg"],
+        "stabilizer_deg": fdm["fcs/stabilizer-pos-deg"],
+        "mach": fdm["velocities/mach"],
+    }
     assert fdm["fcs/flap-pos-deg"] == pytest.approx(flap_deg) and fdm["gear/gear-pos-norm"] == pytest.approx(gear)
     return np.array([fdm[f"aero/function/{c}-identified"] for c in ("CL", "CD", "Cm")]), {**state, "fdm": fdm}
 
 
 def _expected(p: PointModel, state: dict, mach: float | None = None) -> np.ndarray:
-    x = p.regressors(state["alpha_deg"], state["qhat_rad"], state["elevator_deg"], state["stabilizer_deg"],
-                     state["mach"] if mach is None else mach)
+    x = p.regressors(
+        state["alpha_deg"],
+        state["qhat_rad"],
+        state["elevator_deg"],
+        state["stabilizer_deg"],
+        state["mach"] if mach is None else mach,
+    )
     return np.array([p.fitted(c, x) for c in ("CL", "CD", "Cm")])
 
 
-GEAR_SURFACE = ([((5000.0, 0.3, 0.0), 3.0, np.array([0.0, 1.0]),
-                  {"CL": np.array([0.0, -0.02]), "CD": np.array([0.0, 0.03]), "Cm": np.array([0.0, 0.01])})])
-AIRFRAME = Airframe(500.0, 8.0, 60.0, 30000.0, 30000.0, {"ixx": 1e5, "iyy": 2e5, "izz": 3e5, "ixz": 0.0},
-                    (100.0, 0.0), 0.0)
+GEAR_SURFACE = [
+    (
+        (5000.0, 0.3, 0.0),
+        3.0,
+        np.array([0.0, 1.0]),
+        {"CL": np.array([0.0, -0.02]), "CD": np.array([0.0, 0.03]), "Cm": np.array([0.0, 0.01])},
+    )
+]
+AIRFRAME = Airframe(
+    500.0, 8.0, 60.0, 30000.0, 30000.0, {"ixx": 1e5, "iyy": 2e5, "izz": 3e5, "ixz": 0.0}, (100.0, 0.0), 0.0
+)
 
 
 def _write(tmp_path: Path, name: str, points, surface=None) -> list[str]:
@@ -181,9 +229,13 @@ def _write(tmp_path: Path, name: str, points, surface=None) -> list[str]:
 
 @pytest.mark.parametrize("gear_model", [False, True], ids=["without gear model", "with a gear model"])
 def test_point_models_blend_over_mach_flap_and_gear(tmp_path, gear_model):
-    a, b, c, d, e = (_point("a", 0.3, 0.0, False, 1.0), _point("b", 0.5, 0.0, False, 2.0),
-                     _point("c", 0.3, 0.0, True, 3.0), _point("d", 0.3, 10.0, False, 4.0),
-                     _point("e", 0.3, 10.0, False, 6.0))
+    a, b, c, d, e = (
+        _point("a", 0.3, 0.0, False, 1.0),
+        _point("b", 0.5, 0.0, False, 2.0),
+        _point("c", 0.3, 0.0, True, 3.0),
+        _point("d", 0.3, 10.0, False, 4.0),
+        _point("e", 0.3, 10.0, False, 6.0),
+    )
     notes = _write(tmp_path, "blend", [a, b, c, d, e], fit_surface(GEAR_SURFACE) if gear_model else None)
     assert any("linear in Mach" in n for n in notes)
     # gear up, Mach 0.4, flap 0: halfway between a and b
@@ -215,8 +267,19 @@ def test_a_condition_flown_gear_down_only_enters_without_its_gear_increment(tmp_
 
 def _identified(tmp_path: Path) -> Path:
     """A genuine identification folder (the ATTAS's first record), to spoil."""
-    assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(DOCS / "attas-map.toml"), "--out",
-                 str(tmp_path / "imp")]) == 0
+    assert (
+        main(
+            [
+                "import",
+                str(DATA / "fAttasElv1.mat"),
+                "--map",
+                str(DOCS / "attas-map.toml"),
+                "--out",
+                str(tmp_path / "imp"),
+            ]
+        )
+        == 0
+    )
     assert main(["identify", str(tmp_path / "imp"), "--plots", "none"]) == 0
     return tmp_path / "imp" / "identification"
 
@@ -227,11 +290,17 @@ def test_bad_identifications_are_one_line_and_write_nothing(tmp_path, capsys):
     out = tmp_path / "models" / "m"
     one_line_error(capsys, ["model", str(tmp_path / "imp"), "--out", str(out)], "imp/identification.json", "missing")
     doc = json.loads((ident / "identification.json").read_text())
-    spoilt = {"no point fits": ({**doc, "points": {}}, "points: no point fits"),
-              "no lift parameters": ({**doc, "points": {"fAttasElv1": {
-                  k: v for k, v in doc["points"]["fAttasElv1"].items() if k != "CL"}}}, "points.fAttasElv1.CL.params"),
-              "log gone": ({**doc, "points": {"gone": {**doc["points"]["fAttasElv1"], "log": "../gone.parquet"}}},
-                           "points.gone.log")}
+    spoilt = {
+        "no point fits": ({**doc, "points": {}}, "points: no point fits"),
+        "no lift parameters": (
+            {**doc, "points": {"fAttasElv1": {k: v for k, v in doc["points"]["fAttasElv1"].items() if k != "CL"}}},
+            "points.fAttasElv1.CL.params",
+        ),
+        "log gone": (
+            {**doc, "points": {"gone": {**doc["points"]["fAttasElv1"], "log": "../gone.parquet"}}},
+            "points.gone.log",
+        ),
+    }
     for what, (bad, needle) in spoilt.items():
         (ident / "identification.json").write_text(json.dumps(bad))
         one_line_error(capsys, ["model", str(ident), "--out", str(out)], "identification.json", needle)

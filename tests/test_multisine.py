@@ -1,5 +1,6 @@
 """Multisine inputs: orthogonal, low peak factor, zero at both ends, in the band, scaled like the
 2-3-1-1; flown, they excite no lateral motion and identify the model's own derivatives."""
+
 import numpy as np
 import pytest
 
@@ -12,8 +13,10 @@ from campaign.validation.support import matrix_toml, pairs
 DT = 1 / 120
 
 
-@pytest.mark.parametrize("duration_s, f_lo, f_hi, rpf_max", [(12.0, 0.1, 1.5, 1.03), (20.0, 0.1, 1.5, 1.03),
-                                                             (12.0, 0.05, 2.0, 1.03), (18.0, 0.1, 0.5, 1.13)])
+@pytest.mark.parametrize(
+    "duration_s, f_lo, f_hi, rpf_max",
+    [(12.0, 0.1, 1.5, 1.03), (20.0, 0.1, 1.5, 1.03), (12.0, 0.05, 2.0, 1.03), (18.0, 0.1, 0.5, 1.13)],
+)
 def test_multisines_are_orthogonal_flat_and_zero_at_both_ends(duration_s, f_lo, f_hi, rpf_max):
     """Relative peak factors: about 1.0 with 8 harmonics or more per input; with the default's 4 (the
     short period's band on our 737), 1.02 and 1.13."""
@@ -23,18 +26,19 @@ def test_multisines_are_orthogonal_flat_and_zero_at_both_ends(duration_s, f_lo, 
     assert max(rpf) <= rpf_max, rpf
     for s, x, peak in zip(sigs, u, (3.0, 1.0)):
         assert np.max(np.abs(x)) == pytest.approx(peak, rel=1e-9)
-        assert x[:10].tolist() == [0.0] * 10 and x[10 + n:].tolist() == [0.0] * 10
+        assert x[:10].tolist() == [0.0] * 10 and x[10 + n :].tolist() == [0.0] * 10
         assert abs(x[10]) < 1e-9 * peak  # starts at zero; periodic in T, so it ends there too
-        assert relative_peak_factor(x[10:10 + n]) == pytest.approx(rpf[sigs.index(s)], rel=1e-9)
+        assert relative_peak_factor(x[10 : 10 + n]) == pytest.approx(rpf[sigs.index(s)], rel=1e-9)
         # its energy is at its own harmonics of 1/T, in the band, and nowhere else
-        spec = np.abs(np.fft.rfft(x[10:10 + n])) ** 2
+        spec = np.abs(np.fft.rfft(x[10 : 10 + n])) ** 2
         own = np.zeros(len(spec), bool)
         own[list(s.harmonics)] = True
         assert spec[~own].sum() < 1e-20 * spec.sum() + 1e-18
         assert min(s.harmonics) >= f_lo * duration_s - 1e-9 and max(s.harmonics) <= f_hi * duration_s + 1e-9
     assert set(sigs[0].harmonics).isdisjoint(sigs[1].harmonics)
-    assert sorted(sigs[0].harmonics + sigs[1].harmonics) == list(range(min(sigs[0].harmonics),
-                                                                        max(sigs[0].harmonics + sigs[1].harmonics) + 1))
+    assert sorted(sigs[0].harmonics + sigs[1].harmonics) == list(
+        range(min(sigs[0].harmonics), max(sigs[0].harmonics + sigs[1].harmonics) + 1)
+    )
     assert abs(u[0] @ u[1]) < 1e-9 * np.sqrt((u[0] @ u[0]) * (u[1] @ u[1]))  # orthogonal over T
     assert [sigs[0].value(k) for k in range(5, 40)] == sigs[0].series(5, 40).tolist()
 
@@ -49,18 +53,30 @@ def test_the_program_scales_with_the_stall_margin_and_composes():
     alone = Multisine(stabilizer_amplitude_deg=0.0).program(DT)
     assert not np.any(alone.stabilizer_deg.series(0, alone.n_steps))
     import pickle
+
     assert pickle.loads(pickle.dumps(m)) == m
 
 
-@pytest.mark.parametrize("table, says", [("duration_s = 2.0", "fewer than 2 per input"),
-                                         ("f_lo_hz = 2.0", "0 < f_lo_hz < f_hi_hz"),
-                                         ("amplitude_deg = 12.0", "amplitude_deg"),
-                                         ("period_s = 3.0", "period_s")])
+@pytest.mark.parametrize(
+    "table, says",
+    [
+        ("duration_s = 2.0", "fewer than 2 per input"),
+        ("f_lo_hz = 2.0", "0 < f_lo_hz < f_hi_hz"),
+        ("amplitude_deg = 12.0", "amplitude_deg"),
+        ("period_s = 3.0", "period_s"),
+    ],
+)
 def test_bad_multisine_parameters_name_the_field(tmp_path, table, says):
     p = tmp_path / "m.toml"
-    p.write_text(matrix_toml(pairs((0, 0.3, 5000)), "ms", '[defaults]\nmaneuvers_gear_up = ["multisine"]\n'
-                             'maneuvers_gear_down = ["multisine"]\n'
-                             f"[maneuvers.multisine]\n{table}\n"))
+    p.write_text(
+        matrix_toml(
+            pairs((0, 0.3, 5000)),
+            "ms",
+            '[defaults]\nmaneuvers_gear_up = ["multisine"]\n'
+            'maneuvers_gear_down = ["multisine"]\n'
+            f"[maneuvers.multisine]\n{table}\n",
+        )
+    )
     with pytest.raises(UserError) as err:
         load_matrix(p)
     assert str(p) in str(err.value) and "maneuvers.multisine" in str(err.value) and says in str(err.value)
@@ -74,12 +90,19 @@ def test_a_flown_multisine_identifies_the_models_own_derivatives(tmp_path):
     from campaign.orchestration.runner import run_campaign
     from identify.logs import read_campaign
     from identify.pipeline import identify_logs
+
     p = tmp_path / "m.toml"
-    p.write_text(matrix_toml(pairs((0, 0.3, 5000)), "ms", '[defaults]\nmaneuvers_gear_up = ["multisine"]\n'
-                             'maneuvers_gear_down = ["multisine"]\n'))
+    p.write_text(
+        matrix_toml(
+            pairs((0, 0.3, 5000)),
+            "ms",
+            '[defaults]\nmaneuvers_gear_up = ["multisine"]\nmaneuvers_gear_down = ["multisine"]\n',
+        )
+    )
     m = load_matrix(p)
-    cfg = FlightConfig(AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None)), 0, "none", m.maneuver_params,
-                       m.clmax_by_flap)
+    cfg = FlightConfig(
+        AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None)), 0, "none", m.maneuver_params, m.clmax_by_flap
+    )
     run_campaign(m, cfg, tmp_path / "out", jobs=2, progress=False)
     logs = read_campaign(tmp_path / "out")
     assert sorted(lg.maneuver for lg in logs) == ["multisine", "multisine"]

@@ -1,4 +1,5 @@
 """Effect overlays change JSBSim's forces exactly as written."""
+
 import numpy as np
 import pytest
 
@@ -40,8 +41,13 @@ OVERLAY = """<effects>
 def _at_state(effects, gear):
     fdm = new_fdm(AircraftSource(str(DEFAULT_AIRCRAFT), effects))
     theta = 2 / np.pi * np.arcsin(gear)  # our 737: gear-pos-norm = sin(theta_LG)
-    for k, v in {"ic/h-sl-ft": 5000.0, "ic/mach": 0.4, "ic/alpha-deg": 3.0, "gear/gear-cmd-norm": theta,
-                 "gear/theta-lg-norm": theta}.items():
+    for k, v in {
+        "ic/h-sl-ft": 5000.0,
+        "ic/mach": 0.4,
+        "ic/alpha-deg": 3.0,
+        "gear/gear-cmd-norm": theta,
+        "gear/theta-lg-norm": theta,
+    }.items():
         fdm[k] = v
     fdm.run_ic()
     assert fdm["gear/gear-pos-norm"] == pytest.approx(gear, abs=1e-12)
@@ -89,13 +95,16 @@ def test_empty_overlay_is_valid_and_changes_nothing(tmp_path):
     assert a["forces/fwx-aero-lbs"] == b["forces/fwx-aero-lbs"]
 
 
-@pytest.mark.parametrize("text, field", [
-    ("<effects><axis name='DRAG'>", "not well-formed"),
-    ("<effect/>", "root element"),
-    ("<effects><axis name='THRUST'/></effects>", 'axis name="THRUST"'),
-    ("<effects><axis name='DRAG'><table/></axis></effects>", "expected <function>"),
-    ("<effects><axis name='DRAG'><function><value>1</value></function></axis></effects>", "missing name"),
-])
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ("<effects><axis name='DRAG'>", "not well-formed"),
+        ("<effect/>", "root element"),
+        ("<effects><axis name='THRUST'/></effects>", 'axis name="THRUST"'),
+        ("<effects><axis name='DRAG'><table/></axis></effects>", "expected <function>"),
+        ("<effects><axis name='DRAG'><function><value>1</value></function></axis></effects>", "missing name"),
+    ],
+)
 def test_malformed_overlay_names_file_and_field(tmp_path, text, field):
     f = tmp_path / "bad.xml"
     f.write_text(text)
@@ -108,6 +117,7 @@ def test_stock_737_loses_its_network_ports():
     import os
 
     import jsbsim
+
     stock = os.path.join(jsbsim.get_default_root_dir(), "aircraft", "737")
     text = merged_xml(AircraftSource(stock, load_effects(None)))
     assert "<input port" not in text and "port=" not in text and "QTJSBSIM" not in text
@@ -122,6 +132,7 @@ def test_a_long_lived_process_keeps_only_its_latest_merged_roots(tmp_path, monke
     import tempfile
 
     from campaign.simulation import engine
+
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
     roots = lambda: sorted(p.name for p in (tmp_path / "tmp").iterdir())  # noqa: E731

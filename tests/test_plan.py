@@ -5,6 +5,7 @@ a gear x alpha effect on Cm hidden in a campaign too narrow to tell alpha from C
 altitude, gear extensions without a gear-down 2-3-1-1) is diagnosed, the plan is flown on the
 truth (only the test reads the overlay), and old and new data diagnosed together.
 """
+
 import json
 import shutil
 
@@ -107,6 +108,7 @@ def test_flights_added_to_the_data_move_no_condition_out_of_the_fit():
     from types import SimpleNamespace
 
     from campaign.diagnosis.run import split
+
     old = [SimpleNamespace(condition=(5000.0, m, 5.0)) for m in (0.25, 0.3, 0.35, 0.4)]
     new = [SimpleNamespace(condition=c) for c in ((5000.0, 0.3, 15.0), (1500.0, 0.3, 5.0), (5000.0, 0.35, 5.0))]
     _, held = split(old)
@@ -126,14 +128,18 @@ def test_the_default_candidates_fly_each_condition_s_alpha_at_mach_0_1_either_si
     from campaign.design.plan import candidates
     from campaign.importing.importer import isa
     from campaign.simulation.aircraft import AircraftSource, load_effects
+
     logs = [SimpleNamespace(condition=(2000.0, 0.3, 0.0), meta={"status_point": {"weight_lb": 140000.0}})]
     source = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
     points = candidates(logs, source, None, None)
-    away = {(p.alt_ft, p.mach, p.gear_down) for p in points if p.flap_deg == 0.0 and p.alt_ft not in (2000.0, 8000.0)
-            and p.mach != 0.3}
+    away = {
+        (p.alt_ft, p.mach, p.gear_down)
+        for p in points
+        if p.flap_deg == 0.0 and p.alt_ft not in (2000.0, 8000.0) and p.mach != 0.3
+    }
     assert {(a, m) for a, m, _ in away} == {(16900.0, 0.4)}, away  # Mach 0.2 would be below sea level
     assert {d for *_, d in away} == {False, True}
-    q = [isa(a)[0].item() * m ** 2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
+    q = [isa(a)[0].item() * m**2 for a, m in ((2000.0, 0.3), (16900.0, 0.4))]
     assert q[1] == pytest.approx(q[0], rel=5e-3)
     # Mach 0.2 at the dynamic pressure of Mach 0.3 at 21,500 ft is at 800 ft: not offered
     high = [SimpleNamespace(condition=(21500.0, 0.3, 0.0), meta=logs[0].meta)]
@@ -150,8 +156,23 @@ def narrow(tmp_path_factory):
     w = tmp_path_factory.mktemp("narrow")
     hidden = make("gear_x_alpha", np.random.default_rng(6), "Cm")
     data, fx = fly_data(w, hidden, seed=6, matrix=NARROW)
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(w / "d1"),
-                 "--no-plots", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(w / "d1"),
+                "--no-plots",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     return w, data, fx, json.loads((w / "d1" / "diagnosis.json").read_text())
 
 
@@ -174,11 +195,47 @@ def test_the_plan_settles_a_gear_interaction_rival(narrow, capsys):
         assert r["predicted_now_se"] == pytest.approx(by_rival[r["rival"]]["predicted_se"], rel=1e-9)
     assert all(r["planned_se"] >= PLAN_SE for r in result["rivals"]), result["rivals"]
     # fly the plan on the truth, through the same instruments, and diagnose old and new together
-    assert main(["run", "--matrix", str(w / "plan" / "plan.toml"), "--aircraft", str(DEFAULT_AIRCRAFT),
-                 "--effects", str(fx), "--noise", "flight-test", "--seed", "11", "--out", str(w / "new"),
-                 "--no-identify", "--quiet"]) == 0
-    assert main(["diagnose", "--data", str(data), "--data", str(w / "new"), "--model", str(DEFAULT_AIRCRAFT),
-                 "--out", str(w / "d2"), "--no-plots", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(w / "plan" / "plan.toml"),
+                "--aircraft",
+                str(DEFAULT_AIRCRAFT),
+                "--effects",
+                str(fx),
+                "--noise",
+                "flight-test",
+                "--seed",
+                "11",
+                "--out",
+                str(w / "new"),
+                "--no-identify",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--data",
+                str(w / "new"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(w / "d2"),
+                "--no-plots",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     after = json.loads((w / "d2" / "diagnosis.json").read_text())
     assert after["data"]["paths"] == [str(data), str(w / "new")]
     first = after["causes"][0]
@@ -231,8 +288,23 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     body = "        <property>aero/alpha-rad</property>\n        <value>0.17</value>"
     hidden = Hidden("slope", "CL", ("alpha_deg",), wrap("CL", body, "slope"), "dCL = 0.17 alpha")
     data, _ = fly_data(tmp_path / "w", hidden, seed=7)
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d"),
-                 "--no-plots", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "d"),
+                "--no-plots",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     first = doc["causes"][0]
     assert first["kind"] == "aero" and first["coefficient"] == "CL" and first["variables"] == ["alpha_deg"]
@@ -251,41 +323,135 @@ def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, caps
     the cause is not confirmed; the plan flies the level turn that measures the scale, and old and
     new data together name the instrument error and nothing else."""
     from campaign.validation.hidden import DIAG_MATRIX
+
     prof = tmp_path / "pitot.toml"
     prof.write_text('extends = "flight-test"\n[channels.tas_kt]\nscale = 1.06\n')
     matrix = tmp_path / "m.toml"
-    matrix.write_text(DIAG_MATRIX.replace('name = "diagnosis"\n', 'name = "diagnosis"\n[defaults]\n'
-                                          'maneuvers_gear_down = ["doublet", "gear_extension", "gear_retraction"]\n'))
+    matrix.write_text(
+        DIAG_MATRIX.replace(
+            'name = "diagnosis"\n',
+            'name = "diagnosis"\n[defaults]\nmaneuvers_gear_down = ["doublet", "gear_extension", "gear_retraction"]\n',
+        )
+    )
     truth = ["--aircraft", str(DEFAULT_AIRCRAFT), "--effects", "none", "--instruments", str(prof)]
-    assert main(["run", "--matrix", str(matrix), *truth, "--seed", "21", "--out", str(tmp_path / "old"),
-                 "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
-    assert main(["diagnose", "--data", str(tmp_path / "old"), "--model", str(DEFAULT_AIRCRAFT),
-                 "--out", str(tmp_path / "d1"), "--no-plots", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(matrix),
+                *truth,
+                "--seed",
+                "21",
+                "--out",
+                str(tmp_path / "old"),
+                "--no-identify",
+                "--no-replay",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(tmp_path / "old"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "d1"),
+                "--no-plots",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "d1" / "diagnosis.json").read_text())
     assert not any(c["coefficient"] == "Cm" and "qhat_rad" in c["variables"] for c in doc["causes"]), doc["summary"]
     assert "tas_kt scale" in doc["summary"] and "cause not confirmed" in doc["summary"], doc["summary"]
     airspeed = [r for r in doc["rivals"] if r["rival"] == "tas_kt scale"]
-    assert airspeed and airspeed[0]["separation_se"] <= -DEFAULTS.settled_se, [(r["rival"], r["separation_se"])
-                                                                           for r in doc["rivals"]]
+    assert airspeed and airspeed[0]["separation_se"] <= -DEFAULTS.settled_se, [
+        (r["rival"], r["separation_se"]) for r in doc["rivals"]
+    ]
     capsys.readouterr()
     # the conditions flown, where a multisine or a level turn could fly next (the default candidates,
     # six times as many, are the gear rival's test's)
     where = tmp_path / "where.toml"
-    where.write_text(DIAG_MATRIX.replace('name = "diagnosis"\n', 'name = "next"\n[defaults]\n'
-                                         'maneuvers_gear_up = ["multisine", "level_turn"]\n'
-                                         'maneuvers_gear_down = ["multisine", "gear_extension", "gear_retraction"]\n'))
-    assert main(["plan", "--diagnosis", str(tmp_path / "d1"), "--matrix", str(where), "--out", str(tmp_path / "plan"),
-                 "--jobs", "2", "--quiet"]) == 0
+    where.write_text(
+        DIAG_MATRIX.replace(
+            'name = "diagnosis"\n',
+            'name = "next"\n[defaults]\n'
+            'maneuvers_gear_up = ["multisine", "level_turn"]\n'
+            'maneuvers_gear_down = ["multisine", "gear_extension", "gear_retraction"]\n',
+        )
+    )
+    assert (
+        main(
+            [
+                "plan",
+                "--diagnosis",
+                str(tmp_path / "d1"),
+                "--matrix",
+                str(where),
+                "--out",
+                str(tmp_path / "plan"),
+                "--jobs",
+                "2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     result = json.loads((tmp_path / "plan" / "plan.json").read_text())
     assert result["planned_minutes"] <= 0.25 * result["old_minutes"] + 1e-9
     assert any(f["maneuver"] == "level_turn" for f in result["flights"]), result["flights"]
     assert not any(f["maneuver"] == "multisine" for f in result["flights"]), result["flights"]
     measured = next(r for r in result["rivals"] if r["rival"] == "tas_kt scale")
     assert measured["to_measure"] and measured["planned_se"] >= PLAN_SE, measured
-    assert main(["run", "--matrix", str(tmp_path / "plan" / "plan.toml"), *truth, "--seed", "22",
-                 "--out", str(tmp_path / "new"), "--no-identify", "--no-replay", "--quiet", "--jobs", "2"]) == 0
-    assert main(["diagnose", "--data", str(tmp_path / "old"), "--data", str(tmp_path / "new"),
-                 "--model", str(DEFAULT_AIRCRAFT), "--out", str(tmp_path / "d2"), "--no-plots", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(tmp_path / "plan" / "plan.toml"),
+                *truth,
+                "--seed",
+                "22",
+                "--out",
+                str(tmp_path / "new"),
+                "--no-identify",
+                "--no-replay",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(tmp_path / "old"),
+                "--data",
+                str(tmp_path / "new"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "d2"),
+                "--no-plots",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     after = json.loads((tmp_path / "d2" / "diagnosis.json").read_text())
     first = after["causes"][0]
     assert first["kind"] == "sensor" and (first["channel"], first["error"]) == ("tas_kt", "scale"), after["summary"]
@@ -306,14 +472,29 @@ def test_a_measured_instrument_error_rejects_a_cause_only_if_it_fits_that_cause_
     from types import SimpleNamespace
 
     def cause(coefficient, by, separation, unmeasured=False):
-        alt = {"channel": "alpha_deg", "error": "scale", "needs": -0.017, "needs_se": 0.8, "se": 0.022,
-               "explains_pct": 95.0, **({"unmeasured": True} if unmeasured else {})}
-        rival = {"rival": "alpha_deg scale", "kind": "sensor", "channel": "alpha_deg", "error": "scale",
-                 "separation_se": separation, "by_coefficient": by}
+        alt = {
+            "channel": "alpha_deg",
+            "error": "scale",
+            "needs": -0.017,
+            "needs_se": 0.8,
+            "se": 0.022,
+            "explains_pct": 95.0,
+            **({"unmeasured": True} if unmeasured else {}),
+        }
+        rival = {
+            "rival": "alpha_deg scale",
+            "kind": "sensor",
+            "channel": "alpha_deg",
+            "error": "scale",
+            "separation_se": separation,
+            "by_coefficient": by,
+        }
         return SimpleNamespace(coefficient=coefficient, evidence={"sensor_alternatives": [alt], "rivals": [rival]})
 
     lift = cause("CL", {"CL": -20.0, "CD": -12.2, "Cm": -0.0, "data compatibility": 0.5}, -6.2)
-    assert sensor_rivals.instrument_fits_better(lift).startswith("an instrument error within the data compatibility's reach")
+    assert sensor_rivals.instrument_fits_better(lift).startswith(
+        "an instrument error within the data compatibility's reach"
+    )
     assert "6.2 standard errors better" in sensor_rivals.instrument_fits_better(lift)
     assert sensor_rivals.instrument_preferred(lift) == ""
     bump = cause("Cm", {"CL": 18858.6, "CD": -58037.5, "Cm": 2103.9, "data compatibility": 10.3}, -192.5)
@@ -343,18 +524,35 @@ def test_a_strong_discrepancy_is_left_unconfirmed_not_rejected_by_an_instrument_
     from diagnose.sensor_rivals import instrument_verdict
 
     def cause(F, gain, separation, by_cd):
-        alt = {"channel": "alpha_deg", "error": "bias", "needs": -0.08, "needs_se": -2.08, "se": 0.064,
-               "explains_pct": 100.0}
-        rival = {"rival": "alpha_deg bias", "kind": "sensor", "channel": "alpha_deg", "error": "bias",
-                 "separation_se": separation, "by_coefficient": {"CL": 1.29, "CD": by_cd, "Cm": 0.0,
-                                                                 "data compatibility": 3.68}}
-        return SimpleNamespace(coefficient="CD", evidence={"F": F, "sensor_alternatives": [alt], "rivals": [rival]},
-                               verdict={"accepted": True, "holdout_gain": gain})
+        alt = {
+            "channel": "alpha_deg",
+            "error": "bias",
+            "needs": -0.08,
+            "needs_se": -2.08,
+            "se": 0.064,
+            "explains_pct": 100.0,
+        }
+        rival = {
+            "rival": "alpha_deg bias",
+            "kind": "sensor",
+            "channel": "alpha_deg",
+            "error": "bias",
+            "separation_se": separation,
+            "by_coefficient": {"CL": 1.29, "CD": by_cd, "Cm": 0.0, "data compatibility": 3.68},
+        }
+        return SimpleNamespace(
+            coefficient="CD",
+            evidence={"F": F, "sensor_alternatives": [alt], "rivals": [rival]},
+            verdict={"accepted": True, "holdout_gain": gain},
+        )
 
     strong = cause(1337.3, 1.66, -2.93, -13.53)
     instrument_verdict(strong)
     assert not strong.verdict["accepted"] and strong.verdict["unconfirmed"]
-    assert "alpha_deg bias -0.08" in strong.verdict["reason"] and "not by the 5 standard errors" in strong.verdict["reason"]
+    assert (
+        "alpha_deg bias -0.08" in strong.verdict["reason"]
+        and "not by the 5 standard errors" in strong.verdict["reason"]
+    )
     for weak in (cause(900.0, 1.66, -2.93, -13.53), cause(1337.3, 1.4, -2.93, -13.53)):
         instrument_verdict(weak)
         assert not weak.verdict["accepted"] and not weak.verdict["unconfirmed"], weak.verdict
@@ -371,15 +569,26 @@ def test_only_an_aerodynamic_rival_the_data_prefer_by_3_standard_errors_replaces
     """The rival's swapped-in term replaces the one it stood for, in a named cause only; a rival
     2.9 standard errors better, a sensor rival, or one beside a rejected cause changes nothing."""
     from types import SimpleNamespace
+
     quad = Term("quadratic", ("CL",), (), (0.5,), ((0.2, 0.9),))
     inter = Term("product", ("alpha_deg", "mach"), (), (4.0, 0.4), ((1.0, 9.0), (0.3, 0.5)))
     gear = Term("smooth", ("gear_norm",), (0.0, 0.5, 1.0))
 
     def cause(separation, kind="aero", accepted=True):
-        rival = {"rival": f"Cm: {inter.label} + {gear.label}", "kind": kind, "term": inter.label,
-                 "replaces": quad.label if kind == "aero" else None, "separation_se": separation}
-        return SimpleNamespace(kind="aero", coefficient="Cm", terms=[quad, gear], verdict={"accepted": accepted},
-                               evidence={"rivals": [rival]})
+        rival = {
+            "rival": f"Cm: {inter.label} + {gear.label}",
+            "kind": kind,
+            "term": inter.label,
+            "replaces": quad.label if kind == "aero" else None,
+            "separation_se": separation,
+        }
+        return SimpleNamespace(
+            kind="aero",
+            coefficient="Cm",
+            terms=[quad, gear],
+            verdict={"accepted": accepted},
+            evidence={"rivals": [rival]},
+        )
 
     pools = {"Cm": [quad, inter, gear]}
     assert sep.preferred_aero_rivals([cause(-9.6)], pools) == {"Cm": {quad: inter}}
@@ -405,8 +614,18 @@ def _dead_band_in_alpha(with_mach: bool) -> pd.DataFrame:
         m = mach - 0.004 * swing + rng.normal(0, 0.001, n)
         band = np.sign(a - 5.0) * np.maximum(np.abs(a - 5.0) - 0.7, 0.0)
         scale = (m - 0.28) / 0.22 if with_mach else 1.0
-        out.append(pd.DataFrame({"log": i, "alpha_deg": a, "mach": m, "r_CL": rng.normal(0, 1e-3, n),
-                                 "r_CD": rng.normal(0, 1e-4, n), "r_Cm": 0.004 * band * scale + rng.normal(0, 2e-4, n)}))
+        out.append(
+            pd.DataFrame(
+                {
+                    "log": i,
+                    "alpha_deg": a,
+                    "mach": m,
+                    "r_CL": rng.normal(0, 1e-3, n),
+                    "r_CD": rng.normal(0, 1e-4, n),
+                    "r_Cm": 0.004 * band * scale + rng.normal(0, 2e-4, n),
+                }
+            )
+        )
     return pd.concat(out, ignore_index=True)
 
 
@@ -421,6 +640,7 @@ def test_a_term_in_alpha_gives_way_to_one_in_alpha_and_mach_only_if_mach_fits_be
     from diagnose.causes import name_causes
     from diagnose.stepwise import Lags, stepwise
     from diagnose.terms import candidate_terms
+
     frame = _dead_band_in_alpha(with_mach)
     lags = Lags(frame["log"].to_numpy())
     pool = candidate_terms(frame, "Cm")
@@ -447,9 +667,11 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
     from types import SimpleNamespace
 
     from diagnose.terms import candidate_terms, tail_twin
+
     rng = np.random.default_rng(7)
-    alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 400)) + 0.05 * rng.standard_normal(400)
-                            for a in (1.0, 2.5, 4.0, 6.0, 8.5)])
+    alpha = np.concatenate(
+        [a + np.sin(np.linspace(0, 9, 400)) + 0.05 * rng.standard_normal(400) for a in (1.0, 2.5, 4.0, 6.0, 8.5)]
+    )
     frame = pd.DataFrame({"alpha_deg": alpha, "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(len(alpha))})
     pool = candidate_terms(frame, "Cm")
     by_label = {t.label: t for t in pool}
@@ -458,10 +680,16 @@ def test_a_rival_swapped_in_for_a_term_refined_with_the_tails_knots_goes_in_refi
     assert twin_cl is not None and twin_alpha is not None and twin_alpha not in pool
 
     def cause(term):
-        rival = {"rival": f"Cm: {s_alpha.label}", "kind": "aero", "term": s_alpha.label, "replaces": term.label,
-                 "separation_se": -6.0}
-        return SimpleNamespace(kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True},
-                               evidence={"rivals": [rival]})
+        rival = {
+            "rival": f"Cm: {s_alpha.label}",
+            "kind": "aero",
+            "term": s_alpha.label,
+            "replaces": term.label,
+            "separation_se": -6.0,
+        }
+        return SimpleNamespace(
+            kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True}, evidence={"rivals": [rival]}
+        )
 
     assert sep.preferred_aero_rivals([cause(twin_cl)], {"Cm": pool}, frame) == {"Cm": {twin_cl: twin_alpha}}
     assert sep.preferred_aero_rivals([cause(s_cl)], {"Cm": pool}, frame) == {"Cm": {s_cl: s_alpha}}
@@ -475,20 +703,33 @@ def test_a_term_in_cl_gives_way_to_its_twin_in_alpha_unless_the_data_prefer_cl_b
     from types import SimpleNamespace
 
     from diagnose.terms import candidate_terms
+
     rng = np.random.default_rng(8)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
-    frame = pd.DataFrame({"alpha_deg": alpha, "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(len(alpha)),
-                          "mach": np.repeat([0.3, 0.4, 0.5], 300), "gear_norm": np.tile(np.linspace(0, 1, 300), 3)})
+    frame = pd.DataFrame(
+        {
+            "alpha_deg": alpha,
+            "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(len(alpha)),
+            "mach": np.repeat([0.3, 0.4, 0.5], 300),
+            "gear_norm": np.tile(np.linspace(0, 1, 300), 3),
+        }
+    )
     pool = candidate_terms(frame, "Cm")
     by_label = {t.label: t for t in pool}
     assert state_twins.in_alpha(by_label["smooth(gear_norm) x CL"], pool) == by_label["smooth(gear_norm) x alpha_deg"]
     assert state_twins.in_alpha(by_label["smooth(mach)"], pool) is None
 
     def swaps(term, rival, separation):
-        r = {"rival": f"Cm: {rival.label}", "kind": "aero", "term": rival.label, "replaces": term.label,
-             "separation_se": separation}
-        c = SimpleNamespace(kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True},
-                            evidence={"rivals": [r]})
+        r = {
+            "rival": f"Cm: {rival.label}",
+            "kind": "aero",
+            "term": rival.label,
+            "replaces": term.label,
+            "separation_se": separation,
+        }
+        c = SimpleNamespace(
+            kind="aero", coefficient="Cm", terms=[term], verdict={"accepted": True}, evidence={"rivals": [r]}
+        )
         return sep.preferred_aero_rivals([c], {"Cm": pool}, frame)
 
     s_cl, s_alpha, s_mach = by_label["smooth(CL)"], by_label["smooth(alpha_deg)"], by_label["smooth(mach)"]
@@ -509,11 +750,18 @@ def test_a_term_in_cl_alone_has_every_candidate_in_alpha_and_mach_together_as_a_
     from types import SimpleNamespace
 
     from diagnose.terms import candidate_terms
+
     rng = np.random.default_rng(9)
     alpha = np.concatenate([a + np.sin(np.linspace(0, 9, 300)) for a in (1.0, 3.0, 6.0)])
     mach = np.repeat([0.5, 0.4, 0.3], 300) + 0.002 * rng.standard_normal(900)
-    frame = pd.DataFrame({"alpha_deg": alpha, "mach": mach, "gear_norm": np.tile(np.r_[np.zeros(150), np.ones(150)], 3),
-                          "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(900)})
+    frame = pd.DataFrame(
+        {
+            "alpha_deg": alpha,
+            "mach": mach,
+            "gear_norm": np.tile(np.r_[np.zeros(150), np.ones(150)], 3),
+            "CL": 0.2 + 0.1 * alpha + 0.01 * rng.standard_normal(900),
+        }
+    )
     pool = candidate_terms(frame, "Cm")
     by_label = {t.label: t for t in pool}
     both = {t.label for t in pool if set(t.variables) == {"alpha_deg", "mach"}}
@@ -523,6 +771,7 @@ def test_a_term_in_cl_alone_has_every_candidate_in_alpha_and_mach_together_as_a_
         cause = SimpleNamespace(coefficient="Cm", terms=[term])
         result = SimpleNamespace(close={})
         return {h.terms[0].label for h in sep.rival_hypotheses(cause, result, pool, [], None)}
+
     assert rivals(by_label["quadratic(CL)"]) == {"quadratic(alpha_deg)"} | both
     assert not rivals(by_label["gear_norm x CL"]) & both
 
@@ -549,15 +798,20 @@ def test_a_term_in_cl_alone_gives_way_to_alpha_and_mach_only_if_alpha_alone_will
     """quadratic(CL) with quadratic(alpha) 1 standard error behind and alpha x Mach 6 ahead: alpha is
     named (alpha x Mach has the more columns); with quadratic(alpha) 12.5 behind, alpha x Mach."""
     from types import SimpleNamespace
+
     quad = Term("quadratic", ("CL",), (), (0.5,), ((0.2, 0.9),))
     twin = Term("quadratic", ("alpha_deg",), (), (4.0,), ((1.0, 9.0),))
     inter = Term("product", ("alpha_deg", "mach"), (), (4.0, 0.4), ((1.0, 9.0), (0.3, 0.5)))
 
     def cause(twin_se):
-        rivals = [{"rival": f"Cm: {t.label}", "kind": "aero", "term": t.label, "replaces": quad.label,
-                   "separation_se": se} for t, se in ((twin, twin_se), (inter, -6.0))]
-        return SimpleNamespace(kind="aero", coefficient="Cm", terms=[quad], verdict={"accepted": True},
-                               evidence={"rivals": rivals})
+        rivals = [
+            {"rival": f"Cm: {t.label}", "kind": "aero", "term": t.label, "replaces": quad.label, "separation_se": se}
+            for t, se in ((twin, twin_se), (inter, -6.0))
+        ]
+        return SimpleNamespace(
+            kind="aero", coefficient="Cm", terms=[quad], verdict={"accepted": True}, evidence={"rivals": rivals}
+        )
+
     pools = {"Cm": [quad, twin, inter]}
     assert sep.preferred_aero_rivals([cause(1.0)], pools) == {"Cm": {quad: twin}}
     assert sep.preferred_aero_rivals([cause(12.5)], pools) == {"Cm": {quad: inter}}
@@ -570,13 +824,18 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     from types import SimpleNamespace
 
     from diagnose.terms import candidate_terms
+
     rng = np.random.default_rng(4)
     n = 900
-    frame = pd.DataFrame({"alpha_deg": np.repeat([2.0, 4.0, 7.0], 300) + rng.standard_normal(n),
-                          "mach": np.repeat([0.5, 0.4, 0.3], 300) + 0.002 * rng.standard_normal(n),
-                          "elevator_deg": np.repeat([-1.0, -2.5, -4.0], 300) + rng.standard_normal(n),
-                          "gear_norm": np.tile(np.r_[np.zeros(100), np.linspace(0, 1, 100), np.ones(100)], 3),
-                          "CL": 0.5 + 0.01 * rng.standard_normal(n)})
+    frame = pd.DataFrame(
+        {
+            "alpha_deg": np.repeat([2.0, 4.0, 7.0], 300) + rng.standard_normal(n),
+            "mach": np.repeat([0.5, 0.4, 0.3], 300) + 0.002 * rng.standard_normal(n),
+            "elevator_deg": np.repeat([-1.0, -2.5, -4.0], 300) + rng.standard_normal(n),
+            "gear_norm": np.tile(np.r_[np.zeros(100), np.linspace(0, 1, 100), np.ones(100)], 3),
+            "CL": 0.5 + 0.01 * rng.standard_normal(n),
+        }
+    )
     pool = candidate_terms(frame, "Cm")
     by_label = {t.label: t for t in pool}
     gear_elev = by_label["smooth(gear_norm) x elevator_deg"]
@@ -589,11 +848,21 @@ def test_a_term_in_a_trimmed_control_times_another_variable_gives_way_to_the_flo
     assert {gear_alpha.label, gear_mach.label} <= rivals
 
     def swap(alpha_se, mach_se=4.4):
-        rivals = [{"rival": f"Cm: {t.label}", "kind": "aero", "term": t.label, "replaces": gear_elev.label,
-                   "separation_se": se} for t, se in ((gear_alpha, alpha_se), (gear_mach, mach_se))]
-        c = SimpleNamespace(kind="aero", coefficient="Cm", terms=[gear_elev], verdict={"accepted": True},
-                            evidence={"rivals": rivals})
+        rivals = [
+            {
+                "rival": f"Cm: {t.label}",
+                "kind": "aero",
+                "term": t.label,
+                "replaces": gear_elev.label,
+                "separation_se": se,
+            }
+            for t, se in ((gear_alpha, alpha_se), (gear_mach, mach_se))
+        ]
+        c = SimpleNamespace(
+            kind="aero", coefficient="Cm", terms=[gear_elev], verdict={"accepted": True}, evidence={"rivals": rivals}
+        )
         return sep.preferred_aero_rivals([c], {"Cm": pool})
+
     assert swap(0.8) == {"Cm": {gear_elev: gear_alpha}}
     assert swap(-1.0) == {"Cm": {gear_elev: gear_alpha}}
     assert swap(2.2) == {}
@@ -624,6 +893,7 @@ def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condi
     from types import SimpleNamespace
 
     from diagnose.terms import candidate_terms
+
     step = _alpha_and_mach(5, lambda a, m: 0.02 * (a > 4.0))
     ramp = _alpha_and_mach(6, lambda a, m: 0.05 * np.clip(m - 0.35, 0.0, None))
     pool = candidate_terms(step, "CL")
@@ -637,15 +907,23 @@ def test_a_term_in_mach_gives_way_to_alpha_when_the_manoeuvres_within_each_condi
 
     def named(frame) -> str:
         mach = by_label["linear(mach)"]
-        cause = SimpleNamespace(kind="aero", coefficient="CL", terms=[mach], verdict={"accepted": True},
-                                evidence={"rivals": []})
+        cause = SimpleNamespace(
+            kind="aero", coefficient="CL", terms=[mach], verdict={"accepted": True}, evidence={"rivals": []}
+        )
         stack = sep.Stack(frame, [1 / 0.002, 1 / 0.0002, 1 / 0.001], {}, {})
         mine = sep.Hypothesis("CL vs mach", "aero", "CL", (mach,))
         for h in sep.rival_hypotheses(cause, SimpleNamespace(close={}), pool, [], None):
-            cause.evidence["rivals"].append({"rival": h.name, "kind": "aero", "term": h.terms[0].label,
-                                             "replaces": mach.label,
-                                             "separation_se": sep.pair(stack, mine, h)["separation_se"]})
+            cause.evidence["rivals"].append(
+                {
+                    "rival": h.name,
+                    "kind": "aero",
+                    "term": h.terms[0].label,
+                    "replaces": mach.label,
+                    "separation_se": sep.pair(stack, mine, h)["separation_se"],
+                }
+            )
         swap = sep.preferred_aero_rivals([cause], {"CL": pool}, frame).get("CL", {})
         return swap[mach].label if swap else mach.label
+
     assert named(step).endswith("(alpha_deg)"), named(step)
     assert named(ramp) == "linear(mach)"

@@ -1,5 +1,6 @@
 """The product speaks to its users: no development history in code, docs, tests or benchmarks, a
 README a newcomer reads in ten minutes, and the README's commands and table in step with the tree."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -11,8 +12,21 @@ ROOT = Path(__file__).resolve().parents[1]
 #: What development history looks like in text: a work session's number, an issue's number.
 HISTORY = re.compile(r"\bstops? [0-9]+\b|since stop|until stop|\bissue [0-9]+\b", re.IGNORECASE)
 #: Where the product's text lives (outputs are produced by the code, so the code covers them).
-SCANNED = ("README.md", "mkdocs.yml", "pyproject.toml", "campaign", "identify", "diagnose", "maneuvers",
-           "infra", "aircraft", "docs", "tests", "benchmarks", ".ci")
+SCANNED = (
+    "README.md",
+    "mkdocs.yml",
+    "pyproject.toml",
+    "campaign",
+    "identify",
+    "diagnose",
+    "maneuvers",
+    "infra",
+    "aircraft",
+    "docs",
+    "tests",
+    "benchmarks",
+    ".ci",
+)
 SUFFIXES = {".py", ".md", ".toml", ".xml", ".yml", ".yaml", ".csv", ".json", ".txt", ".cfg", ""}
 SKIPPED = {"__pycache__", "generated", ".venv", "site"}
 #: This file holds the pattern and examples of what it finds.
@@ -89,6 +103,12 @@ def test_the_readme_s_commands_are_found_and_their_files_exist():
 
 def test_the_commands_parser_joins_continuations_and_skips_what_is_marked():
     check = _load(ROOT / ".ci" / "readme_check.py", "readme_check")
-    text = ("x\n```sh\n# a comment\ncampaign run \\\n    --jobs 2\n\ncampaign report r\n```\n"
-            f"{check.SKIP} (why) -->\n```sh\ncampaign points\n```\n```python\nprint(1)\n```\n")
-    assert check.commands(text) == ["campaign run --jobs 2", "campaign report r", "python - <<'PYTHON'\nprint(1)\nPYTHON"]
+    text = (
+        "x\n```sh\n# a comment\ncampaign run \\\n    --jobs 2\n\ncampaign report r\n```\n"
+        f"{check.SKIP} (why) -->\n```sh\ncampaign points\n```\n```python\nprint(1)\n```\n"
+    )
+    assert check.commands(text) == [
+        "campaign run --jobs 2",
+        "campaign report r",
+        "python - <<'PYTHON'\nprint(1)\nPYTHON",
+    ]

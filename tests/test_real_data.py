@@ -6,6 +6,7 @@ Jategaonkar, *Flight Vehicle System Identification*, 2nd ed. (AIAA 2015). A mode
 record, built into a JSBSim aircraft (``campaign model``), must show nothing against another record of the
 same aeroplane; with one of its own terms taken out, the diagnosis must name that term first.
 """
+
 from __future__ import annotations
 
 import json
@@ -78,11 +79,15 @@ def test_attas_model_shows_nothing_against_the_other_record(attas):
     assert diag.noise["alpha_deg"] == pytest.approx(DEFAULTS.default_accuracy["alpha_deg"]["noise"])
 
 
-@pytest.mark.parametrize("change, named", [
-    (("Cm", "qhat_rad", 0.5), ("Cm", "qhat_rad")),
-    (("CL", "dalpha_rad", 0.8), ("CL", "alpha_deg")),
-    (("Cm", "delevator_rad", 0.0), ("Cm", "elevator_deg")),
-], ids=["Cmq-halved", "CLalpha-x0.8", "no-Cm-elevator"])
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        (("Cm", "qhat_rad", 0.5), ("Cm", "qhat_rad")),
+        (("CL", "dalpha_rad", 0.8), ("CL", "alpha_deg")),
+        (("Cm", "delevator_rad", 0.0), ("Cm", "elevator_deg")),
+    ],
+    ids=["Cmq-halved", "CLalpha-x0.8", "no-Cm-elevator"],
+)
 def test_attas_model_with_a_term_taken_out_is_named_by_that_term(attas, change, named):
     """The ATTAS model with its pitch damping halved, its lift slope scaled by 0.8, or without the elevator's
     pitching moment: the first cause names that coefficient and variable, confirmed on fAttasElv2."""
@@ -132,42 +137,63 @@ def test_hfb320_model_shows_nothing_against_the_pulse_and_names_a_halved_damping
 def test_a_declared_accuracy_and_gravity_reach_the_log_and_the_diagnosis(tmp_path):
     """An import map's ``[accuracy]`` goes into each log's metadata and sets the noise the floor draws; its
     ``gravity`` replaces the standard one for the data compatibility."""
-    text = ((EXAMPLES / "attas-map.toml").read_text().replace("[aircraft]", '[aircraft]\ngravity = "9.79 m/s^2"')
-            + '\n[accuracy.alpha_deg]\nnoise = "0.1 deg"\nbias = "0.2 deg"\nscale = 0.01\ndelay = "0.04 s"\n')
+    text = (EXAMPLES / "attas-map.toml").read_text().replace(
+        "[aircraft]", '[aircraft]\ngravity = "9.79 m/s^2"'
+    ) + '\n[accuracy.alpha_deg]\nnoise = "0.1 deg"\nbias = "0.2 deg"\nscale = 0.01\ndelay = "0.04 s"\n'
     folder = _identified(tmp_path, DATA / "fAttasElv1.mat", text, "e1")
-    log, = load_data(folder)
+    (log,) = load_data(folder)
     assert log.meta["gravity_fps2"] == pytest.approx(9.79 / 0.3048)
-    assert log.meta["instrument_accuracy"]["alpha_deg"] == {"noise": pytest.approx(0.1), "bias": pytest.approx(0.2),
-                                                           "scale": 0.01, "delay_s": pytest.approx(0.04)}
+    assert log.meta["instrument_accuracy"]["alpha_deg"] == {
+        "noise": pytest.approx(0.1),
+        "bias": pytest.approx(0.2),
+        "scale": 0.01,
+        "delay_s": pytest.approx(0.04),
+    }
     from diagnose.accuracy import instrumentation
+
     with using(DEFAULTS):
         inst = instrumentation([log])
     assert inst.source == "declared and default" and inst.declared == ("alpha_deg",)
     assert inst.noise({"alpha_deg": 0.005, "q_dps": 0.001})["alpha_deg"] == pytest.approx(0.1)
     names, cov = inst.unmeasured([("alpha_deg", "bias")], set(log.data.columns), 2.0)
     assert ("alpha_deg", "bias") not in names and ("alpha_deg", "scale") in names
-    assert cov[names.index(("alpha_deg", "scale")), names.index(("alpha_deg", "scale"))] == pytest.approx(0.005 ** 2)
+    assert cov[names.index(("alpha_deg", "scale")), names.index(("alpha_deg", "scale"))] == pytest.approx(0.005**2)
 
 
 def test_a_latitude_gives_the_wgs84_gravity_at_the_logs_altitude():
     from campaign.importing.declared import normal_gravity_fps2
+
     assert normal_gravity_fps2(0.0, 0.0) * 0.3048 == pytest.approx(9.7803253359)
     assert normal_gravity_fps2(90.0, 0.0) * 0.3048 == pytest.approx(9.8321849378, rel=1e-9)
     assert normal_gravity_fps2(45.0, 16000.0) * 0.3048 == pytest.approx(9.8062 - 0.01503, abs=2e-4)
 
 
-@pytest.mark.parametrize("section, why", [
-    ('[accuracy.alpha_deg]\nnoise = "-0.1 deg"\n', "accuracy.alpha_deg.noise"),
-    ('[accuracy.alpha_deg]\nscale = 0.8\n', "accuracy.alpha_deg.scale"),
-    ('[accuracy.flap]\nnoise = 0.1\n', "accuracy.flap"),
-    ('[records]\nsplit_s = [30.0, 10.0]\n', "records.split_s"),
-    ('[records]\nsplit_s = [24.9]\n', "records.split_s"),
-])
+@pytest.mark.parametrize(
+    "section, why",
+    [
+        ('[accuracy.alpha_deg]\nnoise = "-0.1 deg"\n', "accuracy.alpha_deg.noise"),
+        ("[accuracy.alpha_deg]\nscale = 0.8\n", "accuracy.alpha_deg.scale"),
+        ("[accuracy.flap]\nnoise = 0.1\n", "accuracy.flap"),
+        ("[records]\nsplit_s = [30.0, 10.0]\n", "records.split_s"),
+        ("[records]\nsplit_s = [24.9]\n", "records.split_s"),
+    ],
+)
 def test_a_map_with_an_implausible_declaration_is_refused_in_one_line(tmp_path, capsys, section, why):
     text = (EXAMPLES / "attas-map.toml").read_text() + "\n" + section
     (tmp_path / "map.toml").write_text(text)
-    assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(tmp_path / "map.toml"),
-                 "--out", str(tmp_path / "out")]) == 2
+    assert (
+        main(
+            [
+                "import",
+                str(DATA / "fAttasElv1.mat"),
+                "--map",
+                str(tmp_path / "map.toml"),
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert why in err and err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "out").exists()
@@ -177,16 +203,39 @@ def test_a_map_with_an_implausible_declaration_is_refused_in_one_line(tmp_path, 
 def test_a_gravity_outside_the_earths_is_refused_in_one_line(tmp_path, capsys, gravity):
     text = (EXAMPLES / "attas-map.toml").read_text().replace("[aircraft]", f"[aircraft]\ngravity = {gravity}")
     (tmp_path / "map.toml").write_text(text)
-    assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(tmp_path / "map.toml"),
-                 "--out", str(tmp_path / "out")]) == 2
+    assert (
+        main(
+            [
+                "import",
+                str(DATA / "fAttasElv1.mat"),
+                "--map",
+                str(tmp_path / "map.toml"),
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "aircraft.gravity" in err and "9.7..9.9 m/s^2" in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists()
 
 
 def _sensor(error: str, estimate: float, unit: str) -> Cause:
-    c = Cause("CL", ["thrust_lbf"], [], "scale factor", {}, 0.01, size=0.01, kind="sensor", channel="thrust_lbf",
-              error=error, estimate=estimate, se=0.1)
+    c = Cause(
+        "CL",
+        ["thrust_lbf"],
+        [],
+        "scale factor",
+        {},
+        0.01,
+        size=0.01,
+        kind="sensor",
+        channel="thrust_lbf",
+        error=error,
+        estimate=estimate,
+        se=0.1,
+    )
     c.verdict = {"accepted": True, "reason": "", "unit": unit}
     return c
 
@@ -210,8 +259,13 @@ def test_a_cause_that_makes_the_held_out_logs_worse_is_not_named():
 
     def logs(slope: float, n: int) -> pd.DataFrame:
         a = rng.uniform(2.0, 8.0, (n, 300))
-        return pd.DataFrame({"log": np.repeat(np.arange(n), 300), "alpha_deg": a.ravel(),
-                             "r_CL": (slope * (a - 5.0) + rng.normal(0.0, 1e-4, a.shape)).ravel()})
+        return pd.DataFrame(
+            {
+                "log": np.repeat(np.arange(n), 300),
+                "alpha_deg": a.ravel(),
+                "r_CL": (slope * (a - 5.0) + rng.normal(0.0, 1e-4, a.shape)).ravel(),
+            }
+        )
 
     data = logs(0.01, 3)
     term = Term("linear", ("alpha_deg",), (), (5.0,), ((2.0, 8.0),))

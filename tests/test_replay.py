@@ -1,4 +1,5 @@
 """Replays: cases, three aircraft, open and closed loop, metrics, plots without JSBSim."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -11,8 +12,10 @@ from campaign.errors import UserError
 from campaign.replays.replay import DEFAULT_CASES, load_cases, select
 from campaign.validation.support import matrix_toml, pairs
 
-MATRIX = matrix_toml(pairs((5, 0.3, [2000, 5000, 10000]), (5, 0.4, 5000), (30, 0.2, [2000, 5000]),
-                            (30, 0.3, [5000, 10000])), "replay-test")
+MATRIX = matrix_toml(
+    pairs((5, 0.3, [2000, 5000, 10000]), (5, 0.4, 5000), (30, 0.2, [2000, 5000]), (30, 0.3, [5000, 10000])),
+    "replay-test",
+)
 
 
 @pytest.fixture(scope="module")
@@ -35,8 +38,15 @@ def test_default_cases_file_holds_the_five_cases():
         select(cases, ["taxi"])
 
 
-@pytest.mark.parametrize("edit, field", [("ias_kt = 145", "ias_kt = 0"), ("flap_deg = 5", "flap_deg = \"5\""),
-                                         ('gear = "retract"', 'gear = "up"'), ("alt_ft = 2000", "alt_fx = 2000")])
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        ("ias_kt = 145", "ias_kt = 0"),
+        ("flap_deg = 5", 'flap_deg = "5"'),
+        ('gear = "retract"', 'gear = "up"'),
+        ("alt_ft = 2000", "alt_fx = 2000"),
+    ],
+)
 def test_bad_cases_file(tmp_path, edit, field):
     p = tmp_path / "cases.toml"
     p.write_text(DEFAULT_CASES.read_text().replace(edit, field, 1))
@@ -47,9 +57,18 @@ def test_bad_cases_file(tmp_path, edit, field):
 
 def test_replays_meet_part60_and_beat_the_linear_model(replayed):
     df = pd.read_csv(replayed / "replays" / "metrics.csv")
-    assert set(df.columns) >= {"case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg",
-                               "max_err_alpha_deg", "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft",
-                               "qtg_pass"}
+    assert set(df.columns) >= {
+        "case",
+        "model",
+        "loop",
+        "max_err_theta_deg",
+        "rms_err_theta_deg",
+        "max_err_alpha_deg",
+        "max_err_q_dps",
+        "max_err_tas_kt",
+        "max_err_alt_ft",
+        "qtg_pass",
+    }
     assert len(df) == 5 * 2 * 2  # cases x models x loops
     nl = df[df.model == "nonlinear"]
     assert nl.qtg_pass.all()
@@ -79,6 +98,7 @@ def test_a_run_resumed_on_a_finished_folder_keeps_what_its_inputs_have_not_chang
     import shutil
 
     from campaign.orchestration.store import read_meta
+
     c = tmp_path / "c"
     shutil.copytree(replayed, c)  # the copy keeps its identification's stamp: paths are not in it
     rep = c / "replays"
@@ -107,6 +127,7 @@ def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_optio
     import shutil
 
     from identify.pipeline import source_stamp
+
     a = tmp_path / "a"
     a.mkdir()
     (a / "manifest.json").write_text("{}")
@@ -125,6 +146,7 @@ def test_an_identifications_stamp_follows_the_logs_bytes_the_model_and_the_optio
 
 def test_open_loop_freezes_controls_and_closed_loop_holds(replayed):
     from campaign.orchestration.store import read_log
+
     open_, _ = read_log(replayed / "replays" / "landing-135kt__reference__open.parquet")
     closed, _ = read_log(replayed / "replays" / "landing-135kt__reference__closed.parquet")
     assert open_.elevator_deg.nunique() == 1 and open_.throttle_norm.nunique() == 1
@@ -139,18 +161,27 @@ def test_plots_redraw_from_stored_logs_without_jsbsim(replayed, tmp_path):
     """A stub jsbsim package first on the path makes any import of JSBSim, in the
     command or in its plotting workers, fail: plots must not need it."""
     import os
+
     stub = tmp_path / "stub" / "jsbsim"
     stub.mkdir(parents=True)
     (stub / "__init__.py").write_text("raise ImportError('campaign plots must not run JSBSim')\n")
     for png in (replayed / "replays" / "plots").glob("*.png"):
         png.unlink()
     env = {**os.environ, "PYTHONPATH": str(stub.parent)}
-    res = subprocess.run([sys.executable, "-m", "campaign.cli", "plots", str(replayed), "--case", "landing",
-                          "--jobs", "2"], capture_output=True, text=True, env=env)
+    res = subprocess.run(
+        [sys.executable, "-m", "campaign.cli", "plots", str(replayed), "--case", "landing", "--jobs", "2"],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert res.returncode == 0, res.stderr
     pngs = sorted(p.name for p in (replayed / "replays" / "plots").glob("*.png"))
-    assert pngs == ["landing-135kt__closed.png", "landing-135kt__open.png",
-                    "landing-heavy-160kt__closed.png", "landing-heavy-160kt__open.png"]  # partial name
+    assert pngs == [
+        "landing-135kt__closed.png",
+        "landing-135kt__open.png",
+        "landing-heavy-160kt__closed.png",
+        "landing-heavy-160kt__open.png",
+    ]  # partial name
     check = subprocess.run([sys.executable, "-c", "import jsbsim"], env=env, capture_output=True, text=True)
     assert "must not run JSBSim" in check.stderr  # the stub is really in the way
 
@@ -174,8 +205,9 @@ def test_a_case_figure_drawn_on_the_reused_axes_equals_a_new_figure(tmp_path):
         return pd.DataFrame({"t_s": t, "gear_norm": (t > gear_at).astype(float), **d})
 
     t1, t2 = np.arange(0, 30, 0.1), np.arange(0, 12, 0.05)
-    big = {("a", m, "open"): log(t1, 40.0 * (1 + k / 10), 5.0) for k, m in enumerate(("reference", "linear",
-                                                                                         "nonlinear"))}
+    big = {
+        ("a", m, "open"): log(t1, 40.0 * (1 + k / 10), 5.0) for k, m in enumerate(("reference", "linear", "nonlinear"))
+    }
     small = {("b", m, "open"): log(t2, 0.5 * (1 + k / 10), 20.0) for k, m in enumerate(("reference", "nonlinear"))}
     for replays, case in ((big, "a"), (small, "b")):
         _save_plot(replays, case, "open", tmp_path / f"{case}_reused.png")
@@ -193,6 +225,7 @@ def banded(replayed, tmp_path_factory):
     from campaign.replays.replay import load_cases, select
     from campaign.replays.bands import replay_bands
     from campaign.replays.report import write_report
+
     out = tmp_path_factory.mktemp("bands") / "c"
     shutil.copytree(replayed, out)
     doc = replay_bands(out, select(load_cases(), ["landing-135kt"]), 20, jobs=2, held_back=4)
@@ -204,8 +237,9 @@ def test_bands_cover_models_drawn_from_the_covariance_and_give_pass_probabilitie
     """Four draws of each identified model, held back from its 20-draw band, fly inside it: the band
     covers a model whose parameters were perturbed within their covariance."""
     out, doc = banded
-    assert sorted(doc["cases"]) == [f"landing-135kt__{m}__{lp}" for m in ("linear", "nonlinear")
-                                    for lp in ("closed", "open")]
+    assert sorted(doc["cases"]) == [
+        f"landing-135kt__{m}__{lp}" for m in ("linear", "nonlinear") for lp in ("closed", "open")
+    ]
     for name, e in doc["cases"].items():
         assert e["draws"] == 20 and e["draws_flown"] == 20, name
         assert e["held_back_inside"] >= 0.6, (name, e["held_back_inside"])
@@ -223,6 +257,7 @@ def test_bands_cover_models_drawn_from_the_covariance_and_give_pass_probabilitie
     assert (landing[landing.model == "nonlinear"].pass_probability == 1.0).all()
     assert "pass_probability" in (out / "replays" / "metrics.txt").read_text()
     from campaign.reports.report import write_report as html_report
+
     page = Path(html_report(out)).read_text()
     assert page.count("% of 20 draws") == 4 and page.count("not drawn") == 16
 
@@ -231,13 +266,18 @@ def test_bands_are_shaded_in_the_case_plots_and_dropped_when_stale(banded, tmp_p
     import shutil
 
     from campaign.replays.report import load_bands, load_replays, plot_case
+
     src, _ = banded
     out = tmp_path / "c"
     shutil.copytree(src, out)
     summary, frames = load_bands(out)
     replays = load_replays(out, ["landing-135kt"])
-    fig = plot_case({k: v for k, v in replays.items() if k[2] == "open"}, "landing-135kt", "open",
-                    bands={k: v for k, v in frames.items() if k[2] == "open"})
+    fig = plot_case(
+        {k: v for k, v in replays.items() if k[2] == "open"},
+        "landing-135kt",
+        "open",
+        bands={k: v for k, v in frames.items() if k[2] == "open"},
+    )
     assert all(len(ax.collections) == 2 for ax in fig.axes[:1])  # a band per identified model
     assert any("95 % band" in t.get_text() for t in fig.axes[0].get_legend().get_texts())
     # re-flying the case without --bands forgets its bands
@@ -250,6 +290,7 @@ def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
     import shutil
 
     from campaign.replays.report import load_bands
+
     src, _ = banded
     out = tmp_path / "c"
     shutil.copytree(src, out)
@@ -258,15 +299,22 @@ def test_bands_of_another_identification_are_not_shown(banded, tmp_path):
     f.write_text(f.read_text().replace('"arm_ft": [', '"arm_ft": [ '))
     assert load_bands(out) == ({}, {})
     from campaign.reports.report import write_report as html_report
+
     page = Path(html_report(out)).read_text()
     assert "% of 20 draws" not in page and page.count("not drawn") == 20
 
 
-@pytest.mark.parametrize("args, says", [(["--bands", "5"], "20 draws or more"),
-                                        (["--bands", "20"], "gear_surfaces.json: missing"),
-                                        (["--bands", "20"], "gear_surfaces.json: does not read")])
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--bands", "5"], "20 draws or more"),
+        (["--bands", "20"], "gear_surfaces.json: missing"),
+        (["--bands", "20"], "gear_surfaces.json: does not read"),
+    ],
+)
 def test_bad_bands_request_is_one_line_and_writes_nothing(replayed, tmp_path, capsys, args, says):
     import shutil
+
     out = tmp_path / "c"
     shutil.copytree(replayed, out)
     surfaces = out / "identification" / "gear_surfaces.json"
@@ -286,6 +334,7 @@ def test_a_draw_that_does_not_cover_the_whole_time_history_fails_part60():
     import numpy as np
 
     from diagnose.uncertainty import pass_probability
+
     measured = {c: np.zeros(5) for c in ("tas_kt", "alt_ft", "theta_deg")}
     flown = {c: np.zeros((3, 5)) for c in measured}
     flown["tas_kt"][1, 3] = np.nan  # went non-finite partway

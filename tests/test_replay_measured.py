@@ -1,6 +1,7 @@
 """Replays of measured data: the recorded surfaces and the measured thrust flown from a start estimated
 from the log, in the measured wind, judged over their Part 60 or manoeuvre window beside the floor a
 perfect model leaves."""
+
 import json
 from pathlib import Path
 
@@ -20,14 +21,36 @@ def perfect(tmp_path_factory):
     """Our 737 through the flight-test instruments in 3 ft/s turbulence, diagnosed against itself."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.validation.support import matrix_toml, pairs, run_matrix
+
     tmp = tmp_path_factory.mktemp("perfect")
     prof = tmp / "t3.toml"
     prof.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
-    data = run_matrix(tmp / "w", matrix_toml(pairs((0, 0.3, [2000, 10000]), (5, 0.4, [5000])), "p3"),
-                      str(DEFAULT_AIRCRAFT), noise=str(prof), seed=21)
+    data = run_matrix(
+        tmp / "w",
+        matrix_toml(pairs((0, 0.3, [2000, 10000]), (5, 0.4, [5000])), "p3"),
+        str(DEFAULT_AIRCRAFT),
+        noise=str(prof),
+        seed=21,
+    )
     out = tmp / "report"
-    assert main(["diagnose", "--data", str(data), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out), "--no-plots",
-                 "--quiet", "--jobs", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(data),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out),
+                "--no-plots",
+                "--quiet",
+                "--jobs",
+                "2",
+            ]
+        )
+        == 0
+    )
     return json.loads((out / "diagnosis.json").read_text()), out
 
 
@@ -68,6 +91,7 @@ def test_a_replay_flies_the_measured_thrust_not_a_throttle(tmp_path):
     from campaign.simulation.matrix import load_matrix
     from diagnose.gain import on_log_times
     from identify.logs import Log
+
     m = load_matrix()
     src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
     f = fly(m.point("h02000_m0.20_f30_gdn"), "gear_extension", FlightConfig(src, 0, "none", m.maneuver_params))
@@ -80,6 +104,7 @@ def test_a_replay_flies_the_measured_thrust_not_a_throttle(tmp_path):
     bare = tmp_path / "glider"
     bare.mkdir()
     import xml.etree.ElementTree as ET
+
     tree = ET.parse(Path(DEFAULT_AIRCRAFT) / "737.xml")
     tree.getroot().remove(tree.getroot().find("propulsion"))
     tree.write(bare / "glider.xml")
@@ -93,13 +118,39 @@ def test_attas_diagnosed_against_the_aircraft_campaign_model_builds(tmp_path, ca
     thrust force, in still air (no inertial velocity), finite, with its floor."""
     one, both = tmp_path / "a1", tmp_path / "both"
     assert main(["import", str(DATA / "fAttasElv1.mat"), "--map", str(DOCS / "attas-map.toml"), "--out", str(one)]) == 0
-    assert main(["import", str(DATA / "fAttasElv1.mat"), str(DATA / "fAttasElv2.mat"), "--map",
-                 str(DOCS / "attas-map.toml"), "--out", str(both)]) == 0
+    assert (
+        main(
+            [
+                "import",
+                str(DATA / "fAttasElv1.mat"),
+                str(DATA / "fAttasElv2.mat"),
+                "--map",
+                str(DOCS / "attas-map.toml"),
+                "--out",
+                str(both),
+            ]
+        )
+        == 0
+    )
     assert main(["identify", str(one), "--plots", "none"]) == 0
     assert main(["model", str(one / "identification"), "--out", str(tmp_path / "models" / "attas")]) == 0
     out = tmp_path / "report"
-    assert main(["diagnose", "--data", str(both), "--model", str(tmp_path / "models" / "attas"), "--out", str(out),
-                 "--no-plots", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(both),
+                "--model",
+                str(tmp_path / "models" / "attas"),
+                "--out",
+                str(out),
+                "--no-plots",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((out / "diagnosis.json").read_text())
     assert [Path(p).name for p in doc["data"]["held_out"]] == ["fAttasElv2.parquet"]
     assert doc["data"]["split"].startswith("by flight")

@@ -1,5 +1,6 @@
 """The HTML report: one self-contained file per campaign and per diagnosis, parsed, checked for
 inline figures and no network, rendered in headless Chromium without console errors."""
+
 import json
 import re
 import shutil
@@ -15,9 +16,19 @@ from campaign.reports.html import sha256_files
 from campaign.validation.support import matrix_toml, one_line_error, pairs
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--enable-logging=stderr", "--v=0", "--window-size=1280,1600"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-logging=stderr",
+    "--v=0",
+    "--window-size=1280,1600",
+]
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +37,9 @@ def campaign(tmp_path_factory):
     its replays flown (``campaign run`` writes the report at its end)."""
     folder = tmp_path_factory.mktemp("camp")
     (folder / "m.toml").write_text(matrix_toml(pairs((0, 0.3, [2000, 10000])), "report"))
-    assert main(["run", "--matrix", str(folder / "m.toml"), "--out", str(folder / "out"), "--jobs", "2",
-                 "--quiet"]) == 0
+    assert (
+        main(["run", "--matrix", str(folder / "m.toml"), "--out", str(folder / "out"), "--jobs", "2", "--quiet"]) == 0
+    )
     return folder / "out"
 
 
@@ -53,9 +65,19 @@ def assert_self_contained(tree, text: str) -> None:
 
 def render(path: Path, shot: Path) -> str:
     """Render the page in headless Chromium, take a screenshot; return its log."""
-    res = subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={shot.parent / 'chromium-profile'}",
-                          f"--screenshot={shot}", path.resolve().as_uri()],
-                         capture_output=True, text=True, timeout=120, check=False)
+    res = subprocess.run(
+        [
+            CHROMIUM,
+            *FLAGS,
+            f"--user-data-dir={shot.parent / 'chromium-profile'}",
+            f"--screenshot={shot}",
+            path.resolve().as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     return res.stdout + res.stderr
 
@@ -75,8 +97,14 @@ def test_campaign_report_is_one_self_contained_page_in_part_60_form(campaign):
         page = sections[f"case-{case}-{loop}"]
         assert page.get("class") == "page"
         words = "".join(page.itertext())
-        for item in ("Objective", "Initial conditions", "Driven or constrained", "Tolerances", "Validation data",
-                     "Result"):
+        for item in (
+            "Objective",
+            "Initial conditions",
+            "Driven or constrained",
+            "Tolerances",
+            "Validation data",
+            "Result",
+        ):
             assert item in words, (case, loop, item)
         for _, r in rows[rows.model != "reference"].iterrows():
             assert f"{r['model']}" in words
@@ -89,16 +117,25 @@ def test_campaign_report_is_one_self_contained_page_in_part_60_form(campaign):
     assert first.get("id") == "summary"
     summary = first.find(".//table")
     head = ["".join(th.itertext()) for th in summary.find(".//thead").iter("th")]
-    assert head == ["case", "loop", "linear model", "linear: smallest margin", "nonlinear model",
-                    "nonlinear: smallest margin"]
+    assert head == [
+        "case",
+        "loop",
+        "linear model",
+        "linear: smallest margin",
+        "nonlinear model",
+        "nonlinear: smallest margin",
+    ]
     shown = {}
     for tr in summary.find(".//tbody").iter("tr"):
         cells = ["".join(td.itertext()).strip() for td in tr.iter("td")]
         shown[cells[0], cells[1]] = cells[2:]
     expected = {}
     for r in metrics[metrics.model != "reference"].itertuples():
-        margin = min((3.0 - r.max_err_tas_kt) / 3.0, (100.0 - r.max_err_alt_ft) / 100.0,
-                     (r.tol_theta_deg - r.max_err_theta_deg) / r.tol_theta_deg)
+        margin = min(
+            (3.0 - r.max_err_tas_kt) / 3.0,
+            (100.0 - r.max_err_alt_ft) / 100.0,
+            (r.tol_theta_deg - r.max_err_theta_deg) / r.tol_theta_deg,
+        )
         expected.setdefault((r.case, r.loop), {})[r.model] = ("PASS" if r.qtg_pass else "FAIL", 100 * margin)
     assert set(shown) == set(expected)
     for key, cells in shown.items():
@@ -110,12 +147,15 @@ def test_campaign_report_is_one_self_contained_page_in_part_60_form(campaign):
     nav = "".join(tree.find(".//nav").itertext())
     for (case, loop), got in expected.items():
         assert f"{case} ({loop}) linear {got['linear'][0]} nonlinear {got['nonlinear'][0]}" in nav, nav
-    identifiers = dict(zip(["".join(d.itertext()) for d in first.iter("dt")], ["".join(d.itertext()) for d in first.iter("dd")]))
+    identifiers = dict(
+        zip(["".join(d.itertext()) for d in first.iter("dt")], ["".join(d.itertext()) for d in first.iter("dd")])
+    )
     man = json.loads((campaign / "manifest.json").read_text())
     assert identifiers["campaign"] == man["campaign"] == "report"
     assert man["settings"]["matrix_sha256"][:16] in identifiers["matrix"]
     assert man["settings"]["aircraft_sha256"][:16] in identifiers["aircraft"]
     from infra.provenance import version
+
     assert man["tool"] == {"name": "gear-aero-id", "version": version()}
     assert identifiers["flown by"] == identifiers["report written by"] == f"gear-aero-id {version()}"
     assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", identifiers["report written"])
@@ -138,8 +178,23 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     # the diagnosis of the same campaign against its own bare model: nothing to name, still a report
     out = tmp_path / "diag"
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
-    assert main(["diagnose", "--data", str(campaign), "--model", str(DEFAULT_AIRCRAFT), "--out", str(out),
-                 "--no-plots", "--quiet"]) == 0
+
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(campaign),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(out),
+                "--no-plots",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     tree, text = parse(out / "report.html")
     assert_self_contained(tree, text)
     verdict = tree.find(".//p[@class='verdict']").text
@@ -151,12 +206,15 @@ def test_reports_render_in_chromium_without_console_errors(campaign, tmp_path):
     assert "CONSOLE" not in log
     # logs whose every Mach number is flown at one flap angle: the verdict carries the caution
     from diagnose.flap_mach import flown_together
+
     doc["flown_together"] = flown_together([(2000, 0.2, 30), (2000, 0.3, 0)])
     (out / "diagnosis.json").write_text(json.dumps(doc))
     assert main(["report", str(out)]) == 0
     tree, _ = parse(out / "report.html")
     note = tree.find(".//section[@id='verdict']/p[@class='note']")
-    assert note is not None and note.text.startswith("Caution: flap and Mach flown together (flap 30 deg only at Mach 0.2")
+    assert note is not None and note.text.startswith(
+        "Caution: flap and Mach flown together (flap 30 deg only at Mach 0.2"
+    )
     # a held-out log that leaves four times what the fitted ones do (three is told): the verdict says so too
     check = doc["held_out_check"]["CD"]
     assert not check["told"] and set(check["held_out_rms"]) == {Path(p).name for p in doc["data"]["held_out"]}

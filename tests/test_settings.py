@@ -1,4 +1,5 @@
 """The diagnosis's decision thresholds live in one documented object, and the decisions read them there."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -52,6 +53,7 @@ def test_the_settings_are_current_within_their_block_only():
 def test_a_compat_parameter_decides_by_the_settings_it_carries_into_a_worker():
     """What corrects the logs in a worker process is the data compatibility's result, pickled: each of
     its parameters keeps the thresholds it was estimated with."""
+
     def vane(settings):
         return CompatResult([Parameter("alpha_deg", "bias", "deg", 0.3, 0.05, settings=settings)])
 
@@ -66,10 +68,31 @@ def narrow(tmp_path_factory):
     """The README's own campaign: a gear x alpha pitching moment hidden in our 737, flown through the
     flight-test instruments."""
     from campaign.cli import main
+
     out = tmp_path_factory.mktemp("settings") / "narrow"
-    assert main(["run", "--matrix", str(ROOT / "docs/examples/narrow.toml"), "--effects",
-                 str(ROOT / "docs/examples/gear-alpha-moment.xml"), "--noise", "flight-test", "--seed", "6",
-                 "--out", str(out), "--no-identify", "--no-replay", "--jobs", "2", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--matrix",
+                str(ROOT / "docs/examples/narrow.toml"),
+                "--effects",
+                str(ROOT / "docs/examples/gear-alpha-moment.xml"),
+                "--noise",
+                "flight-test",
+                "--seed",
+                "6",
+                "--out",
+                str(out),
+                "--no-identify",
+                "--no-replay",
+                "--jobs",
+                "2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     return out
 
 

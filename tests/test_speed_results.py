@@ -1,5 +1,6 @@
 """The speed results: one file per run, the comparison that names what got slower, and the speed page
 made from the files (``benchmarks/compare.py``, ``benchmarks/tables.py``)."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -17,13 +18,20 @@ def _load(name: str):
 
 
 def _result(commit: str, date: str, diagnose_s: float, cpu_s: float, stage_s: float) -> dict:
-    return {"benchmark": "speed_table", "command": "python benchmarks/speed_table.py --diagnosis-only",
-            "code_commit": commit, "code_date": date, "date": date, "machine": {"cpu": "x", "cores": 2},
-            "figures": {"diagnose, no plots": {"wall_s": diagnose_s, "cpu_s": cpu_s, "sum_mb": 900.0,
-                                               "others_busy": 0.1},
-                        "diagnose, key plots": {"wall_s": 20.0, "cpu_s": 30.0, "sum_mb": 950.0},
-                        "flying loop / raw fdm.run()": {"ratio": 0.8}},
-            "stages": {"jobs": 2, "stages": {"verdict": {"wall_s": stage_s, "cpu_s": stage_s}}}}
+    return {
+        "benchmark": "speed_table",
+        "command": "python benchmarks/speed_table.py --diagnosis-only",
+        "code_commit": commit,
+        "code_date": date,
+        "date": date,
+        "machine": {"cpu": "x", "cores": 2},
+        "figures": {
+            "diagnose, no plots": {"wall_s": diagnose_s, "cpu_s": cpu_s, "sum_mb": 900.0, "others_busy": 0.1},
+            "diagnose, key plots": {"wall_s": 20.0, "cpu_s": 30.0, "sum_mb": 950.0},
+            "flying loop / raw fdm.run()": {"ratio": 0.8},
+        },
+        "stages": {"jobs": 2, "stages": {"verdict": {"wall_s": stage_s, "cpu_s": stage_s}}},
+    }
 
 
 def test_the_comparison_names_what_got_slower_by_more_than_the_threshold(tmp_path, capsys):
@@ -35,8 +43,11 @@ def test_the_comparison_names_what_got_slower_by_more_than_the_threshold(tmp_pat
     assert [f.name for f in compare.newest(2, tmp_path)] == ["old.json", "new.json"]
     rows = compare.changes(old, new, 20.0)
     slower = {(r["figure"], r["metric"]) for r in rows if r["slower"]}
-    assert slower == {("diagnose, no plots", "CPU"), ("diagnosis stage: verdict", "wall time"),
-                      ("diagnosis stage: verdict", "CPU")}
+    assert slower == {
+        ("diagnose, no plots", "CPU"),
+        ("diagnosis stage: verdict", "wall time"),
+        ("diagnosis stage: verdict", "CPU"),
+    }
     assert compare.main([str(tmp_path / "old.json"), str(tmp_path / "new.json")]) == 1
     assert "SLOWER diagnose, no plots, CPU: 30 -> 37.5 s (+25 %)" in capsys.readouterr().out
     assert compare.main([str(tmp_path / "old.json"), str(tmp_path / "old.json")]) == 0

@@ -1,4 +1,5 @@
 """Trim over the whole matrix, the hold tolerances, physical invariants."""
+
 import numpy as np
 import pytest
 
@@ -85,6 +86,7 @@ def test_logged_channels_match_jsbsim_forces(matrix):
     """Eq. (1) from the logged channels against JSBSim's own lift and drag: a lag,
     sign or axis mistake in the log shows here (~1e-2 for a one-step lag)."""
     from tests.conftest import config_for
+
     cfg = config_for(record_truth=True)
     log = fly(matrix.point("h05000_m0.40_f05_gdn"), "doublet", cfg).log
     a = np.radians(log.alpha_deg)
@@ -99,7 +101,8 @@ def test_logged_channels_match_jsbsim_forces(matrix):
 def test_log_metadata_matches_the_models_xml(matrix, reference_config):
     meta = fly(matrix.point("h02000_m0.30_f00_gup"), "doublet", reference_config).meta
     assert meta["inertia_slugft2"] == pytest.approx(
-        {"ixx": 935248.38, "iyy": 2482936.0, "izz": 3315718.0, "ixz": 133692.41})
+        {"ixx": 935248.38, "iyy": 2482936.0, "izz": 3315718.0, "ixz": 133692.41}
+    )
     g = meta["geometry"]
     assert g["S_ft2"] == 1341.0 and g["b_ft"] == 112.57
     assert g["cbar_ft"] == pytest.approx(155.81 / 12)
@@ -111,6 +114,7 @@ def test_log_metadata_matches_the_models_xml(matrix, reference_config):
 def test_catalog_catches_a_misspelled_property(reference_config, monkeypatch):
     from campaign.errors import UserError
     from campaign.simulation.engine import new_fdm
+
     fdm = new_fdm(reference_config.aircraft)
     monkeypatch.setitem(cat.STATE_CHANNELS, "mach", ("velocities/mahc", 1.0))
     with pytest.raises(UserError, match="velocities/mahc"):
@@ -120,9 +124,11 @@ def test_catalog_catches_a_misspelled_property(reference_config, monkeypatch):
 @pytest.mark.parametrize("post_s", [2.0, 15.0])
 def test_gear_transition_ends_post_s_after_travel(matrix, post_s):
     from tests.conftest import config_for
+
     cfg = config_for()
-    cfg = type(cfg)(cfg.aircraft, maneuver_params=(("gear_retraction", (("post_s", post_s),)),),
-                    clmax_by_flap=cfg.clmax_by_flap)
+    cfg = type(cfg)(
+        cfg.aircraft, maneuver_params=(("gear_retraction", (("post_s", post_s),)),), clmax_by_flap=cfg.clmax_by_flap
+    )
     log = fly(matrix.point("h02000_m0.30_f05_gdn"), "gear_retraction", cfg).log
     assert log.gear_norm.iloc[0] == 1.0
     done = log.t_s[log.gear_norm <= 0.0].iloc[0]
@@ -140,8 +146,10 @@ def test_doublet_holds_the_trimmed_gear(matrix, reference_config, point):
 @pytest.mark.parametrize("weight", [120000.0, 170000.0])
 def test_status_point_weight_is_flown(reference_config, weight):
     from campaign.simulation.matrix import StatusPoint
-    log, meta = (lambda f: (f.log, f.meta))(fly(StatusPoint(2000.0, 0.35, 5, False, weight, ("doublet",)),
-                                                "doublet", reference_config))
+
+    log, meta = (lambda f: (f.log, f.meta))(
+        fly(StatusPoint(2000.0, 0.35, 5, False, weight, ("doublet",)), "doublet", reference_config)
+    )
     assert meta["trim"]["weight_lb"] == pytest.approx(weight)
     assert log.mass_slug.iloc[0] * 32.174049 == pytest.approx(weight, rel=1e-6)
     assert meta["inertia_slugft2"]["iyy"] == pytest.approx(2482936.0)  # the payload sits at the CG
@@ -152,9 +160,9 @@ def test_signal_series_equal_their_values_bit_for_bit(name):
     """The flying loop takes its inputs from ``Signal.series``: it must give ``value(k)``'s floats
     exactly (the logs stay bit-identical), in chunks, past the end and for an empty range."""
     from maneuvers.library import Recorded, make_maneuver
+
     rng = np.random.default_rng(3)
-    m = (Recorded(0.0, *(tuple(rng.normal(size=50)) for _ in range(4))) if name == "recorded"
-         else make_maneuver(name))
+    m = Recorded(0.0, *(tuple(rng.normal(size=50)) for _ in range(4))) if name == "recorded" else make_maneuver(name)
     prog = m.program(1 / 120, 0.7)
     signals = [s for s in (prog.elevator_deg, prog.stabilizer_deg, prog.gear_cmd, prog.throttle) if s is not None]
     assert len(signals) >= 2
@@ -178,10 +186,16 @@ def test_a_level_turn_circles_once_coordinated_at_its_altitude(reference_config,
 
     from campaign.simulation.aircraft import AircraftSource, load_effects
     from campaign.simulation.matrix import StatusPoint
-    cfg = reference_config if aircraft == "ours" else replace(
-        reference_config, aircraft=AircraftSource(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"),
-                                                      load_effects(None)),
-        clmax_by_flap=())
+
+    cfg = (
+        reference_config
+        if aircraft == "ours"
+        else replace(
+            reference_config,
+            aircraft=AircraftSource(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "737"), load_effects(None)),
+            clmax_by_flap=(),
+        )
+    )
     f = fly(StatusPoint(alt_ft=10000.0, mach=0.3, flap_deg=0.0, gear_down=False), "level_turn", cfg)
     log, meta = f.log, f.meta
     heading = np.unwrap(np.radians(log.psi_deg))
@@ -204,9 +218,12 @@ def test_a_level_turn_is_not_an_excitation(tmp_path):
     from campaign.diagnosis.run import load_data
     from identify.pipeline import identify_logs
     from campaign.validation.support import run_matrix
-    text = ('name = "turn"\n[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
-            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
-            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.4\nalt_ft = 2000\nmaneuvers = ["doublet"]\n')
+
+    text = (
+        'name = "turn"\n[maneuvers.doublet]\ntail_s = 2.0\n[maneuvers.level_turn]\nheading_deg = 90.0\n'
+        '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
+        '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.4\nalt_ft = 2000\nmaneuvers = ["doublet"]\n'
+    )
     logs = load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3))
     turn = [lg for lg in logs if lg.maneuver == "level_turn"]
     assert len(turn) == 1 and not turn[0].excitation and not turn[0].transition
@@ -222,8 +239,11 @@ def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
     from campaign.diagnosis.run import load_data
     from identify.compat import estimate
     from campaign.validation.support import run_matrix
-    text = ('name = "one"\n[maneuvers.doublet]\ntail_s = 2.0\n'
-            '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet"]\n')
+
+    text = (
+        'name = "one"\n[maneuvers.doublet]\ntail_s = 2.0\n'
+        '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet"]\n'
+    )
     res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3)))
     assert not res.applied
     assert all(not p.identifiable and "at least two" in p.reason for p in res.parameters)

@@ -2,6 +2,7 @@
 and never "no significant discrepancy" to an effect that dominates the residual.
 
 Only these tests read the overlays, to score the answer."""
+
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ def _named_first(r: dict, effect) -> bool:
     """The largest aero discrepancy named, a cause or one the data cannot confirm, is the effect's
     coefficient and (first) variable."""
     return bool(r.get("coefficient_ok") and r["doc"]["discrepancy"]) and (
-        discrepancies(r["doc"])[0]["variables"][0] == effect.variables[0])
+        discrepancies(r["doc"])[0]["variables"][0] == effect.variables[0]
+    )
 
 
 def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path):
@@ -35,8 +37,7 @@ def test_an_effect_zero_gear_up_is_named_where_most_rows_are_gear_down(tmp_path)
     r = score(tmp_path, effect, seed=11, matrix=matrix, shape=False)
     assert r["discrepancy"] and _named_first(r, effect), (effect.description, r["doc"]["summary"])
     first = r["doc"]["causes"][0]
-    gear_up_logs = [i for i, p in enumerate(r["doc"]["data"]["train"] + r["doc"]["data"]["held_out"])
-                    if "_gup__" in p]
+    gear_up_logs = [i for i, p in enumerate(r["doc"]["data"]["train"] + r["doc"]["data"]["held_out"]) if "_gup__" in p]
     acting = set(first["verdict"]["holdout_logs"])
     assert acting and not acting & set(gear_up_logs), first["verdict"]["holdout_logs"]
 
@@ -61,8 +62,15 @@ def test_a_drag_onset_with_flap_is_not_put_down_to_an_implausible_sideslip_vane_
     sideslip vane's bias in longitudinal manoeuvres (+- 10 deg); within 2 of those standard errors, a
     -19 deg bias, through the wind axes, made all of the drag change, and nothing was named. No
     instrument error is taken as larger than plausible (5 deg)."""
-    doc = diagnose_overlay(tmp_path, "drag_flap_late_onset.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 5000001,
-                           sigma_fps=3.0, channels="[channels.ax_fps2]\nbias = 0.04684199312701896\n")
+    doc = diagnose_overlay(
+        tmp_path,
+        "drag_flap_late_onset.xml",
+        DEFAULT_AIRCRAFT,
+        DIAG_MATRIX,
+        5000001,
+        sigma_fps=3.0,
+        channels="[channels.ax_fps2]\nbias = 0.04684199312701896\n",
+    )
     aero = discrepancies(doc)
     assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "flap_deg", doc["summary"]
 
@@ -97,12 +105,47 @@ def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
 
     from campaign.cli import main
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     fx = tmp_path / "step.xml"
     fx.write_text(MACH_STEP)
-    assert main(["run", "--effects", str(fx), "--noise", "flight-test", "--seed", "13", "--out", str(tmp_path / "d"),
-                 "--jobs", "2", "--no-identify", "--quiet"]) == 0
-    assert main(["diagnose", "--data", str(tmp_path / "d"), "--model", str(DEFAULT_AIRCRAFT), "--out",
-                 str(tmp_path / "r"), "--jobs", "2", "--no-plots", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--effects",
+                str(fx),
+                "--noise",
+                "flight-test",
+                "--seed",
+                "13",
+                "--out",
+                str(tmp_path / "d"),
+                "--jobs",
+                "2",
+                "--no-identify",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "diagnose",
+                "--data",
+                str(tmp_path / "d"),
+                "--model",
+                str(DEFAULT_AIRCRAFT),
+                "--out",
+                str(tmp_path / "r"),
+                "--jobs",
+                "2",
+                "--no-plots",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "r" / "diagnosis.json").read_text())
     first = next(c for c in doc["causes"] if c["kind"] == "aero")
     assert (first["coefficient"], first["variables"][0]) == ("CL", "mach"), doc["summary"]
@@ -119,13 +162,17 @@ def test_a_condition_whose_removal_leaves_the_cause_unestimable_cannot_veto_it()
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import holdout_gain
+
     rng = np.random.default_rng(0)
     conds = ["5000/0.3/0", "10000/0.5/0", "5000/0.3/15"]
     frames = []
     for i, c in enumerate(conds):
         flap = 15.0 if c.endswith("/15") else 0.0
-        frames.append(pd.DataFrame({"condition": c, "log": i, "flap_deg": flap,
-                                    "r_Cm": 0.02 * (flap > 0) + rng.normal(0, 0.002, 400)}))
+        frames.append(
+            pd.DataFrame(
+                {"condition": c, "log": i, "flap_deg": flap, "r_Cm": 0.02 * (flap > 0) + rng.normal(0, 0.002, 400)}
+            )
+        )
     data = pd.concat(frames, ignore_index=True)
     term = Term("linear", ("flap_deg",), centers=(5.0,), ranges=((0.0, 15.0),))
     x = np.column_stack([np.ones(len(data)), term.design(data)])
@@ -146,11 +193,23 @@ def _mach_step(f_stat: float) -> tuple:
     from diagnose.causes import Cause
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
+
     rng = np.random.default_rng(2)
     conds = [("5000/0.3/0", 0.3), ("5000/0.3/15", 0.3), ("10000/0.4/0", 0.4), ("10000/0.5/0", 0.5)]
-    data = pd.concat([pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.002, 400),
-                                    "r_CL": -0.0135 * (m > 0.35) + rng.normal(0, 0.0015, 400)})
-                      for i, (c, m) in enumerate(conds)], ignore_index=True)
+    data = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "condition": c,
+                    "log": i,
+                    "mach": m + rng.normal(0, 0.002, 400),
+                    "r_CL": -0.0135 * (m > 0.35) + rng.normal(0, 0.0015, 400),
+                }
+            )
+            for i, (c, m) in enumerate(conds)
+        ],
+        ignore_index=True,
+    )
     term = Term("linear", ("mach",), centers=(0.3,), ranges=((0.3, 0.5),))
     x = np.column_stack([np.ones(len(data)), term.design(data)])
     beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
@@ -166,6 +225,7 @@ def test_a_condition_outside_the_range_the_others_span_cannot_veto_a_cause():
     step, against a third of it by the mean of the others) and gains x1.33. Only for a cause with F of
     1,000 or more: a weaker one is refuted by extrapolation as before."""
     from diagnose.verdict import holdout_gain
+
     cause, res, data = _mach_step(1e4)
     gain, _, by = holdout_gain(res, cause, data)
     assert np.isnan(by["10000/0.5/0"]) and by["10000/0.4/0"] > 1.25
@@ -184,6 +244,7 @@ def test_extrapolation_cannot_refute_a_cause_ten_times_its_floor():
     predicted half the step, names it either way."""
     from diagnose.config import DEFAULTS
     from diagnose.verdict import judge
+
     for floor, strong in ((0.0027, False), (0.00125, True)):
         cause, res, data = _mach_step(100.0)
         judge([cause], {"CL": res}, data, [np.array([floor])])
@@ -205,18 +266,34 @@ def test_a_strong_cause_at_one_condition_only_is_a_discrepancy_from_three_times_
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import judge
+
     rng = np.random.default_rng(4)
     conds = [("2000/0.2/30", 0.2), ("2000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.5/0", 0.5)]
-    data = pd.concat([pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.001, 400),
-                                    "r_CL": 0.0127 * (m > 0.32) + rng.normal(0, 0.0015, 400)})
-                      for i, (c, m) in enumerate(conds)], ignore_index=True)
+    data = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "condition": c,
+                    "log": i,
+                    "mach": m + rng.normal(0, 0.001, 400),
+                    "r_CL": 0.0127 * (m > 0.32) + rng.normal(0, 0.0015, 400),
+                }
+            )
+            for i, (c, m) in enumerate(conds)
+        ],
+        ignore_index=True,
+    )
     term = Term("smooth", ("mach",), (0.2, 0.3, 0.5))
     x = np.column_stack([np.ones(len(data)), term.design(data)])
     beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
-    for f_stat, floor, unconfirmed in ((6500.0, 0.0127 / 7.5, True), (100.0, 0.0127 / 7.5, False),
-                                       (6500.0, 0.0127 / 2, False), (100.0, 0.0127 / 18, True),
-                                       (40.0, 0.0127 / 18, False)):
+    for f_stat, floor, unconfirmed in (
+        (6500.0, 0.0127 / 7.5, True),
+        (100.0, 0.0127 / 7.5, False),
+        (6500.0, 0.0127 / 2, False),
+        (100.0, 0.0127 / 18, True),
+        (40.0, 0.0127 / 18, False),
+    ):
         cause = Cause("CL", ["mach"], [term], "step", {"p_value": 0.0, "F": f_stat}, 0.0127, size=0.0127)
         judge([cause], {"CL": res}, data, [np.array([floor])])
         v = cause.verdict
@@ -240,13 +317,25 @@ def test_a_strong_cause_at_one_condition_only_that_its_own_repeats_refute_is_no_
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import judge
+
     rng = np.random.default_rng(4)
     conds = [("2000/0.2/30", 0.2, 0.0), ("2000/0.3/0", 0.3, 0.0), ("10000/0.3/0", 0.3, 0.0)]
     for offsets, accepted, unconfirmed in (((0.0127,) * 3, True, False), ((0.0381, 0.0, 0.0), False, False)):
         logs = conds + [("10000/0.5/0", 0.5, o) for o in offsets]
-        data = pd.concat([pd.DataFrame({"condition": c, "log": i, "mach": m + rng.normal(0, 0.001, 400),
-                                        "r_CL": o + rng.normal(0, 0.0015, 400)})
-                          for i, (c, m, o) in enumerate(logs)], ignore_index=True)
+        data = pd.concat(
+            [
+                pd.DataFrame(
+                    {
+                        "condition": c,
+                        "log": i,
+                        "mach": m + rng.normal(0, 0.001, 400),
+                        "r_CL": o + rng.normal(0, 0.0015, 400),
+                    }
+                )
+                for i, (c, m, o) in enumerate(logs)
+            ],
+            ignore_index=True,
+        )
         term = Term("smooth", ("mach",), (0.2, 0.3, 0.5))
         x = np.column_stack([np.ones(len(data)), term.design(data)])
         beta = np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0]
@@ -269,16 +358,26 @@ def _offsets(seed: int, f: float = 50.0, over_floor: float = 4.0, kind: str = "a
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import judge
+
     rng = np.random.default_rng(seed)
     frames = []
     for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("5000/0.3/15", 0.3), ("10000/0.4/0", 0.4), ("10000/0.5/0", 0.5)]):
         for k in range(3):
-            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": m + rng.normal(0, 0.002, 300),
-                                        "r_CD": rng.normal(0, 0.0015) + rng.normal(0, 0.002, 300)}))
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "condition": c,
+                        "log": 3 * i + k,
+                        "mach": m + rng.normal(0, 0.002, 300),
+                        "r_CD": rng.normal(0, 0.0015) + rng.normal(0, 0.002, 300),
+                    }
+                )
+            )
     data = pd.concat(frames, ignore_index=True)
     term = Term("linear", ("mach",), centers=(0.3,), ranges=((0.3, 0.5),))
-    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CD.to_numpy(),
-                           rcond=None)[0]
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CD.to_numpy(), rcond=None)[
+        0
+    ]
     res = StepwiseResult("CD", [term], beta, {}, [], 0.0, 0.0, len(data))
     size = float(np.ptp(term.design(data) @ beta[1:]))
     cause = Cause("CD", ["mach"], [term], "linear", {"p_value": 0.0, "F": f}, size, size=size, kind=kind)
@@ -294,6 +393,7 @@ def test_the_held_out_decision_is_the_replicate_gain_calibrated_on_nulls():
     conditions left out (at x1.05) would take for a cause; with each log left out it gains x1.04, and is
     not named."""
     from diagnose.config import DEFAULTS
+
     assert DEFAULTS.replicate_gain == 1.2
     v = _offsets(11)
     assert v["holdout_gain"] > 1.1 and v["replicate_gain"] < 1.05, v
@@ -310,6 +410,7 @@ def test_a_strong_candidate_only_held_out_data_reject_is_a_discrepancy_whose_cau
     Below either bound it is rejected as before, and so is an instrument error's signature (seed
     8,400,184 named one so, and the benchmark took it for an aerodynamic discrepancy)."""
     from diagnose.config import DEFAULTS
+
     held_out_f = DEFAULTS.held_out_f
     for over in (12.0, 3.5):
         v = _offsets(11, f=held_out_f, over_floor=over)
@@ -324,14 +425,22 @@ def _four_conditions(seed: int, signal, offset: float, noise: float):
     """Mach 0.3 twice, 0.4 and 0.5, three logs each of 300 samples: ``r_CL`` is ``signal(mach flown,
     mach)`` plus an offset per log (the turbulence of one flight, std ``offset``) and white noise."""
     import pandas as pd
+
     rng = np.random.default_rng(seed)
     frames = []
-    for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.4/0", 0.4),
-                                ("10000/0.5/0", 0.5)]):
+    for i, (c, m) in enumerate([("5000/0.3/0", 0.3), ("10000/0.3/0", 0.3), ("10000/0.4/0", 0.4), ("10000/0.5/0", 0.5)]):
         for k in range(3):
             mach = m + rng.normal(0, 0.002, 300)
-            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "mach": mach,
-                                        "r_CL": signal(m, mach) + rng.normal(0, offset) + rng.normal(0, noise, 300)}))
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "condition": c,
+                        "log": 3 * i + k,
+                        "mach": mach,
+                        "r_CL": signal(m, mach) + rng.normal(0, offset) + rng.normal(0, noise, 300),
+                    }
+                )
+            )
     return pd.concat(frames, ignore_index=True)
 
 
@@ -340,6 +449,7 @@ def _repeats(step: float, seed: int):
     turbulence of one flight) and white noise; ``step`` added at Mach 0.5 alone. A smooth term in
     Mach fitted to it (knots at the Mach numbers flown), as the cause."""
     from diagnose.terms import Term
+
     data = _four_conditions(seed, lambda m, mach: step * (m == 0.5), 0.0006, 0.002)
     return _mach_cause(data, Term("smooth", ("mach",), (0.3, 0.4, 0.5)), "table", 500.0)
 
@@ -348,8 +458,10 @@ def _mach_cause(data, term, shape: str, f: float):
     """``term`` fitted to ``r_CL`` of ``data``: the cause, its stepwise result, the data."""
     from diagnose.causes import Cause
     from diagnose.stepwise import StepwiseResult
-    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(),
-                           rcond=None)[0]
+
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(), rcond=None)[
+        0
+    ]
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
     size = float(np.ptp(term.design(data) @ beta[1:]))
     return Cause("CL", ["mach"], [term], shape, {"p_value": 0.0, "F": f}, size, size=size), res, data
@@ -364,6 +476,7 @@ def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
     there, the same term is not."""
     from diagnose.config import DEFAULTS
     from diagnose.verdict import judge
+
     cause, res, data = _repeats(0.006, 1)
     judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
     v = cause.verdict
@@ -373,8 +486,11 @@ def test_repeats_at_a_condition_confirm_what_the_other_conditions_cannot():
         cause, res, data = _repeats(0.0, seed)
         judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
         v = cause.verdict
-        assert v["replicate_gain"] < DEFAULTS.replicate_gain and not v["accepted"], (seed, v["replicate_gain"],
-                                                                                      v["reason"])
+        assert v["replicate_gain"] < DEFAULTS.replicate_gain and not v["accepted"], (
+            seed,
+            v["replicate_gain"],
+            v["reason"],
+        )
 
 
 def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
@@ -383,12 +499,15 @@ def test_a_table_in_mach_between_the_conditions_flown_is_named(tmp_path):
     condition, were predicted by extrapolation and refuted it (x0.81 pooled); the answer was
     "no significant discrepancy"."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     doc = diagnose_overlay(tmp_path, "lift_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000041)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "mach"), doc["summary"]
     # the matrix flies flap 30 at Mach 0.2 only: the report says how much of the cause the flap could make
-    assert doc["flown_together"]["groups"] == [{"flap_deg": [30.0], "mach": [0.2]},
-                                               {"flap_deg": [0.0], "mach": [0.3, 0.5]}], doc["flown_together"]
+    assert doc["flown_together"]["groups"] == [
+        {"flap_deg": [30.0], "mach": [0.2]},
+        {"flap_deg": [0.0], "mach": [0.3, 0.5]},
+    ], doc["flown_together"]
     lines = doc["summary"].splitlines()
     first = next(i for i, t in enumerate(lines) if t.startswith("1. CL vs mach"))
     assert "which an effect of flap_deg would make alike" in lines[first + 1], lines[first + 1]
@@ -402,6 +521,7 @@ def test_flap_and_mach_flown_together_are_told_and_the_benchmark_matrices_fly_th
     from benchmarks.detection_curve import A320, OUR_737
     from campaign.simulation.matrix import load_matrix
     from diagnose.flap_mach import flown_together, level_share
+
     old = [(2000, 0.3, 0), (10000, 0.3, 0.0), (10000, 0.5, 0), (2000, 0.2, 30)]
     told = flown_together(old)
     assert told["groups"] == [{"flap_deg": [30.0], "mach": [0.2]}, {"flap_deg": [0.0], "mach": [0.3, 0.5]}]
@@ -442,12 +562,16 @@ def test_two_collinear_causes_that_cancel_gain_nothing_on_held_out_data():
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import holdout_gain
+
     rng = np.random.default_rng(1)
     frames = []
     for i in range(4):
         a = rng.uniform(0, 1, 500) + i
-        frames.append(pd.DataFrame({"condition": f"c{i}", "log": i, "a": a, "b": a + rng.normal(0, 0.01, 500),
-                                    "g": rng.uniform(0, 1, 500)}))
+        frames.append(
+            pd.DataFrame(
+                {"condition": f"c{i}", "log": i, "a": a, "b": a + rng.normal(0, 0.01, 500), "g": rng.uniform(0, 1, 500)}
+            )
+        )
     data = pd.concat(frames, ignore_index=True)
     data["r_CD"] = 0.002 * (data["g"] - 0.5) + rng.normal(0, 0.0003, len(data))
     terms = [Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),)) for v in ("a", "b", "g")]
@@ -477,6 +601,7 @@ def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it
     from diagnose.stepwise import StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import holdout_gain
+
     rng = np.random.default_rng(3)
     frames = []
     for i in range(4):
@@ -501,8 +626,9 @@ def test_the_first_of_two_collinear_causes_is_tested_against_the_terms_before_it
     beta[1], beta[2] = 0.04, -0.038
     pair = StepwiseResult("CD", terms, beta, {}, [], 0.0, 0.0, len(data))
     size = float(np.ptp(terms[0].design(data)[:, 0] * 0.04))
-    gain, _, by = holdout_gain(pair, Cause("CD", ["a"], [terms[0]], "linear", {"p_value": 0.0}, size / 2, size=size),
-                               data)
+    gain, _, by = holdout_gain(
+        pair, Cause("CD", ["a"], [terms[0]], "linear", {"p_value": 0.0}, size / 2, size=size), data
+    )
     assert gain < 1.5, (gain, by)
 
 
@@ -512,6 +638,7 @@ def test_a_lift_dip_in_alpha_one_condition_refutes_is_named(tmp_path):
     held-out data pooled, but x0.69 at one condition left out. No single condition vetoes a cause: the
     pooled gain decides."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     doc = diagnose_overlay(tmp_path, "lift_alpha_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3000203)
     aero = discrepancies(doc)
     assert aero and (aero[0]["coefficient"], aero[0]["variables"][0]) == ("CL", "alpha_deg"), doc["summary"]
@@ -523,10 +650,12 @@ def test_a_moment_table_in_alpha_that_grows_with_mach_is_named_with_both(tmp_pat
     varies with Mach among the candidates, it was named "Cm vs mach": the right coefficient, not
     the shape."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     doc = diagnose_overlay(tmp_path, "moment_alpha_mach_table.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 3600081)
     aero = discrepancies(doc)
-    assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
-        doc["summary"]
+    assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, doc[
+        "summary"
+    ]
 
 
 def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition_can_test(tmp_path):
@@ -538,8 +667,15 @@ def test_a_cause_held_out_conditions_confirm_comes_before_one_no_other_condition
     that condition apart. The cause the held-out conditions confirm is the answer: with the fit holding
     the highest-alpha condition, the drag is named "CD vs mach, alpha_deg", Mach first."""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
-    doc = diagnose_overlay(tmp_path, "drag_mach_dip.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000083,
-                           channels="[channels.thrust_lbf]\nscale = 1.0612165590313636\n")
+
+    doc = diagnose_overlay(
+        tmp_path,
+        "drag_mach_dip.xml",
+        DEFAULT_AIRCRAFT,
+        DIAG_MATRIX,
+        2000083,
+        channels="[channels.thrust_lbf]\nscale = 1.0612165590313636\n",
+    )
     aero = [c for c in doc["causes"] if c["kind"] == "aero"]
     assert aero and aero[0]["coefficient"] == "CD" and aero[0]["variables"][0] == "mach", doc["summary"]
     assert "flap_deg" not in aero[0]["variables"], doc["summary"]
@@ -557,10 +693,12 @@ def test_a_cause_the_replacement_splits_in_two_is_named(tmp_path):
     kept if it names a discrepancy there. (Forbidding every split lost a lift table in Mach on the
     stock 737 whose parts both stand: ``test_the_replacement_splits_a_term_that_stood_for_two_causes``.)"""
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
+
     doc = diagnose_overlay(tmp_path, "moment_alpha_mach_monotone.xml", DEFAULT_AIRCRAFT, DIAG_MATRIX, 2000126)
     aero = discrepancies(doc)
-    assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, \
-        doc["summary"]
+    assert aero and aero[0]["coefficient"] == "Cm" and set(aero[0]["variables"]) >= {"alpha_deg", "mach"}, doc[
+        "summary"
+    ]
     assert "Cm" in doc["whole_readings"] and "read whole" in doc["summary"]
 
 
@@ -568,6 +706,7 @@ def _slope(seed: int):
     """CL growing linearly with Mach over four conditions (three logs each, offsets and noise), and
     a linear term in Mach fitted to it, as the cause."""
     from diagnose.terms import Term
+
     data = _four_conditions(seed, lambda m, mach: 0.2 * (mach - 0.4), 0.0003, 0.001)
     return _mach_cause(data, Term("linear", ("mach",), (), (0.4,), ((0.29, 0.51),)), "linear", 5000.0)
 
@@ -579,8 +718,16 @@ def test_a_cause_an_error_measured_and_left_uncorrected_makes_whole_is_that_erro
     and the cause needs it within 2 of that measurement: then it is rejected as that error. Beside a
     cause the errors cannot make, such an error changes nothing (the verdict once failed there)."""
     from diagnose.verdict import judge
-    vane = {"channel": "alpha_deg", "error": "bias", "needs": 0.271, "needs_se": 0.13, "se": 0.104, "left": 0.257,
-            "explains_pct": 100.0}
+
+    vane = {
+        "channel": "alpha_deg",
+        "error": "bias",
+        "needs": 0.271,
+        "needs_se": 0.13,
+        "se": 0.104,
+        "left": 0.257,
+        "explains_pct": 100.0,
+    }
     applied = {**vane, "left": 0.0, "needs_se": 2.6}
     verdicts = {}
     for name, alt, made in (("measured", vane, True), ("corrected", applied, True), ("beside", vane, False)):
@@ -606,9 +753,17 @@ def test_a_cause_a_vane_error_measured_whole_but_split_makes_is_that_error_whate
     16 a margin rule would have lost) had their vane's errors 0.3-1.8 from none together: those stay named."""
     from diagnose.config import DEFAULTS
     from diagnose.verdict import judge
+
     assert DEFAULTS.measured_channel_se == DEFAULTS.compat.apply_z
-    bias = {"channel": "alpha_deg", "error": "bias", "needs": 0.268, "needs_se": 1.48, "se": 0.116, "left": 0.097,
-            "explains_pct": 99.1}
+    bias = {
+        "channel": "alpha_deg",
+        "error": "bias",
+        "needs": 0.268,
+        "needs_se": 1.48,
+        "se": 0.116,
+        "left": 0.097,
+        "explains_pct": 99.1,
+    }
     verdicts = {}
     for name, joint in (("measured together", 5.54), ("not measured", 1.8)):
         cause, res, data = _slope(3)
@@ -631,20 +786,32 @@ def _transit(bump: float, seed: int):
     import pandas as pd
 
     from diagnose.terms import Term
+
     rng = np.random.default_rng(seed)
     gear = np.concatenate([np.zeros(200), np.linspace(0.0, 1.0, 100), np.ones(200)])
     frames = []
     for i, c in enumerate(["5000/0.3/0", "10000/0.3/0", "10000/0.4/0", "10000/0.5/0"]):
         for k in range(3):
-            frames.append(pd.DataFrame({"condition": c, "log": 3 * i + k, "gear_norm": gear,
-                                        "r_CL": bump * np.exp(-0.5 * ((gear - 0.5) / 0.13) ** 2)
-                                        + rng.normal(0, 0.0006) + rng.normal(0, 0.002, gear.size)}))
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "condition": c,
+                        "log": 3 * i + k,
+                        "gear_norm": gear,
+                        "r_CL": bump * np.exp(-0.5 * ((gear - 0.5) / 0.13) ** 2)
+                        + rng.normal(0, 0.0006)
+                        + rng.normal(0, 0.002, gear.size),
+                    }
+                )
+            )
     data = pd.concat(frames, ignore_index=True)
     term = Term("smooth", ("gear_norm",), (0.0, 0.25, 0.5, 0.75, 1.0))
-    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(),
-                           rcond=None)[0]
+    beta = np.linalg.lstsq(np.column_stack([np.ones(len(data)), term.design(data)]), data.r_CL.to_numpy(), rcond=None)[
+        0
+    ]
     from diagnose.causes import Cause
     from diagnose.stepwise import StepwiseResult
+
     res = StepwiseResult("CL", [term], beta, {}, [], 0.0, 0.0, len(data))
     size = float(np.ptp(term.design(data) @ beta[1:]))
     return Cause("CL", ["gear_norm"], [term], "bump", {"p_value": 0.0, "F": 50.0}, size, size=size), res, data
@@ -658,6 +825,7 @@ def test_a_cause_that_acts_during_the_gear_travel_alone_is_judged_where_it_depar
     named; the same term fitted to per-flight offsets and noise alone is not."""
     from diagnose.config import DEFAULTS
     from diagnose.verdict import judge
+
     replicate_gain, departs_gain = DEFAULTS.replicate_gain, DEFAULTS.departs_gain
     cause, res, data = _transit(0.004, 1)
     judge([cause], {"CL": res}, data, [np.array([cause.size / 4])])
@@ -683,16 +851,24 @@ def test_a_constant_the_intercept_takes_back_is_not_a_cause_s_peak():
     from diagnose.stepwise import Lags, StepwiseResult
     from diagnose.terms import Term
     from diagnose.verdict import contribution
+
     rng = np.random.default_rng(3)
     mach = 0.5 + 0.003 * np.sin(np.linspace(0, 12, 800))
-    data = pd.DataFrame({"condition": "10000/0.5/0", "log": np.repeat([0, 1], 400), "mach": mach,
-                         "r_CL": 10.0 * (mach - 0.5) + rng.normal(0, 0.001, 800)})
+    data = pd.DataFrame(
+        {
+            "condition": "10000/0.5/0",
+            "log": np.repeat([0, 1], 400),
+            "mach": mach,
+            "r_CL": 10.0 * (mach - 0.5) + rng.normal(0, 0.001, 800),
+        }
+    )
     term = Term("linear", ("mach",), centers=(0.0,), ranges=((0.0, 1.0),))
     x = np.column_stack([np.ones(len(data)), term.design(data)])
-    res = StepwiseResult("CL", [term], np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0], {}, [], 0.0, 0.0,
-                         len(data))
+    res = StepwiseResult(
+        "CL", [term], np.linalg.lstsq(x, data.r_CL.to_numpy(), rcond=None)[0], {}, [], 0.0, 0.0, len(data)
+    )
     assert abs(res.beta[1] * 0.5) > 4  # the term holds about 5, the intercept about -5
-    cause, = name_causes({"CL": res}, data, Lags(data["log"].to_numpy()))
+    (cause,) = name_causes({"CL": res}, data, Lags(data["log"].to_numpy()))
     assert 0.05 < cause.size < 0.07 and cause.peak <= cause.size, (cause.peak, cause.size)
     assert np.max(np.abs(cause.curve["dCL"])) <= cause.size
     assert np.max(np.abs(contribution(res, cause, data))) <= cause.size
@@ -709,22 +885,31 @@ def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
 
     from diagnose.arbitration import residual_refinement
     from identify.compat import CompatResult, Parameter
+
     bias = Parameter("alpha_deg", "bias", "deg", -0.0905, 0.015)
     scale = Parameter("alpha_deg", "scale", "-", 0.02996, 0.0054)
     az = Parameter("az_fps2", "bias", "ft/s^2", 0.05, 0.005)
     sd = np.array([0.015, 0.0054, 0.005])
     corr = np.array([[1.0, -0.95, 0.0], [-0.95, 1.0, 0.05], [0.0, 0.05, 1.0]])
-    compat = CompatResult([bias, scale, az], covariance=[(["alpha_deg.bias", "alpha_deg.scale", "az_fps2.bias"],
-                                                          corr * np.outer(sd, sd))])
+    compat = CompatResult(
+        [bias, scale, az], covariance=[(["alpha_deg.bias", "alpha_deg.scale", "az_fps2.bias"], corr * np.outer(sd, sd))]
+    )
     assert bias.applied and scale.applied and az.applied
 
     def cause(coefficient):
-        return SimpleNamespace(kind="aero", coefficient=coefficient, size=0.01, evidence={"p_value": 1e-30},
-                               verdict={"noise_floor": 0.001, "replicate_gain": 2.0})
+        return SimpleNamespace(
+            kind="aero",
+            coefficient=coefficient,
+            size=0.01,
+            evidence={"p_value": 1e-30},
+            verdict={"noise_floor": 0.001, "replicate_gain": 2.0},
+        )
 
     causes = [cause("CL"), cause("Cm")]
-    reach = [{"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": n, "explains_pct": 95.0}]}
-             for n in (-0.031, -0.029)]
+    reach = [
+        {"alternatives": [{"channel": "alpha_deg", "error": "scale", "needs": n, "explains_pct": 95.0}]}
+        for n in (-0.031, -0.029)
+    ]
     refined = residual_refinement(compat, causes, reach)
     assert refined is not None and refined.name == "alpha_deg.scale"
     got = {p.name: p for p in refined.compat.parameters}
@@ -739,8 +924,9 @@ def test_a_refined_error_carries_the_errors_the_kinematics_estimated_with_it():
 def _breakpoints(xml: str, lookup: str | None = None) -> list[float]:
     """The breakpoints of an effect overlay's table: its rows, or (``lookup="column"``) its columns."""
     import xml.etree.ElementTree as ET
+
     rows = [r.split() for r in ET.fromstring(xml).find(".//tableData").text.strip().splitlines()]
-    return [float(x) for x in rows[0]] if lookup == "column" else [float(r[0]) for r in rows[lookup == "row":]]
+    return [float(x) for x in rows[0]] if lookup == "column" else [float(r[0]) for r in rows[lookup == "row" :]]
 
 
 def test_the_grammar_draws_an_effect_on_the_range_it_is_given_and_nothing_else_changes():
@@ -762,6 +948,7 @@ def test_the_benchmark_draws_on_the_range_each_aircraft_flies(tmp_path):
     import jsbsim
 
     from benchmarks.detection_curve import A320, flown_ranges
+
     got = flown_ranges(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "A320"), A320)
     assert -27 < got["elevator_deg"][0] < -20 and -4 < got["elevator_deg"][1] < -1, got
     assert got["mach"] == pytest.approx((0.3, 0.5), abs=0.01) and got["flap_deg"] == (0.0, 15.0), got
@@ -773,6 +960,7 @@ def test_what_an_effect_leaves_beyond_one_variable_shows_a_second_only_where_the
     nothing beyond it; a second variable that changes the effect where the first overlaps across logs
     leaves its part, even where the first is one value (gear down) in every log."""
     from benchmarks.detection_curve import left_beyond
+
     rng = np.random.default_rng(3)
     logs = [(m, rng.uniform(lo, lo + 5, 2000)) for m, lo in ((0.3, 5.0), (0.4, 2.0), (0.5, 0.0))]
     mach = np.concatenate([np.full(len(a), m) for m, a in logs])
@@ -794,6 +982,7 @@ def test_a_cause_held_out_conditions_predict_worse_is_listed_after_those_they_co
     conditions, was listed after a smooth(mach) term 184 times its floor that made them worse (x0.94;
     each condition trims at its own elevator). Confirmed first, then untestable, then predicted worse."""
     from diagnose.verdict import rank
+
     worse = {"holdout_gain": 0.94, "size_over_floor": 183.9}
     confirmed = {"holdout_gain": 6.25, "size_over_floor": 156.5}
     untested = {"holdout_gain": float("nan"), "size_over_floor": 20.0}
@@ -809,24 +998,43 @@ def test_of_the_discrepancies_ten_times_their_floor_the_one_that_explains_most_o
     Beyond ten times the floor the share of the residual orders them; below it, the size over the
     floor, after every one beyond it."""
     from diagnose.verdict import rank
+
     mach = {"holdout_gain": 1.06, "size_over_floor": 28.0, "explains_pct": 27.9}
     elevator = {"holdout_gain": 4.28, "size_over_floor": 16.7, "explains_pct": 95.6}
     smaller = {"holdout_gain": 1.5, "size_over_floor": 9.0, "explains_pct": 99.0}
     smallest = {"holdout_gain": 1.5, "size_over_floor": 4.0, "explains_pct": 99.5}
     no_share = {"holdout_gain": 1.5, "size_over_floor": 12.0, "explains_pct": float("nan")}
-    assert sorted([smallest, smaller, no_share, mach, elevator], key=rank) == [elevator, mach, no_share, smaller,
-                                                                               smallest]
+    assert sorted([smallest, smaller, no_share, mach, elevator], key=rank) == [
+        elevator,
+        mach,
+        no_share,
+        smaller,
+        smallest,
+    ]
 
 
 def _row(seed, size, hit, named, effect="dCD = +0.001 * step(mach; at 0.5)", shape=0.1):
     """A case record as ``benchmarks/detection_curve.py`` writes it (its CSV's columns)."""
-    return {"seed": seed, "aircraft": "A320", "conditions": "3 ft/s", "effect": effect, "size_over_floor": size,
-            "hit": hit, "hit_as_flown": hit, "named": named, "invented": "", "rejected_strong": "",
-            "false_positive": False, "shape_error": shape if hit else np.nan, "discrepancy": bool(named)}
+    return {
+        "seed": seed,
+        "aircraft": "A320",
+        "conditions": "3 ft/s",
+        "effect": effect,
+        "size_over_floor": size,
+        "hit": hit,
+        "hit_as_flown": hit,
+        "named": named,
+        "invented": "",
+        "rejected_strong": "",
+        "false_positive": False,
+        "shape_error": shape if hit else np.nan,
+        "discrepancy": bool(named),
+    }
 
 
 def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect_out_of_reach_as_false(
-        tmp_path, monkeypatch, capsys):
+    tmp_path, monkeypatch, capsys
+):
     """The benchmark's table, and its merge of two runs: an effect the data hold less than 0.3 of the
     floor of is as good as a null, and another cause named there is counted (seed 8,250,020, a
     seed: an A320 with a +0.21 deg vane bias in 3 ft/s, "CD vs flap, gear" and "CL vs mach,
@@ -836,12 +1044,20 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
     import pandas as pd
 
     from benchmarks.detection_curve import main, table
-    a = [_row(1, 0.1, False, "CD vs alpha_deg, mach"), _row(2, 0.2, False, ""), _row(3, 5.0, True, "CD vs mach"),
-         _row(4, 12.0, True, "CD vs mach", shape=0.3), _row(5, 40.0, False, "CL vs alpha_deg")]
+
+    a = [
+        _row(1, 0.1, False, "CD vs alpha_deg, mach"),
+        _row(2, 0.2, False, ""),
+        _row(3, 5.0, True, "CD vs mach"),
+        _row(4, 12.0, True, "CD vs mach", shape=0.3),
+        _row(5, 40.0, False, "CL vs alpha_deg"),
+    ]
     b = [_row(6, 15.0, True, "CD vs mach", shape=0.1), _row(7, np.nan, False, "", effect="")]
     text = table(a + b)
     assert "| 3-10 | 1 | 1 | 100 % |" in text and "| 10 and more | 3 | 2 | 67 % | 2 (67 %) | 0.20, 0.28 |" in text
-    assert "2 effects, 0 named, 1 with another aerodynamic cause named" in text and "Nulls: 1, false positives: 0" in text
+    assert (
+        "2 effects, 0 named, 1 with another aerodynamic cause named" in text and "Nulls: 1, false positives: 0" in text
+    )
     for name, rows in (("a", a), ("b", b)):
         (tmp_path / name).mkdir()
         pd.DataFrame(rows).to_csv(tmp_path / name / "detection_curve.csv", index=False)
@@ -859,8 +1075,9 @@ def test_the_detection_table_counts_hits_per_size_and_a_cause_named_on_an_effect
     assert stop.value.code == 2 and "--out" in err[-1] and "one of the folders merged" in err[-1]
     assert (tmp_path / "a" / "detection_curve.csv").read_bytes() == before
     (tmp_path / "empty").mkdir()
-    monkeypatch.setattr(sys, "argv", merge[:2] + [str(tmp_path / "a"), str(tmp_path / "empty"), "--out",
-                                                  str(tmp_path / "new")])
+    monkeypatch.setattr(
+        sys, "argv", merge[:2] + [str(tmp_path / "a"), str(tmp_path / "empty"), "--out", str(tmp_path / "new")]
+    )
     with pytest.raises(SystemExit) as stop:
         main()
     err = capsys.readouterr().err.strip().splitlines()
@@ -877,10 +1094,13 @@ def test_the_a320_benchmark_matrix_crosses_its_alpha_gap_at_one_mach_number(tmp_
     from benchmarks.detection_curve import A320, same_alpha_alt_ft
     from campaign.diagnosis.run import load_data
     from campaign.validation.support import run_matrix
+
     alt = same_alpha_alt_ft(10000, 0.4, 0.5)
     assert f"alt_ft = {alt}" in A320 and 20000 < alt < 22000
     points = [("up", 0, 0.4, 10000), ("up", 0, 0.5, alt), ("up", 0, 0.5, 10000)]
-    data = run_matrix(tmp_path, matrix_toml(points, "gap"), str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "A320"))
+    data = run_matrix(
+        tmp_path, matrix_toml(points, "gap"), str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "A320")
+    )
     trim = {lg.condition[:2]: float(np.median(lg.data["alpha_deg"].to_numpy()[:20])) for lg in load_data(data)}
     assert abs(trim[(alt, 0.5)] - trim[(10000.0, 0.4)]) < 0.3, trim
     assert trim[(10000.0, 0.4)] - trim[(10000.0, 0.5)] > 2.0, trim
@@ -896,12 +1116,22 @@ def test_a_cause_beside_one_that_fell_is_judged_on_the_fit_without_it():
     from diagnose.causes import Cause
     from diagnose.diagnosis import _dropped, _split_stands
     from diagnose.terms import Term
-    a, cl, g, m = (Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),))
-                   for v in ("alpha_deg", "CL", "gear_norm", "mach"))
+
+    a, cl, g, m = (
+        Term("linear", (v,), centers=(0.0,), ranges=((-np.inf, np.inf),))
+        for v in ("alpha_deg", "CL", "gear_norm", "mach")
+    )
 
     def cause(coefficient, term, **verdict):
-        return Cause(coefficient, list(term.variables), [term], "linear", {}, 0.0,
-                     verdict={"accepted": False, "unconfirmed": False, **verdict})
+        return Cause(
+            coefficient,
+            list(term.variables),
+            [term],
+            "linear",
+            {},
+            0.0,
+            verdict={"accepted": False, "unconfirmed": False, **verdict},
+        )
 
     stands, fell = cause("CD", a, accepted=True), cause("CD", cl)
     alone, open_ = cause("Cm", g), cause("CL", m, unconfirmed=True)
@@ -923,11 +1153,21 @@ def test_an_a320_vane_bias_in_turbulence_is_that_bias_not_a_drag_in_alpha(tmp_pa
     held-out data, the first was named on its share of the pair. Judged on the fit without it, the drag in
     alpha is the bias's, with the lift's: the residuals refine the bias, and nothing aerodynamic is named."""
     from campaign.validation.support import pairs
+
     a320 = Path(__import__("jsbsim").get_default_root_dir()) / "aircraft" / "A320"
-    matrix = matrix_toml(pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000),
-                               (0, 0.4, 19500.0), (0, 0.5, 21000.0)), "a320")
-    doc = diagnose_overlay(tmp_path, None, a320, matrix, seed=9_402_865, sigma_fps=3.0,
-                           channels="[channels.alpha_deg]\nbias = 0.2299727280418436\n")
+    matrix = matrix_toml(
+        pairs((0, 0.3, 5000), (0, 0.4, 10000), (0, 0.5, 10000), (15, 0.3, 5000), (0, 0.4, 19500.0), (0, 0.5, 21000.0)),
+        "a320",
+    )
+    doc = diagnose_overlay(
+        tmp_path,
+        None,
+        a320,
+        matrix,
+        seed=9_402_865,
+        sigma_fps=3.0,
+        channels="[channels.alpha_deg]\nbias = 0.2299727280418436\n",
+    )
     assert not discrepancies(doc), [(c["coefficient"], c["variables"]) for c in discrepancies(doc)]
     first = doc["causes"][0]
     assert (first["kind"], first["channel"], first["error"]) == ("sensor", "alpha_deg", "bias")

@@ -1,4 +1,5 @@
 """Local worker processes (infra.pool): forks of a warm server, in order, deaths survived."""
+
 import json
 import os
 import subprocess
@@ -54,6 +55,7 @@ def test_a_dead_worker_breaks_that_call_only(tmp_path):
 
 def _timed(x, s, mark=None):
     import time
+
     if mark:
         Path(mark, f"{x}").touch()
     t0 = time.monotonic()
@@ -68,6 +70,7 @@ def _fail_marked(x, mark):
 
 def test_work_ahead_runs_one_task_at_a_time_and_gives_its_results_by_index():
     import time
+
     ahead = Ahead(_timed, [(i, 0.02) for i in range(8)], 2)
     time.sleep(2.0)
     done = ahead.finished()
@@ -79,6 +82,7 @@ def test_work_ahead_runs_one_task_at_a_time_and_gives_its_results_by_index():
 
 def test_work_ahead_stops_when_told_and_is_nothing_with_one_job(tmp_path):
     import time
+
     ahead = Ahead(_timed, [(i, 0.2, str(tmp_path)) for i in range(20)], 2)
     for _ in range(600):  # the second task has started
         if (tmp_path / "1").exists():
@@ -131,8 +135,17 @@ def test_a_worker_is_a_fork_of_the_warm_server_with_the_modules_imported(tmp_pat
     assert out.returncode == 0, out.stderr
     first, loaded, delay = out.stdout.split()
     assert first == loaded == "True"
-    t_import = subprocess.run([sys.executable, "-c", "import time; t = time.perf_counter(); import identify.pipeline; "
-                               "print(time.perf_counter() - t)"], capture_output=True, text=True, env=env, timeout=120)
+    t_import = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import time; t = time.perf_counter(); import identify.pipeline; print(time.perf_counter() - t)",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert float(delay) < 0.5 * float(t_import.stdout), (delay, t_import.stdout)
 
 
@@ -165,8 +178,9 @@ def test_a_library_callers_workers_are_forks_of_a_server_with_its_modules_import
     script = tmp_path / "library.py"
     script.write_text(LIBRARY)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=150,
-                         cwd=tmp_path)
+    out = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=150, cwd=tmp_path
+    )
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1].lower()) == [[True, True, False]] * 3
 
@@ -192,12 +206,21 @@ def test_alone_answers_raises_and_names_the_signal_that_killed_it(tmp_path, monk
 def test_the_command_line_comes_up_without_the_numerics():
     """The worker server starts as a command begins, before the main process imports numpy,
     pandas, scipy or JSBSim: the command line module must not import them itself."""
-    out = subprocess.run([sys.executable, "-c", "import sys, campaign.cli\n"
-                          "print([m for m in ('numpy', 'pandas', 'scipy', 'jsbsim') if m in sys.modules])"],
-                         capture_output=True, text=True, cwd=ROOT, check=True).stdout.strip()
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys, campaign.cli\nprint([m for m in ('numpy', 'pandas', 'scipy', 'jsbsim') if m in sys.modules])",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=True,
+    ).stdout.strip()
     assert out == "[]", out
     from campaign.cli.main import shipped
     from campaign.simulation.instruments import shipped as profiles
+
     assert shipped() == profiles() and "flight-test" in shipped()
 
 
@@ -236,10 +259,12 @@ def test_linear_algebra_runs_on_one_blas_thread_in_workers_and_the_command(tmp_p
     env["PYTHONPATH"] = str(ROOT)
 
     def threads(*args) -> list:
-        out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, env=env,
-                             timeout=120, cwd=tmp_path)
+        out = subprocess.run(
+            [sys.executable, str(script), *args], capture_output=True, text=True, env=env, timeout=120, cwd=tmp_path
+        )
         assert out.returncode == 0, out.stderr
         return json.loads(out.stdout.strip().splitlines()[-1])
+
     alone = threads("alone")
     if max(alone) == 1:
         pytest.skip("BLAS starts one thread here without any limit (one core)")
@@ -252,13 +277,22 @@ def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_pa
     import time
 
     import infra.pool as w
+
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()  # reaped: its pid names no process (unless reused meanwhile, a chance of one in tens of thousands)
     zombie = subprocess.Popen([sys.executable, "-c", "pass"])
     while not Path(f"/proc/{zombie.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
         time.sleep(0.001)  # until it has ended, not yet reaped: the state of workers just killed with their run
-    names = [f"gearid-{dead.pid}-abc", f"gearid-eval-{dead.pid}-x_1", f"gearid-started-{zombie.pid}-q",
-             f"gearid-{os.getpid()}-mine", "gearid-cluster", "gearid-k2j4l5m6", "pymp-123-x", f"other-{dead.pid}-a"]
+    names = [
+        f"gearid-{dead.pid}-abc",
+        f"gearid-eval-{dead.pid}-x_1",
+        f"gearid-started-{zombie.pid}-q",
+        f"gearid-{os.getpid()}-mine",
+        "gearid-cluster",
+        "gearid-k2j4l5m6",
+        "pymp-123-x",
+        f"other-{dead.pid}-a",
+    ]
     for n in names:
         (tmp_path / n / "aircraft").mkdir(parents=True)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
@@ -291,7 +325,14 @@ def test_a_script_without_a_main_guard_fans_out_from_a_file_stdin_or_c(tmp_path,
     script = tmp_path / "unguarded.py"
     script.write_text(UNGUARDED)
     argv = {"file": [str(script)], "stdin": ["-"], "-c": ["-c", UNGUARDED]}[how]
-    out = subprocess.run([sys.executable, *argv], input=UNGUARDED if how == "stdin" else None, capture_output=True,
-                         text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120, cwd=tmp_path)
+    out = subprocess.run(
+        [sys.executable, *argv],
+        input=UNGUARDED if how == "stdin" else None,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=120,
+        cwd=tmp_path,
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines() == ["[3, 7] [101, 102] 103"], out.stdout

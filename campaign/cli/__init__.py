@@ -1,4 +1,5 @@
 """The ``campaign`` command."""
+
 from campaign.cli.main import main
 
 __all__ = ["main"]

@@ -24,6 +24,7 @@ wind is told from an error along the track over the circle, to within the mean a
 over the turn, ``sigma sqrt(2 L / (V T))`` (Dryden's scale length ``L``, the turbulence ``sigma`` the
 diagnosis reconstructed, the turn's speed ``V`` and duration ``T``).
 """
+
 from __future__ import annotations
 
 import json
@@ -80,7 +81,8 @@ def read_diagnosis(folder: Path) -> dict:
     if "rivals" not in doc:
         raise UserError(f"{path}: rivals: missing (written before rivals were measured); diagnose again")
     if not isinstance(doc["rivals"], list) or not all(
-            isinstance(r, dict) and isinstance(r.get("separation_se"), (int, float)) for r in doc["rivals"]):
+        isinstance(r, dict) and isinstance(r.get("separation_se"), (int, float)) for r in doc["rivals"]
+    ):
         raise UserError(f"{path}: rivals: expected a list of rivals, each with its separation_se")
     for key in ("model", "data"):
         if key not in doc:
@@ -98,8 +100,10 @@ def open_rivals(doc: dict, where: Path) -> list[dict]:
     left = [r for r in rivals if r["separation_se"] < settled_se]
     if not left:
         done = "; ".join(f"{r['rival']} at {r['separation_se']:.1f}" for r in rivals)
-        raise UserError(f"{where}: rivals: nothing to separate (these data already reject every rival at "
-                        f"{settled_se:g} standard errors or more: {done})")
+        raise UserError(
+            f"{where}: rivals: nothing to separate (these data already reject every rival at "
+            f"{settled_se:g} standard errors or more: {done})"
+        )
     return left
 
 
@@ -130,6 +134,7 @@ def other_flaps(source: AircraftSource, like: Matrix | None, have: set[float]) -
     """Up to three flap angles not in ``have``: the aircraft's lowest, middle and highest, each snapped
     to the nearest angle of ``like``'s CLmax table in range (the stall margin is known there)."""
     from campaign.simulation.engine import flap_schedule
+
     s = flap_schedule(source)
     if not s.moves:
         return []
@@ -147,6 +152,7 @@ def _flyable_flap(source: AircraftSource, flap_deg: float) -> float:
     """A measured flap angle snapped into what the aircraft can fly (0 without flaps, else clipped
     to its range): imported data log the mean of a measured flap channel."""
     from campaign.simulation.engine import flap_schedule
+
     s = flap_schedule(source)
     if not s.moves:
         return 0.0
@@ -162,6 +168,7 @@ def same_lift_alt_ft(alt_ft: float, mach: float, to_mach: float) -> float:
     from scipy.optimize import brentq
 
     from campaign.importing.importer import isa
+
     target = float(isa(alt_ft)[0][0]) * (mach / to_mach) ** 2
     lo, hi = 0.0, 80000.0
     if not float(isa(hi)[0][0]) <= target <= float(isa(lo)[0][0]):
@@ -186,8 +193,14 @@ def _condition(alt: float, mach: float, flap: float) -> tuple:
     return round(alt, 1), round(mach, 4), round(flap, 1)
 
 
-def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, given: Matrix | None,
-               held: set | None = None, turns: bool = False) -> list[StatusPoint]:
+def candidates(
+    logs: list[Log],
+    source: AircraftSource,
+    like: Matrix | None,
+    given: Matrix | None,
+    held: set | None = None,
+    turns: bool = False,
+) -> list[StatusPoint]:
     """Candidate points, each with its candidate manoeuvres (see the module's docstring): one factor
     at a time away from each condition of the old data, at its weight, with a level turn gear up
     if ``turns``. None at a condition the diagnosis holds out (``held``): a flight there would be
@@ -204,10 +217,20 @@ def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, giv
     seen, out = set(), []
     for alt, mach, measured_flap in conditions:
         weight, flap = weights[(alt, mach, measured_flap)], _flyable_flap(source, measured_flap)
-        variants = [(alt, mach, flap), (alt + 6000.0, mach, flap), (max(alt - 6000.0, 1500.0), mach, flap),
-                    (alt, round(mach - 0.1, 4), flap), (alt, round(mach + 0.1, 4), flap)]
-        variants += [(a, m, flap) for m in (round(mach - 0.1, 4), round(mach + 0.1, 4)) if m > 0
-                     for a in [_snapped(same_lift_alt_ft(alt, mach, m), m, flap, known)] if a >= 1500.0]
+        variants = [
+            (alt, mach, flap),
+            (alt + 6000.0, mach, flap),
+            (max(alt - 6000.0, 1500.0), mach, flap),
+            (alt, round(mach - 0.1, 4), flap),
+            (alt, round(mach + 0.1, 4), flap),
+        ]
+        variants += [
+            (a, m, flap)
+            for m in (round(mach - 0.1, 4), round(mach + 0.1, 4))
+            if m > 0
+            for a in [_snapped(same_lift_alt_ft(alt, mach, m), m, flap, known)]
+            if a >= 1500.0
+        ]
         variants += [(alt, mach, f) for f in flaps]
         for a, m, f in variants:
             if not (0.15 <= m <= 0.85 and a <= MAX_ALT_FT) or _condition(a, m, f) in held:
@@ -221,36 +244,59 @@ def candidates(logs: list[Log], source: AircraftSource, like: Matrix | None, giv
 
 
 def _matrix(name: str, points: list[StatusPoint], like: Matrix | None) -> Matrix:
-    return Matrix(name, name, tuple(points), like.maneuver_params if like else (),
-                  like.clmax_by_flap if like else (), "")
+    return Matrix(
+        name, name, tuple(points), like.maneuver_params if like else (), like.clmax_by_flap if like else (), ""
+    )
 
 
-def fly_candidates(points: list[StatusPoint], like: Matrix | None, model: Path, out: Path, jobs: int,
-                   progress: bool, rate_hz: float | None = None) -> list[Log]:
+def fly_candidates(
+    points: list[StatusPoint],
+    like: Matrix | None,
+    model: Path,
+    out: Path,
+    jobs: int,
+    progress: bool,
+    rate_hz: float | None = None,
+) -> list[Log]:
     """Fly the candidates on the model, noise-free, recorded at ``rate_hz`` (the old data's: the
     residuals are thinned per second, and the weights count rows), into ``out``; the logs flown."""
     from campaign.orchestration.runner import run_campaign
     from campaign.simulation.instruments import load_profile
     from identify.logs import read_campaign
+
     profile = "none"
     if rate_hz is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out.parent / "candidates.toml").write_text(f'extends = "none"\nrate_hz = {rate_hz!r}\n')
         profile = load_profile(str(out.parent / "candidates.toml"))
-    cfg = FlightConfig(AircraftSource(str(model), load_effects(None)), 0, profile,
-                       like.maneuver_params if like else (), like.clmax_by_flap if like else ())
+    cfg = FlightConfig(
+        AircraftSource(str(model), load_effects(None)),
+        0,
+        profile,
+        like.maneuver_params if like else (),
+        like.clmax_by_flap if like else (),
+    )
     run_campaign(_matrix("candidates", points, like), cfg, out, jobs=jobs, progress=progress)
     return read_campaign(out)
 
 
-def flight_sums(logs: list[Log], rivals: list[dict], noise: dict, model: Path, jobs: int,
-                turbulence_fps: float = 0.0, *, settled_se: float) -> list[list[list[dict]]]:
+def flight_sums(
+    logs: list[Log],
+    rivals: list[dict],
+    noise: dict,
+    model: Path,
+    jobs: int,
+    turbulence_fps: float = 0.0,
+    *,
+    settled_se: float,
+) -> list[list[list[dict]]]:
     """Per log, per rival: the sums each way (:func:`diagnose.separation.predicted`), and a level
     turn's measurement of an airspeed rival (:func:`with_turn`); ``settled_se``: the diagnosis's
     (:func:`to_measure`)."""
     from diagnose.evaluate import ModelEvaluator
     from diagnose.noise_floor import NoiseFloor
     from diagnose.residuals import residual_data
+
     evaluator = ModelEvaluator(model, jobs=jobs)
     try:
         frame = residual_data(logs, evaluator)
@@ -296,6 +342,7 @@ def turn_se(log: Log, turbulence_fps: float) -> float:
     """What the data compatibility will measure of the airspeed error along the track from this
     turn, one standard error [kt] (see the module's docstring)."""
     from identify.compat.result import DRYDEN_LENGTH_FT, FT_PER_KT, GUST_PRIOR_FLOOR_FPS
+
     t = log.data["t_s"].to_numpy(float)
     speed = float(np.median(log.data["tas_kt"])) * FT_PER_KT
     sigma = max(float(turbulence_fps), GUST_PRIOR_FLOOR_FPS)
@@ -345,12 +392,13 @@ def planned(sums: list[dict], base: tuple[float, float]) -> float:
     """The separation a rival will show: what the data in hand show (``base[0]``, signed) plus what
     the new flights add to the prediction (``base[1]``: the prediction for the data in hand)."""
     now, before = base
-    lam = np.sign(now) * now ** 2 + sep.separation(sums) ** 2 - before ** 2
+    lam = np.sign(now) * now**2 + sep.separation(sums) ** 2 - before**2
     return float(np.sign(lam) * np.sqrt(abs(lam)))
 
 
-def choose(old: list[list[dict]], flights: list[dict], budget: float,
-           base: list[tuple[float, float]]) -> tuple[list[int], list[list[dict]]]:
+def choose(
+    old: list[list[dict]], flights: list[dict], budget: float, base: list[tuple[float, float]]
+) -> tuple[list[int], list[list[dict]]]:
     """Greedy choice: the flight that gains most :func:`planned` separation (capped at
     :data:`PLAN_SE` per rival, squared) per minute, until every rival reaches it or the budget is spent.
     Greedy by the minute can spend the budget on cheap flights and leave no room for the one long
@@ -359,6 +407,7 @@ def choose(old: list[list[dict]], flights: list[dict], budget: float,
 
     ``flights``: ``{"minutes", "sums" (per rival), "point", "maneuver"}``; returns the chosen
     indices in order and the sums they reach."""
+
     def score(sums):
         return sum(min(max(planned(s, b), 0.0), PLAN_SE) ** 2 for s, b in zip(sums, base))
 
@@ -373,8 +422,11 @@ def choose(old: list[list[dict]], flights: list[dict], budget: float,
             excited = {flights[j]["point"] for j in chosen if flights[j]["maneuver"] in EXCITATION}
             current, best = score(now), None
             for j, f in enumerate(flights):
-                if (j in chosen or spent + f["minutes"] > budget
-                        or (f["maneuver"] in EXCITATION and f["point"] in excited)):
+                if (
+                    j in chosen
+                    or spent + f["minutes"] > budget
+                    or (f["maneuver"] in EXCITATION and f["point"] in excited)
+                ):
                     continue
                 t = trial(now, j)
                 gain = (score(t) - current) / max(f["minutes"], 1e-6)
@@ -388,17 +440,25 @@ def choose(old: list[list[dict]], flights: list[dict], budget: float,
         return score(now), -spent, chosen, now
 
     start = score(old)
-    alone = sorted((j for j, f in enumerate(flights) if f["minutes"] <= budget),
-                   key=lambda j: -(score(trial(old, j)) - start))[:SEEDED]
+    alone = sorted(
+        (j for j, f in enumerate(flights) if f["minutes"] <= budget), key=lambda j: -(score(trial(old, j)) - start)
+    )[:SEEDED]
     ends = [greedy(None)] + [greedy(j) for j in alone if score(trial(old, j)) > start]
     _, _, chosen, now = max(ends, key=lambda e: (round(e[0], 9), e[1]))
     return chosen, now
 
 
-def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = None, matrix: str | None = None,
-         jobs: int = 1, progress: bool = False) -> dict:
+def plan(
+    diagnosis: Path,
+    out: Path | None = None,
+    budget_min: float | None = None,
+    matrix: str | None = None,
+    jobs: int = 1,
+    progress: bool = False,
+) -> dict:
     """The whole plan; returns what ``plan.json`` holds (see the module's docstring)."""
     import shutil
+
     diagnosis = Path(diagnosis)
     doc = read_diagnosis(diagnosis)  # the arguments in the order a user gives them, before the rivals
     where = diagnosis / "diagnosis.json"
@@ -426,8 +486,7 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     budget = BUDGET_SHARE * old_minutes if budget_min is None else float(budget_min)
     like = _old_matrix(paths)
     source = AircraftSource(str(model), load_effects(None))
-    turns = (any(airspeed_rival(r) for r in rivals)
-             and all(c in lg.columns for lg in logs for c in TURN_NEEDS))
+    turns = any(airspeed_rival(r) for r in rivals) and all(c in lg.columns for lg in logs for c in TURN_NEEDS)
     points = candidates(logs, source, like, given, held, turns)
     if given is not None:
         check_flaps(source, [(f"{given.path}: {p.entry}.flap_deg", p.flap_deg) for p in points])
@@ -435,46 +494,82 @@ def plan(diagnosis: Path, out: Path | None = None, budget_min: float | None = No
     points = [replace(p, maneuvers=tuple(m for m in p.maneuvers if (p.id, m) not in flown_before)) for p in points]
     points = [p for p in points if p.maneuvers]
     if not points:
-        raise UserError(f"{given.path if given else where}: points: no candidate flight left (each is flown "
-                        f"already or at a condition the diagnosis holds out)")
+        raise UserError(
+            f"{given.path if given else where}: points: no candidate flight left (each is flown "
+            f"already or at a condition the diagnosis holds out)"
+        )
     like = given or like
     rates = [1.0 / float(lg.meta["dt_s"]) for lg in logs if float(lg.meta.get("dt_s") or 0) > 0]
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:
-        flown = fly_candidates(points, like, model, out / "candidates", jobs, progress,
-                               float(np.median(rates)) if rates else None)
+        flown = fly_candidates(
+            points, like, model, out / "candidates", jobs, progress, float(np.median(rates)) if rates else None
+        )
         if not flown:
-            raise UserError(f"{given.path if given else where}: points: the aircraft trims at none of the "
-                            f"candidate points")
-        sums = flight_sums(flown, rivals, doc.get("noise_estimated", {}), model, jobs,
-                           (doc.get("data_compatibility") or {}).get("vertical_gust_rms_fps") or 0.0,
-                           settled_se=settled_se)
+            raise UserError(
+                f"{given.path if given else where}: points: the aircraft trims at none of the candidate points"
+            )
+        sums = flight_sums(
+            flown,
+            rivals,
+            doc.get("noise_estimated", {}),
+            model,
+            jobs,
+            (doc.get("data_compatibility") or {}).get("vertical_gust_rms_fps") or 0.0,
+            settled_se=settled_se,
+        )
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    old = [measurement(0.0) if to_measure(r, settled_se) else
-           [{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
-           for r in rivals]
-    base = [(0.0 if to_measure(r, settled_se) else float(r["separation_se"]), sep.separation(o))
-            for r, o in zip(rivals, old)]
-    flights = [{"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s}
-               for lg, s in zip(flown, sums)]
+    old = [
+        measurement(0.0)
+        if to_measure(r, settled_se)
+        else [{k: np.asarray(v, float) if k != "c" else float(v) for k, v in s.items()} for s in r["stats"]]
+        for r in rivals
+    ]
+    base = [
+        (0.0 if to_measure(r, settled_se) else float(r["separation_se"]), sep.separation(o))
+        for r, o in zip(rivals, old)
+    ]
+    flights = [
+        {"point": lg.point, "maneuver": lg.maneuver, "minutes": minutes(lg), "sums": s} for lg, s in zip(flown, sums)
+    ]
     chosen, reached = choose(old, flights, budget, base)
     result = {
         "tool": tool(),
-        "diagnosis": str(diagnosis), "model": str(model), "budget_min": budget, "old_minutes": old_minutes,
-        "planned_minutes": sum(flights[j]["minutes"] for j in chosen), "target_se": PLAN_SE,
-        "settled_se": settled_se, "candidates": len(flights),
-        "rivals": [{"cause": r["cause"], "rival": r["rival"], "kind": r["kind"], "now_se": b[0],
-                    "predicted_now_se": b[1], "planned_se": planned(n, b), "to_measure": to_measure(r, settled_se),
-                    "residuals_se": float(r["separation_se"])}
-                   for r, b, n in zip(rivals, base, reached)],
-        "flights": [{"point": flights[j]["point"], "maneuver": flights[j]["maneuver"],
-                     "minutes": flights[j]["minutes"],
-                     "alone_se": [planned(sep.add(o, s), b) for o, s, b in zip(old, flights[j]["sums"], base)]}
-                    for j in chosen]}
+        "diagnosis": str(diagnosis),
+        "model": str(model),
+        "budget_min": budget,
+        "old_minutes": old_minutes,
+        "planned_minutes": sum(flights[j]["minutes"] for j in chosen),
+        "target_se": PLAN_SE,
+        "settled_se": settled_se,
+        "candidates": len(flights),
+        "rivals": [
+            {
+                "cause": r["cause"],
+                "rival": r["rival"],
+                "kind": r["kind"],
+                "now_se": b[0],
+                "predicted_now_se": b[1],
+                "planned_se": planned(n, b),
+                "to_measure": to_measure(r, settled_se),
+                "residuals_se": float(r["separation_se"]),
+            }
+            for r, b, n in zip(rivals, base, reached)
+        ],
+        "flights": [
+            {
+                "point": flights[j]["point"],
+                "maneuver": flights[j]["maneuver"],
+                "minutes": flights[j]["minutes"],
+                "alone_se": [planned(sep.add(o, s), b) for o, s, b in zip(old, flights[j]["sums"], base)],
+            }
+            for j in chosen
+        ],
+    }
     result["matrix"] = None
     if chosen:
         chosen_points = {}
@@ -506,9 +601,13 @@ def _value(v) -> str:
 def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Matrix | None) -> str:
     """A matrix file of the chosen flights (each point with its own manoeuvres), readable by
     :func:`campaign.simulation.matrix.load_matrix`."""
-    lines = [f"# Flights planned by `campaign plan` to separate the rivals of diagnosis {name}.",
-             f"name = {_value('plan-' + name)}", 'description = "flights that separate a diagnosis\'s rivals"', ""]
-    for m, params in (like.maneuver_params if like else ()):
+    lines = [
+        f"# Flights planned by `campaign plan` to separate the rivals of diagnosis {name}.",
+        f"name = {_value('plan-' + name)}",
+        'description = "flights that separate a diagnosis\'s rivals"',
+        "",
+    ]
+    for m, params in like.maneuver_params if like else ():
         lines.append(f"[maneuvers.{m}]")
         lines += [f"{k} = {_value(v)}" for k, v in params]
         lines.append("")
@@ -517,8 +616,14 @@ def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Ma
         lines += [f"{_value(f'{f:g}')} = {_value(c)}" for f, c in like.clmax_by_flap]
         lines.append("")
     for p, ms in points:
-        lines += ["[[points]]", f"gear = {_value('down' if p.gear_down else 'up')}", f"flap_deg = {_value(p.flap_deg)}",
-                  f"mach = {_value(p.mach)}", f"alt_ft = {_value(p.alt_ft)}", f"maneuvers = {_value(ms)}"]
+        lines += [
+            "[[points]]",
+            f"gear = {_value('down' if p.gear_down else 'up')}",
+            f"flap_deg = {_value(p.flap_deg)}",
+            f"mach = {_value(p.mach)}",
+            f"alt_ft = {_value(p.alt_ft)}",
+            f"maneuvers = {_value(ms)}",
+        ]
         if p.weight_lb is not None:
             lines.append(f"weight_lb = {_value(p.weight_lb)}")
         lines.append("")
@@ -527,33 +632,51 @@ def matrix_toml(name: str, points: list[tuple[StatusPoint, list[str]]], like: Ma
 
 def report(r: dict) -> str:
     """``plan.txt``."""
-    lines = ["Flight plan", "===========", "", f"diagnosis: {r['diagnosis']}", f"model: {r['model']}",
-             (f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
-              f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model"), "",
-             (f"Rivals (separation in standard errors; settled at {r['settled_se']:g}, planned to "
-              f"{r['target_se']:g}):")]
+    lines = [
+        "Flight plan",
+        "===========",
+        "",
+        f"diagnosis: {r['diagnosis']}",
+        f"model: {r['model']}",
+        (
+            f"budget: {r['budget_min']:.1f} min ({100 * r['budget_min'] / max(r['old_minutes'], 1e-9):.0f} % of the "
+            f"{r['old_minutes']:.1f} min already flown); {r['candidates']} candidate flights flown on the model"
+        ),
+        "",
+        (f"Rivals (separation in standard errors; settled at {r['settled_se']:g}, planned to {r['target_se']:g}):"),
+    ]
     for x in r["rivals"]:
         if x.get("to_measure"):
-            lines.append(f"  {x['cause']}  against  {x['rival']}: the residuals prefer the instrument error "
-                         f"({x['residuals_se']:+.1f}), which the data compatibility could not measure; the plan "
-                         f"measures it to {x['planned_se']:.1f} standard errors of its size")
+            lines.append(
+                f"  {x['cause']}  against  {x['rival']}: the residuals prefer the instrument error "
+                f"({x['residuals_se']:+.1f}), which the data compatibility could not measure; the plan "
+                f"measures it to {x['planned_se']:.1f} standard errors of its size"
+            )
             continue
-        lines.append(f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now, {x['planned_se']:+.1f} "
-                     f"predicted with the plan (now, plus what the plan adds to the {x['predicted_now_se']:.1f} "
-                     f"the fits expect of the data in hand)")
+        lines.append(
+            f"  {x['cause']}  against  {x['rival']}: {x['now_se']:+.1f} now, {x['planned_se']:+.1f} "
+            f"predicted with the plan (now, plus what the plan adds to the {x['predicted_now_se']:.1f} "
+            f"the fits expect of the data in hand)"
+        )
     lines.append("")
     if not r["flights"]:
-        lines.append("No candidate flight separates them within the budget: raise --budget-min or give "
-                     "--matrix other points.")
+        lines.append(
+            "No candidate flight separates them within the budget: raise --budget-min or give --matrix other points."
+        )
     else:
-        lines.append(f"Flights, in the order chosen ({r['planned_minutes']:.1f} min, "
-                     f"{100 * r['planned_minutes'] / max(r['old_minutes'], 1e-9):.0f} % more flight time):")
+        lines.append(
+            f"Flights, in the order chosen ({r['planned_minutes']:.1f} min, "
+            f"{100 * r['planned_minutes'] / max(r['old_minutes'], 1e-9):.0f} % more flight time):"
+        )
         for f in r["flights"]:
             alone = ", ".join(f"{s:.1f}" for s in f["alone_se"])
             lines.append(f"  {f['point']} {f['maneuver']} ({f['minutes']:.2f} min): alone with the old data {alone}")
         short = [x for x in r["rivals"] if x["planned_se"] < r["settled_se"]]
         if short:
             lines.append("Within the budget the plan does not settle: " + "; ".join(x["rival"] for x in short))
-        lines += ["", f"Fly it:        campaign run --matrix {r['matrix']} --aircraft AIRCRAFT --out NEW",
-                  f"Then diagnose: campaign diagnose --data OLD --data NEW --model {r['model']} --out DIR"]
+        lines += [
+            "",
+            f"Fly it:        campaign run --matrix {r['matrix']} --aircraft AIRCRAFT --out NEW",
+            f"Then diagnose: campaign diagnose --data OLD --data NEW --model {r['model']} --out DIR",
+        ]
     return "\n".join(lines) + "\n"

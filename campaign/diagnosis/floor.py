@@ -13,6 +13,7 @@ Limits: the noise is white at each channel's level (a real record's noise may be
 instruments may err in ways the data compatibility did not correct); without a logged inertial velocity
 there is no measured wind, so the floor holds the instruments' noise only, not turbulence.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,12 +29,31 @@ from identify.logs import Log
 #: Noise draws per log; the floor is the largest error of them.
 DRAWS = 2
 #: How ``diagnosis.json`` and ``diagnosis.txt`` say what the floor is.
-FLOOR = (f"the error a perfect model leaves on the same log: the model's own flight of the log's inputs (in the "
-         f"unfiltered measured wind) recorded with each channel's own noise level and replayed as the log is, the "
-         f"larger of {DRAWS} noise draws")
+FLOOR = (
+    f"the error a perfect model leaves on the same log: the model's own flight of the log's inputs (in the "
+    f"unfiltered measured wind) recorded with each channel's own noise level and replayed as the log is, the "
+    f"larger of {DRAWS} noise draws"
+)
 #: The channels a synthetic log is made of (those the log has).
-SYNTHETIC = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "psi_deg", "p_dps",
-             "q_dps", "r_dps", "vn_fps", "ve_fps", "vd_fps", "elevator_deg", "stabilizer_deg", "thrust_lbf")
+SYNTHETIC = (
+    "alt_ft",
+    "tas_kt",
+    "mach",
+    "alpha_deg",
+    "beta_deg",
+    "theta_deg",
+    "phi_deg",
+    "psi_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "vn_fps",
+    "ve_fps",
+    "vd_fps",
+    "elevator_deg",
+    "stabilizer_deg",
+    "thrust_lbf",
+)
 
 
 def synthetic_log(log: Log, truth: pd.DataFrame, rng: np.random.Generator) -> Log:
@@ -60,11 +80,15 @@ def replay_floor(log: Log, source: AircraftSource, seed: int = 0) -> dict:
         window (:func:`diagnose.gain.replay_window`); ``draws``; ``note`` (what it holds, or why there is none).
     """
     from campaign.diagnosis.run import log_wind, replay_why  # noqa: PLC0415  (run imports this module)
+
     d = log.data
     raw = measured_wind(d)
     wind = raw if raw is not None and log_wind(log) is not None else None
-    note = ("instrument noise and the measured wind's reconstruction" if wind is not None else
-            "instrument noise only: " + ("no inertial velocity logged" if raw is None else "still air"))
+    note = (
+        "instrument noise and the measured wind's reconstruction"
+        if wind is not None
+        else "instrument noise only: " + ("no inertial velocity logged" if raw is None else "still air")
+    )
     start = estimate_start(d, None if wind is None else log_wind(log))
     nan = {ch: float("nan") for ch in REPLAY_CHANNELS}
     try:

@@ -8,6 +8,7 @@ errors in theta, alpha, q and airspeed (:class:`identify.estimators.OutputError`
 by finite differences: one replay set per term per iteration). The refined extension is then
 measured on the held-out logs like the equation-error one.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -54,22 +55,41 @@ class ReplayOutputError(OutputError):
     jobs : int
     """
 
-    def __init__(self, diag: Diagnosis, model: Path, logs: list[Log], work: Path, replay, jobs: int = 1,
-                 max_iter: int = 8, tol: float = 1e-3) -> None:
+    def __init__(
+        self,
+        diag: Diagnosis,
+        model: Path,
+        logs: list[Log],
+        work: Path,
+        replay,
+        jobs: int = 1,
+        max_iter: int = 8,
+        tol: float = 1e-3,
+    ) -> None:
         self.diag, self.model_dir, self.logs, self.work, self.replay, self.jobs = diag, model, logs, work, replay, jobs
         self.terms = [term_name(c, i, t) for c, i, t in aero_terms(diag)]
         self._sources: dict[tuple, AircraftSource] = {}
         self.times = [lg.data["t_s"].to_numpy() for lg in logs]
-        records = [Record(np.zeros((len(lg.data), 1)), lg.data[list(CHANNELS)].to_numpy(dtype=float),
-                          float(np.median(np.diff(lg.data.t_s))), np.zeros(0), name=Path(lg.path).stem)
-                   for lg in logs]
+        records = [
+            Record(
+                np.zeros((len(lg.data), 1)),
+                lg.data[list(CHANNELS)].to_numpy(dtype=float),
+                float(np.median(np.diff(lg.data.t_s))),
+                np.zeros(0),
+                name=Path(lg.path).stem,
+            )
+            for lg in logs
+        ]
         shell = StateSpaceModel(None, None, (), ("none",), CHANNELS, tuple(self.terms))
         super().__init__(shell, records, np.ones(len(self.terms)), tol=tol, max_iter=max_iter, step=0.02)
         # compare over what the unrefined extension's replay flies of each log
         first = self.predict(np.ones((1, len(self.terms))))
-        kept = [(r, t[:n]) for r, t, y in zip(self.records, self.times, first)
-                if (n := int(np.argmax(np.append(np.isnan(y[0, :, 0]), True)))) > 1]
-        self.records = [Record(r.u[:len(t)], r.z[:len(t)], r.dt_s, r.x0, name=r.name) for r, t in kept]
+        kept = [
+            (r, t[:n])
+            for r, t, y in zip(self.records, self.times, first)
+            if (n := int(np.argmax(np.append(np.isnan(y[0, :, 0]), True)))) > 1
+        ]
+        self.records = [Record(r.u[: len(t)], r.z[: len(t)], r.dt_s, r.x0, name=r.name) for r, t in kept]
         self.times = [t for _, t in kept]
         self.logs = [lg for lg in self.logs if Path(lg.path).stem in {r.name for r in self.records}]
         if not self.records:
@@ -107,12 +127,20 @@ def fitted_logs(diag: Diagnosis) -> list[Log]:
     cause = diag.aero_causes[0]
     acting = exercised(diag.data, cause.variables, diag.settings.min_std)
     col = f"r_{cause.coefficient}"
-    rms = diag.data[diag.data.log.isin(acting)].groupby("log")[col].agg(lambda r: float(np.sqrt(np.mean(r ** 2))))
+    rms = diag.data[diag.data.log.isin(acting)].groupby("log")[col].agg(lambda r: float(np.sqrt(np.mean(r**2))))
     return [diag.logs[int(i)] for i in rms.sort_values(ascending=False).index[:MAX_LOGS]]
 
 
-def refine_extension(diag: Diagnosis, model: Path, out: Path, held: list[Log], before: pd.DataFrame,
-                     flown_model: dict[str, pd.DataFrame | None], replay, jobs: int = 1) -> dict:
+def refine_extension(
+    diag: Diagnosis,
+    model: Path,
+    out: Path,
+    held: list[Log],
+    before: pd.DataFrame,
+    flown_model: dict[str, pd.DataFrame | None],
+    replay,
+    jobs: int = 1,
+) -> dict:
     """Refine the extension by output error, write it beside the equation-error one, measure its gain.
 
     Returns
@@ -147,13 +175,22 @@ def refine_extension(diag: Diagnosis, model: Path, out: Path, held: list[Log], b
     caveat = None
     still = [Path(lg.path).name for lg in logs if measured_wind(lg.data) is None]
     if gust is not None and gust > TURBULENT_FPS and still:
-        caveat = (f"the data were flown in turbulence (vertical gust {gust:.2g} ft/s RMS in the reconstruction) and "
-                  f"{len(still)} fitted logs have no inertial velocity, so their replays fly in still air: the gusts "
-                  "are replay errors the scales are bent to reduce; trust the equation-error extension")
-    return {"method": "oe", "caveat": caveat, "fitted_logs": [Path(lg.path).name for lg in logs],
-            "scales": scales, "se": dict(zip(est.terms, res.bse.to_numpy())),
-            "se_coloured": dict(zip(est.terms, res.bse_coloured.to_numpy())),
-            "iterations": res.iterations, "converged": res.converged,
-            "replay_residual_std": {k: float(np.sqrt(v)) for k, v in res.R.items()},
-            "extension": str(folder), "extension_xml": str(xml),
-            "gain": measure_gain(refined, held, before, after, flown)}
+        caveat = (
+            f"the data were flown in turbulence (vertical gust {gust:.2g} ft/s RMS in the reconstruction) and "
+            f"{len(still)} fitted logs have no inertial velocity, so their replays fly in still air: the gusts "
+            "are replay errors the scales are bent to reduce; trust the equation-error extension"
+        )
+    return {
+        "method": "oe",
+        "caveat": caveat,
+        "fitted_logs": [Path(lg.path).name for lg in logs],
+        "scales": scales,
+        "se": dict(zip(est.terms, res.bse.to_numpy())),
+        "se_coloured": dict(zip(est.terms, res.bse_coloured.to_numpy())),
+        "iterations": res.iterations,
+        "converged": res.converged,
+        "replay_residual_std": {k: float(np.sqrt(v)) for k, v in res.R.items()},
+        "extension": str(folder),
+        "extension_xml": str(xml),
+        "gain": measure_gain(refined, held, before, after, flown),
+    }

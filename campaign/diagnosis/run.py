@@ -5,6 +5,7 @@ splits it, runs the diagnosis, writes the extension into a copy of the model, fl
 held-out manoeuvres on both aircraft (same trimmed start, recorded inputs) and hands them to
 :mod:`diagnose.gain`, and draws the plots on the workers.
 """
+
 from __future__ import annotations
 
 import json
@@ -56,8 +57,9 @@ def load_data(path: Path) -> list[Log]:
     raise UserError(f"{path}: not a campaign folder, a CSV or a Parquet log")
 
 
-def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
-          source: str = "") -> tuple[list[Log], list[Log]]:
+def split(
+    logs: list[Log], every: int = 3, first: list[Log] | None = None, source: str = ""
+) -> tuple[list[Log], list[Log]]:
     """Hold out about every ``every``-th flight condition (all its manoeuvres) of ``first`` (default: of
     ``logs``), chosen so that the fit keeps what was flown (:func:`_taken`): first every altitude, Mach
     number and flap angle outside the fitted range, and every gear state; then every Mach number and flap
@@ -74,9 +76,11 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
         return split_by_flight(logs, every, first)
     if len(conds) < 2:
         found = ", ".join(f"{c[0]:g} ft, Mach {c[1]:g}, flap {c[2]:g}" for c in conds) or "none"
-        raise UserError(f"--data{' ' + source if source else ''}: needs logs from at least two flight conditions "
-                        f"or two flights at one (one is held out), found {len(first)} log(s) at {len(conds)} "
-                        f"condition(s) ({found})")
+        raise UserError(
+            f"--data{' ' + source if source else ''}: needs logs from at least two flight conditions "
+            f"or two flights at one (one is held out), found {len(first)} log(s) at {len(conds)} "
+            f"condition(s) ({found})"
+        )
     states = {c: set() for c in conds}
     alpha = {c: [] for c in conds}
     for lg in first:
@@ -97,8 +101,10 @@ def split(logs: list[Log], every: int = 3, first: list[Log] | None = None,
 
 
 #: How a split by flight is said in ``diagnosis.json`` (``data.split``) and ``diagnosis.txt``.
-BY_FLIGHT = ("by flight: the data hold one flight condition, so every {every}rd flight in file order is held out "
-             "(the last at least)")
+BY_FLIGHT = (
+    "by flight: the data hold one flight condition, so every {every}rd flight in file order is held out "
+    "(the last at least)"
+)
 
 
 #: Conditions closer than this (altitude [ft], Mach, flap [deg]) are one for the held-out split: imported records
@@ -129,8 +135,15 @@ def _least_taken(held: set, conds: list, states: dict, spans: dict) -> set:
     """``held`` with one condition at a time swapped for one in the fit while that takes less (:func:`_taken`)."""
     best = _taken(held, conds, states, spans)
     while any(best):
-        score, h, c = min(((_taken((held - {h}) | {c}, conds, states, spans), h, c) for h in sorted(held)
-                           for c in conds if c not in held), key=lambda s: s[0])
+        score, h, c = min(
+            (
+                (_taken((held - {h}) | {c}, conds, states, spans), h, c)
+                for h in sorted(held)
+                for c in conds
+                if c not in held
+            ),
+            key=lambda s: s[0],
+        )
         if not score < best:
             break
         held, best = (held - {h}) | {c}, score
@@ -186,10 +199,15 @@ def _taken(held: set, conds: list, states: dict, spans: dict) -> tuple[int, int]
 def _confounded(train: list, conds: list) -> int:
     """How many (Mach number, flap angle) pairs the conditions ``train`` fly at exactly the same conditions
     while ``conds`` do not."""
+
     def at(cs, j, v):
         return frozenset(c for c in cs if c[j] == v)
-    return sum(at(train, 1, m) == at(train, 2, f) and at(conds, 1, m) != at(conds, 2, f)
-               for m in {c[1] for c in train} for f in {c[2] for c in train})
+
+    return sum(
+        at(train, 1, m) == at(train, 2, f) and at(conds, 1, m) != at(conds, 2, f)
+        for m in {c[1] for c in train}
+        for f in {c[2] for c in train}
+    )
 
 
 #: Below this RMS [ft/s] the wind measured in a log is taken as still air (noise-free campaigns).
@@ -210,7 +228,7 @@ def log_wind(log: Log) -> np.ndarray | None:
         return None
     t = log.data.t_s.to_numpy()
     w = lowpass(w, float(np.median(np.diff(t))), WIND_CUTOFF_HZ)
-    return w if float(np.sqrt(np.mean(w ** 2))) > STILL_AIR_FPS else None
+    return w if float(np.sqrt(np.mean(w**2))) > STILL_AIR_FPS else None
 
 
 def wind_note(log: Log) -> dict:
@@ -307,9 +325,18 @@ def _within(out: Path, folder: Path) -> bool:
     return o == f or f in o.parents
 
 
-def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool = "key", jobs: int = 1,
-                  progress: bool = False, cluster: str | None = None, refine: str | None = None,
-                  bands: int = 0, settings: DiagnosisSettings | None = None) -> dict:
+def run_diagnosis(
+    data_path: Path,
+    model_dir: Path,
+    out: Path,
+    plots: str | bool = "key",
+    jobs: int = 1,
+    progress: bool = False,
+    cluster: str | None = None,
+    refine: str | None = None,
+    bands: int = 0,
+    settings: DiagnosisSettings | None = None,
+) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
     Parameters
@@ -363,8 +390,9 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
         raise UserError(f"{out}: exists and is not empty; will not overwrite (choose another --out)")
     for flag, given in [("--data", p) for p in _paths(data_path)] + [("--model", Path(model_dir))]:
         if _within(out, given):
-            raise UserError(f"{out}: inside {flag} {given}; the report goes in a folder of its own (choose another "
-                            f"--out)")
+            raise UserError(
+                f"{out}: inside {flag} {given}; the report goes in a folder of its own (choose another --out)"
+            )
     model = check_aircraft_folder(model_dir)
     client = connect(cluster) if cluster else None  # before anything is read or written
     try:
@@ -375,8 +403,10 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
             for lg in s:
                 name = Path(lg.path).name
                 if name in where:
-                    raise UserError(f"--data: log {name} is in {where[name]} and in {p} (the report names logs by "
-                                    f"file: each --data must hold other flights)")
+                    raise UserError(
+                        f"--data: log {name} is in {where[name]} and in {p} (the report names logs by "
+                        f"file: each --data must hold other flights)"
+                    )
                 where[name] = p
         train, held = split(logs, first=sets[0], source=str(paths[0]))
         by_flight = len(_distinct(sorted({lg.condition for lg in sets[0]}))) < 2
@@ -387,8 +417,9 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
     fresh = not out.exists()
     try:
         with on_cluster(client):
-            return _diagnosis(paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands,
-                              settings, by_flight)
+            return _diagnosis(
+                paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands, settings, by_flight
+            )
     except BaseException:  # interrupted or failed: no half report, and the same command runs again
         if fresh:
             shutil.rmtree(out, ignore_errors=True)
@@ -404,17 +435,31 @@ def run_diagnosis(data_path: Path, model_dir: Path, out: Path, plots: str | bool
             client.close()
 
 
-def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: int, progress: bool, logs: list[Log],  # noqa: PLR0913
-               train: list[Log], held: list[Log], client, refine: str | None = None, bands: int = 0,
-               settings: DiagnosisSettings | None = None, by_flight: bool = False) -> dict:
+def _diagnosis(  # noqa: PLR0913
+    data_path: list[Path],
+    model: Path,
+    out: Path,
+    plots: str,
+    jobs: int,
+    progress: bool,
+    logs: list[Log],
+    train: list[Log],
+    held: list[Log],
+    client,
+    refine: str | None = None,
+    bands: int = 0,
+    settings: DiagnosisSettings | None = None,
+    by_flight: bool = False,
+) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
     try:
         evaluator = ModelEvaluator(model)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    bar = tqdm(total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages "
-               "[{elapsed}]")
+    bar = tqdm(
+        total=len(STAGES), unit="stage", disable=not progress, bar_format="{l_bar}{bar}| {n}/{total} stages [{elapsed}]"
+    )
     src_model = AircraftSource(str(model), load_effects(None))
 
     def stage(name: str) -> None:
@@ -432,10 +477,18 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
             bar.close()
             raise UserError(str(exc)) from None
         out.mkdir(parents=True, exist_ok=True)
-        doc = document(diag, {"path": " + ".join(map(str, data_path)), "paths": [str(p) for p in data_path],
-                              "logs": len(logs), "train": [lg.path for lg in train],
-                              "held_out": [lg.path for lg in held],
-                              "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition"}, str(model))
+        doc = document(
+            diag,
+            {
+                "path": " + ".join(map(str, data_path)),
+                "paths": [str(p) for p in data_path],
+                "logs": len(logs),
+                "train": [lg.path for lg in train],
+                "held_out": [lg.path for lg in held],
+                "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition",
+            },
+            str(model),
+        )
         before = diag.held
         raw_held, held = held, diag.held_logs  # as corrected for instrument errors
         extended_eval = src_ext = after = None
@@ -457,19 +510,28 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
         floors = pmap(replay_floor, [(lg, src_model, sd) for lg, sd in zip(held, seeds)], jobs)
     else:  # the aircraft travel with the tasks
         shipped = {id(s): pack(s) for s in sources}
-        flown_now = dict(zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects)
-                                                           for i, src in calls], fan)))
-        floors = pmap(floor_shipped, [(lg, shipped[id(src_model)], src_model.effects, sd)
-                                      for lg, sd in zip(held, seeds)], fan)
+        flown_now = dict(
+            zip(calls, pmap(replay_shipped, [(held[i], shipped[id(src)], src.effects) for i, src in calls], fan))
+        )
+        floors = pmap(
+            floor_shipped, [(lg, shipped[id(src_model)], src_model.effects, sd) for lg, sd in zip(held, seeds)], fan
+        )
     after = after() if callable(after) else after
-    raw = {lg.path: (early[i] if i in early else flown_now[i, src_model],
-                     flown_now[i, src_ext] if src_ext is not None else None) for i, lg in enumerate(held)}
+    raw = {
+        lg.path: (
+            early[i] if i in early else flown_now[i, src_model],
+            flown_now[i, src_ext] if src_ext is not None else None,
+        )
+        for i, lg in enumerate(held)
+    }
     flown = {k: tuple(None if isinstance(f, str) else f for f in v) for k, v in raw.items()}
     floors = {Path(lg.path).name: f for lg, f in zip(held, floors)}
     doc["replays"] = replay_table(held, flown, extended=src_ext is not None, floors=floors)
     doc["replay_windows"] = window_table(held)
-    doc["replay_floor"] = {"method": FLOOR, "per_log": {k: {"draws": f.get("draws"), "note": f.get("note")}
-                                                         for k, f in floors.items()}}
+    doc["replay_floor"] = {
+        "method": FLOOR,
+        "per_log": {k: {"draws": f.get("draws"), "note": f.get("note")} for k, f in floors.items()},
+    }
     doc["replay_starts"] = {Path(lg.path).name: _start_note(lg, raw[lg.path]) for lg in held}
     doc["wind"] = {Path(lg.path).name: wind_note(lg) for lg in held}
     if diag.aero_causes:
@@ -477,8 +539,9 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
         if refine:
             stage("refine")
             with local_workers():
-                doc["refine"] = refine_extension(diag, model, out, held, before,
-                                                 {k: v[0] for k, v in flown.items()}, replay, jobs)
+                doc["refine"] = refine_extension(
+                    diag, model, out, held, before, {k: v[0] for k, v in flown.items()}, replay, jobs
+                )
     band_arrays = {}
     if bands and diag.aero_causes:
         stage("bands")
@@ -487,20 +550,27 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
             doc["bands"], band_arrays = replay_bands(diag, model, out, [held[i] for i in acting], bands, replay, jobs)
     if plots != "none":
         stage("plots")
-        which = (exercised(before, diag.aero_causes[0].variables, diag.settings.min_std) if diag.aero_causes
-                 else largest(before))
-        doc["plotted_logs"] = _plots(diag, held, before, after, flown, out, jobs, None if plots == "all" else which,
-                                     band_arrays)
+        which = (
+            exercised(before, diag.aero_causes[0].variables, diag.settings.min_std)
+            if diag.aero_causes
+            else largest(before)
+        )
+        doc["plotted_logs"] = _plots(
+            diag, held, before, after, flown, out, jobs, None if plots == "all" else which, band_arrays
+        )
     bar.update(len(STAGES) - bar.n)
     bar.close()
     doc["summary"] = summary(diag, doc)
     lines = replay_lines(doc)
     unflown = {k: v["why"] for k, v in doc["replay_starts"].items() if v.get("why")}
     if lines or unflown:
-        doc["summary"] += ("\nHeld-out replays judged over " + ("their Part 60 or manoeuvre windows; the floor: "
-                                                                  + FLOOR + "\n" + "\n".join(lines) if lines else "")
-                           + "".join(f"\n  {k}: not flown: {w}" for k, w in unflown.items())
-                           + (f"\n  held-out split {doc['data']['split']}" if by_flight else "") + "\n")
+        doc["summary"] += (
+            "\nHeld-out replays judged over "
+            + ("their Part 60 or manoeuvre windows; the floor: " + FLOOR + "\n" + "\n".join(lines) if lines else "")
+            + "".join(f"\n  {k}: not flown: {w}" for k, w in unflown.items())
+            + (f"\n  held-out split {doc['data']['split']}" if by_flight else "")
+            + "\n"
+        )
     text = json.dumps(doc, indent=1, default=float) + "\n"
     atomic_write(out / "diagnosis.txt", lambda tmp: Path(tmp).write_text(doc["summary"]))
     atomic_write(out / "diagnosis.json", lambda tmp: Path(tmp).write_text(text))  # last: the diagnosis is whole
@@ -513,6 +583,7 @@ def _diagnosis(data_path: list[Path], model: Path, out: Path, plots: str, jobs: 
 def _floor_seed(log: Log) -> int:
     """The floor's noise seed of a log: from its file name (the same on every run and machine)."""
     import zlib
+
     return zlib.crc32(Path(log.path).name.encode())
 
 
@@ -528,19 +599,38 @@ def _start_note(log: Log, flights: tuple) -> dict:
     return out
 
 
-def _plots(diag: Diagnosis, held: list[Log], before: pd.DataFrame, after: pd.DataFrame | None,
-           flown: dict, out: Path, jobs: int = 1, which: list[int] | None = None, bands: dict | None = None) -> list[str]:
+def _plots(
+    diag: Diagnosis,
+    held: list[Log],
+    before: pd.DataFrame,
+    after: pd.DataFrame | None,
+    flown: dict,
+    out: Path,
+    jobs: int = 1,
+    which: list[int] | None = None,
+    bands: dict | None = None,
+) -> list[str]:
     """The overview, and the residual history and response of the held-out logs ``which`` (None: all),
     drawn on the local workers (they write into ``out``); returns the names of the logs plotted."""
     from diagnose.plots import (  # matplotlib: only when plots are drawn
         save_log_plots,
         save_overview,
     )
+
     (out / "plots").mkdir(exist_ok=True)
     which = range(len(held)) if which is None else which
-    calls = [(Path(held[i].path).stem, held[i].data, before[before.log == i],
-              after[after.log == i] if after is not None else None,
-              *flown.get(held[i].path, (None, None)), out / "plots", (bands or {}).get(held[i].path)) for i in which]
+    calls = [
+        (
+            Path(held[i].path).stem,
+            held[i].data,
+            before[before.log == i],
+            after[after.log == i] if after is not None else None,
+            *flown.get(held[i].path, (None, None)),
+            out / "plots",
+            (bands or {}).get(held[i].path),
+        )
+        for i in which
+    ]
     if jobs > 1:  # the overview too: the workers have matplotlib loaded, and this process waits anyway
         slim = replace(diag, held=None, logs=[], held_logs=[])  # what the overview draws, without the logs
         with local_workers():

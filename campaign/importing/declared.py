@@ -7,6 +7,7 @@ scale-factor error, largest time delay); the map carries that specification into
 from it. The local gravity goes into ``gravity_fps2``, which the data compatibility and the time-domain
 estimators use in place of the standard 32.174 ft/s^2.
 """
+
 from __future__ import annotations
 
 import math
@@ -23,9 +24,26 @@ MAX_SCALE, MAX_DELAY_S = 0.5, 2.0
 #: aeroplanes fly at).
 GRAVITY_RANGE_FPS2 = (9.7 / 0.3048, 9.9 / 0.3048)
 #: The channels an accuracy may be declared for: those the diagnosis draws noise and instrument errors in.
-ACCURATE = ("alt_ft", "tas_kt", "mach", "alpha_deg", "beta_deg", "theta_deg", "phi_deg", "p_dps", "q_dps",
-            "r_dps", "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf", "elevator_deg", "stabilizer_deg",
-            "flap_deg")
+ACCURATE = (
+    "alt_ft",
+    "tas_kt",
+    "mach",
+    "alpha_deg",
+    "beta_deg",
+    "theta_deg",
+    "phi_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "ax_fps2",
+    "ay_fps2",
+    "az_fps2",
+    "qbar_psf",
+    "thrust_lbf",
+    "elevator_deg",
+    "stabilizer_deg",
+    "flap_deg",
+)
 
 
 def normal_gravity_fps2(latitude_deg: float, alt_ft: float) -> float:
@@ -46,7 +64,7 @@ def normal_gravity_fps2(latitude_deg: float, alt_ft: float) -> float:
     g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - 0.00669437999013 * s2)
     a, f, m = 6378137.0, 1.0 / 298.257223563, 0.00344978650684
     h = alt_ft * 0.3048
-    g = g0 * (1.0 - 2.0 / a * (1.0 + f + m - 2.0 * f * s2) * h + 3.0 / a ** 2 * h ** 2)
+    g = g0 * (1.0 - 2.0 / a * (1.0 + f + m - 2.0 * f * s2) * h + 3.0 / a**2 * h**2)
     return g / 0.3048
 
 
@@ -54,8 +72,9 @@ def check_gravity(path: str, where: str, g_fps2: float) -> float:
     """A declared gravity [ft/s^2] within :data:`GRAVITY_RANGE_FPS2`, or a one-line error."""
     lo, hi = GRAVITY_RANGE_FPS2
     if not (math.isfinite(g_fps2) and lo <= g_fps2 <= hi):
-        raise UserError(f"{path}: {where}: {g_fps2 * 0.3048:.4g} m/s^2 is not a local gravity (must be within "
-                        f"9.7..9.9 m/s^2)")
+        raise UserError(
+            f"{path}: {where}: {g_fps2 * 0.3048:.4g} m/s^2 is not a local gravity (must be within 9.7..9.9 m/s^2)"
+        )
     return g_fps2
 
 
@@ -109,8 +128,11 @@ def parse_records(path: str, table) -> tuple[float, ...]:
     if bad:
         raise UserError(f"{path}: records.{bad[0]}: unknown key (allowed: split_s)")
     cuts = table.get("split_s", [])
-    if not isinstance(cuts, list) or not cuts or not all(isinstance(c, (int, float)) and not isinstance(c, bool)
-                                                         for c in cuts):
+    if (
+        not isinstance(cuts, list)
+        or not cuts
+        or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in cuts)
+    ):
         raise UserError(f"{path}: records.split_s: expected a list of times [s] to cut the file at")
     cuts = [float(c) for c in cuts]
     if not all(math.isfinite(c) and c > 0 for c in cuts) or any(b <= a for a, b in zip(cuts, cuts[1:])):
@@ -127,7 +149,9 @@ def windows(source, t_s: np.ndarray, cuts: tuple[float, ...]) -> list[np.ndarray
     for k, (a, b) in enumerate(zip(edges, edges[1:]), 1):
         rows = np.flatnonzero((t0 >= a) & (t0 < b))
         if len(rows) < 10:
-            raise UserError(f"{source}: records.split_s: record {k} ({max(a, 0.0):g} to {min(b, t0[-1]):g} s) holds "
-                            f"{len(rows)} samples, fewer than 10")
+            raise UserError(
+                f"{source}: records.split_s: record {k} ({max(a, 0.0):g} to {min(b, t0[-1]):g} s) holds "
+                f"{len(rows)} samples, fewer than 10"
+            )
         out.append(rows)
     return out

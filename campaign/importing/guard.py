@@ -1,6 +1,7 @@
 """Measured files and maps from outside, read as untrusted: bounded lines and fields, physical
 aircraft data, and each log checked as identify and diagnose will read it before anything is written.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,10 +18,22 @@ MAX_FIELDS = 20_000
 RATE_RANGE_HZ = (1.0, 10_000.0)
 #: Aircraft data of a map, in the units of :data:`campaign.importing.importer.AIRCRAFT_UNITS`: (lowest, highest),
 #: the lowest excluded where it is 0 (a mass, an area, a length).
-AIRCRAFT_BOUNDS = {"mass": (0.0, 1e5), "ixx": (0.0, 1e9), "iyy": (0.0, 1e9), "izz": (0.0, 1e9),
-                   "ixz": (-1e9, 1e9), "S": (0.0, 1e5), "cbar": (0.0, 1000.0), "b": (0.0, 1000.0),
-                   "thrust_z_arm": (-100.0, 100.0), "cg_x": (-12000.0, 12000.0), "cg_z": (-12000.0, 12000.0),
-                   "aerorp_x": (-12000.0, 12000.0), "aerorp_z": (-12000.0, 12000.0), "latitude": (-90.0, 90.0)}
+AIRCRAFT_BOUNDS = {
+    "mass": (0.0, 1e5),
+    "ixx": (0.0, 1e9),
+    "iyy": (0.0, 1e9),
+    "izz": (0.0, 1e9),
+    "ixz": (-1e9, 1e9),
+    "S": (0.0, 1e5),
+    "cbar": (0.0, 1000.0),
+    "b": (0.0, 1000.0),
+    "thrust_z_arm": (-100.0, 100.0),
+    "cg_x": (-12000.0, 12000.0),
+    "cg_z": (-12000.0, 12000.0),
+    "aerorp_x": (-12000.0, 12000.0),
+    "aerorp_z": (-12000.0, 12000.0),
+    "latitude": (-90.0, 90.0),
+}
 #: A documented sensor position's largest distance from the CG along an axis [ft].
 MAX_POSITION_FT = 500.0
 CHUNK = 1 << 20
@@ -57,8 +70,9 @@ def check_text(path: Path, fmt: str) -> None:
                 row += 1
                 _line(path, row, line, sep, fmt)
             if len(carry) > MAX_LINE_BYTES:
-                raise UserError(f"{path}: row {row + 1}: a line longer than {MAX_LINE_BYTES:,} bytes (not a "
-                                f"table of samples)")
+                raise UserError(
+                    f"{path}: row {row + 1}: a line longer than {MAX_LINE_BYTES:,} bytes (not a table of samples)"
+                )
             if not chunk:
                 return
 
@@ -69,8 +83,9 @@ def _line(path: Path, row: int, line: bytes, sep, fmt: str) -> None:
     if len(line) > 2 * MAX_FIELDS:  # shorter lines cannot hold more fields
         n = len(sep.findall(line.strip())) + 1
         if n > MAX_FIELDS:
-            raise UserError(f"{path}: row {row}: {n:,} fields, more than {MAX_FIELDS:,} (not a table of "
-                            f"samples as {fmt})")
+            raise UserError(
+                f"{path}: row {row}: {n:,} fields, more than {MAX_FIELDS:,} (not a table of samples as {fmt})"
+            )
 
 
 def check_columns(path: Path, n: int) -> None:
@@ -84,8 +99,10 @@ def check_rate(path: Path, step_s: float, m) -> None:
     lo, hi = RATE_RANGE_HZ
     rate = 1.0 / step_s
     if not lo <= rate <= hi:
-        raise UserError(f"{path}: samples {step_s:g} s apart ({rate:g} Hz), outside {lo:g}..{hi:g} Hz: is the time in "
-                        f"{m.units.get('t_s') or 's'}? (time.unit of {Path(m.path).name})")
+        raise UserError(
+            f"{path}: samples {step_s:g} s apart ({rate:g} Hz), outside {lo:g}..{hi:g} Hz: is the time in "
+            f"{m.units.get('t_s') or 's'}? (time.unit of {Path(m.path).name})"
+        )
 
 
 def where_in_map(m, column: str) -> str:
@@ -94,7 +111,7 @@ def where_in_map(m, column: str) -> str:
     for col, src, _ in m.channels:
         if col == column:
             unit = m.units.get(col, "")
-            return f"channels.{col} (\"{src}{' ' + unit if unit else ''}\")"
+            return f'channels.{col} ("{src}{" " + unit if unit else ""}")'
     if column in dict(m.constants):
         return f"constants.{column}"
     if column == "mass_slug":
@@ -106,11 +123,14 @@ def check_log(source: Path, m, log, meta) -> None:
     """A converted log checked as identify and diagnose will read it
     (:func:`identify.logs.checked`); the error names the source file and the map's key."""
     from identify.logs import LogError, checked
+
     try:
         checked(str(source), log, meta)
     except LogError as exc:
-        text = str(exc)[len(str(source)) + 2:]
+        text = str(exc)[len(str(source)) + 2 :]
         hit = re.match(r"column '([^']+)', (.*)", text)
         if hit:
-            raise UserError(f"{source}: {where_in_map(m, hit.group(1))} of {Path(m.path).name}: {hit.group(2)}") from None
+            raise UserError(
+                f"{source}: {where_in_map(m, hit.group(1))} of {Path(m.path).name}: {hit.group(2)}"
+            ) from None
         raise UserError(f"{source}: {text}") from None

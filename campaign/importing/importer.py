@@ -9,6 +9,7 @@ which derives it from q. Every file is read and checked before anything is
 written; the logs are Parquet in the schema with their metadata, and an import
 report names what was mapped, set and derived.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -26,29 +27,94 @@ from campaign.simulation.catalog import LOG_COLUMNS
 from campaign.errors import UserError
 from campaign.importing.atmosphere import air_data, isa  # noqa: F401 (isa: the plan's)
 from campaign.importing.declared import check_gravity, normal_gravity_fps2, parse_accuracy, parse_records, windows
-from campaign.importing.guard import (MAX_POSITION_FT, bounded, check_columns, check_log, check_rate, check_text,
-                                      shown)
+from campaign.importing.guard import MAX_POSITION_FT, bounded, check_columns, check_log, check_rate, check_text, shown
 from campaign.simulation.instruments import POSITIONED
 from infra.provenance import tool
 
-FORMATS = {".csv": "csv", ".txt": "whitespace", ".dat": "whitespace", ".asc": "whitespace", ".mat": "mat",
-           ".parquet": "parquet"}
-SECTIONS = {"source": {"format", "columns", "variable"}, "time": {"column", "unit"}, "channels": None,
-            "constants": None, "positions": None, "accuracy": None, "records": None,
-            "aircraft": {"mass", "ixx", "iyy", "izz", "ixz", "S", "cbar", "b", "thrust_z_arm", "cg_x", "cg_z",
-                         "aerorp_x", "aerorp_z", "latitude", "gravity"}}
+FORMATS = {
+    ".csv": "csv",
+    ".txt": "whitespace",
+    ".dat": "whitespace",
+    ".asc": "whitespace",
+    ".mat": "mat",
+    ".parquet": "parquet",
+}
+SECTIONS = {
+    "source": {"format", "columns", "variable"},
+    "time": {"column", "unit"},
+    "channels": None,
+    "constants": None,
+    "positions": None,
+    "accuracy": None,
+    "records": None,
+    "aircraft": {
+        "mass",
+        "ixx",
+        "iyy",
+        "izz",
+        "ixz",
+        "S",
+        "cbar",
+        "b",
+        "thrust_z_arm",
+        "cg_x",
+        "cg_z",
+        "aerorp_x",
+        "aerorp_z",
+        "latitude",
+        "gravity",
+    },
+}
 #: Our channel-name suffixes and the unit each stands for (pint spells them; pint converts).
-SUFFIX_UNITS = (("_dps2", "degree / second ** 2"), ("_dps", "degree / second"), ("_fps2", "foot / second ** 2"),
-                ("_fps", "foot / second"), ("_deg", "degree"), ("_kt", "knot"), ("_ft", "foot"),
-                ("_psf", "force_pound / foot ** 2"), ("_lbf", "force_pound"), ("_slug", "slug"), ("_in", "inch"),
-                ("_norm", "dimensionless"), ("_s", "second"))
-AIRCRAFT_UNITS = {"mass": "slug", "ixx": "slug * foot ** 2", "iyy": "slug * foot ** 2", "izz": "slug * foot ** 2",
-                  "ixz": "slug * foot ** 2", "S": "foot ** 2", "cbar": "foot", "b": "foot", "thrust_z_arm": "foot",
-                  "cg_x": "inch", "cg_z": "inch", "aerorp_x": "inch", "aerorp_z": "inch", "latitude": "degree",
-                  "gravity": "foot / second ** 2"}
+SUFFIX_UNITS = (
+    ("_dps2", "degree / second ** 2"),
+    ("_dps", "degree / second"),
+    ("_fps2", "foot / second ** 2"),
+    ("_fps", "foot / second"),
+    ("_deg", "degree"),
+    ("_kt", "knot"),
+    ("_ft", "foot"),
+    ("_psf", "force_pound / foot ** 2"),
+    ("_lbf", "force_pound"),
+    ("_slug", "slug"),
+    ("_in", "inch"),
+    ("_norm", "dimensionless"),
+    ("_s", "second"),
+)
+AIRCRAFT_UNITS = {
+    "mass": "slug",
+    "ixx": "slug * foot ** 2",
+    "iyy": "slug * foot ** 2",
+    "izz": "slug * foot ** 2",
+    "ixz": "slug * foot ** 2",
+    "S": "foot ** 2",
+    "cbar": "foot",
+    "b": "foot",
+    "thrust_z_arm": "foot",
+    "cg_x": "inch",
+    "cg_z": "inch",
+    "aerorp_x": "inch",
+    "aerorp_z": "inch",
+    "latitude": "degree",
+    "gravity": "foot / second ** 2",
+}
 #: Schema channels eq. (1) and the states need; Mach and the dynamic pressure can be derived.
-NEEDED = ("alt_ft", "tas_kt", "alpha_deg", "theta_deg", "p_dps", "q_dps", "r_dps", "ax_fps2", "az_fps2",
-          "thrust_lbf", "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm")
+NEEDED = (
+    "alt_ft",
+    "tas_kt",
+    "alpha_deg",
+    "theta_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "ax_fps2",
+    "az_fps2",
+    "thrust_lbf",
+    "elevator_deg",
+    "stabilizer_deg",
+    "flap_deg",
+    "gear_norm",
+)
 DERIVABLE = ("mach", "qbar_psf", "ias_kt")
 #: Sampling-interval jitter (share of the median interval) above which the log is put on a uniform grid,
 #: and gaps (in intervals) that are refused.
@@ -65,6 +131,7 @@ def ureg():
     global _UREG
     if _UREG is None:
         import pint
+
         _UREG = pint.UnitRegistry()
     return _UREG
 
@@ -82,6 +149,7 @@ def schema_unit(column: str) -> str:
 def factor(path: str, where: str, unit: str, target: str) -> float:
     """Multiplier from ``unit`` to ``target`` (pint), or a one-line error naming the key."""
     import pint
+
     u = ureg()
     if not unit:
         if u.Quantity(1.0, target).dimensionless and target == "dimensionless":
@@ -89,14 +157,22 @@ def factor(path: str, where: str, unit: str, target: str) -> float:
         raise UserError(f"{path}: {where}: needs a unit (the schema column is in {target})")
     try:
         q = u.Quantity(1.0, unit)
-    except (pint.errors.UndefinedUnitError, pint.errors.DefinitionSyntaxError, AttributeError, TypeError,
-            ValueError, AssertionError) as exc:
+    except (
+        pint.errors.UndefinedUnitError,
+        pint.errors.DefinitionSyntaxError,
+        AttributeError,
+        TypeError,
+        ValueError,
+        AssertionError,
+    ) as exc:
         raise UserError(f"{path}: {where}: unit {unit!r} does not parse ({type(exc).__name__})") from None
     try:
         return float(q.to(target).magnitude)
     except pint.errors.DimensionalityError:
-        raise UserError(f"{path}: {where}: unit {unit!r} is {q.dimensionality}, not {u.Quantity(1.0, target).dimensionality} "
-                        f"as {target}") from None
+        raise UserError(
+            f"{path}: {where}: unit {unit!r} is {q.dimensionality}, not {u.Quantity(1.0, target).dimensionality} "
+            f"as {target}"
+        ) from None
     except pint.errors.OffsetUnitCalculusError:
         raise UserError(f"{path}: {where}: unit {unit!r} has an offset; give it in an absolute unit") from None
 
@@ -110,13 +186,13 @@ def _split(text: str) -> tuple[str, str]:
 def _quantity(path: str, where: str, value, target: str) -> float:
     """A constant: a number (in the target's unit) or ``"number unit"``."""
     if isinstance(value, bool):
-        raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
+        raise UserError(f'{path}: {where}: expected a number or "number unit", found {value!r}')
     if isinstance(value, (int, float)):
         if not np.isfinite(value):
             raise UserError(f"{path}: {where}: {value!r} is not a finite number")
         return float(value)
     if not isinstance(value, str):
-        raise UserError(f"{path}: {where}: expected a number or \"number unit\", found {value!r}")
+        raise UserError(f'{path}: {where}: expected a number or "number unit", found {value!r}')
     num, unit = _split(value)
     try:
         x = float(num)
@@ -181,8 +257,9 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
             raise UserError(f"{ps}: {sec}: expected a table [{sec}]")
         allowed = SECTIONS[sec]
         if allowed is not None and set(v) - allowed:
-            raise UserError(f"{ps}: {sec}.{sorted(set(v) - allowed)[0]}: unknown key (allowed: "
-                            f"{', '.join(sorted(allowed))})")
+            raise UserError(
+                f"{ps}: {sec}.{sorted(set(v) - allowed)[0]}: unknown key (allowed: {', '.join(sorted(allowed))})"
+            )
     src, tim = doc.get("source", {}), doc.get("time", {})
     fmt = src.get("format")
     if fmt is not None and fmt not in set(FORMATS.values()):
@@ -204,7 +281,7 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
         if col not in LOG_COLUMNS or col == "t_s":
             raise UserError(f"{ps}: {where}: {col!r} is not a log-schema column")
         if not isinstance(spec, str) or not spec.strip():
-            raise UserError(f"{ps}: {where}: expected \"SOURCE_COLUMN unit\"")
+            raise UserError(f'{ps}: {where}: expected "SOURCE_COLUMN unit"')
         name, unit = _split(spec)
         channels.append((col, name, factor(ps, where, unit, schema_unit(col))))
         units[col] = unit
@@ -229,26 +306,45 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
         if col not in POSITIONED:
             raise UserError(f"{ps}: {where}: a documented position applies only to {', '.join(POSITIONED)}")
         if not isinstance(value, list) or len(value) != 3:
-            raise UserError(f"{ps}: {where}: expected [x, y, z] from the CG, body axes (numbers in ft, or "
-                            f"\"number unit\" strings)")
+            raise UserError(
+                f'{ps}: {where}: expected [x, y, z] from the CG, body axes (numbers in ft, or "number unit" strings)'
+            )
         xyz = tuple(_quantity(ps, where, v, "foot") for v in value)
         if max(abs(x) for x in xyz) > MAX_POSITION_FT:
-            raise UserError(f"{ps}: {where}: {max(abs(x) for x in xyz):g} ft from the CG; a sensor is within "
-                            f"{MAX_POSITION_FT:g} ft")
+            raise UserError(
+                f"{ps}: {where}: {max(abs(x) for x in xyz):g} ft from the CG; a sensor is within {MAX_POSITION_FT:g} ft"
+            )
         positions.append((col, xyz))
     have = {c for c, *_ in channels} | {c for c, _ in constants}
     if "mass_slug" not in have and "mass" not in dict(aircraft):
         raise UserError(f"{ps}: aircraft.mass: missing (or map mass_slug)")
     for col in NEEDED:
         if col not in have:
-            hint = " (a missing stabilizer, flap or gear must be given as a constant)" if col in (
-                "stabilizer_deg", "flap_deg", "gear_norm") else ""
+            hint = (
+                " (a missing stabilizer, flap or gear must be given as a constant)"
+                if col in ("stabilizer_deg", "flap_deg", "gear_norm")
+                else ""
+            )
             raise UserError(f"{ps}: {col}: neither mapped in [channels] nor given in [constants]{hint}")
     for ref in ("S", "cbar"):
         if ref not in dict(aircraft):
             raise UserError(f"{ps}: aircraft.{ref}: missing (eq. 1 needs the reference area and chord)")
-    return ImportMap(ps, hashlib.sha256(raw).hexdigest(), fmt, tuple(cols), var, tim["column"], t_factor,
-                     tuple(channels), tuple(constants), tuple(aircraft), tuple(positions), units, accuracy, records)
+    return ImportMap(
+        ps,
+        hashlib.sha256(raw).hexdigest(),
+        fmt,
+        tuple(cols),
+        var,
+        tim["column"],
+        t_factor,
+        tuple(channels),
+        tuple(constants),
+        tuple(aircraft),
+        tuple(positions),
+        units,
+        accuracy,
+        records,
+    )
 
 
 # ----------------------------------------------------------------------------- reading
@@ -256,6 +352,7 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
 
 def _mat(path: Path, m: ImportMap) -> pd.DataFrame:
     from scipy.io import loadmat
+
     try:
         doc = loadmat(path, squeeze_me=True, struct_as_record=False)
     except Exception as exc:  # scipy raises several types for a bad file
@@ -271,8 +368,9 @@ def _mat(path: Path, m: ImportMap) -> pd.DataFrame:
         if arr.shape[0] == len(m.columns) and arr.shape[1] != len(m.columns):
             arr = arr.T
         if arr.shape[1] != len(m.columns):
-            raise UserError(f"{path}: source.columns: {m.variable!r} has {arr.shape[1]} columns, the map names "
-                            f"{len(m.columns)}")
+            raise UserError(
+                f"{path}: source.columns: {m.variable!r} has {arr.shape[1]} columns, the map names {len(m.columns)}"
+            )
         return pd.DataFrame(arr, columns=list(m.columns))
     vectors = {k: np.ravel(doc[k]) for k in names if np.ndim(doc[k]) == 1 and np.size(doc[k]) > 1}
     arrays = [k for k in names if np.ndim(doc[k]) == 2 and np.asarray(doc[k]).dtype.kind in "fiu"]
@@ -298,8 +396,9 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
         try:
             check_columns(path, len(pq.read_schema(path).names))
         except (OSError, ValueError) as exc:
-            raise UserError(f"{path}: not readable as parquet ({type(exc).__name__}: "
-                            f"{str(exc).splitlines()[0][:120]})") from None
+            raise UserError(
+                f"{path}: not readable as parquet ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})"
+            ) from None
     try:
         if fmt == "csv":
             df = pd.read_csv(path, header=None if names else "infer", names=names, skipinitialspace=True)
@@ -312,8 +411,9 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
     except UserError:
         raise
     except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not readable as {fmt} ({type(exc).__name__}: "
-                        f"{(str(exc).splitlines() or [''])[0][:120]})") from None
+        raise UserError(
+            f"{path}: not readable as {fmt} ({type(exc).__name__}: {(str(exc).splitlines() or [''])[0][:120]})"
+        ) from None
     if names and fmt in ("parquet",):
         missing = [c for c in names if c not in df.columns]
         if missing:
@@ -324,13 +424,16 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
 
 def _numeric(path: Path, df: pd.DataFrame, col: str, where: str) -> np.ndarray:
     if col not in df.columns:
-        raise UserError(f"{path}: {where}: source column {shown(col)} not in the file (it has "
-                        f"{', '.join(shown(str(c), 24) for c in df.columns[:12])}{'...' if len(df.columns) > 12 else ''})")
+        raise UserError(
+            f"{path}: {where}: source column {shown(col)} not in the file (it has "
+            f"{', '.join(shown(str(c), 24) for c in df.columns[:12])}{'...' if len(df.columns) > 12 else ''})"
+        )
     values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
-        raise UserError(f"{path}: column {shown(col)}, row {bad[0] + 1}: not a finite number "
-                        f"({shown(df[col].iloc[bad[0]])})")
+        raise UserError(
+            f"{path}: column {shown(col)}, row {bad[0] + 1}: not a finite number ({shown(df[col].iloc[bad[0]])})"
+        )
     return values
 
 
@@ -354,15 +457,19 @@ def _time(path: Path, df: pd.DataFrame, m: ImportMap) -> np.ndarray:
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         i = bad[0] + 1
-        raise UserError(f"{path}: time column {m.time_column!r}, row {i + 1}: time does not increase "
-                        f"({t[i]:g} s after {t[i - 1]:g} s)")
+        raise UserError(
+            f"{path}: time column {m.time_column!r}, row {i + 1}: time does not increase "
+            f"({t[i]:g} s after {t[i - 1]:g} s)"
+        )
     if len(t) < 10:
         raise UserError(f"{path}: only {len(t)} rows")
     step = float(np.median(dt))
     gaps = np.flatnonzero(dt > GAP * step)
     if gaps.size:
-        raise UserError(f"{path}: time column {m.time_column!r}, row {gaps[0] + 2}: a gap of {dt[gaps[0]]:g} s "
-                        f"in {step:g} s samples (split the file there)")
+        raise UserError(
+            f"{path}: time column {m.time_column!r}, row {gaps[0] + 2}: a gap of {dt[gaps[0]]:g} s "
+            f"in {step:g} s samples (split the file there)"
+        )
     return t
 
 
@@ -374,8 +481,15 @@ def _maneuver(gear: np.ndarray) -> str:
     return "excitation"
 
 
-def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dict[str, float],
-               positions=(), step: float | None = None, extra: dict | None = None) -> tuple[pd.DataFrame, dict]:
+def schema_log(
+    name: str,
+    t_s: np.ndarray,
+    cols: dict[str, np.ndarray],
+    air: dict[str, float],
+    positions=(),
+    step: float | None = None,
+    extra: dict | None = None,
+) -> tuple[pd.DataFrame, dict]:
     """A log in the schema and its metadata, from channels in the schema's units.
 
     What the channels lack is filled in: ``mass_slug`` from ``air["mass"]``; Mach, calibrated
@@ -416,8 +530,10 @@ def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dic
             cols[c] = ad[c]
             derived[c] = "from tas_kt and alt_ft (pressure altitude) through the ISA standard atmosphere"
     if "qdot_dps2" not in cols:
-        derived["qdot_dps2"] = ("not written: the identification derives it from q_dps (quintic spline "
-                                "derivative, low-passed at 3 Hz with the coefficients)")
+        derived["qdot_dps2"] = (
+            "not written: the identification derives it from q_dps (quintic spline "
+            "derivative, low-passed at 3 Hz with the coefficients)"
+        )
     order = [c for c in LOG_COLUMNS if c in cols]
     log = pd.DataFrame({"t_s": t_s, **{c: cols[c] for c in order if c != "t_s"}})
     head = log[log.t_s < 1.0]
@@ -427,12 +543,21 @@ def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dic
     meta = {
         "point": name,
         "maneuver": _maneuver(log.gear_norm.to_numpy()),
-        "status_point": {"id": name, "alt_ft": alt, "mach": round(mach, 4), "flap_deg": float(head.flap_deg.mean()),
-                         "gear": "down" if gear0 >= 0.5 else "up"},
+        "status_point": {
+            "id": name,
+            "alt_ft": alt,
+            "mach": round(mach, 4),
+            "flap_deg": float(head.flap_deg.mean()),
+            "gear": "down" if gear0 >= 0.5 else "up",
+        },
         "inertia_slugft2": {k: air.get(k, 0.0) for k in ("ixx", "iyy", "izz", "ixz")},
-        "geometry": {"S_ft2": air["S"], "cbar_ft": air["cbar"], "b_ft": air.get("b", 0.0),
-                     "thrust_z_arm_ft": air.get("thrust_z_arm", 0.0),
-                     **{f"{k}_in": air[k] for k in ("cg_x", "cg_z", "aerorp_x", "aerorp_z") if k in air}},
+        "geometry": {
+            "S_ft2": air["S"],
+            "cbar_ft": air["cbar"],
+            "b_ft": air.get("b", 0.0),
+            "thrust_z_arm_ft": air.get("thrust_z_arm", 0.0),
+            **{f"{k}_in": air[k] for k in ("cg_x", "cg_z", "aerorp_x", "aerorp_z") if k in air},
+        },
         "dt_s": float(np.median(np.diff(t_s))) if step is None else step,
         "sensor_positions_ft": {c: list(r) for c, r in positions},
         "derived_channels": derived,
@@ -440,8 +565,9 @@ def schema_log(name: str, t_s: np.ndarray, cols: dict[str, np.ndarray], air: dic
         **({"latitude_deg": air["latitude"]} if "latitude" in air else {}),
     }
     if "gravity" in air or "latitude" in air:
-        meta["gravity_fps2"] = air["gravity"] if "gravity" in air else normal_gravity_fps2(
-            air["latitude"], float(log.alt_ft.mean()))
+        meta["gravity_fps2"] = (
+            air["gravity"] if "gravity" in air else normal_gravity_fps2(air["latitude"], float(log.alt_ft.mean()))
+        )
     return log, meta
 
 
@@ -475,14 +601,31 @@ def convert(path: str | Path, m: ImportMap) -> list[Imported]:
     out = []
     for k, rows in enumerate(parts, 1):
         name = f"{stem}_{k}" if m.records else stem
-        where = {"source": path.name, "map": Path(m.path).name, "map_sha256": m.sha256,
-                 **({"record": k, "from_s": float(t0[rows[0]])} if m.records else {})}
-        log, meta = schema_log(name, t0[rows] - t0[rows[0]], {c: x[rows] for c, x in cols.items()}, air,
-                               m.positions, step, {"imported": where,
-                                                   **({"instrument_accuracy": m.accuracy} if m.accuracy else {})})
-        rep = {**report, "derived": meta["derived_channels"], "log": f"{name}.parquet", "rows": len(rows),
-               "rate_hz": round(1.0 / step, 4), "duration_s": round(float(log.t_s.iloc[-1]), 3),
-               "maneuver": meta["maneuver"], "status_point": meta["status_point"]}
+        where = {
+            "source": path.name,
+            "map": Path(m.path).name,
+            "map_sha256": m.sha256,
+            **({"record": k, "from_s": float(t0[rows[0]])} if m.records else {}),
+        }
+        log, meta = schema_log(
+            name,
+            t0[rows] - t0[rows[0]],
+            {c: x[rows] for c, x in cols.items()},
+            air,
+            m.positions,
+            step,
+            {"imported": where, **({"instrument_accuracy": m.accuracy} if m.accuracy else {})},
+        )
+        rep = {
+            **report,
+            "derived": meta["derived_channels"],
+            "log": f"{name}.parquet",
+            "rows": len(rows),
+            "rate_hz": round(1.0 / step, 4),
+            "duration_s": round(float(log.t_s.iloc[-1]), 3),
+            "maneuver": meta["maneuver"],
+            "status_point": meta["status_point"],
+        }
         if m.records:
             rep["record"] = f"{k} of {len(parts)}, from {where['from_s']:g} s of the file"
         if "gravity_fps2" in meta:
@@ -500,6 +643,7 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
     """
     from campaign.orchestration.store import atomic_write, write_json, write_log
     from identify.logs import LogError, read_parquet
+
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: is a file, not a folder (--out names the folder for the logs)")
@@ -515,8 +659,9 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
         check_log(Path(d.source), m, d.log, d.meta)
     clash = [out / f"{n}.parquet" for n in names if (out / f"{n}.parquet").exists()]
     if clash or (out / "manifest.json").exists():
-        raise UserError(f"{clash[0] if clash else out / 'manifest.json'}: exists; will not overwrite (choose "
-                        f"another --out)")
+        raise UserError(
+            f"{clash[0] if clash else out / 'manifest.json'}: exists; will not overwrite (choose another --out)"
+        )
     for d in done:
         d.report["map"] = m.path
     report = {"maps": {m.path: m.sha256}, "logs": [d.report for d in done]}
@@ -546,6 +691,7 @@ def import_files(files: list[str | Path], map_path: str | Path, out: str | Path)
 def _take_back(out: Path, created: bool, written: list[Path], kept: dict[str, bytes]) -> None:
     """Undo a half-done import: the logs it wrote, its reports, the folder if it made it."""
     import shutil
+
     if created:
         shutil.rmtree(out, ignore_errors=True)
         return
@@ -561,9 +707,11 @@ def _take_back(out: Path, created: bool, written: list[Path], kept: dict[str, by
 def report_text(report: dict) -> str:
     lines = [f"Import with {', '.join(report['maps'])}", ""]
     for r in report["logs"]:
-        lines.append(f"{r['source']} -> {r['log']}: {r['rows']} rows at {r['rate_hz']:g} Hz, {r['duration_s']:g} s, "
-                     f"{r['maneuver']}, condition {r['status_point']['alt_ft']:g} ft / M{r['status_point']['mach']:g} / "
-                     f"flap {r['status_point']['flap_deg']:g} / gear {r['status_point']['gear']}")
+        lines.append(
+            f"{r['source']} -> {r['log']}: {r['rows']} rows at {r['rate_hz']:g} Hz, {r['duration_s']:g} s, "
+            f"{r['maneuver']}, condition {r['status_point']['alt_ft']:g} ft / M{r['status_point']['mach']:g} / "
+            f"flap {r['status_point']['flap_deg']:g} / gear {r['status_point']['gear']}"
+        )
         lines.append("  mapped: " + ", ".join(f"{k} <- {v}" for k, v in r["mapped"].items()))
         if r["constants"]:
             lines.append("  constants: " + ", ".join(f"{k} = {v:g}" for k, v in r["constants"].items()))

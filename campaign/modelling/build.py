@@ -6,6 +6,7 @@ become an aircraft (:mod:`identify.aircraft`). It is written into a staging fold
 JSBSim and trimmed at the start of each identified record (:mod:`campaign.modelling.trim`), then
 moved into place: a refused or failed build leaves nothing behind.
 """
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from campaign.errors import UserError
-from identify.aircraft import (NOMINAL_ASPECT_RATIO, NOMINAL_GEAR_TRAVEL_S, NOMINAL_INERTIA, Airframe, GearTravel,
-                               IdentificationError, PointModel, aircraft_xml, point_models)
+from identify.aircraft import (
+    NOMINAL_ASPECT_RATIO,
+    NOMINAL_GEAR_TRAVEL_S,
+    NOMINAL_INERTIA,
+    Airframe,
+    GearTravel,
+    IdentificationError,
+    PointModel,
+    aircraft_xml,
+    point_models,
+)
 from identify.logs import Log, LogError, campaign_files, read_csv, read_head, read_parquet
 from identify.models import GearSurface
 from infra.model import load_fdm
@@ -65,11 +75,13 @@ class ModelBuild:
                 out.append(f"  trim at {t['point']}'s start: {t['error']}")
                 continue
             pitch = t["pitch_control"]
-            out.append(f"  trim at {t['point']}'s start ({t['alt_ft']:.0f} ft, {t['tas_kt']:.1f} kt, flight path "
-                       f"{t['gamma_deg']:+.2f} deg, {pitch} trims): alpha {t['alpha_deg']:.2f} deg "
-                       f"(logged {t['logged']['alpha_deg']:.2f}), {pitch} {t[pitch + '_deg']:.2f} deg "
-                       f"(logged {t['logged'][pitch + '_deg']:.2f}), thrust {t['thrust_lbf']:.0f} lbf "
-                       f"(logged {t['logged']['thrust_lbf']:.0f})")
+            out.append(
+                f"  trim at {t['point']}'s start ({t['alt_ft']:.0f} ft, {t['tas_kt']:.1f} kt, flight path "
+                f"{t['gamma_deg']:+.2f} deg, {pitch} trims): alpha {t['alpha_deg']:.2f} deg "
+                f"(logged {t['logged']['alpha_deg']:.2f}), {pitch} {t[pitch + '_deg']:.2f} deg "
+                f"(logged {t['logged'][pitch + '_deg']:.2f}), thrust {t['thrust_lbf']:.0f} lbf "
+                f"(logged {t['logged']['thrust_lbf']:.0f})"
+            )
         return out
 
 
@@ -104,8 +116,10 @@ def _logs(folder: Path, where: Path, doc: dict, points: list[PointModel]) -> dic
             path = nearby.get(p.point)
         if path is None:
             looked = f"{folder / rel} and " if isinstance(rel, str) else ""
-            raise UserError(f"{where}: points.{p.point}.log: the log it was identified from is not found (looked in "
-                            f"{looked}{folder.parent}); its mass, inertia and geometry make the aircraft")
+            raise UserError(
+                f"{where}: points.{p.point}.log: the log it was identified from is not found (looked in "
+                f"{looked}{folder.parent}); its mass, inertia and geometry make the aircraft"
+            )
         try:
             out[p.point] = _read(Path(path))
         except LogError as exc:
@@ -141,8 +155,17 @@ def _airframe(logs: list[Log]) -> Airframe:
         cg = (0.0, 0.0)
         nominal.append("CG station (the structural origin)")
     weights = [float(lg.data["mass_slug"].mean()) * SLUG_LB for lg in logs]
-    return Airframe(float(g["S_ft2"]), float(g["cbar_ft"]), span, float(np.mean(weights)), min(weights), inertia, cg,
-                    float(g.get("thrust_z_arm_ft", 0.0)), tuple(nominal))
+    return Airframe(
+        float(g["S_ft2"]),
+        float(g["cbar_ft"]),
+        span,
+        float(np.mean(weights)),
+        min(weights),
+        inertia,
+        cg,
+        float(g.get("thrust_z_arm_ft", 0.0)),
+        tuple(nominal),
+    )
 
 
 def _gear_model(folder: Path) -> tuple[GearSurface | None, str | None]:
@@ -172,15 +195,14 @@ def gear_travel(logs: list[Log]) -> GearTravel:
         start = max(int(moving[0]) - 1, 0)
         end = start + int(np.flatnonzero(np.abs(g[start:] - g[-1]) < 1e-6)[0])
         times.append(t[end] - t[start])
-        f, seg = (t[start:end + 1] - t[start]) / times[-1], g[start:end + 1]
+        f, seg = (t[start : end + 1] - t[start]) / times[-1], g[start : end + 1]
         # the travel runs 0 -> 1 extending and 1 -> 0 retracting, the position a function of it
         shapes.append(np.interp(u, f, seg) if g[-1] > g[0] else np.interp(1.0 - u, f, seg))
     if not times:
         return GearTravel(NOMINAL_GEAR_TRAVEL_S)
     shape = np.maximum.accumulate(np.clip(np.mean(shapes, axis=0), 0.0, 1.0))
     shape[0], shape[-1] = 0.0, 1.0
-    return GearTravel(float(np.mean(times)), tuple(map(float, shape)),
-                      f"from {len(times)} logged gear transition(s)")
+    return GearTravel(float(np.mean(times)), tuple(map(float, shape)), f"from {len(times)} logged gear transition(s)")
 
 
 def _transitions(logs: list[Log], limit: int = 8) -> list[Log]:
@@ -194,17 +216,40 @@ def _transitions(logs: list[Log], limit: int = 8) -> list[Log]:
 
 def _trim_row(fdm, p: PointModel, log: Log, pitch: str) -> dict:
     from campaign.modelling.trim import ModelTrimError, trim_model
+
     d = log.data
     head = d[d["t_s"] < d["t_s"].iloc[0] + HEAD_S].mean()
     gamma = float(head.theta_deg - head.alpha_deg)
-    logged = {"alpha_deg": float(head.alpha_deg), "elevator_deg": float(head.elevator_deg),
-              "stabilizer_deg": float(head.stabilizer_deg), "thrust_lbf": float(head.thrust_lbf)}
-    row = {"point": p.point, "alt_ft": float(head.alt_ft), "tas_kt": float(head.tas_kt), "gamma_deg": gamma,
-           "flap_deg": float(head.flap_deg), "gear_norm": float(head.gear_norm), "logged": logged}
+    logged = {
+        "alpha_deg": float(head.alpha_deg),
+        "elevator_deg": float(head.elevator_deg),
+        "stabilizer_deg": float(head.stabilizer_deg),
+        "thrust_lbf": float(head.thrust_lbf),
+    }
+    row = {
+        "point": p.point,
+        "alt_ft": float(head.alt_ft),
+        "tas_kt": float(head.tas_kt),
+        "gamma_deg": gamma,
+        "flap_deg": float(head.flap_deg),
+        "gear_norm": float(head.gear_norm),
+        "logged": logged,
+    }
     try:
-        t = trim_model(fdm, row["alt_ft"], row["tas_kt"], gamma, row["flap_deg"], row["gear_norm"],
-                       logged["elevator_deg"], logged["stabilizer_deg"], logged["thrust_lbf"], logged["alpha_deg"],
-                       float(head.mass_slug) * SLUG_LB, pitch)
+        t = trim_model(
+            fdm,
+            row["alt_ft"],
+            row["tas_kt"],
+            gamma,
+            row["flap_deg"],
+            row["gear_norm"],
+            logged["elevator_deg"],
+            logged["stabilizer_deg"],
+            logged["thrust_lbf"],
+            logged["alpha_deg"],
+            float(head.mass_slug) * SLUG_LB,
+            pitch,
+        )
     except ModelTrimError as exc:
         return {**row, "error": str(exc)}
     return {**row, **{k: v for k, v in vars(t).items() if k != "residual"}, "residual": list(t.residual)}
@@ -213,7 +258,8 @@ def _trim_row(fdm, p: PointModel, log: Log, pitch: str) -> dict:
 def pitch_control(points: list[PointModel]) -> str:
     """The surface that trims: the elevator where its Cm effect was identified, else the stabilizer."""
     if any("delevator_rad" in p.params["Cm"] for p in points) or not any(
-            "dstabilizer_rad" in p.params["Cm"] for p in points):
+        "dstabilizer_rad" in p.params["Cm"] for p in points
+    ):
         return "elevator"
     return "stabilizer"
 
@@ -248,8 +294,10 @@ def build_model(identification: str | Path, out: str | Path, name: str | None = 
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise UserError(f"--name {name!r}: letters, digits, '_', '.' and '-' only (it names the aircraft's files)")
     if name != out.name:
-        raise UserError(f"--name {name}: JSBSim finds aircraft {name} in a folder of that name; --out is "
-                        f"{out.name} (give --out .../{name})")
+        raise UserError(
+            f"--name {name}: JSBSim finds aircraft {name} in a folder of that name; --out is "
+            f"{out.name} (give --out .../{name})"
+        )
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UserError(f"{out}: exists; will not overwrite (choose another --out)")
     where, doc = _doc(folder)
@@ -258,9 +306,14 @@ def build_model(identification: str | Path, out: str | Path, name: str | None = 
     except IdentificationError as exc:
         raise UserError(str(exc)) from None
     logs = _logs(folder, where, doc, points)
-    points = [replace(p, condition=p.condition or logs[p.point].condition,
-                      flown={c: (float(logs[p.point].data[c].min()), float(logs[p.point].data[c].max()))
-                             for c in FLOWN}) for p in points]
+    points = [
+        replace(
+            p,
+            condition=p.condition or logs[p.point].condition,
+            flown={c: (float(logs[p.point].data[c].min()), float(logs[p.point].data[c].max())) for c in FLOWN},
+        )
+        for p in points
+    ]
     airframe = _airframe(list(logs.values()))
     surface, kind = _gear_model(folder)
     gear = gear_travel(_transitions(list(logs.values())))
@@ -278,9 +331,13 @@ def build_model(identification: str | Path, out: str | Path, name: str | None = 
         pitch = pitch_control(points)
         trims = [_trim_row(fdm, p, logs[p.point], pitch) for p in points]
         del fdm
-        (xml.parent / MODEL_JSON).write_text(json.dumps(
-            {"tool": tool(), "name": name, "identification": str(folder.resolve()), "notes": notes,
-             "trims": trims}, indent=1) + "\n")
+        (xml.parent / MODEL_JSON).write_text(
+            json.dumps(
+                {"tool": tool(), "name": name, "identification": str(folder.resolve()), "notes": notes, "trims": trims},
+                indent=1,
+            )
+            + "\n"
+        )
         out.parent.mkdir(parents=True, exist_ok=True)
         if out.exists():
             out.rmdir()  # empty (checked above)

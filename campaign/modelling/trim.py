@@ -6,6 +6,7 @@ control and the thrust that zero the body accelerations (``udot``, ``wdot``, ``q
 altitude, true airspeed and flight-path angle, wings level, by Newton's method on JSBSim's own
 accelerations after ``run_ic()``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,8 +18,10 @@ from infra.model import captured_stdout
 THRUST = "external_reactions/thrust/magnitude"
 PAYLOAD = "inertia/pointmass-weight-lbs[0]"
 #: The pitch controls: command and position [deg] properties.
-PITCH = {"elevator": ("fcs/elevator-cmd-norm", "fcs/elevator-pos-deg"),
-         "stabilizer": ("fcs/pitch-trim-cmd-norm", "fcs/stabilizer-pos-deg")}
+PITCH = {
+    "elevator": ("fcs/elevator-cmd-norm", "fcs/elevator-pos-deg"),
+    "stabilizer": ("fcs/pitch-trim-cmd-norm", "fcs/stabilizer-pos-deg"),
+}
 #: Converged when the body accelerations are below these [ft/s^2, ft/s^2, rad/s^2].
 TOLERANCE = np.array([1e-7, 1e-7, 1e-9])
 ACCELERATIONS = ("accelerations/udot-ft_sec2", "accelerations/wdot-ft_sec2", "accelerations/qdot-rad_sec2")
@@ -64,10 +67,21 @@ def _ranges(fdm) -> dict[str, float]:
     return out
 
 
-def trim_model(fdm, alt_ft: float, tas_kt: float, gamma_deg: float = 0.0, flap_deg: float = 0.0,  # noqa: PLR0913
-               gear_norm: float = 0.0, elevator_deg: float = 0.0, stabilizer_deg: float = 0.0,
-               thrust_lbf: float = 0.0, alpha_deg: float = 2.0, weight_lb: float | None = None,
-               pitch_control: str = "elevator", iterations: int = 30) -> ModelTrim:
+def trim_model(  # noqa: PLR0913
+    fdm,
+    alt_ft: float,
+    tas_kt: float,
+    gamma_deg: float = 0.0,
+    flap_deg: float = 0.0,
+    gear_norm: float = 0.0,
+    elevator_deg: float = 0.0,
+    stabilizer_deg: float = 0.0,
+    thrust_lbf: float = 0.0,
+    alpha_deg: float = 2.0,
+    weight_lb: float | None = None,
+    pitch_control: str = "elevator",
+    iterations: int = 30,
+) -> ModelTrim:
     """Trim a ``campaign model`` aircraft in steady straight flight, wings level.
 
     Parameters
@@ -112,9 +126,17 @@ def trim_model(fdm, alt_ft: float, tas_kt: float, gamma_deg: float = 0.0, flap_d
     steps = np.array([1e-3, 1e-4, 1.0])
 
     def accelerations(v: np.ndarray) -> np.ndarray:
-        for prop, value in (("ic/h-sl-ft", alt_ft), ("ic/vt-kts", tas_kt), ("ic/beta-deg", 0.0), ("ic/phi-deg", 0.0),
-                            ("ic/p-rad_sec", 0.0), ("ic/q-rad_sec", 0.0), ("ic/r-rad_sec", 0.0),
-                            ("ic/alpha-deg", v[0]), ("ic/gamma-deg", gamma_deg)):
+        for prop, value in (
+            ("ic/h-sl-ft", alt_ft),
+            ("ic/vt-kts", tas_kt),
+            ("ic/beta-deg", 0.0),
+            ("ic/phi-deg", 0.0),
+            ("ic/p-rad_sec", 0.0),
+            ("ic/q-rad_sec", 0.0),
+            ("ic/r-rad_sec", 0.0),
+            ("ic/alpha-deg", v[0]),
+            ("ic/gamma-deg", gamma_deg),
+        ):
             fdm[prop] = value
         fdm[PITCH[pitch_control][0]] = v[1]
         fdm[THRUST] = v[2]
@@ -134,13 +156,22 @@ def trim_model(fdm, alt_ft: float, tas_kt: float, gamma_deg: float = 0.0, flap_d
     finally:
         fdm.set_trim_status(False)
     if not np.all(np.abs(r) < TOLERANCE) or abs(x[1]) > 1.0:
-        why = (f"the {pitch_control} would need {x[1] * per_cmd[pitch_control]:.1f} deg, beyond its "
-               f"{per_cmd[pitch_control]:g} deg" if abs(x[1]) > 1.0 else
-               f"accelerations left: udot {r[0]:.2g} ft/s^2, wdot {r[1]:.2g} ft/s^2, qdot {r[2]:.2g} rad/s^2")
+        why = (
+            f"the {pitch_control} would need {x[1] * per_cmd[pitch_control]:.1f} deg, beyond its "
+            f"{per_cmd[pitch_control]:g} deg"
+            if abs(x[1]) > 1.0
+            else f"accelerations left: udot {r[0]:.2g} ft/s^2, wdot {r[1]:.2g} ft/s^2, qdot {r[2]:.2g} rad/s^2"
+        )
         raise ModelTrimError(f"no steady flight at {alt_ft:.0f} ft, {tas_kt:.1f} kt: {why}")
-    return ModelTrim(float(fdm["aero/alpha-deg"]), float(fdm["attitude/theta-deg"]), pitch_control,
-                     float(fdm["fcs/elevator-pos-deg"]), float(fdm["fcs/stabilizer-pos-deg"]), float(fdm[THRUST]),
-                     tuple(float(v) for v in r))
+    return ModelTrim(
+        float(fdm["aero/alpha-deg"]),
+        float(fdm["attitude/theta-deg"]),
+        pitch_control,
+        float(fdm["fcs/elevator-pos-deg"]),
+        float(fdm["fcs/stabilizer-pos-deg"]),
+        float(fdm[THRUST]),
+        tuple(float(v) for v in r),
+    )
 
 
 def _flap_range(fdm) -> float:

@@ -6,6 +6,7 @@ temporary folder and builds its own FGFDMExec there. The logs come back as
 data and the client writes them, atomically, as a local run does; they are
 bit-identical to a local run's (the folder path is in no log).
 """
+
 from __future__ import annotations
 
 import os
@@ -64,12 +65,15 @@ def connect(address: str, timeout_s: float = 10.0):
     try:
         return Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
-        raise UserError(f"--cluster {address}: no Dask scheduler answers ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0] if str(exc) else 'no reply'})") from None
+        raise UserError(
+            f"--cluster {address}: no Dask scheduler answers ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else 'no reply'})"
+        ) from None
 
 
-def fly_on_cluster(client, points: list[StatusPoint], config: FlightConfig,
-                   fly: Callable) -> Iterator[tuple[dict, list]]:
+def fly_on_cluster(
+    client, points: list[StatusPoint], config: FlightConfig, fly: Callable
+) -> Iterator[tuple[dict, list]]:
     """Fly ``points`` on the cluster of ``client`` (:func:`connect`; closed at the end), yielding
     ``(record, logs)`` as each finishes.
 
@@ -85,8 +89,7 @@ def fly_on_cluster(client, points: list[StatusPoint], config: FlightConfig,
         ship = pack(config.aircraft)  # in each task, not scattered: a dead worker's copy would cancel the rest
 
         def submit(p: StatusPoint):
-            return client.submit(fly_shipped, p, config, ship, fly, pure=False,
-                                 key=f"fly-{p.id}-{os.urandom(4).hex()}")
+            return client.submit(fly_shipped, p, config, ship, fly, pure=False, key=f"fly-{p.id}-{os.urandom(4).hex()}")
 
         futures = {submit(p): p for p in points}
         killed = []
@@ -109,6 +112,7 @@ def _outcome(fut, p: StatusPoint, last: bool = False):
     """``(record, logs)`` of a finished future; None if its worker died (or the cluster cancelled it)
     and it may be tried again."""
     from distributed.client import FutureCancelledError
+
     try:
         return fut.result()
     except UserError:
@@ -122,6 +126,4 @@ def _outcome(fut, p: StatusPoint, last: bool = False):
         if kind == "KilledWorker" and not last:
             return None
         why = "its worker died while flying it, alone on the cluster" if kind == "KilledWorker" else "a worker raised"
-        return failed_record(p, f"{why} ({kind}: {str(exc).splitlines()[0] if str(exc) else ''})",
-                             transient=True), []
-
+        return failed_record(p, f"{why} ({kind}: {str(exc).splitlines()[0] if str(exc) else ''})", transient=True), []

@@ -1,4 +1,5 @@
 """Run a campaign: every status point of a matrix, in parallel, resumable."""
+
 from __future__ import annotations
 
 import platform
@@ -18,8 +19,16 @@ from campaign.simulation.engine import FlightConfig, TrimError, fly
 from campaign.errors import UserError
 from campaign.simulation.matrix import Matrix, StatusPoint
 from infra.provenance import NAME, tool
-from campaign.orchestration.store import (MANIFEST, clean_temporaries, failed_record, log_name, read_manifest, readable_log,
-                            write_json, write_log)
+from campaign.orchestration.store import (
+    MANIFEST,
+    clean_temporaries,
+    failed_record,
+    log_name,
+    read_manifest,
+    readable_log,
+    write_json,
+    write_log,
+)
 
 
 def _versions() -> dict[str, str]:
@@ -36,10 +45,14 @@ def settings(matrix: Matrix, config: FlightConfig) -> dict:
     """What makes two campaigns the same campaign (compared on resume)."""
     fx = config.aircraft.effects
     return {
-        "matrix": matrix.path, "matrix_sha256": matrix.sha256,
-        "aircraft": config.aircraft.folder, "aircraft_sha256": config.aircraft.sha256,
-        "effects": fx.path, "effects_sha256": fx.sha256,
-        "seed": config.seed, "instruments": config.instruments.name,
+        "matrix": matrix.path,
+        "matrix_sha256": matrix.sha256,
+        "aircraft": config.aircraft.folder,
+        "aircraft_sha256": config.aircraft.sha256,
+        "effects": fx.path,
+        "effects_sha256": fx.sha256,
+        "seed": config.seed,
+        "instruments": config.instruments.name,
         "instruments_sha256": config.instruments.sha256,
     }
 
@@ -73,8 +86,17 @@ def fly_logs(point: StatusPoint, config: FlightConfig) -> tuple[dict, list[tuple
         seeds[fname] = flight.meta["seed"]
         if name.startswith("gear_"):
             exc[name] = excursions(flight.log)
-    return ({"id": point.id, "status": status, "reason": reason, "files": [f for f, _, _ in logs], "seeds": seeds,
-             "excursions": exc}, logs)
+    return (
+        {
+            "id": point.id,
+            "status": status,
+            "reason": reason,
+            "files": [f for f, _, _ in logs],
+            "seeds": seeds,
+            "excursions": exc,
+        },
+        logs,
+    )
 
 
 #: While points fly the manifest is written again once this many times as long as its last writing
@@ -91,8 +113,7 @@ def store(record: dict, logs: list, out: Path) -> dict:
     return record
 
 
-def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bool = True,
-              flyer=None) -> dict:
+def fly_point(point: StatusPoint, config: FlightConfig, out: Path, overwrite: bool = True, flyer=None) -> dict:
     """Fly every manoeuvre of one point and write its logs.
 
     Parameters
@@ -126,8 +147,7 @@ def _fly_marked(point: StatusPoint, config: FlightConfig, out: Path, flyer: byte
     return fly_point(point, config, out, True, cloudpickle.loads(flyer) if flyer else None)
 
 
-def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int,
-              flyer=None) -> Iterator[dict]:
+def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: int, flyer=None) -> Iterator[dict]:
     """Fly ``points`` into ``out`` on ``jobs`` local worker processes (forks of the warm server,
     :mod:`infra.pool`), yielding each record as it finishes.
 
@@ -142,6 +162,7 @@ def fly_local(points: list[StatusPoint], config: FlightConfig, out: Path, jobs: 
             yield fly_point(p, config, out, True, flyer)
         return
     from infra.pool import WorkerDied, alone, owned_tmpdir, submit
+
     marks = owned_tmpdir("started")
     blob = cloudpickle.dumps(flyer) if flyer is not None else None
     futures: dict = {}
@@ -195,22 +216,33 @@ class Summary:
         return self.total > 0 and len(self.failed) == self.total
 
     def text(self) -> str:
-        lines = [f"{self.total - len(self.failed)} of {self.total} points ok "
-                 f"({self.flown} flown now, {self.skipped} already done), "
-                 f"{len(self.failed)} failed, flying took {self.wall_s:.1f} s"]
+        lines = [
+            f"{self.total - len(self.failed)} of {self.total} points ok "
+            f"({self.flown} flown now, {self.skipped} already done), "
+            f"{len(self.failed)} failed, flying took {self.wall_s:.1f} s"
+        ]
         for pid, reason in self.failed:
             lines.append(f"  failed {pid}: {reason}")
         if self.worst:
-            lines.append("  gear transitions, worst excursion: "
-                         f"alpha {self.worst['alpha_deg_max_dev']:.3f} deg, "
-                         f"Mach {self.worst['mach_max_dev']:.5f}, "
-                         f"altitude {self.worst['alt_ft_max_dev']:.2f} ft")
+            lines.append(
+                "  gear transitions, worst excursion: "
+                f"alpha {self.worst['alpha_deg_max_dev']:.3f} deg, "
+                f"Mach {self.worst['mach_max_dev']:.5f}, "
+                f"altitude {self.worst['alt_ft_max_dev']:.2f} ft"
+            )
         return "\n".join(lines)
 
 
-def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
-                 progress: bool = True, points: list[StatusPoint] | None = None,
-                 cluster: str | None = None, flyer=None) -> Summary:
+def run_campaign(
+    matrix: Matrix,
+    config: FlightConfig,
+    out: Path,
+    jobs: int = 1,
+    progress: bool = True,
+    points: list[StatusPoint] | None = None,
+    cluster: str | None = None,
+    flyer=None,
+) -> Summary:
     """Fly the matrix into ``out``; resume if ``out`` holds the same campaign.
 
     ``jobs`` local worker processes (:func:`fly_local`), or the Dask cluster whose
@@ -236,15 +268,19 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
         prev = old.get("settings", {})
         diff = [k for k in want if prev.get(k) != want[k]]
         if diff:
-            raise UserError(f"{out / MANIFEST}: settings.{diff[0]}: {prev.get(diff[0])!r} differs from "
-                            f"this run's {want[diff[0]]!r}; will not overwrite (choose another --out)")
+            raise UserError(
+                f"{out / MANIFEST}: settings.{diff[0]}: {prev.get(diff[0])!r} differs from "
+                f"this run's {want[diff[0]]!r}; will not overwrite (choose another --out)"
+            )
         for rec in old.get("points", []):  # a missing or unreadable log, or a worker's death, flies again
             if (rec["status"] != "ok" and not rec.get("transient")) or (
-                    rec["status"] == "ok" and all(readable_log(out / f) for f in rec["files"])):
+                rec["status"] == "ok" and all(readable_log(out / f) for f in rec["files"])
+            ):
                 done[rec["id"]] = rec
     client = None
     if cluster:  # before anything is written: a scheduler that does not answer changes nothing
         from campaign.orchestration.cluster import connect, fly_on_cluster
+
         client = connect(cluster)
     clean_temporaries(out)
     todo = [p for p in (points or matrix.points) if p.id not in done]
@@ -258,11 +294,14 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
             "settings": want,
             "matrix": matrix.to_json(),
             "versions": _versions(),
-            "hashes": {"matrix": matrix.sha256, "aircraft": want["aircraft_sha256"],
-                       "effects": want["effects_sha256"], "instruments": want["instruments_sha256"]},
+            "hashes": {
+                "matrix": matrix.sha256,
+                "aircraft": want["aircraft_sha256"],
+                "effects": want["effects_sha256"],
+                "instruments": want["instruments_sha256"],
+            },
             "instruments": config.instruments.to_json(),
-            "seeds": {"campaign": config.seed,
-                      "logs": {f: s for r in recs for f, s in r.get("seeds", {}).items()}},
+            "seeds": {"campaign": config.seed, "logs": {f: s for r in recs for f, s in r.get("seeds", {}).items()}},
             "points": recs,
             "complete": complete,
         }
@@ -284,8 +323,9 @@ def run_campaign(matrix: Matrix, config: FlightConfig, out: Path, jobs: int = 1,
             cost = written - t
     clean_temporaries(out)  # a worker the pool terminated (another's death broke it) may have been writing
     write_json(out / MANIFEST, manifest(len(done) == len(matrix.points)))
-    failed = [(r["id"], r["reason"]) for r in sorted(done.values(), key=lambda r: order[r["id"]])
-              if r["status"] != "ok"]
+    failed = [
+        (r["id"], r["reason"]) for r in sorted(done.values(), key=lambda r: order[r["id"]]) if r["status"] != "ok"
+    ]
     worst: dict[str, float] = {}
     for r in done.values():
         for e in r.get("excursions", {}).values():

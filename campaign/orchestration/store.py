@@ -1,4 +1,5 @@
 """The results store: Parquet logs written atomically, and the manifest."""
+
 from __future__ import annotations
 
 import contextlib
@@ -55,11 +56,21 @@ def write_log(path: Path, log: pd.DataFrame, meta: dict) -> None:
     hardly repeat): a third smaller and three times faster to write than the defaults. The
     index is not written (logs are read back with a range index).
     """
-    table = pa.table({str(c): s.to_numpy() if s.dtype.kind == "f" else pa.array(s) for c, s in log.items()},
-                     metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
+    table = pa.table(
+        {str(c): s.to_numpy() if s.dtype.kind == "f" else pa.array(s) for c, s in log.items()},
+        metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()},
+    )
     floats = {c for c, t in zip(table.column_names, table.schema.types) if pa.types.is_floating(t)}
-    atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd", use_dictionary=False,
-                                                        column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats}))
+    atomic_write(
+        Path(path),
+        lambda tmp: pq.write_table(
+            table,
+            tmp,
+            compression="zstd",
+            use_dictionary=False,
+            column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats},
+        ),
+    )
 
 
 def read_log(path: Path) -> tuple[pd.DataFrame, dict]:
@@ -130,8 +141,10 @@ def holding(folder: Path, command: str):
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         os.close(fd)
-        raise UserError(f"{folder}: another campaign command (run, fly, identify, replay or plots) is writing this "
-                        f"folder; wait for it to finish, or choose another folder") from None
+        raise UserError(
+            f"{folder}: another campaign command (run, fly, identify, replay or plots) is writing this "
+            f"folder; wait for it to finish, or choose another folder"
+        ) from None
     try:
         yield
     except UserError:  # bad input leaves no lock file, nor a folder, that were not there

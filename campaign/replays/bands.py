@@ -12,6 +12,7 @@ Written into ``RESULTS_DIR/replays``: ``bands/<case>__<model>__<loop>.parquet`` 
 ``<channel>_lo``, ``<channel>_hi``) and ``bands.json``. Both name the ``gear_surfaces.json``
 they were drawn from by its SHA-256: bands of an older identification are not shown.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,13 +42,16 @@ def load_surfaces(results: Path) -> tuple[dict[str, GearSurface], tuple[float, f
     """The identified surfaces with their covariance, and the AERORP arm [ft]."""
     p = surfaces_file(results)
     if not p.exists():
-        raise UserError(f"{p}: missing (an identification older than the bands); run 'campaign identify {results}' again")
+        raise UserError(
+            f"{p}: missing (an identification older than the bands); run 'campaign identify {results}' again"
+        )
     try:
         doc = json.loads(p.read_text())
         return {k: GearSurface.from_arrays(doc[k]) for k in KINDS if k in doc}, tuple(doc["arm_ft"])
     except (ValueError, KeyError, TypeError) as exc:
-        raise UserError(f"{p}: does not read ({type(exc).__name__}: {exc}); run 'campaign identify {results}' "
-                        f"again") from None
+        raise UserError(
+            f"{p}: does not read ({type(exc).__name__}: {exc}); run 'campaign identify {results}' again"
+        ) from None
 
 
 def check_draws(n: int) -> None:
@@ -61,8 +65,9 @@ def _fly_channels(case: ReplayCase, model: str, source: AircraftSource, loop: st
     return None if log is None else log[list(CHANNELS)].to_numpy(np.float32)
 
 
-def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, seed: int = 0,
-                 held_back: int = 1) -> dict:
+def replay_bands(
+    results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, seed: int = 0, held_back: int = 1
+) -> dict:
     """Draw each identified model ``n + held_back`` times, fly every case and loop on each draw, and
     write the bands (of ``n`` draws) and pass probabilities. Returns ``bands.json``'s content.
 
@@ -75,8 +80,13 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
     sha = surfaces_sha(surfaces_file(results))
     nominal = aircraft_for(results)
     rep = results / "replays"
-    missing = [f"{c.name}__{m}__{lp}" for c in cases for m in ("reference", *surfaces) for lp in LOOPS
-               if not (rep / f"{c.name}__{m}__{lp}.parquet").exists()]
+    missing = [
+        f"{c.name}__{m}__{lp}"
+        for c in cases
+        for m in ("reference", *surfaces)
+        for lp in LOOPS
+        if not (rep / f"{c.name}__{m}__{lp}.parquet").exists()
+    ]
     if missing:
         raise UserError(f"{rep}: no replay {missing[0]}; run 'campaign replay {results}' first")
     rng = np.random.default_rng(seed)
@@ -112,20 +122,35 @@ def replay_bands(results: Path, cases: list[ReplayCase], n: int, jobs: int = 1, 
         held, rest = ys[:held_back], ys[held_back:]
         lo, hi = band(rest)
         held = held[~np.isnan(held).all(axis=(1, 2))]  # a held-back draw that did not trim checks nothing
-        inside = (np.nanmean((held >= lo - 1e-9) & (held <= hi + 1e-9), axis=(0, 1)) if len(held)
-                  else np.full(len(CHANNELS), np.nan))
-        probability = pass_probability({ch: rest[:, :, i] for i, ch in enumerate(CHANNELS)},
-                                       {ch: ref[ch].to_numpy() for ch in CHANNELS})
+        inside = (
+            np.nanmean((held >= lo - 1e-9) & (held <= hi + 1e-9), axis=(0, 1))
+            if len(held)
+            else np.full(len(CHANNELS), np.nan)
+        )
+        probability = pass_probability(
+            {ch: rest[:, :, i] for i, ch in enumerate(CHANNELS)}, {ch: ref[ch].to_numpy() for ch in CHANNELS}
+        )
         flew = ~np.isnan(rest[:, :, 0]).all(axis=1)
-        frame = pd.DataFrame({"t_s": t, **{f"{ch}_lo": lo[:, i] for i, ch in enumerate(CHANNELS)},
-                             **{f"{ch}_hi": hi[:, i] for i, ch in enumerate(CHANNELS)}})
+        frame = pd.DataFrame(
+            {
+                "t_s": t,
+                **{f"{ch}_lo": lo[:, i] for i, ch in enumerate(CHANNELS)},
+                **{f"{ch}_hi": hi[:, i] for i, ch in enumerate(CHANNELS)},
+            }
+        )
         name = f"{case}__{kind}__{lp}"
-        atomic_write(rep / "bands" / f"{name}.parquet",
-                     lambda tmp: frame.to_parquet(tmp, index=False, compression="zstd"))
-        doc["cases"][name] = {"draws": n, "seed": seed, "pass_probability": probability,
-                              "draws_flown": int(flew.sum()),
-                              "held_back": held_back, "held_back_inside": float(np.min(inside)),  # NaN: none flew
-                              "width_max": {ch: float(np.nanmax(hi[:, i] - lo[:, i])) for i, ch in enumerate(CHANNELS)}}
+        atomic_write(
+            rep / "bands" / f"{name}.parquet", lambda tmp: frame.to_parquet(tmp, index=False, compression="zstd")
+        )
+        doc["cases"][name] = {
+            "draws": n,
+            "seed": seed,
+            "pass_probability": probability,
+            "draws_flown": int(flew.sum()),
+            "held_back": held_back,
+            "held_back_inside": float(np.min(inside)),  # NaN: none flew
+            "width_max": {ch: float(np.nanmax(hi[:, i] - lo[:, i])) for i, ch in enumerate(CHANNELS)},
+        }
     text = bands_doc_text(doc)
     atomic_write(rep / "bands.json", lambda tmp: Path(tmp).write_text(text))
     return doc

@@ -5,6 +5,7 @@ altitude, airspeed, flap and weight) and runs a gear transition, open loop
 (controls frozen: Part 60's uncontrolled free response) and closed loop (the
 altitude/speed hold engaged).
 """
+
 from __future__ import annotations
 
 import json
@@ -77,7 +78,7 @@ def load_cases(path: str | Path | None = None) -> list[ReplayCase]:
             if k not in c:
                 raise UserError(f"{p}: case[{i}].{k}: missing")
         if c["gear"] not in ("retract", "extend"):
-            raise UserError(f"{p}: case[{i}].gear: expected \"retract\" or \"extend\"")
+            raise UserError(f'{p}: case[{i}].gear: expected "retract" or "extend"')
         if isinstance(c["flap_deg"], bool) or not isinstance(c["flap_deg"], (int, float)):
             raise UserError(f"{p}: case[{i}].flap_deg: expected a number")
         if not c["ias_kt"] > 0:
@@ -125,8 +126,14 @@ def aircraft_for(results: Path) -> dict[str, AircraftSource]:
 
 def fly_case(case: ReplayCase, source: AircraftSource, loop: str):
     """Fly one case on one aircraft, open or closed loop."""
-    point = StatusPoint(case.alt_ft, mach_for(source, case.alt_ft, case.ias_kt), case.flap_deg,
-                        case.gear == "retract", case.weight_lb, (case.maneuver,))
+    point = StatusPoint(
+        case.alt_ft,
+        mach_for(source, case.alt_ft, case.ias_kt),
+        case.flap_deg,
+        case.gear == "retract",
+        case.weight_lb,
+        (case.maneuver,),
+    )
     params = ((case.maneuver, (("hold", loop == "closed"), ("post_s", case.post_s), ("pre_s", case.pre_s))),)
     flight = fly(point, case.maneuver, FlightConfig(source, maneuver_params=params))
     flight.meta.update({"case": case.name, "loop": loop, "ias_kt_target": case.ias_kt})
@@ -146,6 +153,7 @@ def fly_one(case: ReplayCase, model: str, source: AircraftSource, loop: str) -> 
 def _fly_shipped(case: ReplayCase, model: str, shipment, effects, loop: str):
     """On a cluster worker: :func:`fly_one` on this machine's copy of the shipped aircraft."""
     from campaign.orchestration.cluster import unpack_source
+
     return fly_one(case, model, unpack_source(shipment, effects), loop)
 
 
@@ -171,12 +179,23 @@ def replayed_already(results: Path, cases: list[ReplayCase]) -> set[tuple[str, s
     if not rep.is_dir():
         return set()
     stamps = _stamps(aircraft_for(Path(results)))
-    return {(c.name, m, lp) for c in cases for m in MODELS for lp in LOOPS
-            if (read_meta(rep / _log_name(c, m, lp)) or {}).get("replay_of") == _stamp(c, m, lp, stamps)}
+    return {
+        (c.name, m, lp)
+        for c in cases
+        for m in MODELS
+        for lp in LOOPS
+        if (read_meta(rep / _log_name(c, m, lp)) or {}).get("replay_of") == _stamp(c, m, lp, stamps)
+    }
 
 
-def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_file: str | Path | None = None,
-                cluster: str | None = None, kept: set[tuple[str, str, str]] = frozenset()) -> list[str]:
+def run_replays(
+    results: Path,
+    cases: list[ReplayCase],
+    jobs: int = 1,
+    cases_file: str | Path | None = None,
+    cluster: str | None = None,
+    kept: set[tuple[str, str, str]] = frozenset(),
+) -> list[str]:
     """Fly every case x model x loop into ``results/replays``; return failures.
 
     ``jobs`` local processes, or the Dask cluster whose scheduler is at ``cluster``
@@ -191,6 +210,7 @@ def run_replays(results: Path, cases: list[ReplayCase], jobs: int = 1, cases_fil
     client = None
     if cluster:  # before anything is written
         from campaign.orchestration.cluster import connect
+
         client = connect(cluster)
     out = results / "replays"
     out.mkdir(parents=True, exist_ok=True)
@@ -217,10 +237,12 @@ def _on_cluster(client, flights: list, sources: dict[str, AircraftSource]):
     """Each flight's ``(log, meta, why)`` from the cluster, in order; a worker's death or error
     fails that flight only."""
     from campaign.orchestration.cluster import pack
+
     try:
         ships = {m: pack(s) for m, s in sources.items()}
-        futures = [client.submit(_fly_shipped, c, m, ships[m], sources[m].effects, lp, pure=False)
-                   for c, m, lp in flights]
+        futures = [
+            client.submit(_fly_shipped, c, m, ships[m], sources[m].effects, lp, pure=False) for c, m, lp in flights
+        ]
         for (c, m, _), fut in zip(flights, futures):
             try:
                 yield fut.result()

@@ -5,6 +5,7 @@ dynamics): +-3 kt airspeed, +-100 ft altitude, and +-1.5 deg or 20 % of the pitc
 change, whichever is less restrictive (we read "20 %" as 20 % of the reference's
 largest pitch-angle change during the test).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -20,8 +21,13 @@ from identify.figures import emptied_axes, new_figure
 from infra.pool import pmap
 from infra.provenance import tool_text
 
-CHANNELS = (("theta_deg", "pitch angle [deg]"), ("alpha_deg", "angle of attack [deg]"),
-            ("q_dps", "pitch rate [deg/s]"), ("tas_kt", "true airspeed [kt]"), ("alt_ft", "altitude [ft]"))
+CHANNELS = (
+    ("theta_deg", "pitch angle [deg]"),
+    ("alpha_deg", "angle of attack [deg]"),
+    ("q_dps", "pitch rate [deg/s]"),
+    ("tas_kt", "true airspeed [kt]"),
+    ("alt_ft", "altitude [ft]"),
+)
 TOL_TAS_KT = 3.0
 TOL_ALT_FT = 100.0
 TOL_THETA_DEG = 1.5
@@ -72,34 +78,66 @@ def metrics(replays: dict, bands: dict | None = None) -> pd.DataFrame:
             row[f"rms_err_{ch}"] = float(np.sqrt(np.mean(err[ch] ** 2)))
         tol_theta = theta_tolerance(ref.iloc[:n])
         row["tol_theta_deg"] = tol_theta
-        row["qtg_pass"] = bool(row["max_err_tas_kt"] <= TOL_TAS_KT and row["max_err_alt_ft"] <= TOL_ALT_FT
-                               and row["max_err_theta_deg"] <= tol_theta)
+        row["qtg_pass"] = bool(
+            row["max_err_tas_kt"] <= TOL_TAS_KT
+            and row["max_err_alt_ft"] <= TOL_ALT_FT
+            and row["max_err_theta_deg"] <= tol_theta
+        )
         b = bands.get(f"{case}__{model}__{loop}", {})
         row["pass_probability"] = b.get("pass_probability", np.nan)
         row["band_draws"] = b.get("draws", np.nan)
         rows.append(row)
     df = pd.DataFrame(rows)
-    first = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
-             "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "qtg_pass", "pass_probability"]
+    first = [
+        "case",
+        "model",
+        "loop",
+        "max_err_theta_deg",
+        "rms_err_theta_deg",
+        "max_err_alpha_deg",
+        "max_err_q_dps",
+        "max_err_tas_kt",
+        "max_err_alt_ft",
+        "qtg_pass",
+        "pass_probability",
+    ]
     return df[first + [c for c in df.columns if c not in first]]
 
 
 def metrics_text(df: pd.DataFrame) -> str:
-    cols = ["case", "model", "loop", "max_err_theta_deg", "rms_err_theta_deg", "max_err_alpha_deg",
-            "max_err_q_dps", "max_err_tas_kt", "max_err_alt_ft", "tol_theta_deg", "qtg_pass"]
-    head = ("Replay errors against the reference aircraft (max |model - reference|).\n"
-            "Part 60 gear change (2.c.4): airspeed 3 kt, altitude 100 ft, pitch 1.5 deg or 20 % of its change.\n\n")
+    cols = [
+        "case",
+        "model",
+        "loop",
+        "max_err_theta_deg",
+        "rms_err_theta_deg",
+        "max_err_alpha_deg",
+        "max_err_q_dps",
+        "max_err_tas_kt",
+        "max_err_alt_ft",
+        "tol_theta_deg",
+        "qtg_pass",
+    ]
+    head = (
+        "Replay errors against the reference aircraft (max |model - reference|).\n"
+        "Part 60 gear change (2.c.4): airspeed 3 kt, altitude 100 ft, pitch 1.5 deg or 20 % of its change.\n\n"
+    )
     if df["pass_probability"].notna().any():
         cols.append("pass_probability")
-        head += ("pass_probability: the share of the identified model's Monte Carlo draws (from its covariance, "
-                 "campaign replay --bands) within the tolerances.\n\n")
+        head += (
+            "pass_probability: the share of the identified model's Monte Carlo draws (from its covariance, "
+            "campaign replay --bands) within the tolerances.\n\n"
+        )
     table = df[cols].copy()
     table["qtg_pass"] = table["qtg_pass"].map({True: "pass", False: "FAIL"})
     text = head + table.to_string(index=False, float_format=lambda v: f"{v:#.3g}") + "\n"
     failing = table[table.qtg_pass == "FAIL"]
     if len(failing):
-        text += "\nOutside the Part 60 tolerances: " + "; ".join(
-            f"{r.case} {r.model} {r.loop}" for r in failing.itertuples()) + "\n"
+        text += (
+            "\nOutside the Part 60 tolerances: "
+            + "; ".join(f"{r.case} {r.model} {r.loop}" for r in failing.itertuples())
+            + "\n"
+        )
     return text
 
 
@@ -134,20 +172,40 @@ def plot_case(replays: dict, case: str, loop: str, axes=None, bands: dict | None
             if model == "reference":
                 ax.plot(log.t_s, log[ch], color="0.2", lw=4.0, alpha=0.35, label=model)
             else:
-                ax.plot(log.t_s, log[ch], color=COLORS[model], lw=1.2, ls="-" if model != "linear" else "--",
-                        label=model)
+                ax.plot(
+                    log.t_s, log[ch], color=COLORS[model], lw=1.2, ls="-" if model != "linear" else "--", label=model
+                )
             band = bands.get((case, model, loop))
             if band is not None:
-                ax.fill_between(band.t_s, band[f"{ch}_lo"], band[f"{ch}_hi"], color=COLORS[model], alpha=0.18,
-                                lw=0, label=f"{model}: 95 % band")
+                ax.fill_between(
+                    band.t_s,
+                    band[f"{ch}_lo"],
+                    band[f"{ch}_hi"],
+                    color=COLORS[model],
+                    alpha=0.18,
+                    lw=0,
+                    label=f"{model}: 95 % band",
+                )
                 n = min(len(ref), len(band))
                 r = ref[ch].to_numpy()[:n]
-                axr.fill_between(band.t_s[:n], band[f"{ch}_lo"].to_numpy()[:n] - r, band[f"{ch}_hi"].to_numpy()[:n] - r,
-                                 color=COLORS[model], alpha=0.18, lw=0)
+                axr.fill_between(
+                    band.t_s[:n],
+                    band[f"{ch}_lo"].to_numpy()[:n] - r,
+                    band[f"{ch}_hi"].to_numpy()[:n] - r,
+                    color=COLORS[model],
+                    alpha=0.18,
+                    lw=0,
+                )
             if model != "reference":
                 n = min(len(ref), len(log))
-                axr.plot(log.t_s[:n], log[ch].to_numpy()[:n] - ref[ch].to_numpy()[:n], color=COLORS[model],
-                         lw=1.1, ls="-" if model != "linear" else "--", label=f"{model} - reference")
+                axr.plot(
+                    log.t_s[:n],
+                    log[ch].to_numpy()[:n] - ref[ch].to_numpy()[:n],
+                    color=COLORS[model],
+                    lw=1.1,
+                    ls="-" if model != "linear" else "--",
+                    label=f"{model} - reference",
+                )
         if ch in tol:
             axr.axhspan(-tol[ch], tol[ch], color="tab:green", alpha=0.12, label="Part 60 tolerance")
         axr.axhline(0, color="0.5", lw=0.6)
@@ -190,9 +248,20 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
     plots.mkdir(exist_ok=True)
     todo = sorted({(c, lp) for c, m, lp in replays if m == "reference"})
     subsets = [{k: v for k, v in replays.items() if k[0] == case and k[2] == loop} for case, loop in todo]
-    paths = pmap(_save_plot, [(sub, case, loop, plots / f"{case}__{loop}.png",
-                               {k: v for k, v in bands.items() if k[0] == case and k[2] == loop})
-                              for sub, (case, loop) in zip(subsets, todo)], jobs)
+    paths = pmap(
+        _save_plot,
+        [
+            (
+                sub,
+                case,
+                loop,
+                plots / f"{case}__{loop}.png",
+                {k: v for k, v in bands.items() if k[0] == case and k[2] == loop},
+            )
+            for sub, (case, loop) in zip(subsets, todo)
+        ],
+        jobs,
+    )
     files.update({f"plot_{case}_{loop}": p for (case, loop), p in zip(todo, paths)})
     selected = df[df.case.isin({c for c, _, _ in replays})]
     files["table"] = metrics_text(selected)
@@ -200,6 +269,7 @@ def write_report(results: Path, names: list[str] | None = None, jobs: int = 1) -
 
 
 # Monte Carlo bands (written by campaign.replays.bands; read here, without JSBSim)
+
 
 def surfaces_file(results: Path) -> Path:
     return Path(results) / "identification" / "gear_surfaces.json"

@@ -4,6 +4,7 @@ Everything a page shows travels inside it: figures as data URIs (PNG) or inline 
 stylesheet in the head, no script, nothing fetched. It reads well printed to PDF from a
 browser: the navigation is hidden and each section of class ``page`` starts a page.
 """
+
 from __future__ import annotations
 
 import base64
@@ -85,7 +86,7 @@ def svg(fig, caption: str = "") -> str:
     buf = io.StringIO()
     fig.savefig(buf, format="svg", bbox_inches="tight")
     text = buf.getvalue()
-    text = text[text.index("<svg"):]
+    text = text[text.index("<svg") :]
     cap = f"<figcaption>{escape(caption)}</figcaption>" if caption else ""
     return f"<figure>{text}{cap}</figure>"
 
@@ -115,8 +116,9 @@ def table(header: Sequence[str], rows: Iterable[Sequence], left: int = 1, raw: b
     th = "".join(f'<th class="{"l" if i < left else ""}">{escape(h)}</th>' for i, h in enumerate(header))
     body = []
     for row in rows:
-        cells = "".join(f'<td class="{"l" if i < left or _text(c) else ""}">{c if raw else fmt(c)}</td>'
-                        for i, c in enumerate(row))
+        cells = "".join(
+            f'<td class="{"l" if i < left or _text(c) else ""}">{c if raw else fmt(c)}</td>' for i, c in enumerate(row)
+        )
         body.append(f"<tr>{cells}</tr>")
     return f"<table><thead><tr>{th}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
@@ -131,19 +133,31 @@ def anchor(text: str) -> str:
 
 
 def section(anchor: str, title: str, body: str, page: bool = False) -> tuple[str, str, str]:
-    return anchor, title, f'<section id="{anchor}"{" class=page" if page else ""}><h2>{escape(title)}</h2>{body}</section>'
+    return (
+        anchor,
+        title,
+        f'<section id="{anchor}"{" class=page" if page else ""}><h2>{escape(title)}</h2>{body}</section>',
+    )
 
 
-def document(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]], nav_extra: str = "",
-             nav_skip: Iterable[str] = ()) -> str:
+def document(
+    title: str,
+    subtitle: str,
+    sections: Sequence[tuple[str, str, str]],
+    nav_extra: str = "",
+    nav_skip: Iterable[str] = (),
+) -> str:
     """The page: a header, the navigation (each section but those of ``nav_skip``'s anchors, then
     ``nav_extra``'s raw HTML) and the sections."""
     skip = set(nav_skip)
     nav = "".join(f'<a href="#{a}">{escape(t)}</a>' for a, t, _ in sections if a not in skip) + nav_extra
-    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>"
-            f"<header><h1>{escape(title)}</h1><p>{escape(subtitle)}</p></header><nav>{nav}</nav><main>"
-            + "".join(s for _, _, s in sections) + "</main></body></html>\n")
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>"
+        f"<header><h1>{escape(title)}</h1><p>{escape(subtitle)}</p></header><nav>{nav}</nav><main>"
+        + "".join(s for _, _, s in sections)
+        + "</main></body></html>\n"
+    )
 
 
 def write(path: Path, text: str) -> Path:
@@ -165,8 +179,9 @@ def software_commit() -> str:
     commit of a repository it happens to sit in."""
     here = Path(__file__).resolve().parents[2]  # the folder holding the campaign package
     try:
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "--show-toplevel", "HEAD"],
-                             capture_output=True, text=True, timeout=5)
+        out = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "--show-toplevel", "HEAD"], capture_output=True, text=True, timeout=5
+        )
     except (OSError, subprocess.SubprocessError):
         return ""
     lines = out.stdout.split()
@@ -187,8 +202,7 @@ def traceability(folder: Path, man: dict | None, extra: dict[str, Path]) -> str:
         rows.append(("flight logs", f"{len(logs)} Parquet files", sha256_files(logs) if logs else ""))
     for name, path in extra.items():
         if path.exists():
-            rows.append((name, path.relative_to(folder) if path.is_relative_to(folder) else path,
-                         sha256_file(path)))
+            rows.append((name, path.relative_to(folder) if path.is_relative_to(folder) else path, sha256_file(path)))
     versions = {"report written by": tool_text()}
     if man and man.get("tool"):
         versions["campaign flown by"] = f"{man['tool']['name']} {man['tool']['version']}"
@@ -196,5 +210,8 @@ def traceability(folder: Path, man: dict | None, extra: dict[str, Path]) -> str:
     commit = software_commit()
     if commit:
         versions["software commit"] = commit
-    return (table(["item", "file", "sha256"], rows, left=2)
-            + definitions(versions.items()) + f'<p class="note">report written {now()}</p>')
+    return (
+        table(["item", "file", "sha256"], rows, left=2)
+        + definitions(versions.items())
+        + f'<p class="note">report written {now()}</p>'
+    )

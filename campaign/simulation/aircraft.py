@@ -5,6 +5,7 @@ user's folder into a private root, merge the effect overlay into the ``<axis>``
 elements of ``<aerodynamics>`` and remove every network ``<input>``/``<output>``,
 so any folder (the stock JSBSim 737 included) flies without opening ports.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -78,12 +79,12 @@ def load_effects(path: str | Path | None) -> Effects:
             raise UserError(f"{p}: <effects> child {i + 1}: expected <axis>, found <{axis.tag}>")
         name = axis.get("name", "")
         if name not in AXES:
-            raise UserError(f"{p}: <axis name=\"{name}\">: name must be one of {', '.join(AXES)}")
+            raise UserError(f'{p}: <axis name="{name}">: name must be one of {", ".join(AXES)}')
         for j, fn in enumerate(axis):
             if fn.tag != "function":
-                raise UserError(f"{p}: <axis name=\"{name}\"> child {j + 1}: expected <function>, found <{fn.tag}>")
+                raise UserError(f'{p}: <axis name="{name}"> child {j + 1}: expected <function>, found <{fn.tag}>')
             if not fn.get("name"):
-                raise UserError(f"{p}: <axis name=\"{name}\"> function {j + 1}: missing name attribute")
+                raise UserError(f'{p}: <axis name="{name}"> function {j + 1}: missing name attribute')
             if len([c for c in fn if c.tag != "description"]) != 1:
                 raise UserError(f"{p}: function {fn.get('name')}: needs exactly one operation or table inside")
             _check_function(p, fn)
@@ -105,7 +106,7 @@ def _finite(text: str) -> bool:
 def _check_function(path: Path, fn: ET.Element) -> None:
     """Every number of an overlay function finite, every property it reads named: JSBSim refuses the
     whole aircraft otherwise, without naming the overlay."""
-    where = f"{path}: <function name=\"{fn.get('name')}\">"
+    where = f'{path}: <function name="{fn.get("name")}">'
     for el in fn.iter():
         text = (el.text or "").strip()
         if el.tag in ("value", "v"):

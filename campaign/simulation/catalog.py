@@ -3,6 +3,7 @@
 Every name is checked against ``fdm.get_property_catalog()`` when a model is
 loaded, because writing a misspelled property silently creates it.
 """
+
 from __future__ import annotations
 
 import math
@@ -58,11 +59,35 @@ THROTTLE_POS = "fcs/throttle-pos-norm[{i}]"
 
 #: Log columns in file order (the DESIGN.md log schema).
 LOG_COLUMNS: tuple[str, ...] = (
-    "t_s", "alt_ft", "tas_kt", "ias_kt", "mach", "alpha_deg", "beta_deg",
-    "theta_deg", "phi_deg", "psi_deg", "p_dps", "q_dps", "r_dps", "qdot_dps2",
-    "ax_fps2", "ay_fps2", "az_fps2", "qbar_psf", "thrust_lbf",
-    "elevator_deg", "stabilizer_deg", "flap_deg", "gear_norm", "throttle_norm",
-    "mass_slug", "xcg_in", "vn_fps", "ve_fps", "vd_fps",
+    "t_s",
+    "alt_ft",
+    "tas_kt",
+    "ias_kt",
+    "mach",
+    "alpha_deg",
+    "beta_deg",
+    "theta_deg",
+    "phi_deg",
+    "psi_deg",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "qdot_dps2",
+    "ax_fps2",
+    "ay_fps2",
+    "az_fps2",
+    "qbar_psf",
+    "thrust_lbf",
+    "elevator_deg",
+    "stabilizer_deg",
+    "flap_deg",
+    "gear_norm",
+    "throttle_norm",
+    "mass_slug",
+    "xcg_in",
+    "vn_fps",
+    "ve_fps",
+    "vd_fps",
 )
 
 #: What the autopilot hold reads (not logged).
@@ -92,7 +117,12 @@ CONTROLS: dict[str, str] = {
 }
 
 INITIAL_CONDITIONS = (
-    "ic/h-sl-ft", "ic/mach", "ic/gamma-deg", "ic/beta-deg", "ic/phi-deg", "ic/psi-true-deg",
+    "ic/h-sl-ft",
+    "ic/mach",
+    "ic/gamma-deg",
+    "ic/beta-deg",
+    "ic/phi-deg",
+    "ic/psi-true-deg",
 )
 
 #: Gust inputs (NED) the turbulence of an instrument profile flies through (:mod:`campaign.simulation.turbulence`).

@@ -7,6 +7,7 @@ properties without naming the overlay. Both are checked here against the bare mo
 catalog, and the merged model is loaded and run once, each failure named by the overlay file and
 its function.
 """
+
 from __future__ import annotations
 
 from campaign.errors import UserError
@@ -52,22 +53,27 @@ def check_overlay(source: AircraftSource) -> None:
     names = cat.catalog_names(new_fdm(bare(source)))  # the aircraft's own faults are named by its folder
     for fn, prop in overlay_reads(fx):
         if prop not in names:
-            raise UserError(f"{fx.path}: <function name=\"{fn}\">: reads {prop}, a property aircraft "
-                            f"{source.name} does not have")
+            raise UserError(
+                f'{fx.path}: <function name="{fn}">: reads {prop}, a property aircraft {source.name} does not have'
+            )
     for fn in (f for f in (_name(text) for _, text in fx.functions) if f in names):
-        raise UserError(f"{fx.path}: <function name=\"{fn}\">: {fn} is a property of aircraft {source.name} "
-                        f"already (an overlay adds functions of its own; name it aero/<something new>)")
+        raise UserError(
+            f'{fx.path}: <function name="{fn}">: {fn} is a property of aircraft {source.name} '
+            f"already (an overlay adds functions of its own; name it aero/<something new>)"
+        )
     try:
         fdm = new_fdm(source)
     except UserError as exc:
         said = str(exc).split(f"JSBSim could not load aircraft {source.name}", 1)[-1].lstrip(": ")
-        raise UserError(f"{fx.path}: JSBSim will not load aircraft {source.name} with this overlay"
-                        f"{': ' + said if said else ''}") from None
+        raise UserError(
+            f"{fx.path}: JSBSim will not load aircraft {source.name} with this overlay{': ' + said if said else ''}"
+        ) from None
     _run_ic(fdm, f"{fx.path}: JSBSim cannot run aircraft {source.name} with this overlay")
 
 
 def _name(text: str) -> str:
     import xml.etree.ElementTree as ET
+
     return ET.fromstring(text).get("name", "")
 
 
@@ -89,10 +95,13 @@ def check_weights(source: AircraftSource, weights: list[tuple[str, float]]) -> N
         lightest = own - fdm[cat.POINTMASS_WEIGHT]
         for where, w in weights:
             if w < lightest - 1.0:
-                raise UserError(f"{where}: {w:g} lb is below aircraft {source.name}'s empty weight and fuel "
-                                f"({lightest:.0f} lb)")
+                raise UserError(
+                    f"{where}: {w:g} lb is below aircraft {source.name}'s empty weight and fuel ({lightest:.0f} lb)"
+                )
         return
     for where, w in weights:
         if abs(own - w) > WEIGHT_TOLERANCE * own:
-            raise UserError(f"{where}: aircraft {source.name} has no point mass to set the weight with "
-                            f"(it weighs {own:.0f} lb; leave weight_lb out to fly it so)")
+            raise UserError(
+                f"{where}: aircraft {source.name} has no point mass to set the weight with "
+                f"(it weighs {own:.0f} lb; leave weight_lb out to fly it so)"
+            )

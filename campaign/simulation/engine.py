@@ -4,6 +4,7 @@ Each call builds its own ``FGFDMExec`` (it cannot be pickled, and a failed trim
 leaves stale state behind), so the functions here run unchanged in local worker
 processes or on a Dask cluster.
 """
+
 from __future__ import annotations
 
 import array
@@ -109,8 +110,10 @@ def new_fdm(source: AircraftSource):
         held = _ROOTS.get(source)
         if held is None:
             root = str(prepare(source))
-            held = _ROOTS[source] = (root, Finalize(None, shutil.rmtree, args=(root,),
-                                                    kwargs={"ignore_errors": True}, exitpriority=0))
+            held = _ROOTS[source] = (
+                root,
+                Finalize(None, shutil.rmtree, args=(root,), kwargs={"ignore_errors": True}, exitpriority=0),
+            )
             while len(_ROOTS) > ROOTS_KEPT:
                 _ROOTS.popitem(last=False)[1][1]()  # removes the folder, and its exit finalizer with it
         _ROOTS.move_to_end(source)
@@ -118,8 +121,9 @@ def new_fdm(source: AircraftSource):
             return load_fdm(Path(held[0]), source.name)
         except ModelLoadError as exc:  # what JSBSim said, of the user's folder rather than its copy
             why = exc.reason.replace(str(exc.folder), source.folder)
-            raise UserError(f"{source.folder}: JSBSim could not load aircraft {source.name}"
-                            f"{': ' + why if why else ''}") from None
+            raise UserError(
+                f"{source.folder}: JSBSim could not load aircraft {source.name}{': ' + why if why else ''}"
+            ) from None
 
 
 def engine_count(names: set[str]) -> int:
@@ -155,8 +159,14 @@ def flap_problem(source: AircraftSource, flap_deg: float) -> str:
     """Why the aircraft cannot fly at a flap angle ("" if it can)."""
     s = flap_schedule(source)
     if not s.moves:
-        return "" if flap_deg == 0 else (f"aircraft {source.name} has no flap angle (its flight controls never "
-                                         f"write {s.position}): only flap_deg = 0 can be flown")
+        return (
+            ""
+            if flap_deg == 0
+            else (
+                f"aircraft {source.name} has no flap angle (its flight controls never "
+                f"write {s.position}): only flap_deg = 0 can be flown"
+            )
+        )
     lo, hi = s.range
     if not lo - 1e-6 <= flap_deg <= hi + 1e-6:
         return f"flap {flap_deg:g} deg is outside aircraft {source.name}'s flap range {lo:g}..{hi:g} deg"
@@ -221,14 +231,29 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fp
     for alpha_max in TRIM_ALPHA_MAX_DEG:
         fdm = new_fdm(source)
         try:
-            return fdm, names, n_eng, optional, trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max, gust_fps, gamma_deg)
+            return (
+                fdm,
+                names,
+                n_eng,
+                optional,
+                trim(fdm, point, gear, flap_cmd, n_eng, names, alpha_max, gust_fps, gamma_deg),
+            )
         except TrimError as exc:
             reason = reason or str(exc)
     raise TrimError(reason)
 
 
-def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, names: set[str],
-         alpha_max_deg: float = 30.0, gust_fps=None, gamma_deg: float = 0.0) -> Trim:
+def trim(
+    fdm,
+    point: StatusPoint,
+    gear: float,
+    flap_cmd: float,
+    n_engines: int,
+    names: set[str],
+    alpha_max_deg: float = 30.0,
+    gust_fps=None,
+    gamma_deg: float = 0.0,
+) -> Trim:
     """Set the initial condition and run JSBSim's full trim.
 
     ``flap_cmd`` is the ``fcs/flap-cmd-norm`` that gives the point's flap angle
@@ -242,8 +267,14 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
     TrimError
         With the reason (JSBSim's failure or a saturated control).
     """
-    ic = {"ic/h-sl-ft": point.alt_ft, "ic/mach": point.mach, "ic/gamma-deg": gamma_deg,
-          "ic/beta-deg": 0.0, "ic/phi-deg": 0.0, "ic/psi-true-deg": 0.0}
+    ic = {
+        "ic/h-sl-ft": point.alt_ft,
+        "ic/mach": point.mach,
+        "ic/gamma-deg": gamma_deg,
+        "ic/beta-deg": 0.0,
+        "ic/phi-deg": 0.0,
+        "ic/psi-true-deg": 0.0,
+    }
     for k, v in ic.items():
         _set(fdm, names, k, v)
     _set(fdm, names, cat.CONTROLS["fuel_freeze"], 1)
@@ -261,8 +292,10 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
                 raise TrimError(f"weight {point.weight_lb:.0f} lb is below the aircraft's empty weight and fuel")
             fdm[cat.POINTMASS_WEIGHT] = pm
         elif abs(own - point.weight_lb) > WEIGHT_TOLERANCE * own:  # a log flown as loaded replays as it was
-            raise TrimError(f"aircraft has no point mass to set the weight with (it weighs {own:.0f} lb, "
-                            f"the point {point.weight_lb:.0f} lb)")
+            raise TrimError(
+                f"aircraft has no point mass to set the weight with (it weighs {own:.0f} lb, "
+                f"the point {point.weight_lb:.0f} lb)"
+            )
     fdm.run_ic()
     _set(fdm, names, cat.CONTROLS["set_running"], -1)
     cl_needed = fdm["inertia/weight-lbs"] / (fdm["aero/qbar-psf"] * fdm["metrics/Sw-sqft"])
@@ -276,16 +309,26 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
             with captured_stdout(messages):
                 fdm.do_trim(1)
         except jsbsim.TrimFailureError:
-            said = "; ".join(sorted({m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable",
-                                                                       " not trimmable") for m in messages
-                                     if "trimmable" in m}))
-            raise TrimError(f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
-                            f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})") from None
+            said = "; ".join(
+                sorted(
+                    {
+                        m.replace("Sorry, ", "").replace(" doesn't appear to be trimmable", " not trimmable")
+                        for m in messages
+                        if "trimmable" in m
+                    }
+                )
+            )
+            raise TrimError(
+                f"trim failed with alpha in [-20, {alpha_max_deg:.0f}] deg: "
+                f"{said or 'no solution'} (level flight needs CL {cl_needed:.2f})"
+            ) from None
         if gust_fps is None or abs(fdm["velocities/mach"] - point.mach) < 1e-5:
             break
         if attempt == passes - 1:
-            raise TrimError(f"trim in the gust {tuple(round(float(g), 2) for g in gust_fps)} ft/s left Mach "
-                            f"{fdm['velocities/mach']:.4f} through the air, asked {point.mach:.4f}")
+            raise TrimError(
+                f"trim in the gust {tuple(round(float(g), 2) for g in gust_fps)} ft/s left Mach "
+                f"{fdm['velocities/mach']:.4f} through the air, asked {point.mach:.4f}"
+            )
         # the initial condition's speed is inertial: move it until the speed through the air is the point's
         _set(fdm, names, "ic/mach", fdm["ic/mach"] + point.mach - fdm["velocities/mach"])
         fdm.run_ic()
@@ -296,12 +339,16 @@ def trim(fdm, point: StatusPoint, gear: float, flap_cmd: float, n_engines: int, 
     qbar = fdm["aero/qbar-psf"]
     weight = fdm["inertia/weight-lbs"]
     return Trim(
-        alpha_deg=fdm["aero/alpha-deg"], theta_deg=fdm["attitude/theta-deg"],
+        alpha_deg=fdm["aero/alpha-deg"],
+        theta_deg=fdm["attitude/theta-deg"],
         elevator_deg=fdm["fcs/elevator-pos-rad"] * cat.R2D,
         elevator_cmd_norm=fdm["fcs/elevator-cmd-norm"],
         pitch_trim_norm=fdm["fcs/pitch-trim-cmd-norm"],
         throttle=fdm[cat.CONTROLS["throttle"].format(i=0)],
-        qbar_psf=qbar, cl=weight / (qbar * fdm["metrics/Sw-sqft"]), weight_lb=weight)
+        qbar_psf=qbar,
+        cl=weight / (qbar * fdm["metrics/Sw-sqft"]),
+        weight_lb=weight,
+    )
 
 
 def elevator_gain_deg(source: AircraftSource) -> float:
@@ -387,8 +434,14 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     if prog.wind_fps is not None:  # a replay in the wind measured in the data
         gusts = prog.wind_fps[np.minimum(np.arange(prog.max_steps), len(prog.wind_fps) - 1)]
     else:
-        gusts = dryden_gusts(prog.max_steps, DT_S, fdm["velocities/vt-fps"], point.alt_ft, profile.sigma_fps,
-                             np.random.default_rng(derived_seed(seed, "turbulence")))
+        gusts = dryden_gusts(
+            prog.max_steps,
+            DT_S,
+            fdm["velocities/vt-fps"],
+            point.alt_ft,
+            profile.sigma_fps,
+            np.random.default_rng(derived_seed(seed, "turbulence")),
+        )
     if gusts.size and np.any(gusts[0] != 0.0):  # start in equilibrium with the first gust
         fdm, names, n_eng, optional, tr = trimmed_fdm(config.aircraft, point, gear0, gusts[0])
 
@@ -401,7 +454,7 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     stab_node = node(stab[0]) if optional[stab[0]] else None
     flap_node = node(cat.FLAP_DEG)
     thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)]
-    truth_nodes = ([node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else [])
+    truth_nodes = [node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else []
     hdot_node = node(cat.HOLD_INPUTS["hdot_fps"])
     uvw_nodes = [node(cat.HOLD_INPUTS[c]) for c in ("u_fps", "v_fps", "w_fps")]
 
@@ -415,24 +468,36 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
     gear_cmd = node(cat.CONTROLS["gear_cmd"])
     gust_nodes = [node(p) for p in cat.GUSTS] if profile.sigma_fps > 0 or prog.wind_fps is not None else []
-    rot_nodes = ([node(p) for p in cat.ANGULAR_ACCELERATIONS.values()]
-                 if any(any(s.position_ft) for c, s in profile.sensors if c[0] == "a") else [])
+    rot_nodes = (
+        [node(p) for p in cat.ANGULAR_ACCELERATIONS.values()]
+        if any(any(s.position_ft) for c, s in profile.sensors if c[0] == "a")
+        else []
+    )
     idx = {name: i for i, name in enumerate(cat.STATE_CHANNELS)}
     i_alt, i_theta, i_q = idx["alt_ft"], idx["theta_deg"], idx["q_dps"]
     i_gear = idx["gear_norm"]
 
     hold = None
     if prog.hold:
-        hold = HoldAutopilot(config.gains, DT_S, fdm["atmosphere/pressure-altitude"],
-                             speed(), tr.theta_deg, tr.elevator_deg,
-                             tr.throttle, tr.qbar_psf)
+        hold = HoldAutopilot(
+            config.gains,
+            DT_S,
+            fdm["atmosphere/pressure-altitude"],
+            speed(),
+            tr.theta_deg,
+            tr.elevator_deg,
+            tr.throttle,
+            tr.qbar_psf,
+        )
     gear_final = maneuver.gear_final if isinstance(maneuver, GearTransition) else None
     bank_in = None
     if prog.bank_deg is not None:
         lateral = [node(cat.LATERAL_CONTROLS[c]) for c in ("aileron", "rudder")]
         if any(n is None for n in lateral):
-            raise TrimError(f"{maneuver.name}: aircraft {config.aircraft.name} has no "
-                            f"{' or '.join(cat.LATERAL_CONTROLS.values())}: no bank hold")
+            raise TrimError(
+                f"{maneuver.name}: aircraft {config.aircraft.name} has no "
+                f"{' or '.join(cat.LATERAL_CONTROLS.values())}: no bank hold"
+            )
         set_aileron, set_rudder = (n.set_double_value for n in lateral)
         bank_in = prog.bank_deg.series(0, prog.max_steps).tolist()
         i_phi, i_p, i_beta = idx["phi_deg"], idx["p_dps"], idx["beta_deg"]
@@ -440,11 +505,22 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         phi = p_roll = beta = 0.0
 
     n_state = len(state_nodes)
-    read_nodes = (state_nodes + force_nodes + ([stab_node] if stab_node else []) + [flap_node] + thr_nodes
-                  + truth_nodes + rot_nodes)
+    read_nodes = (
+        state_nodes
+        + force_nodes
+        + ([stab_node] if stab_node else [])
+        + [flap_node]
+        + thr_nodes
+        + truth_nodes
+        + rot_nodes
+    )
     # the inputs as plain floats, evaluated once (a transition's tail only if it is flown)
-    signals = [prog.elevator_deg, prog.stabilizer_deg if dh_gain else None,
-               prog.gear_cmd or Constant(gear0), prog.throttle]
+    signals = [
+        prog.elevator_deg,
+        prog.stabilizer_deg if dh_gain else None,
+        prog.gear_cmd or Constant(gear0),
+        prog.throttle,
+    ]
     inputs = [[] if f is not None else None for f in signals]
 
     def evaluate_inputs(upto: int) -> None:
@@ -501,20 +577,28 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
             h, theta, q = buf[row + i_alt] * s_alt, buf[row + i_theta] * s_theta, buf[row + i_q] * s_q
         if bank_in is not None:
             phi, p_roll, beta = buf[row + i_phi] * s_phi, buf[row + i_p] * s_p, buf[row + i_beta] * s_beta
-        if (gear_final is not None and end == prog.max_steps and gear_in[k] == gear_final
-                and abs(buf[row + i_gear] * s_gear - gear_final) < 1e-9):
+        if (
+            gear_final is not None
+            and end == prog.max_steps
+            and gear_in[k] == gear_final
+            and abs(buf[row + i_gear] * s_gear - gear_final) < 1e-9
+        ):
             end = k + 1 + prog.post_travel_steps
         k += 1
     raw = np.frombuffer(buf, dtype=float).reshape(-1, n_read)
     n_force, n_stab = len(force_nodes), int(stab_node is not None)
     mass = raw[:, i_mass] * s_mass
     at = n_state + n_force + n_stab + 1  # the engines' throttle positions
-    rows = np.column_stack([raw[:, :n_state] * state_scale,
-                            raw[:, n_state:n_state + n_force] / mass[:, None],
-                            raw[:, n_state + n_force] if n_stab else np.full(len(raw), stab_const),
-                            raw[:, at - 1],
-                            sum(raw[:, at + e] for e in range(n_eng)) / n_eng,
-                            raw[:, at + n_eng:]])
+    rows = np.column_stack(
+        [
+            raw[:, :n_state] * state_scale,
+            raw[:, n_state : n_state + n_force] / mass[:, None],
+            raw[:, n_state + n_force] if n_stab else np.full(len(raw), stab_const),
+            raw[:, at - 1],
+            sum(raw[:, at + e] for e in range(n_eng)) / n_eng,
+            raw[:, at + n_eng :],
+        ]
+    )
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
         raise TrimError(f"gear did not complete its travel within {maneuver.max_travel_s:.0f} s")
     _check_envelope(rows, idx, tr)
@@ -527,13 +611,17 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     columns["psi_deg"] = np.degrees(np.unwrap(np.radians(columns["psi_deg"])))  # no jump through north
     truth = [c for c in cols if c.startswith("truth_")]
     extra = {c: columns[c] for c in cat.ANGULAR_ACCELERATIONS} if rot_nodes else None
-    df = record({c: columns[c] for c in [*cat.LOG_COLUMNS, *truth]}, extra, profile, DT_S,
-                np.random.default_rng(seed))
+    df = record({c: columns[c] for c in [*cat.LOG_COLUMNS, *truth]}, extra, profile, DT_S, np.random.default_rng(seed))
 
     meta = {
         "point": point.id,
-        "status_point": {"alt_ft": point.alt_ft, "mach": point.mach, "flap_deg": point.flap_deg,
-                         "gear": "down" if point.gear_down else "up", "weight_lb": point.weight_lb},
+        "status_point": {
+            "alt_ft": point.alt_ft,
+            "mach": point.mach,
+            "flap_deg": point.flap_deg,
+            "gear": "down" if point.gear_down else "up",
+            "weight_lb": point.weight_lb,
+        },
         "maneuver": maneuver.name,
         "maneuver_params": {k: v for k, v in vars(maneuver).items() if not isinstance(v, tuple)},
         "seed": seed,
@@ -549,16 +637,31 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
         "aircraft": config.aircraft.name,
         "aircraft_sha256": config.aircraft.sha256,
         "effects_sha256": config.aircraft.effects.sha256,
-        "inertia_slugft2": {"ixx": fdm["inertia/ixx-slugs_ft2"], "iyy": fdm["inertia/iyy-slugs_ft2"],
-                            "izz": fdm["inertia/izz-slugs_ft2"], "ixz": fdm["inertia/ixz-slugs_ft2"]},
-        "geometry": {"S_ft2": fdm["metrics/Sw-sqft"], "cbar_ft": fdm["metrics/cbarw-ft"],
-                     "b_ft": fdm["metrics/bw-ft"],
-                     "aerorp_x_in": fdm["metrics/aero-rp-x-in"], "aerorp_z_in": fdm["metrics/aero-rp-z-in"],
-                     "cg_x_in": fdm["inertia/cg-x-in"], "cg_z_in": fdm["inertia/cg-z-in"],
-                     "thrust_z_arm_ft": _thrust_arm_ft(fdm, config.aircraft)},
-        "trim": {"alpha_deg": tr.alpha_deg, "theta_deg": tr.theta_deg, "elevator_deg": tr.elevator_deg,
-                 "pitch_trim_norm": tr.pitch_trim_norm, "throttle": tr.throttle, "cl": tr.cl,
-                 "weight_lb": tr.weight_lb},
+        "inertia_slugft2": {
+            "ixx": fdm["inertia/ixx-slugs_ft2"],
+            "iyy": fdm["inertia/iyy-slugs_ft2"],
+            "izz": fdm["inertia/izz-slugs_ft2"],
+            "ixz": fdm["inertia/ixz-slugs_ft2"],
+        },
+        "geometry": {
+            "S_ft2": fdm["metrics/Sw-sqft"],
+            "cbar_ft": fdm["metrics/cbarw-ft"],
+            "b_ft": fdm["metrics/bw-ft"],
+            "aerorp_x_in": fdm["metrics/aero-rp-x-in"],
+            "aerorp_z_in": fdm["metrics/aero-rp-z-in"],
+            "cg_x_in": fdm["inertia/cg-x-in"],
+            "cg_z_in": fdm["inertia/cg-z-in"],
+            "thrust_z_arm_ft": _thrust_arm_ft(fdm, config.aircraft),
+        },
+        "trim": {
+            "alpha_deg": tr.alpha_deg,
+            "theta_deg": tr.theta_deg,
+            "elevator_deg": tr.elevator_deg,
+            "pitch_trim_norm": tr.pitch_trim_norm,
+            "throttle": tr.throttle,
+            "cl": tr.cl,
+            "weight_lb": tr.weight_lb,
+        },
         "stall_margin": margin,
         "amplitude_scale": scale,
         "hold": prog.hold,
@@ -576,8 +679,10 @@ def _check_envelope(rows: np.ndarray, idx: dict, tr: Trim) -> None:
         v = rows[:, idx[ch]]
         k = np.flatnonzero((v < lo) | (v > hi))
         if k.size:
-            raise TrimError(f"left the test envelope: {ch} {v[k[0]]:.1f} at t = {k[0] * DT_S:.1f} s "
-                            f"(allowed {lo:g}..{hi:g}; trimmed alpha {tr.alpha_deg:.1f} deg)")
+            raise TrimError(
+                f"left the test envelope: {ch} {v[k[0]]:.1f} at t = {k[0] * DT_S:.1f} s "
+                f"(allowed {lo:g}..{hi:g}; trimmed alpha {tr.alpha_deg:.1f} deg)"
+            )
 
 
 from identify.compat import EARTH_RATE  # noqa: E402  (JSBSim's planet rotates at the WGS84 rate)
@@ -586,7 +691,7 @@ from identify.compat import EARTH_RATE  # noqa: E402  (JSBSim's planet rotates a
 def _gravity(fdm) -> float:
     """Local effective gravity: gravitation less the Earth's centrifugal acceleration [ft/s^2]."""
     r = fdm["position/radius-to-vehicle-ft"] * np.cos(fdm["position/lat-geod-rad"])
-    return float(fdm["accelerations/gravity-ft_sec2"] - EARTH_RATE ** 2 * r * np.cos(fdm["position/lat-geod-rad"]))
+    return float(fdm["accelerations/gravity-ft_sec2"] - EARTH_RATE**2 * r * np.cos(fdm["position/lat-geod-rad"]))
 
 
 def _thrust_arm_ft(fdm, source: AircraftSource) -> float:

@@ -12,6 +12,7 @@ acquisition delay, scale and bias; then the anti-alias filter and resampling
 to the logging rate, then white noise. The recording never disturbs the flight;
 turbulence does, and the engine flies it (:mod:`campaign.simulation.turbulence`).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -34,8 +35,21 @@ CHANNEL_KEYS = {"noise", "bias", "scale", "lag_s", "delay_s", "position_ft"}
 #: Channels a sensor position changes (vanes and pitot on a boom, accelerometers off the CG).
 POSITIONED = ("alpha_deg", "beta_deg", "tas_kt", "ax_fps2", "ay_fps2", "az_fps2")
 #: Channels that may not be omitted: what eq. (1) and the states cannot do without.
-REQUIRED = ("t_s", "alt_ft", "tas_kt", "alpha_deg", "theta_deg", "q_dps", "ax_fps2", "az_fps2", "qbar_psf",
-            "thrust_lbf", "elevator_deg", "gear_norm", "mass_slug")
+REQUIRED = (
+    "t_s",
+    "alt_ft",
+    "tas_kt",
+    "alpha_deg",
+    "theta_deg",
+    "q_dps",
+    "ax_fps2",
+    "az_fps2",
+    "qbar_psf",
+    "thrust_lbf",
+    "elevator_deg",
+    "gear_norm",
+    "mass_slug",
+)
 #: Positions and set quantities are sampled, not filtered (a filter rings at a gear's end stops).
 SAMPLED = ("gear_norm", "flap_deg", "mass_slug", "xcg_in")
 D2R = np.pi / 180.0
@@ -98,10 +112,15 @@ class InstrumentProfile:
         return dict(self.sensors).get(channel, Sensor())
 
     def to_json(self) -> dict:
-        return {"name": self.name, "rate_hz": self.rate_hz, "omit": list(self.omit),
-                "turbulence": {"sigma_fps": self.sigma_fps},
-                "channels": {c: {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s).items()}
-                             for c, s in self.sensors}}
+        return {
+            "name": self.name,
+            "rate_hz": self.rate_hz,
+            "omit": list(self.omit),
+            "turbulence": {"sigma_fps": self.sigma_fps},
+            "channels": {
+                c: {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s).items()} for c, s in self.sensors
+            },
+        }
 
     @property
     def sha256(self) -> str:
@@ -116,8 +135,9 @@ def shipped() -> list[str]:
     return sorted(p.stem for p in SHIPPED.glob("*.toml"))
 
 
-def _num(path: str, where: str, value, lo: float | None = None, positive: bool = False,
-         hi: float | None = None) -> float:
+def _num(
+    path: str, where: str, value, lo: float | None = None, positive: bool = False, hi: float | None = None
+) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise UserError(f"{path}: {where}: expected a number, found {str(value)[:40]!r}")
     if positive and value <= 0:
@@ -130,8 +150,13 @@ def _num(path: str, where: str, value, lo: float | None = None, positive: bool =
 
 
 #: Per-channel keys: (lowest, highest) value, None where unbounded.
-SENSOR_BOUNDS = {"noise": (0.0, None), "bias": (None, None), "scale": SCALE_RANGE, "lag_s": (0.0, MAX_LAG_S),
-                 "delay_s": (0.0, MAX_DELAY_S)}
+SENSOR_BOUNDS = {
+    "noise": (0.0, None),
+    "bias": (None, None),
+    "scale": SCALE_RANGE,
+    "lag_s": (0.0, MAX_LAG_S),
+    "delay_s": (0.0, MAX_DELAY_S),
+}
 
 
 def _read(path: Path, seen: tuple[str, ...] = ()) -> dict:
@@ -181,8 +206,10 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
     if rate is not None:
         rate = _num(ps, "rate_hz", rate, positive=True)
         if not MIN_RATE_HZ <= rate <= SIM_RATE_HZ:
-            raise UserError(f"{ps}: rate_hz: {rate:g} Hz is outside {MIN_RATE_HZ:g}..{SIM_RATE_HZ:g} Hz (the "
-                            f"simulation runs at {SIM_RATE_HZ:g} Hz: a recorder logs at most that)")
+            raise UserError(
+                f"{ps}: rate_hz: {rate:g} Hz is outside {MIN_RATE_HZ:g}..{SIM_RATE_HZ:g} Hz (the "
+                f"simulation runs at {SIM_RATE_HZ:g} Hz: a recorder logs at most that)"
+            )
     omit = doc.get("omit", [])
     if not isinstance(omit, list) or not all(isinstance(c, str) for c in omit):
         raise UserError(f"{ps}: omit: expected a list of log channels")
@@ -210,14 +237,18 @@ def load_profile(spec: str | Path) -> InstrumentProfile:
         extra = sorted(set(spec_c) - CHANNEL_KEYS)
         if extra:
             raise UserError(f"{ps}: {where}.{extra[0]}: unknown key (allowed: {', '.join(sorted(CHANNEL_KEYS))})")
-        kw = {k: _num(ps, f"{where}.{k}", spec_c[k], *SENSOR_BOUNDS[k][:1], hi=SENSOR_BOUNDS[k][1])
-              for k in SENSOR_BOUNDS if k in spec_c}
+        kw = {
+            k: _num(ps, f"{where}.{k}", spec_c[k], *SENSOR_BOUNDS[k][:1], hi=SENSOR_BOUNDS[k][1])
+            for k in SENSOR_BOUNDS
+            if k in spec_c
+        }
         if "position_ft" in spec_c:
             pos = spec_c["position_ft"]
             if not isinstance(pos, list) or len(pos) != 3:
                 raise UserError(f"{ps}: {where}.position_ft: expected [x, y, z] in feet")
-            kw["position_ft"] = tuple(_num(ps, f"{where}.position_ft", v, -MAX_POSITION_FT, hi=MAX_POSITION_FT)
-                                      for v in pos)
+            kw["position_ft"] = tuple(
+                _num(ps, f"{where}.position_ft", v, -MAX_POSITION_FT, hi=MAX_POSITION_FT) for v in pos
+            )
             if any(kw["position_ft"]) and c not in POSITIONED:
                 raise UserError(f"{ps}: {where}.position_ft: a position applies only to {', '.join(POSITIONED)}")
         s = Sensor(**kw)
@@ -245,7 +276,7 @@ def _at_position(df, extra, channel: str, r: tuple[float, float, float]) -> np.n
     u_s = v * np.cos(a) * np.cos(b) + q * z - rr * y
     v_s = v * np.sin(b) + rr * x - p * z
     w_s = v * np.sin(a) * np.cos(b) + p * y - q * x
-    vt = np.sqrt(u_s ** 2 + v_s ** 2 + w_s ** 2)
+    vt = np.sqrt(u_s**2 + v_s**2 + w_s**2)
     if channel == "alpha_deg":
         return np.arctan2(w_s, u_s) / D2R
     if channel == "beta_deg":
@@ -314,9 +345,10 @@ def record(df, extra, profile: InstrumentProfile, dt_s: float, rng: np.random.Ge
         t_old = out["t_s"].astype(float)
         filtered = [c for c in out if c not in SAMPLED and c != "t_s"]
         together = _resample(np.column_stack([out[c] for c in filtered]).astype(float), ratio)[:n]  # one design
-        out = {c: t_new if c == "t_s" else np.interp(t_new, t_old, x.astype(float)) if c in SAMPLED else x
-               for c, x in {**out, **dict(zip(filtered, together.T))}.items()}
+        out = {
+            c: t_new if c == "t_s" else np.interp(t_new, t_old, x.astype(float)) if c in SAMPLED else x
+            for c, x in {**out, **dict(zip(filtered, together.T))}.items()
+        }
     for c in sorted(c for c, s in profile.sensors if s.noise and c in out):
         out[c] = out[c] + rng.normal(0.0, profile.sensor(c).noise, len(out[c]))
     return pd.DataFrame({c: x for c, x in out.items() if c not in profile.omit})
-

@@ -1,4 +1,5 @@
 """The flight-test matrix (TOML) and its status points."""
+
 from __future__ import annotations
 
 import hashlib
@@ -57,8 +58,10 @@ class StatusPoint:
     @property
     def id(self) -> str:
         """Stable readable id, e.g. ``h02000_m0.30_f05_gdn``."""
-        pid = (f"h{int(round(self.alt_ft)):05d}_m{self.mach:.2f}_f{flap_label(self.flap_deg)}"
-               f"_g{'dn' if self.gear_down else 'up'}")
+        pid = (
+            f"h{int(round(self.alt_ft)):05d}_m{self.mach:.2f}_f{flap_label(self.flap_deg)}"
+            f"_g{'dn' if self.gear_down else 'up'}"
+        )
         if self.weight_lb is not None:
             pid += f"_w{int(round(self.weight_lb)):06d}"
         return pid
@@ -89,7 +92,9 @@ class Matrix:
 
     def to_json(self) -> dict:
         return {
-            "path": self.path, "name": self.name, "sha256": self.sha256,
+            "path": self.path,
+            "name": self.name,
+            "sha256": self.sha256,
             "points": [p.id for p in self.points],
             "maneuvers": {m: dict(p) for m, p in self.maneuver_params},
             "clmax_by_flap": {f"{f:g}": c for f, c in self.clmax_by_flap},
@@ -155,8 +160,10 @@ def _maneuver_list(path: str, where: str, value) -> tuple[str, ...]:
         if name not in MANEUVERS:
             raise UserError(f"{path}: {where}: unknown manoeuvre {name!r} (known: {', '.join(MANEUVERS)})")
     if {"doublet", "multisine"} <= set(value):
-        raise UserError(f"{path}: {where}: doublet and multisine both fit eq. (3) at the point; fly one of them "
-                        f"per point (identification pairs one fit per gear)")
+        raise UserError(
+            f"{path}: {where}: doublet and multisine both fit eq. (3) at the point; fly one of them "
+            f"per point (identification pairs one fit per gear)"
+        )
     return tuple(value)
 
 
@@ -184,13 +191,16 @@ def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
             raise UserError(f"{ps}: {key}: expected a table [{key}]")
     title = doc.get("name", p.stem)
     if not isinstance(title, str) or not re.fullmatch(r"[^./\\\x00-\x1f][^/\\\x00-\x1f]{0,99}", title):
-        raise UserError(f"{ps}: name: {str(title)[:40]!r} is not a folder name (the default results folder is "
-                        f"results/<name>: no '/', no leading '.', at most 100 characters)")
+        raise UserError(
+            f"{ps}: name: {str(title)[:40]!r} is not a folder name (the default results folder is "
+            f"results/<name>: no '/', no leading '.', at most 100 characters)"
+        )
     defaults = doc.get("defaults", {})
     _unknown(ps, "defaults.", defaults.keys(), DEFAULT_KEYS)
     man_up = _maneuver_list(ps, "defaults.maneuvers_gear_up", defaults.get("maneuvers_gear_up", ["doublet"]))
-    man_dn = _maneuver_list(ps, "defaults.maneuvers_gear_down",
-                            defaults.get("maneuvers_gear_down", ["doublet", "gear_extension"]))
+    man_dn = _maneuver_list(
+        ps, "defaults.maneuvers_gear_down", defaults.get("maneuvers_gear_down", ["doublet", "gear_extension"])
+    )
     weight0 = defaults.get("weight_lb")
     if weight0 is not None:
         weight0 = _weight(ps, "defaults.weight_lb", weight0)
@@ -214,11 +224,13 @@ def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
                 if x < 0 and k not in SIGNED:
                     raise UserError(f"{ps}: maneuvers.{name}.{k}: must be >= 0, found {v!r}")
                 if k.endswith("_s") and x > MAX_DURATION_S:
-                    raise UserError(f"{ps}: maneuvers.{name}.{k}: {x:g} s is longer than a manoeuvre's "
-                                    f"{MAX_DURATION_S:g} s")
+                    raise UserError(
+                        f"{ps}: maneuvers.{name}.{k}: {x:g} s is longer than a manoeuvre's {MAX_DURATION_S:g} s"
+                    )
                 items.append((k, x))
         try:
             from maneuvers.library import make_maneuver
+
             make_maneuver(name, **dict(items))
         except ValueError as exc:
             raise UserError(f"{ps}: maneuvers.{name}: {exc}") from None
@@ -255,7 +267,7 @@ def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
                 raise UserError(f"{ps}: {where}.{key}: missing")
         gear = e["gear"]
         if gear not in ("up", "down"):
-            raise UserError(f"{ps}: {where}.gear: expected \"up\" or \"down\", found {gear!r}")
+            raise UserError(f'{ps}: {where}.gear: expected "up" or "down", found {gear!r}')
         flap = _number(ps, f"{where}.flap_deg", e["flap_deg"])
         if not -90.0 <= flap <= 90.0:
             raise UserError(f"{ps}: {where}.flap_deg: {flap:g} is not a flap angle in degrees")
@@ -272,8 +284,11 @@ def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
         weight = e.get("weight_lb", weight0)
         if weight is not None:
             weight = _weight(ps, f"{where}.weight_lb", weight)
-        mans = (_maneuver_list(ps, f"{where}.maneuvers", e["maneuvers"]) if "maneuvers" in e
-                else (man_dn if gear == "down" else man_up))
+        mans = (
+            _maneuver_list(ps, f"{where}.maneuvers", e["maneuvers"])
+            if "maneuvers" in e
+            else (man_dn if gear == "down" else man_up)
+        )
         for m in machs:
             for a in alts:
                 points.append(StatusPoint(a, m, flap, gear == "down", weight, mans, where))
@@ -281,5 +296,6 @@ def load_matrix(path: str | Path | None = None) -> Matrix:  # noqa: C901
     dup = sorted({x for x in ids if ids.count(x) > 1})
     if dup:
         raise UserError(f"{ps}: points: status point {dup[0]} appears twice")
-    return Matrix(str(p.resolve()), title, tuple(points), tuple(params),
-                  tuple(sorted(clmax)), hashlib.sha256(raw).hexdigest())
+    return Matrix(
+        str(p.resolve()), title, tuple(points), tuple(params), tuple(sorted(clmax)), hashlib.sha256(raw).hexdigest()
+    )

@@ -35,6 +35,7 @@ the wind at the first sample carries the vanes' noise (about 0.5 ft/s at 3 ft/s 
 flight-test profile), which the trim turns into a thrust and an angle-of-attack error; a steady error of
 the air data is flown as a steady wind.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -168,11 +169,24 @@ def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
     w0 = (0.0, 0.0, 0.0) if wind is None else tuple(float(v) for v in np.asarray(wind, dtype=float)[0])
     mass = col("mass_slug")
     refs = [col(c)[quiet] for c in ("elevator_deg", "stabilizer_deg", "thrust_lbf")]
-    spread = tuple(max(float(np.std(r)), noise_level(col(c))) for r, c in zip(refs, ("elevator_deg", "stabilizer_deg",
-                                                                                        "thrust_lbf")))
-    return Start(alt, tas, mach, float(gamma), float(np.mean(col("alpha_deg")[t <= STATE_FIT_S])),
-                 round(float(np.mean(col("flap_deg")[quiet])), 3), float(round(float(col("gear_norm")[0]))),
-                 float(np.mean(mass[quiet])) * G0, *(float(np.mean(r)) for r in refs), spread, w0, head)
+    spread = tuple(
+        max(float(np.std(r)), noise_level(col(c)))
+        for r, c in zip(refs, ("elevator_deg", "stabilizer_deg", "thrust_lbf"))
+    )
+    return Start(
+        alt,
+        tas,
+        mach,
+        float(gamma),
+        float(np.mean(col("alpha_deg")[t <= STATE_FIT_S])),
+        round(float(np.mean(col("flap_deg")[quiet])), 3),
+        float(round(float(col("gear_norm")[0]))),
+        float(np.mean(mass[quiet])) * G0,
+        *(float(np.mean(r)) for r in refs),
+        spread,
+        w0,
+        head,
+    )
 
 
 def measured_inputs(data: pd.DataFrame, start: Start, wind: np.ndarray | None = None) -> Inputs:
@@ -182,15 +196,19 @@ def measured_inputs(data: pd.DataFrame, start: Start, wind: np.ndarray | None = 
     moving = np.flatnonzero(np.abs(g - g0) > 1e-6)
     gear_cmd = np.full(len(g), float(g0))
     if moving.size:  # the command set before step k moves the gear in row k
-        gear_cmd[moving[0]:] = round(float(g[-1]))
+        gear_cmd[moving[0] :] = round(float(g[-1]))
 
     def offsets(name: str, ref: float) -> tuple:
         return tuple(data[name].to_numpy(dtype=float) - ref) if name in data else (0.0,) * len(g)
 
-    return Inputs(float(np.median(np.diff(data["t_s"].to_numpy(dtype=float)))),
-                  offsets("elevator_deg", start.elevator_deg), offsets("stabilizer_deg", start.stabilizer_deg),
-                  offsets("thrust_lbf", start.thrust_lbf), tuple(gear_cmd),
-                  None if wind is None else tuple(map(tuple, np.asarray(wind, dtype=float))))
+    return Inputs(
+        float(np.median(np.diff(data["t_s"].to_numpy(dtype=float)))),
+        offsets("elevator_deg", start.elevator_deg),
+        offsets("stabilizer_deg", start.stabilizer_deg),
+        offsets("thrust_lbf", start.thrust_lbf),
+        tuple(gear_cmd),
+        None if wind is None else tuple(map(tuple, np.asarray(wind, dtype=float))),
+    )
 
 
 # ---- the aircraft: engines or a thrust force ------------------------------------------------------------
@@ -213,8 +231,10 @@ def thrust_kind(source: AircraftSource) -> str:
         return "engines"
     if any(f.get("name") == MODEL_FORCE for f in root.findall("external_reactions/force")):
         return "force"
-    raise ReplayError(f"aircraft {source.name} has no engine and no external force '{MODEL_FORCE}': nothing "
-                      "to fly the measured thrust with")
+    raise ReplayError(
+        f"aircraft {source.name} has no engine and no external force '{MODEL_FORCE}': nothing "
+        "to fly the measured thrust with"
+    )
 
 
 def flying_source(source: AircraftSource) -> tuple[str, AircraftSource]:
@@ -256,15 +276,26 @@ def flying_source(source: AircraftSource) -> tuple[str, AircraftSource]:
 # ---- flying ----------------------------------------------------------------------------------------------
 
 #: Log column -> (JSBSim property, scale) of what a replay records.
-RECORDED = {"alt_ft": ("atmosphere/pressure-altitude", 1.0), "tas_kt": ("velocities/vtrue-kts", 1.0),
-            "mach": ("velocities/mach", 1.0), "alpha_deg": ("aero/alpha-deg", 1.0),
-            "beta_deg": ("aero/beta-deg", 1.0), "theta_deg": ("attitude/theta-deg", 1.0),
-            "phi_deg": ("attitude/phi-deg", 1.0), "psi_deg": ("attitude/psi-deg", 1.0),
-            "p_dps": ("velocities/pi-rad_sec", R2D), "q_dps": ("velocities/qi-rad_sec", R2D),
-            "r_dps": ("velocities/ri-rad_sec", R2D), "elevator_deg": ("fcs/elevator-pos-rad", R2D),
-            "gear_norm": ("gear/gear-pos-norm", 1.0), "flap_deg": ("fcs/flap-pos-deg", 1.0),
-            "vn_fps": ("velocities/v-north-fps", 1.0), "ve_fps": ("velocities/v-east-fps", 1.0),
-            "vd_fps": ("velocities/v-down-fps", 1.0), "mass_slug": ("inertia/mass-slugs", 1.0)}
+RECORDED = {
+    "alt_ft": ("atmosphere/pressure-altitude", 1.0),
+    "tas_kt": ("velocities/vtrue-kts", 1.0),
+    "mach": ("velocities/mach", 1.0),
+    "alpha_deg": ("aero/alpha-deg", 1.0),
+    "beta_deg": ("aero/beta-deg", 1.0),
+    "theta_deg": ("attitude/theta-deg", 1.0),
+    "phi_deg": ("attitude/phi-deg", 1.0),
+    "psi_deg": ("attitude/psi-deg", 1.0),
+    "p_dps": ("velocities/pi-rad_sec", R2D),
+    "q_dps": ("velocities/qi-rad_sec", R2D),
+    "r_dps": ("velocities/ri-rad_sec", R2D),
+    "elevator_deg": ("fcs/elevator-pos-rad", R2D),
+    "gear_norm": ("gear/gear-pos-norm", 1.0),
+    "flap_deg": ("fcs/flap-pos-deg", 1.0),
+    "vn_fps": ("velocities/v-north-fps", 1.0),
+    "ve_fps": ("velocities/v-east-fps", 1.0),
+    "vd_fps": ("velocities/v-down-fps", 1.0),
+    "mass_slug": ("inertia/mass-slugs", 1.0),
+}
 STABILIZER = "fcs/stabilizer-pos-deg"
 
 
@@ -273,17 +304,23 @@ def _on_step(inputs: Inputs, dt: float) -> tuple[np.ndarray, ...]:
     t_rec = np.arange(len(inputs.elevator_deg)) * inputs.dt_s
     t_sim = np.arange(int(round(t_rec[-1] / dt)) + 1) * dt
     held = np.searchsorted(t_rec, t_sim + 1e-9 * dt, side="right") - 1
-    out = [np.interp(t_sim, t_rec, np.asarray(s, dtype=float)) for s in
-           (inputs.elevator_deg, inputs.stabilizer_deg, inputs.thrust_lbf)]
+    out = [
+        np.interp(t_sim, t_rec, np.asarray(s, dtype=float))
+        for s in (inputs.elevator_deg, inputs.stabilizer_deg, inputs.thrust_lbf)
+    ]
     out.append(np.asarray(inputs.gear_cmd, dtype=float)[held])
-    w = (np.zeros((len(t_sim), 3)) if inputs.wind_fps is None else
-         np.column_stack([np.interp(t_sim, t_rec, c) for c in np.asarray(inputs.wind_fps, dtype=float).T]))
+    w = (
+        np.zeros((len(t_sim), 3))
+        if inputs.wind_fps is None
+        else np.column_stack([np.interp(t_sim, t_rec, c) for c in np.asarray(inputs.wind_fps, dtype=float).T])
+    )
     return (*out, w)
 
 
 def _model_pitch_control(source: AircraftSource) -> str:
     """The surface a ``campaign model`` aircraft trims with (its ``model.json``), else the elevator."""
     import json
+
     try:
         trims = json.loads((Path(source.folder) / "model.json").read_text()).get("trims", [])
         return next(t["pitch_control"] for t in trims if "pitch_control" in t)
@@ -308,19 +345,26 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
     """
     from campaign.errors import UserError
     from campaign.simulation.engine import DT_S, TrimError, elevator_gain_deg, new_fdm, stabilizer_gain_deg, trimmed_fdm
+
     kind, src = flying_source(source)
     de, dh, dthrust, gear, wind = _on_step(inputs, DT_S)
     try:
         if kind == "engines":
             point = StatusPoint(start.alt_ft, start.mach, start.flap_deg, start.gear_norm == 1.0, start.weight_lb)
             try:
-                fdm, names, *_, tr = trimmed_fdm(src, point, start.gear_norm, np.asarray(start.wind_fps)
-                                                 if any(start.wind_fps) else None, gamma_deg=start.gamma_deg)
+                fdm, names, *_, tr = trimmed_fdm(
+                    src,
+                    point,
+                    start.gear_norm,
+                    np.asarray(start.wind_fps) if any(start.wind_fps) else None,
+                    gamma_deg=start.gamma_deg,
+                )
             except TrimError:  # JSBSim's trim in a gust fails near its alpha limits: then in the horizontal wind
                 if not start.wind_fps[2]:
                     raise
-                fdm, names, *_, tr = trimmed_fdm(src, point, start.gear_norm, np.array([*start.wind_fps[:2], 0.0]),
-                                                 gamma_deg=start.gamma_deg)
+                fdm, names, *_, tr = trimmed_fdm(
+                    src, point, start.gear_norm, np.array([*start.wind_fps[:2], 0.0]), gamma_deg=start.gamma_deg
+                )
             de_gain, dh_gain = elevator_gain_deg(src), stabilizer_gain_deg(src)
             e0, h0 = tr.elevator_cmd_norm, tr.pitch_trim_norm
             force_prop = f"external_reactions/{ADDED_FORCE}/magnitude"
@@ -333,8 +377,9 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
         raise ReplayError(f"no trim at the log's start ({start.alt_ft:.0f} ft, {start.tas_kt:.1f} kt): {exc}") from None
     pm = fdm.get_property_manager()
     node = lambda p: pm.get_node(p, False)  # noqa: E731
-    elev, stab, gcmd, force = (node(p) for p in ("fcs/elevator-cmd-norm", "fcs/pitch-trim-cmd-norm",
-                                                   "gear/gear-cmd-norm", force_prop))
+    elev, stab, gcmd, force = (
+        node(p) for p in ("fcs/elevator-cmd-norm", "fcs/pitch-trim-cmd-norm", "gear/gear-cmd-norm", force_prop)
+    )
     prop = node("forces/fbx-prop-lbs") if kind == "engines" else None
     gusts = [node(p) for p in GUSTS]
     names = list(RECORDED) + (["stabilizer_deg"] if node(STABILIZER) is not None else [])
@@ -367,8 +412,11 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
             engines = prop.get_double_value()
         thrust[k] = engines + force.get_double_value()
         a, th = rows[k, i_alpha], rows[k, i_theta]
-        if not (np.isfinite(a) and ENVELOPE["alpha_deg"][0] < a < ENVELOPE["alpha_deg"][1]
-                and ENVELOPE["theta_deg"][0] < th < ENVELOPE["theta_deg"][1]):
+        if not (
+            np.isfinite(a)
+            and ENVELOPE["alpha_deg"][0] < a < ENVELOPE["alpha_deg"][1]
+            and ENVELOPE["theta_deg"][0] < th < ENVELOPE["theta_deg"][1]
+        ):
             raise ReplayError(f"the replay diverged at t = {k * DT_S:.1f} s (alpha {a:.1f} deg, pitch {th:.1f} deg)")
     out = pd.DataFrame(rows * scale, columns=names)
     if "stabilizer_deg" not in out:
@@ -387,14 +435,26 @@ def _trim_force_aircraft(src: AircraftSource, start: Start, new_fdm):
     from campaign.errors import UserError
     from campaign.modelling.trim import ModelTrimError, _ranges, trim_model
     from campaign.simulation.engine import TrimError
+
     fdm = new_fdm(src)
     per_cmd = _ranges(fdm)
     for p, v in zip(GUSTS, start.wind_fps):
         fdm[p] = v
     try:
-        trim_model(fdm, start.alt_ft, start.tas_kt, start.gamma_deg, start.flap_deg, start.gear_norm,
-                   start.elevator_deg, start.stabilizer_deg, start.thrust_lbf, start.alpha_deg, start.weight_lb,
-                   _model_pitch_control(src))
+        trim_model(
+            fdm,
+            start.alt_ft,
+            start.tas_kt,
+            start.gamma_deg,
+            start.flap_deg,
+            start.gear_norm,
+            start.elevator_deg,
+            start.stabilizer_deg,
+            start.thrust_lbf,
+            start.alpha_deg,
+            start.weight_lb,
+            _model_pitch_control(src),
+        )
     except (ModelTrimError, UserError) as exc:
         raise TrimError(str(exc)) from None
     return fdm, per_cmd["elevator"], per_cmd["stabilizer"], fdm["fcs/elevator-cmd-norm"], fdm["fcs/pitch-trim-cmd-norm"]

@@ -11,6 +11,7 @@ JSBSim through ``atmosphere/gust-north/east/down-fps``. JSBSim has no input for
 the rotational gust terms of its own generator (p, q, r from the gust
 gradients); they are left out.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,8 +36,9 @@ def scales(h_ft: float, sigma_w_fps: float) -> tuple[float, float, float]:
     return length, length, low_su + f * (sigma_w_fps - low_su)
 
 
-def dryden_gusts(n: int, dt_s: float, v_fps: float, h_ft: float, sigma_w_fps: float,
-                 rng: np.random.Generator) -> np.ndarray:
+def dryden_gusts(
+    n: int, dt_s: float, v_fps: float, h_ft: float, sigma_w_fps: float, rng: np.random.Generator
+) -> np.ndarray:
     """Longitudinal, lateral and vertical gust velocities [ft/s], ``n`` steps of ``dt_s``.
 
     First-order recursions ``x[k] = a x[k-1] + b nu[k]`` with ``a = 1 - c dt V / L``

@@ -6,6 +6,7 @@ data files, instrument profiles, effect overlays and command lines. :func:`make_
 case's files into a folder of its own; :func:`attempt` runs the CLI's ``main()`` in this process on it.
 ``benchmarks/bad_input_sweep.py`` runs a thousand and more; the test suite a few dozen.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -28,11 +29,29 @@ flap_deg = 0
 mach = 0.3
 alt_ft = 2000
 """
-OVERLAY = ('<effects><axis name="DRAG"><function name="aero/sweep-extra"><product><property>aero/qbar-psf'
-           '</property><value>0.0001</value></product></function></axis></effects>\n')
+OVERLAY = (
+    '<effects><axis name="DRAG"><function name="aero/sweep-extra"><product><property>aero/qbar-psf'
+    "</property><value>0.0001</value></product></function></axis></effects>\n"
+)
 #: The columns of the HFB-320 record the shipped map reads (index, name).
-MAPPED = ((0, "t"), (1, "de"), (2, "qbar"), (3, "Fe"), (4, "V"), (5, "alpha"), (6, "theta"), (7, "q"), (8, "qdot"),
-          (9, "ax"), (10, "az"), (11, "ay"), (12, "p"), (13, "r"), (16, "beta"), (17, "phi"))
+MAPPED = (
+    (0, "t"),
+    (1, "de"),
+    (2, "qbar"),
+    (3, "Fe"),
+    (4, "V"),
+    (5, "alpha"),
+    (6, "theta"),
+    (7, "q"),
+    (8, "qdot"),
+    (9, "ax"),
+    (10, "az"),
+    (11, "ay"),
+    (12, "p"),
+    (13, "r"),
+    (16, "beta"),
+    (17, "phi"),
+)
 
 
 @dataclass(frozen=True)
@@ -78,14 +97,20 @@ def _matrix(rng: random.Random, d: Path, ctx: dict) -> Case:
         ("flap_deg", "flap_deg = 0", lambda: c([num("bad", "huge", "text"), f"{rng.uniform(91, 500):.1f}", "45"])),
         ("gear", 'gear = "up"', lambda: c(["'sideways'", "1", "true", "''", "'UP'"])),
         ("weight_lb", None, lambda: c([num("bad", "neg", "huge", "text"), "0", f"{rng.uniform(1, 99):.1f}"])),
-        ("maneuvers", None, lambda: c(["[]", "['loop']", "['doublet', 'doublet']", "'doublet'", "[1]",
-                                       "['doublet', 'multisine']"])),
+        (
+            "maneuvers",
+            None,
+            lambda: c(["[]", "['loop']", "['doublet', 'doublet']", "'doublet'", "[1]", "['doublet', 'multisine']"]),
+        ),
         ("maneuvers_gear_up", "", lambda: c(["[]", "['loop']", "'doublet'"])),
         ("tail_s", "tail_s = 1.0", lambda: c([num("bad", "neg", "huge", "text"), "0", f"{rng.uniform(601, 1e5):.0f}"])),
         ("amplitude_deg", "", lambda: c([num("bad", "neg", "text"), "0", f"{rng.uniform(10.5, 90):.1f}"])),
         ("turn_s", "", lambda: c([num("bad", "neg", "text"), "0", f"{rng.uniform(601, 1e5):.0f}"])),
-        ("clmax_by_flap", "", lambda: c(["0 = -1", "0 = nan", "0 = 'x'", f"0 = {rng.uniform(5.1, 99):.2f}", "x = 1.4",
-                                          "0 = 0"])),
+        (
+            "clmax_by_flap",
+            "",
+            lambda: c(["0 = -1", "0 = nan", "0 = 'x'", f"0 = {rng.uniform(5.1, 99):.2f}", "x = 1.4", "0 = 0"]),
+        ),
         ("colour", "", lambda: str(rng.randint(0, 9))),
         ("name", 'name = "sweep"', lambda: c(["'../x'", "''", "5", "'/abs'", "'.hidden'"])),
         ("TOML", "[[points]]", lambda: c(["[[points]", "[[points]]]", "[[points"])),
@@ -130,20 +155,54 @@ def _map(rng: random.Random, d: Path, ctx: dict) -> Case:
 
     key = c(list(_UNIT))
     edits = [
-        (f"aircraft.{key}", "map", lambda: _set_aircraft(base, key, c([
-            num("bad", "neg", "text"), "0", f"'-{rng.uniform(1, 5e3):.1f} {_UNIT[key]}'", f"{rng.uniform(2e9, 9e12):.3g}"]))),
-        ("constants.mass_slug", "map", lambda: base.replace('mass_slug = "7472 kg"', "mass_slug = " + c(
-            [num("bad", "neg"), "'-7472 kg'", "'7472 m'"]))),
-        ("channels.alpha_deg", "map", lambda: base.replace('alpha_deg = "alpha rad"', "alpha_deg = " + c(
-            ["'alpha furlong'", "'alpha'", "5", "''", "'alpha kg'"]))),
+        (
+            f"aircraft.{key}",
+            "map",
+            lambda: _set_aircraft(
+                base,
+                key,
+                c(
+                    [
+                        num("bad", "neg", "text"),
+                        "0",
+                        f"'-{rng.uniform(1, 5e3):.1f} {_UNIT[key]}'",
+                        f"{rng.uniform(2e9, 9e12):.3g}",
+                    ]
+                ),
+            ),
+        ),
+        (
+            "constants.mass_slug",
+            "map",
+            lambda: base.replace(
+                'mass_slug = "7472 kg"', "mass_slug = " + c([num("bad", "neg"), "'-7472 kg'", "'7472 m'"])
+            ),
+        ),
+        (
+            "channels.alpha_deg",
+            "map",
+            lambda: base.replace(
+                'alpha_deg = "alpha rad"', "alpha_deg = " + c(["'alpha furlong'", "'alpha'", "5", "''", "'alpha kg'"])
+            ),
+        ),
         ("channels.alpha_deg", "data", lambda: base.replace('alpha_deg = "alpha rad"', "alpha_deg = 'qbar rad'")),
-        ("time.unit", "map", lambda: base.replace('unit = "s"', "unit = " + c(["'h'", "'us'", "'kg'", "'furlong'", "'ns'",
-                                                                              "'day'"]))),
+        (
+            "time.unit",
+            "map",
+            lambda: base.replace('unit = "s"', "unit = " + c(["'h'", "'us'", "'kg'", "'furlong'", "'ns'", "'day'"])),
+        ),
         ("time.column", "data", lambda: base.replace('column = "t"', "column = " + c(["'nosuch'", "'T'", "'time'"]))),
-        ("positions.alpha_deg", "map", lambda: base + f"\n[positions]\nalpha_deg = [{rng.uniform(501, 1e6):.1f}, 0, 0]\n"),
+        (
+            "positions.alpha_deg",
+            "map",
+            lambda: base + f"\n[positions]\nalpha_deg = [{rng.uniform(501, 1e6):.1f}, 0, 0]\n",
+        ),
         ("positions.q_dps", "map", lambda: base + "\n[positions]\nq_dps = [1.0, 0, 0]\n"),
-        ("source.format", "map", lambda: base.replace('format = "whitespace"', "format = " + c(["'xlsx'", "'hdf5'",
-                                                                                               "'CSV'"]))),
+        (
+            "source.format",
+            "map",
+            lambda: base.replace('format = "whitespace"', "format = " + c(["'xlsx'", "'hdf5'", "'CSV'"])),
+        ),
         ("colour", "map", lambda: base + f"\n[colour]\nred = {rng.randint(0, 9)}\n"),
     ]
     field, names, make = c(edits)
@@ -176,10 +235,10 @@ def _data(rng: random.Random, d: Path, ctx: dict) -> Case:
         needle = "time"
     elif pick == 2:  # a gap
         i = rng.randrange(20, len(rows) - 40)
-        del rows[i:i + rng.randint(5, 30)]
+        del rows[i : i + rng.randint(5, 30)]
         needle = "gap"
     elif pick == 3:
-        rows = rows[:rng.randint(1, 9)]
+        rows = rows[: rng.randint(1, 9)]
         needle = "rows"
     elif pick == 4:  # alpha in degrees where the map says radians
         for r in rows:
@@ -213,22 +272,63 @@ def _profile(rng: random.Random, d: Path, ctx: dict) -> Case:
         return _num(rng, c(kinds))
 
     edits = [
-        ("rate_hz", lambda: "rate_hz = " + c([num("bad", "neg", "huge", "text"), "0", f"{rng.uniform(120.5, 1e5):.1f}",
-                                               f"{rng.uniform(0.001, 4.9):.3f}"])),
-        (f"channels.{ch}.scale", lambda: f"[channels.{ch}]\nscale = " + c(
-            [num("bad", "neg", "huge", "text"), "0", f"{rng.uniform(2.01, 100):.2f}", f"{rng.uniform(0.0, 0.49):.3f}"])),
-        (f"channels.{ch}.delay_s", lambda: f"[channels.{ch}]\ndelay_s = " + c(
-            [num("bad", "neg", "huge", "text"), f"{rng.uniform(5.1, 1e7):.1f}"])),
-        (f"channels.{ch}.lag_s", lambda: f"[channels.{ch}]\nlag_s = " + c(
-            [num("bad", "neg", "huge", "text"), f"{rng.uniform(5.1, 1e7):.1f}"])),
+        (
+            "rate_hz",
+            lambda: (
+                "rate_hz = "
+                + c(
+                    [
+                        num("bad", "neg", "huge", "text"),
+                        "0",
+                        f"{rng.uniform(120.5, 1e5):.1f}",
+                        f"{rng.uniform(0.001, 4.9):.3f}",
+                    ]
+                )
+            ),
+        ),
+        (
+            f"channels.{ch}.scale",
+            lambda: (
+                f"[channels.{ch}]\nscale = "
+                + c(
+                    [
+                        num("bad", "neg", "huge", "text"),
+                        "0",
+                        f"{rng.uniform(2.01, 100):.2f}",
+                        f"{rng.uniform(0.0, 0.49):.3f}",
+                    ]
+                )
+            ),
+        ),
+        (
+            f"channels.{ch}.delay_s",
+            lambda: (
+                f"[channels.{ch}]\ndelay_s = " + c([num("bad", "neg", "huge", "text"), f"{rng.uniform(5.1, 1e7):.1f}"])
+            ),
+        ),
+        (
+            f"channels.{ch}.lag_s",
+            lambda: (
+                f"[channels.{ch}]\nlag_s = " + c([num("bad", "neg", "huge", "text"), f"{rng.uniform(5.1, 1e7):.1f}"])
+            ),
+        ),
         (f"channels.{ch}.noise", lambda: f"[channels.{ch}]\nnoise = " + num("bad", "neg", "text")),
         (f"channels.{ch}.bias", lambda: f"[channels.{ch}]\nbias = " + num("bad", "text")),
-        ("position_ft", lambda: "[channels.alpha_deg]\nposition_ft = " + c(
-            [f"[{rng.uniform(501, 1e9):.1f}, 0, 0]", "[1, 2]", "'nose'", "[nan, 0, 0]"])),
+        (
+            "position_ft",
+            lambda: (
+                "[channels.alpha_deg]\nposition_ft = "
+                + c([f"[{rng.uniform(501, 1e9):.1f}, 0, 0]", "[1, 2]", "'nose'", "[nan, 0, 0]"])
+            ),
+        ),
         ("position_ft", lambda: "[channels.q_dps]\nposition_ft = [1.0, 0, 0]"),
         ("omit", lambda: "omit = " + c(["['alpha_deg']", "['nosuch']", "'qdot_dps2'", "[1]", "['t_s']"])),
-        ("sigma_fps", lambda: "[turbulence]\nsigma_fps = " + c([num("bad", "neg", "huge", "text"),
-                                                                f"{rng.uniform(30.5, 1e4):.1f}"])),
+        (
+            "sigma_fps",
+            lambda: (
+                "[turbulence]\nsigma_fps = " + c([num("bad", "neg", "huge", "text"), f"{rng.uniform(30.5, 1e4):.1f}"])
+            ),
+        ),
         ("alpha_vane", lambda: "[channels.alpha_vane]\nnoise = 0.1"),
         ("extends", lambda: "extends = " + c(["'wind-tunnel'", "'flight_test'", "''", "'../none'"])),
         ("channels", lambda: "channels = 3"),
@@ -237,39 +337,78 @@ def _profile(rng: random.Random, d: Path, ctx: dict) -> Case:
     field, make = c(edits)
     parent = 'extends = "flight-test"\n' if rng.random() < 0.5 and field != "extends" else ""
     f = _write(d / "profile.toml", parent + make() + "\n")
-    return Case("profile", f"profile: {field.split('.')[-1]}", ("run", "--matrix", ctx["matrix"], "--instruments",
-                                                                str(f), "--out", str(d / "out"), "--quiet"),
-                ("profile.toml", field))
+    return Case(
+        "profile",
+        f"profile: {field.split('.')[-1]}",
+        ("run", "--matrix", ctx["matrix"], "--instruments", str(f), "--out", str(d / "out"), "--quiet"),
+        ("profile.toml", field),
+    )
 
 
 def _overlay(rng: random.Random, d: Path, ctx: dict) -> Case:
     fn = "aero/sweep-extra"
     edits = [
-        ("<value>", lambda: OVERLAY.replace(">0.0001<", f">{rng.choice(['nan', 'inf', '-inf', '1e400', 'abc', '', '0x10', '1,5', f'{rng.uniform(1, 9):.2f}e{rng.randint(309, 999)}'])}<")),
-        ("reads", lambda: OVERLAY.replace(">aero/qbar-psf<", f">{rng.choice(['no/such/property', 'aero/qbar', 'fcs/flaps', f'aero/x{rng.randint(0, 999)}'])}<")),
+        (
+            "<value>",
+            lambda: OVERLAY.replace(
+                ">0.0001<",
+                f">{rng.choice(['nan', 'inf', '-inf', '1e400', 'abc', '', '0x10', '1,5', f'{rng.uniform(1, 9):.2f}e{rng.randint(309, 999)}'])}<",
+            ),
+        ),
+        (
+            "reads",
+            lambda: OVERLAY.replace(
+                ">aero/qbar-psf<",
+                f">{rng.choice(['no/such/property', 'aero/qbar', 'fcs/flaps', f'aero/x{rng.randint(0, 999)}'])}<",
+            ),
+        ),
         ("<property>", lambda: OVERLAY.replace(">aero/qbar-psf<", f">{rng.choice(['', 'aero/qbar psf', ' '])}<")),
-        ("already", lambda: OVERLAY.replace(fn, rng.choice(["fcs/elevator-pos-rad", "aero/qbar-psf", "velocities/mach",
-                                                            "aero/alpha-rad"]))),
-        ("<tableData>", lambda: OVERLAY.replace(
-            "<product><property>aero/qbar-psf</property><value>0.0001</value></product>",
-            f"<table><independentVar>aero/alpha-rad</independentVar><tableData>0 0.001\n"
-            f"{rng.choice(['0.1 nan', 'abc 0.002', '0.1 1e400', '0.1 inf'])}</tableData></table>")),
-        ("reads", lambda: OVERLAY.replace(
-            "<product><property>aero/qbar-psf</property><value>0.0001</value></product>",
-            "<table><independentVar>aero/nosuch-rad</independentVar><tableData>0 0.001\n0.1 0.002</tableData></table>")),
+        (
+            "already",
+            lambda: OVERLAY.replace(
+                fn, rng.choice(["fcs/elevator-pos-rad", "aero/qbar-psf", "velocities/mach", "aero/alpha-rad"])
+            ),
+        ),
+        (
+            "<tableData>",
+            lambda: OVERLAY.replace(
+                "<product><property>aero/qbar-psf</property><value>0.0001</value></product>",
+                f"<table><independentVar>aero/alpha-rad</independentVar><tableData>0 0.001\n"
+                f"{rng.choice(['0.1 nan', 'abc 0.002', '0.1 1e400', '0.1 inf'])}</tableData></table>",
+            ),
+        ),
+        (
+            "reads",
+            lambda: OVERLAY.replace(
+                "<product><property>aero/qbar-psf</property><value>0.0001</value></product>",
+                "<table><independentVar>aero/nosuch-rad</independentVar><tableData>0 0.001\n0.1 0.002</tableData></table>",
+            ),
+        ),
         ("axis", lambda: OVERLAY.replace('name="DRAG"', f'name="{rng.choice(["UP", "drag", "", "LIFT2"])}"')),
         ("<effects>", lambda: OVERLAY.replace("effects>", "overlay>")),
         ("name", lambda: OVERLAY.replace(f' name="{fn}"', "")),
         ("exactly one", lambda: OVERLAY.replace("</product>", "</product><value>1</value>")),
-        ("entity", lambda: '<!DOCTYPE effects [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n' + OVERLAY.replace(">0.0001<", ">&x;<")),
-        ("not well-formed", lambda: OVERLAY[:rng.randint(10, len(OVERLAY) - 12)]),
-        ("appears twice", lambda: OVERLAY.replace("</function>", f'</function><function name="{fn}"><value>1</value></function>')),
+        (
+            "entity",
+            lambda: (
+                '<!DOCTYPE effects [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n' + OVERLAY.replace(">0.0001<", ">&x;<")
+            ),
+        ),
+        ("not well-formed", lambda: OVERLAY[: rng.randint(10, len(OVERLAY) - 12)]),
+        (
+            "appears twice",
+            lambda: OVERLAY.replace("</function>", f'</function><function name="{fn}"><value>1</value></function>'),
+        ),
     ]
     field, make = rng.choice(edits)
     f = d / "overlay.xml"
     f.write_text(make())
-    return Case("overlay", f"overlay: {field}", ("run", "--matrix", ctx["matrix"], "--effects", str(f), "--out",
-                                                 str(d / "out"), "--quiet"), ("overlay.xml", field))
+    return Case(
+        "overlay",
+        f"overlay: {field}",
+        ("run", "--matrix", ctx["matrix"], "--effects", str(f), "--out", str(d / "out"), "--quiet"),
+        ("overlay.xml", field),
+    )
 
 
 def _cli(rng: random.Random, d: Path, ctx: dict) -> Case:
@@ -281,12 +420,42 @@ def _cli(rng: random.Random, d: Path, ctx: dict) -> Case:
         ("--seed", lambda: run + ["--seed", rng.choice(["x", "1.5", "", "1e3"])]),
         ("--noise", lambda: run + ["--noise", rng.choice(["loud", "", "NONE"])]),
         ("--cluster", lambda: run + ["--cluster", rng.choice(["nonsense", "http://x:1", "tcp://", "tcp://host"])]),
-        ("--budget-min", lambda: plan + ["--budget-min", rng.choice(["0", "-5", "nan", "inf", "x", f"{-rng.uniform(0, 1e3):.1f}"])]),
-        ("matrix.toml", lambda: plan + ["--matrix", str(_write(d / "matrix.toml", MATRIX.replace("mach = 0.3", "mach = nan")))]),
-        ("--bands", lambda: ["diagnose", "--data", res, "--model", ctx["aircraft"], "--out", out, "--bands",
-                             str(rng.randint(1, 19)), "--quiet"]),
-        ("inside --data|will not overwrite", lambda: ["diagnose", "--data", res, "--model", ctx["aircraft"], "--out",
-                                   str(Path(res) / rng.choice(["d", "x/y", "."])), "--quiet"]),
+        (
+            "--budget-min",
+            lambda: plan + ["--budget-min", rng.choice(["0", "-5", "nan", "inf", "x", f"{-rng.uniform(0, 1e3):.1f}"])],
+        ),
+        (
+            "matrix.toml",
+            lambda: plan + ["--matrix", str(_write(d / "matrix.toml", MATRIX.replace("mach = 0.3", "mach = nan")))],
+        ),
+        (
+            "--bands",
+            lambda: [
+                "diagnose",
+                "--data",
+                res,
+                "--model",
+                ctx["aircraft"],
+                "--out",
+                out,
+                "--bands",
+                str(rng.randint(1, 19)),
+                "--quiet",
+            ],
+        ),
+        (
+            "inside --data|will not overwrite",
+            lambda: [
+                "diagnose",
+                "--data",
+                res,
+                "--model",
+                ctx["aircraft"],
+                "--out",
+                str(Path(res) / rng.choice(["d", "x/y", "."])),
+                "--quiet",
+            ],
+        ),
         ("nowhere", lambda: [rng.choice(["identify", "report", "plots"]), str(d / "nowhere")]),
         ("nowhere", lambda: ["diagnose", "--data", str(d / "nowhere"), "--model", ctx["aircraft"], "--out", out]),
         ("manifest.json", lambda: ["replay", res]),
@@ -315,9 +484,16 @@ def context(work: Path, data: Path, map_file: Path, results: Path, aircraft: Pat
     diag = work / "diagnosis"
     diag.mkdir(exist_ok=True)
     (diag / "diagnosis.json").write_text(json.dumps({"rivals": [], "model": str(aircraft), "data": {"paths": []}}))
-    return {"matrix": str(matrix), "data": str(data), "data_text": Path(data).read_text(), "map": str(map_file),
-            "map_text": Path(map_file).read_text(), "results": str(results), "aircraft": str(aircraft),
-            "diagnosis": str(diag)}
+    return {
+        "matrix": str(matrix),
+        "data": str(data),
+        "data_text": Path(data).read_text(),
+        "map": str(map_file),
+        "map_text": Path(map_file).read_text(),
+        "results": str(results),
+        "aircraft": str(aircraft),
+        "diagnosis": str(diag),
+    }
 
 
 def make_cases(ctx: dict, work: Path, n: int, seed: int = 0) -> list[Case]:
@@ -343,6 +519,7 @@ def tree_hash(folder: Path) -> str:
 def attempt(case: Case) -> dict:
     """Run the CLI's ``main()`` in this process on one case; what the check needs of it."""
     from campaign.cli import main
+
     err, out = io.StringIO(), io.StringIO()
     escaped = ""
     try:
@@ -352,13 +529,25 @@ def attempt(case: Case) -> dict:
         code, escaped = None, traceback.format_exc()
     text = err.getvalue()
     out_dir = next((Path(a) for a in case.argv if a.endswith("/out")), None)
-    return {"kind": case.kind, "label": case.label, "code": code, "stderr": text[-2000:],
-            "one_line": text.count("\n") == 1, "traceback": bool(escaped) or "Traceback" in text,
-            "named": all(any(alt in text for alt in n.split("|")) for n in case.needles), "wrote_out": bool(out_dir and out_dir.exists()),
-            "escaped": escaped[-2000:]}
+    return {
+        "kind": case.kind,
+        "label": case.label,
+        "code": code,
+        "stderr": text[-2000:],
+        "one_line": text.count("\n") == 1,
+        "traceback": bool(escaped) or "Traceback" in text,
+        "named": all(any(alt in text for alt in n.split("|")) for n in case.needles),
+        "wrote_out": bool(out_dir and out_dir.exists()),
+        "escaped": escaped[-2000:],
+    }
 
 
 def clean(result: dict) -> bool:
     """Whether a case passed: exit 2, one line naming its file and field, no traceback, no --out written."""
-    return (result["code"] == 2 and result["one_line"] and result["named"] and not result["traceback"]
-            and not result["wrote_out"])
+    return (
+        result["code"] == 2
+        and result["one_line"]
+        and result["named"]
+        and not result["traceback"]
+        and not result["wrote_out"]
+    )

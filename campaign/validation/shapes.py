@@ -13,6 +13,7 @@ An effect is a coefficient (CL, CD or Cm), one variable or a pair, a shape and a
 :func:`draw` makes one from a seeded generator; :attr:`Effect.xml` is the effect overlay that
 adds it to an aircraft (JSBSim tables on the variables' own properties).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,13 +24,14 @@ from campaign.validation.hidden import wrap
 
 #: Variable -> (JSBSim property, the range our 737 flies it over on the diagnosis matrices: the default
 #: of :func:`draw`, which takes another aircraft's ``ranges`` as flown).
-VARIABLES = {"gear_norm": ("gear/gear-pos-norm", 0.0, 1.0),
-             "alpha_deg": ("aero/alpha-deg", 1.0, 10.0),
-             "mach": ("velocities/mach", 0.2, 0.5),
-             "flap_deg": ("fcs/flap-pos-deg", 0.0, 30.0),
-             "elevator_deg": ("fcs/elevator-pos-deg", -3.0, 3.0)}
-SHAPES = ("late_onset", "early_saturation", "bump", "dip", "step", "ramp_above", "dead_band",
-          "monotone_table", "table")
+VARIABLES = {
+    "gear_norm": ("gear/gear-pos-norm", 0.0, 1.0),
+    "alpha_deg": ("aero/alpha-deg", 1.0, 10.0),
+    "mach": ("velocities/mach", 0.2, 0.5),
+    "flap_deg": ("fcs/flap-pos-deg", 0.0, 30.0),
+    "elevator_deg": ("fcs/elevator-pos-deg", -3.0, 3.0),
+}
+SHAPES = ("late_onset", "early_saturation", "bump", "dip", "step", "ramp_above", "dead_band", "monotone_table", "table")
 PAIRS = (("gear_norm", "flap_deg"), ("gear_norm", "alpha_deg"), ("gear_norm", "mach"), ("alpha_deg", "mach"))
 #: Noise floors of each coefficient on the diagnosis matrix (tests/hidden.py) with the flight-test
 #: profile [-]: the floors its diagnoses reported for smooth terms (errors-in-variables factor
@@ -86,21 +88,35 @@ def shape(name: str, u: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarra
 
 def _table_1d(prop: str, xs, ys) -> str:
     rows = "\n".join(f"            {x:.6g} {y:.8g}" for x, y in zip(xs, ys))
-    return (f"        <table>\n          <independentVar>{prop}</independentVar>\n          <tableData>\n{rows}\n"
-            f"          </tableData>\n        </table>")
+    return (
+        f"        <table>\n          <independentVar>{prop}</independentVar>\n          <tableData>\n{rows}\n"
+        f"          </tableData>\n        </table>"
+    )
 
 
 def _table_2d(row_prop: str, col_prop: str, rows, cols, values) -> str:
-    lines = "            " + " ".join(f"{c:.6g}" for c in cols) + "\n" + "\n".join(
-        f"            {r:.6g} " + " ".join(f"{v:.8g}" for v in vs) for r, vs in zip(rows, values))
-    return (f"        <table>\n          <independentVar lookup=\"row\">{row_prop}</independentVar>\n"
-            f"          <independentVar lookup=\"column\">{col_prop}</independentVar>\n"
-            f"          <tableData>\n{lines}\n          </tableData>\n        </table>")
+    lines = (
+        "            "
+        + " ".join(f"{c:.6g}" for c in cols)
+        + "\n"
+        + "\n".join(f"            {r:.6g} " + " ".join(f"{v:.8g}" for v in vs) for r, vs in zip(rows, values))
+    )
+    return (
+        f'        <table>\n          <independentVar lookup="row">{row_prop}</independentVar>\n'
+        f'          <independentVar lookup="column">{col_prop}</independentVar>\n'
+        f"          <tableData>\n{lines}\n          </tableData>\n        </table>"
+    )
 
 
-def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coefficient: str | None = None,
-         variables: tuple[str, ...] | None = None, name: str | None = None,
-         ranges: dict[str, tuple[float, float]] | None = None) -> Effect:
+def draw(
+    rng: np.random.Generator,
+    low: float = 0.3,
+    high: float = 30.0,
+    coefficient: str | None = None,
+    variables: tuple[str, ...] | None = None,
+    name: str | None = None,
+    ranges: dict[str, tuple[float, float]] | None = None,
+) -> Effect:
     """A random effect: coefficient, one variable or an interaction pair, shape, sign, and a size
     log-uniform from ``low`` to ``high`` times the coefficient's noise floor (:data:`FLOOR`).
 
@@ -110,8 +126,7 @@ def draw(rng: np.random.Generator, low: float = 0.3, high: float = 30.0, coeffic
     ranges."""
     c = coefficient or str(rng.choice(["CL", "CD", "Cm"]))
     if variables is None:
-        variables = (PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3
-                     else (str(rng.choice(list(VARIABLES))),))
+        variables = PAIRS[int(rng.integers(len(PAIRS)))] if rng.uniform() < 0.3 else (str(rng.choice(list(VARIABLES))),)
     name = name or str(rng.choice(SHAPES))
     size = FLOOR[c] * float(np.exp(rng.uniform(np.log(low), np.log(high))))
     amp = size * float(rng.choice([-1.0, 1.0]))

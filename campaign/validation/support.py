@@ -1,4 +1,5 @@
 """Small shared helpers for the tests and the benchmarks."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,11 +7,13 @@ import numpy as np
 
 #: Gear-up 2-3-1-1s at three conditions, a gear-down one at flap 30 (the diagnosis matrix's
 #: conditions), and a full-circle level turn at Mach 0.3 and 10,000 ft.
-TURN_MATRIX = ('name = "turn"\n'
-               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 2000\n'
-               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
-               '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.5\nalt_ft = 10000\n'
-               '[[points]]\ngear = "down"\nflap_deg = 30\nmach = 0.2\nalt_ft = 2000\n')
+TURN_MATRIX = (
+    'name = "turn"\n'
+    '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 2000\n'
+    '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet", "level_turn"]\n'
+    '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.5\nalt_ft = 10000\n'
+    '[[points]]\ngear = "down"\nflap_deg = 30\nmach = 0.2\nalt_ft = 2000\n'
+)
 
 
 def _toml_value(v) -> str:
@@ -19,8 +22,10 @@ def _toml_value(v) -> str:
 
 def matrix_toml(points, name: str = "test", header: str = "") -> str:
     """A test-matrix TOML from ``(gear, flap_deg, mach, alt_ft)`` rows (mach, alt_ft may be lists)."""
-    rows = [f'[[points]]\ngear = "{g}"\nflap_deg = {f}\nmach = {_toml_value(m)}\nalt_ft = {_toml_value(a)}'
-            for g, f, m, a in points]
+    rows = [
+        f'[[points]]\ngear = "{g}"\nflap_deg = {f}\nmach = {_toml_value(m)}\nalt_ft = {_toml_value(a)}'
+        for g, f, m, a in points
+    ]
     return f'name = "{name}"\n{header}' + "\n".join(rows) + "\n"
 
 
@@ -48,12 +53,14 @@ def run_matrix(folder, text: str, aircraft: str, effects=None, noise: str = "non
     from campaign.simulation.engine import FlightConfig
     from campaign.simulation.matrix import load_matrix
     from campaign.orchestration.runner import run_campaign
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "m.toml").write_text(text)
     m = load_matrix(folder / "m.toml")
-    cfg = FlightConfig(AircraftSource(str(aircraft), load_effects(effects)), seed, noise, m.maneuver_params,
-                       m.clmax_by_flap)
+    cfg = FlightConfig(
+        AircraftSource(str(aircraft), load_effects(effects)), seed, noise, m.maneuver_params, m.clmax_by_flap
+    )
     run_campaign(m, cfg, folder / "data", jobs=jobs, progress=False)
     return folder / "data"
 
@@ -63,6 +70,7 @@ def scaled_copy(aircraft, root, function: str, scale: float):
     import shutil
     import xml.etree.ElementTree as ET
     from pathlib import Path
+
     aircraft = Path(aircraft)
     dest = Path(root) / aircraft.name
     shutil.copytree(aircraft, dest)
@@ -87,6 +95,7 @@ def scaled_copy(aircraft, root, function: str, scale: float):
 def one_line_error(capsys, argv, *needles) -> str:
     """Run the CLI: exit code 2, one line on stderr holding every needle, no traceback."""
     from campaign.cli import main
+
     code = main(argv)
     err = capsys.readouterr().err
     assert code == 2, err
@@ -98,5 +107,6 @@ def one_line_error(capsys, argv, *needles) -> str:
 
 #: Flap 5 at 5,000 ft and four Mach numbers close together, gear up and down, with the gear extension
 #: only: a matrix whose narrow Mach range leaves rival readings apart for :mod:`campaign.design.plan`.
-NARROW = matrix_toml(pairs((5, [0.25, 0.3, 0.35, 0.4], 5000)), "narrow",
-                     '[defaults]\nmaneuvers_gear_down = ["gear_extension"]\n')
+NARROW = matrix_toml(
+    pairs((5, [0.25, 0.3, 0.35, 0.4], 5000)), "narrow", '[defaults]\nmaneuvers_gear_down = ["gear_extension"]\n'
+)

@@ -31,6 +31,7 @@ if other evidence chooses them: the diagnosis asks the aerodynamic residuals.
 These thresholds are :class:`CompatSettings` (the defaults quoted).
 The compatibility never reads an instrument profile; it sees the logs only.
 """
+
 from identify.compat.config import CompatSettings
 from identify.compat.fit import estimate
 from identify.compat.result import (
@@ -44,5 +45,15 @@ from identify.compat.result import (
     documented_positions,
 )
 
-__all__ = ["D2R", "EARTH_RATE", "FT_PER_KT", "CompatResult", "CompatSettings", "Parameter", "at_cg", "columns_of",
-           "documented_positions", "estimate"]
+__all__ = [
+    "D2R",
+    "EARTH_RATE",
+    "FT_PER_KT",
+    "CompatResult",
+    "CompatSettings",
+    "Parameter",
+    "at_cg",
+    "columns_of",
+    "documented_positions",
+    "estimate",
+]

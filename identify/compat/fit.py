@@ -1,5 +1,6 @@
 """The data compatibility's estimate: initial states first, then the instrument errors the logs
 excite, stage by stage, with delete-one-log jackknife standard errors."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -42,8 +43,12 @@ from identify.logs import Log
 from infra.pool import pmap
 
 
-def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C901
-             settings: CompatSettings | None = None) -> CompatResult:
+def estimate(  # noqa: C901
+    logs: list[Log],
+    replicate: bool = False,
+    jobs: int = 1,
+    settings: CompatSettings | None = None,
+) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
     Parameters
@@ -69,14 +74,24 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
     if missing or len(logs) < 2:
-        why = (f"{missing[0]} is not logged" if missing else
-               "one log (its standard errors come from the spread between logs: at least two are needed)")
+        why = (
+            f"{missing[0]} is not logged"
+            if missing
+            else "one log (its standard errors come from the spread between logs: at least two are needed)"
+        )
         for p in params:
             p.identifiable, p.reason = False, f"no reconstruction: {why}"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
     chosen = [lg.read() for lg in select(logs)]
-    data = prepare([replace(lg, data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True),
-                                                    index=lg.data.index)) for lg in chosen])
+    data = prepare(
+        [
+            replace(
+                lg,
+                data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True), index=lg.data.index),
+            )
+            for lg in chosen
+        ]
+    )
     x_doc = positions.get("alpha_deg", [None])[0]
     xb_doc = positions.get("beta_deg", [x_doc])[0]
     if x_doc is not None:
@@ -85,17 +100,34 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
     L = len(chosen)
     mask = data.mask
     valid = mask.ravel()
-    sig = {c: noise_level(data.ch[c], mask, fl) for c, fl in (("theta_deg", 0.002 * D2R), ("phi_deg", 0.002 * D2R),
-                                                           ("psi_deg", 0.002 * D2R), ("alpha_deg", 0.005 * D2R),
-                                                           ("beta_deg", 0.005 * D2R), ("tas_kt", 0.02 * FT_PER_KT),
-                                                           ("alt_ft", 0.5), ("vn_fps", 0.02), ("ve_fps", 0.02),
-                                                           ("vd_fps", 0.02))}
+    sig = {
+        c: noise_level(data.ch[c], mask, fl)
+        for c, fl in (
+            ("theta_deg", 0.002 * D2R),
+            ("phi_deg", 0.002 * D2R),
+            ("psi_deg", 0.002 * D2R),
+            ("alpha_deg", 0.005 * D2R),
+            ("beta_deg", 0.005 * D2R),
+            ("tas_kt", 0.02 * FT_PER_KT),
+            ("alt_ft", 0.5),
+            ("vn_fps", 0.02),
+            ("ve_fps", 0.02),
+            ("vd_fps", 0.02),
+        )
+    }
     rms: dict = {}
     covs: list = []
 
     # ---- stage 1: attitude from the gyros
-    s1 = ["p_dps.bias", "q_dps.bias", "r_dps.bias", "theta_deg.scale", "theta_deg.delay", "phi_deg.scale",
-          "phi_deg.delay"]
+    s1 = [
+        "p_dps.bias",
+        "q_dps.bias",
+        "r_dps.bias",
+        "theta_deg.scale",
+        "theta_deg.delay",
+        "phi_deg.scale",
+        "phi_deg.delay",
+    ]
     outs1 = [c for c in ("theta_deg", "phi_deg", "psi_deg") if c in data.present]
 
     # the gyro biases (and initial angles) of the last few evaluations -> their rotations (attitude): a
@@ -103,39 +135,80 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
     rotations, attitudes = {}, {}
 
     def model1(x):
-        v = dict(zip(s1, x[:len(s1)]))
-        per = x[len(s1):].reshape(L, 3)
+        v = dict(zip(s1, x[: len(s1)]))
+        per = x[len(s1) :].reshape(L, 3)
         biases = (v["p_dps.bias"] * D2R, v["q_dps.bias"] * D2R, v["r_dps.bias"] * D2R)
         key = np.array(biases).tobytes()  # bit for bit
-        th, ph, ps = attitudes.get(key + per.tobytes()) or _keep(attitudes, key + per.tobytes(), integrated_attitude(
-            data, *biases, per[:, 0], per[:, 1], per[:, 2],
-            steps=rotations[key] if key in rotations else _keep(rotations, key, body_rotations(data, *biases))))
-        return {"theta_deg": (1 + v["theta_deg.scale"]) * delayed(th, data.t, v["theta_deg.delay"]),
-                "phi_deg": (1 + v["phi_deg.scale"]) * delayed(ph, data.t, v["phi_deg.delay"]),
-                "psi_deg": ps}, (th, ph, ps)
+        th, ph, ps = attitudes.get(key + per.tobytes()) or _keep(
+            attitudes,
+            key + per.tobytes(),
+            integrated_attitude(
+                data,
+                *biases,
+                per[:, 0],
+                per[:, 1],
+                per[:, 2],
+                steps=rotations[key] if key in rotations else _keep(rotations, key, body_rotations(data, *biases)),
+            ),
+        )
+        return {
+            "theta_deg": (1 + v["theta_deg.scale"]) * delayed(th, data.t, v["theta_deg.delay"]),
+            "phi_deg": (1 + v["phi_deg.scale"]) * delayed(ph, data.t, v["phi_deg.delay"]),
+            "psi_deg": ps,
+        }, (th, ph, ps)
 
     def resid1(x):
         m, _ = model1(x)
         return np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs1])
 
-    x1 = np.concatenate([np.zeros(len(s1)), np.stack([data.ch[c][:, 0] for c in ("theta_deg", "phi_deg",
-                                                                                  "psi_deg")], 1).ravel()])
+    x1 = np.concatenate(
+        [np.zeros(len(s1)), np.stack([data.ch[c][:, 0] for c in ("theta_deg", "phi_deg", "psi_deg")], 1).ravel()]
+    )
     rows1 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs1))
     if outs1:
-        x1 = _solve_stage(resid1, x1, s1, by, 3, L, rows1, outs1, sig, valid, rms, mask,
-                          lambda x: {c: model1(x)[0][c] for c in outs1}, data, covs=covs, settings=settings)
-    v1 = dict(zip(s1, x1[:len(s1)]))
+        x1 = _solve_stage(
+            resid1,
+            x1,
+            s1,
+            by,
+            3,
+            L,
+            rows1,
+            outs1,
+            sig,
+            valid,
+            rms,
+            mask,
+            lambda x: {c: model1(x)[0][c] for c in outs1},
+            data,
+            covs=covs,
+            settings=settings,
+        )
+    v1 = dict(zip(s1, x1[: len(s1)]))
     _, (th_r, ph_r, ps_r) = model1(x1)
 
     # ---- stage 2: velocity, air data and altitude from the accelerometers
     rates = tuple(data.ch[c] - v1[f"{c}.bias"] * D2R for c in ("p_dps", "q_dps", "r_dps"))
     Phi, X, HPhi, HX = velocity_responses(data, rates, th_r, ph_r)
-    s2 = ["ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias",
-          "alpha_deg.bias", "alpha_deg.scale", "alpha_deg.delay", "alpha_deg.position",
-          "beta_deg.bias", "beta_deg.scale", "beta_deg.delay", "tas_kt.bias", "tas_kt.scale", "tas_kt.delay"]
+    s2 = [
+        "ax_fps2.bias",
+        "ay_fps2.bias",
+        "az_fps2.bias",
+        "theta_deg.bias",
+        "phi_deg.bias",
+        "alpha_deg.bias",
+        "alpha_deg.scale",
+        "alpha_deg.delay",
+        "alpha_deg.position",
+        "beta_deg.bias",
+        "beta_deg.scale",
+        "beta_deg.delay",
+        "tas_kt.bias",
+        "tas_kt.scale",
+        "tas_kt.delay",
+    ]
     ins = all(c in data.present for c in INS)
-    outs2 = [c for c in ("alpha_deg", "beta_deg", "tas_kt", "alt_ft") + (INS[1:] if ins else ())
-             if c in data.present]
+    outs2 = [c for c in ("alpha_deg", "beta_deg", "tas_kt", "alt_ft") + (INS[1:] if ins else ()) if c in data.present]
     q_c, r_c = rates[1], rates[2]
 
     gust = gust_basis(data)
@@ -149,20 +222,24 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
     wind_dirs = np.swapaxes(b2n, -1, -2)[..., :2]  # (L, n, 3, 2): north and east in body axes
     ins_phi = np.einsum("lnij,lnjk->lnik", b2n, Phi, optimize=True) if ins else None  # d(v_NED)/d(v0)
 
-    forcing = [s2.index(n) for n in ("ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias",
-                                     "phi_deg.bias")]
+    forcing = [s2.index(n) for n in ("ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias")]
     last_state: dict = {}  # the parameters the flight path depends on, bit for bit -> the path
 
     def state(x):
         """Shared values, per-log values, air-relative body velocity, altitude and the inertial
         velocity north-east-down (if the logs have it). A difference in an air-data error keeps the
         flight path: it is computed again only when the parameters it depends on change."""
-        v = dict(zip(s2, x[:len(s2)]))
-        key = x[forcing].tobytes() + x[len(s2):].tobytes()
+        v = dict(zip(s2, x[: len(s2)]))
+        key = x[forcing].tobytes() + x[len(s2) :].tobytes()
         if key not in last_state:
-            per = x[len(s2):].reshape(L, n_per).copy()
-            lin = np.concatenate([[1.0], [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
-                                  [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R]])
+            per = x[len(s2) :].reshape(L, n_per).copy()
+            lin = np.concatenate(
+                [
+                    [1.0],
+                    [v["ax_fps2.bias"], v["ay_fps2.bias"], v["az_fps2.bias"]],
+                    [v["theta_deg.bias"] * D2R, v["phi_deg.bias"] * D2R],
+                ]
+            )
             inertial = np.einsum("lnij,lj->lni", Phi, per[:, :3], optimize=True) + X @ lin
             h = per[:, 3:4] + np.einsum("lnj,lj->ln", HPhi, per[:, :3], optimize=True) + HX @ lin
             # air = inertial - gust
@@ -182,18 +259,21 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
         xb = xh if xb_doc is None else xb_doc
         out = {}
         if only in (None, "beta_deg", "tas_kt"):
-            vt = np.sqrt(u ** 2 + vv ** 2 + w ** 2)
+            vt = np.sqrt(u**2 + vv**2 + w**2)
         if only in (None, "alpha_deg"):
             alpha_v = np.arctan2(w - q_c * xh, u)
-            out["alpha_deg"] = (1 + v["alpha_deg.scale"]) * delayed(alpha_v, data.t, v["alpha_deg.delay"]) \
-                + v["alpha_deg.bias"] * D2R
+            out["alpha_deg"] = (1 + v["alpha_deg.scale"]) * delayed(alpha_v, data.t, v["alpha_deg.delay"]) + v[
+                "alpha_deg.bias"
+            ] * D2R
         if only in (None, "beta_deg"):
             beta_v = np.arcsin(np.clip((vv + r_c * xb) / vt, -1, 1))
-            out["beta_deg"] = (1 + v["beta_deg.scale"]) * delayed(beta_v, data.t, v["beta_deg.delay"]) \
-                + v["beta_deg.bias"] * D2R
+            out["beta_deg"] = (1 + v["beta_deg.scale"]) * delayed(beta_v, data.t, v["beta_deg.delay"]) + v[
+                "beta_deg.bias"
+            ] * D2R
         if only in (None, "tas_kt"):
-            out["tas_kt"] = (1 + v["tas_kt.scale"]) * delayed(vt, data.t, v["tas_kt.delay"]) \
-                + v["tas_kt.bias"] * FT_PER_KT
+            out["tas_kt"] = (1 + v["tas_kt.scale"]) * delayed(vt, data.t, v["tas_kt.delay"]) + v[
+                "tas_kt.bias"
+            ] * FT_PER_KT
         if only is None:
             out["alt_ft"] = h
             out.update(dict(zip(INS[1:], ned)) if ins else {})
@@ -206,7 +286,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
         e = np.concatenate([((data.ch[c] - m[c]) / sig[c]).ravel()[valid] for c in outs2])
         if not prior["fps"]:
             return e
-        return np.concatenate([e, x[len(s2):].reshape(L, n_per)[:, g0:].ravel() / prior["fps"]])
+        return np.concatenate([e, x[len(s2) :].reshape(L, n_per)[:, g0:].ravel() / prior["fps"]])
 
     def column2(x, i: int):
         """A Jacobian column's residual rows at ``x``, where the shared parameter ``i`` (just moved) is
@@ -223,12 +303,12 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
         u, vv, w = vel[..., 0], vel[..., 1], vel[..., 2]
         xh = v["alpha_deg.position"] if x_doc is None else x_doc
         xb = xh if xb_doc is None else xb_doc
-        vt2 = u ** 2 + vv ** 2 + w ** 2
+        vt2 = u**2 + vv**2 + w**2
         vt = np.sqrt(vt2)
         wv, vb = w - q_c * xh, vv + r_c * xb
-        den_a = u ** 2 + wv ** 2
+        den_a = u**2 + wv**2
         sb = np.clip(vb / vt, -0.999999, 0.999999)
-        cb = np.sqrt(1 - sb ** 2)
+        cb = np.sqrt(1 - sb**2)
         d_out = {  # derivative of each air-data output by (u, v, w), before scale and delay
             "alpha_deg": np.stack([-wv / den_a, np.zeros_like(u), u / den_a], -1),
             "beta_deg": np.stack([-vb * u / (vt2 * vt), (1 / vt - vb * vv / (vt2 * vt)), -vb * w / (vt2 * vt)], -1)
@@ -242,7 +322,7 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
         out = np.zeros((n_out + (L * 3 * k_gust if prior["fps"] else 0), n_per))  # the gusts' prior rows last
         d = None  # one buffer for every air-data output: all its columns but the altitude's are written
         for b, c in enumerate(outs2):
-            block = out[b * n_valid:(b + 1) * n_valid]
+            block = out[b * n_valid : (b + 1) * n_valid]
             if c == "alt_ft":
                 block[:, :3] = HPhi.reshape(-1, 3)[valid]
                 block[:, 3] = 1.0
@@ -258,17 +338,17 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
                         block[:, 4:6] = by_wind.reshape(-1, 2)[valid]
                     dv = dc.reshape(-1, 3)[valid]
                     for j in range(3):
-                        np.multiply(dv[:, j, None], minus_gust_valid,
-                                    out=block[:, g0 + j * k_gust:g0 + (j + 1) * k_gust])
+                        np.multiply(
+                            dv[:, j, None], minus_gust_valid, out=block[:, g0 + j * k_gust : g0 + (j + 1) * k_gust]
+                        )
                 else:  # shifted in time: each row reads its neighbours
                     d = np.zeros((L, vel.shape[1], n_per)) if d is None else d
                     d[..., :3] = by_v0
                     if n_wind:
                         d[..., 4:6] = by_wind
                     for j in range(3):
-                        np.multiply(dc[..., j, None], minus_gust, out=d[..., g0 + j * k_gust:g0 + (j + 1) * k_gust])
-                    np.compress(valid, shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per), axis=0,
-                                out=block)
+                        np.multiply(dc[..., j, None], minus_gust, out=d[..., g0 + j * k_gust : g0 + (j + 1) * k_gust])
+                    np.compress(valid, shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, n_per), axis=0, out=block)
                 block *= 1 + v[f"{c}.scale"]
             block /= -sig[c]
         if prior["fps"]:
@@ -277,29 +357,37 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
             for b, c in enumerate(outs2):
                 if c in d_out:
                     d = -d_out[c] * mask[..., None]
-                    steady[b * n_valid:(b + 1) * n_valid] = (shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, 3)[
-                        valid] * (1 + v[f"{c}.scale"]) / -sig[c])
+                    steady[b * n_valid : (b + 1) * n_valid] = (
+                        shift_columns(d, data.t, v[f"{c}.delay"]).reshape(-1, 3)[valid]
+                        * (1 + v[f"{c}.scale"])
+                        / -sig[c]
+                    )
             prior["steady"] = steady
         return out
 
     a0, b0 = data.ch["alpha_deg"][:, 0], data.ch["beta_deg"][:, 0]
     v0 = data.ch["tas_kt"][:, 0]
-    init = np.stack([v0 * np.cos(a0) * np.cos(b0), v0 * np.sin(b0), v0 * np.sin(a0) * np.cos(b0),
-                     data.ch["alt_ft"][:, 0]], 1)
+    init = np.stack(
+        [v0 * np.cos(a0) * np.cos(b0), v0 * np.sin(b0), v0 * np.sin(a0) * np.cos(b0), data.ch["alt_ft"][:, 0]], 1
+    )
     x2 = np.concatenate([np.zeros(len(s2)), np.hstack([init, np.zeros((L, n_wind + 3 * k_gust))]).ravel()])
     rows2 = np.tile(np.repeat(np.arange(L), mask.sum(1)), len(outs2))
     turned = heading_change(data) >= settings.turn_span_deg if n_wind else np.zeros(L, bool)
     if turned.all():
         for e in ("bias", "scale"):
             by[f"tas_kt.{e}"].identifiable = False
-            by[f"tas_kt.{e}"].reason = ("every log turns: the gusts' size, which tells a steady wind from an "
-                                        "airspeed error in a turn, needs a straight log too")
+            by[f"tas_kt.{e}"].reason = (
+                "every log turns: the gusts' size, which tells a steady wind from an "
+                "airspeed error in a turn, needs a straight log too"
+            )
     elif turned.any():
         # In a turn a steady wind turns in body axes as slowly as the gusts' splines move: without a
         # prior on the gusts' size the two trade freely, and with them an airspeed scale or bias. The
         # prior is the turbulence the straight logs show (the vertical gust, as Dryden's isotropic).
-        prior["fps"] = max(estimate([lg for lg, t in zip(chosen, turned) if not t], replicate=True,
-                                    settings=settings).turbulence_fps, GUST_PRIOR_FLOOR_FPS)
+        prior["fps"] = max(
+            estimate([lg for lg, t in zip(chosen, turned) if not t], replicate=True, settings=settings).turbulence_fps,
+            GUST_PRIOR_FLOOR_FPS,
+        )
         rows2 = np.concatenate([rows2, np.repeat(np.arange(L), 3 * k_gust)])
         # one log pins the airspeed error: time blocks, not logs, are the clusters of its uncertainty
         label = (np.arange(L)[:, None] * 100_000 + np.floor(data.t / BLOCK_S)).ravel()[valid]
@@ -309,22 +397,41 @@ def estimate(logs: list[Log], replicate: bool = False, jobs: int = 1,  # noqa: C
         span = np.array([data.t[i][mask[i]][-1] for i in range(L)])
         speed = np.array([np.median(data.ch["tas_kt"][i][mask[i]]) for i in range(L)])
         prior["offset_sd"] = prior["fps"] * np.sqrt(2.0 * DRYDEN_LENGTH_FT / speed / span)
-    x2 = _solve_stage(resid2, x2, s2, by, n_per, L, rows2, outs2, sig, valid, rms, mask, model2, data, perlog2,
-                      covs, (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None, column2,
-                      settings)
-    per = x2[len(s2):].reshape(L, n_per)
-    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust:g0 + 3 * k_gust], optimize=True)
+    x2 = _solve_stage(
+        resid2,
+        x2,
+        s2,
+        by,
+        n_per,
+        L,
+        rows2,
+        outs2,
+        sig,
+        valid,
+        rms,
+        mask,
+        model2,
+        data,
+        perlog2,
+        covs,
+        (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None,
+        column2,
+        settings,
+    )
+    per = x2[len(s2) :].reshape(L, n_per)
+    w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust : g0 + 3 * k_gust], optimize=True)
     turbulence = float(np.sqrt(np.mean(w_gust[mask] ** 2)))
     if turbulence > settings.turbulent_fps:
         for c in ("alpha_deg", "beta_deg", "tas_kt"):
             p = by[f"{c}.delay"]
             if p.identifiable:
                 p.identifiable = False
-                p.reason = (f"turbulence: the reconstruction's vertical gust is {turbulence:.2g} ft/s RMS, and the "
-                            f"aircraft's answer to it biases the kinematic time shift by tens of ms (fly the "
-                            f"compatibility manoeuvres in calm air); kinematic estimate {p.estimate * 1000:+.0f} ms")
-    for ch, k in (("theta_deg", D2R), ("phi_deg", D2R), ("alpha_deg", D2R), ("beta_deg", D2R),
-                  ("tas_kt", FT_PER_KT)):
+                p.reason = (
+                    f"turbulence: the reconstruction's vertical gust is {turbulence:.2g} ft/s RMS, and the "
+                    f"aircraft's answer to it biases the kinematic time shift by tens of ms (fly the "
+                    f"compatibility manoeuvres in calm air); kinematic estimate {p.estimate * 1000:+.0f} ms"
+                )
+    for ch, k in (("theta_deg", D2R), ("phi_deg", D2R), ("alpha_deg", D2R), ("beta_deg", D2R), ("tas_kt", FT_PER_KT)):
         if ch in rms:
             rms[ch] = {key: v / k for key, v in rms[ch].items()}
     result = CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
@@ -349,8 +456,9 @@ def _replicate(logs: list[Log], settings: CompatSettings) -> CompatResult:
     return estimate(logs, replicate=True, settings=settings)
 
 
-def _whole_jackknife(result: CompatResult, logs: list[Log], jobs: int = 1,
-                     settings: CompatSettings | None = None) -> None:
+def _whole_jackknife(
+    result: CompatResult, logs: list[Log], jobs: int = 1, settings: CompatSettings | None = None
+) -> None:
     """The standard errors of the corrections about to be applied on the kinematics' word alone, from
     the whole estimate made again with each log left out (its decisions included: which errors the
     logs excite, which two are confounded), where that spread exceeds the one-step jackknife's. The
@@ -361,7 +469,7 @@ def _whole_jackknife(result: CompatResult, logs: list[Log], jobs: int = 1,
     the estimate did."""
     L = len(logs)
     settings = settings or CompatSettings()
-    reps = pmap(_replicate, [(logs[:i] + logs[i + 1:], settings) for i in range(L)], jobs)
+    reps = pmap(_replicate, [(logs[:i] + logs[i + 1 :], settings) for i in range(L)], jobs)
     for p in result.applied:
         # a replicate that cannot estimate it at all (the one log that excites it left out) says nothing
         e = np.array([q.estimate for q in (r.get(p.name) for r in reps) if q.identifiable and np.isfinite(q.estimate)])
@@ -384,9 +492,27 @@ def _covariance(blk, blocks: tuple | None) -> np.ndarray:
     return blk.cluster_cov() if blocks is None else blk.block_cov() + blk.offset_cov(blocks[2])
 
 
-def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, mask, model, data,  # noqa: PLR0913
-                 perlog=None, covs: list | None = None, blocks: tuple | None = None, column=None,
-                 settings: CompatSettings | None = None) -> np.ndarray:
+def _solve_stage(  # noqa: PLR0913
+    residual,
+    x,
+    names,
+    by,
+    per,
+    L,
+    rows,
+    outs,
+    sig,
+    valid,
+    rms,
+    mask,
+    model,
+    data,
+    perlog=None,
+    covs: list | None = None,
+    blocks: tuple | None = None,
+    column=None,
+    settings: CompatSettings | None = None,
+) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
     errors too; parameters the data cannot tell apart (variance inflation above ``settings.max_vif``)
     are fixed at 0.
@@ -398,7 +524,7 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
     x, _, e = gauss_newton(residual, x, free, ns, L, per, rows, perlog, column=column)
     n = int(valid.sum())
     for i, c in enumerate(outs):
-        rms[c] = {"before": float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))}
+        rms[c] = {"before": float(np.sqrt(np.mean((e[i * n : (i + 1) * n] * sig[c]) ** 2)))}
     recon = {c: v for c, v in model(x).items()}
     settings = settings or CompatSettings()
     for name, why in unexcited_parameters(data, recon, settings).items():
@@ -423,10 +549,10 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
         if names[idx[partner]] in PRUNE_FIRST and names[idx[worst]] not in PRUNE_FIRST:
             worst, partner = partner, worst  # keep the error eq. (1) feels; the residuals may choose it
         by[names[idx[worst]]].identifiable = False
-        by[names[idx[worst]]].reason = (f"not separable from {names[idx[partner]]} in these manoeuvres "
-                                        f"(variance inflation {vif[worst]:.0f})")
-        by[names[idx[partner]]].reason = (f"confounded with {names[idx[worst]]}: the estimate holds both "
-                                          f"(not applied)")
+        by[
+            names[idx[worst]]
+        ].reason = f"not separable from {names[idx[partner]]} in these manoeuvres (variance inflation {vif[worst]:.0f})"
+        by[names[idx[partner]]].reason = f"confounded with {names[idx[worst]]}: the estimate holds both (not applied)"
         by[names[idx[partner]]].confounded_with = names[idx[worst]]
         pairs.append((idx[worst], idx[partner]))
         free[idx[worst]] = False
@@ -442,12 +568,13 @@ def _solve_stage(residual, x, names, by, per, L, rows, outs, sig, valid, rms, ma
         alt_free[pruned], alt_free[kept] = True, False
         x_alt = x.copy()
         x_alt[kept] = 0.0
-        x_alt, blk_alt, _ = gauss_newton(residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks,
-                                           column=column)
+        x_alt, blk_alt, _ = gauss_newton(
+            residual, x_alt, alt_free, ns, L, per, rows, perlog, robust=blocks, column=column
+        )
         j = int(np.flatnonzero(np.flatnonzero(alt_free) == pruned)[0])
         p = by[names[pruned]]
         p.estimate, p.se = float(x_alt[pruned]), float(np.sqrt(abs(_covariance(blk_alt, blocks)[j, j])))
         p.identifiable, p.confounded_with = True, names[kept]
     for i, c in enumerate(outs):
-        rms[c]["after"] = float(np.sqrt(np.mean((e[i * n:(i + 1) * n] * sig[c]) ** 2)))
+        rms[c]["after"] = float(np.sqrt(np.mean((e[i * n : (i + 1) * n] * sig[c]) ** 2)))
     return x

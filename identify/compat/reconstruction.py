@@ -1,5 +1,6 @@
 """The kinematic model the data compatibility fits: the logs at a common length, the attitude
 and velocity integrated from the gyros and accelerometers, and the Gauss-Newton fit of both."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,8 +43,9 @@ class _Data:
 def select(logs: list[Log]) -> list[Log]:
     """At most MAX_LOGS logs spread over the conditions: calibration manoeuvres (level turns)
     first, then 2-3-1-1s (they excite most)."""
-    ranked = sorted(logs, key=lambda lg: (lg.maneuver not in CALIBRATION, lg.transition, lg.gear_down,
-                                          lg.condition, lg.path))
+    ranked = sorted(
+        logs, key=lambda lg: (lg.maneuver not in CALIBRATION, lg.transition, lg.gear_down, lg.condition, lg.path)
+    )
     out, seen = [], set()
     for lg in ranked:  # one per condition and manoeuvre first
         key = (lg.condition, lg.maneuver)
@@ -58,14 +60,42 @@ def select(logs: list[Log]) -> list[Log]:
     return out
 
 
-CHANNELS = {"p_dps": D2R, "q_dps": D2R, "r_dps": D2R, "ax_fps2": 1.0, "ay_fps2": 1.0, "az_fps2": 1.0,
-            "theta_deg": D2R, "phi_deg": D2R, "psi_deg": D2R, "alpha_deg": D2R, "beta_deg": D2R,
-            "tas_kt": FT_PER_KT, "alt_ft": 1.0, "vn_fps": 1.0, "ve_fps": 1.0, "vd_fps": 1.0}
+CHANNELS = {
+    "p_dps": D2R,
+    "q_dps": D2R,
+    "r_dps": D2R,
+    "ax_fps2": 1.0,
+    "ay_fps2": 1.0,
+    "az_fps2": 1.0,
+    "theta_deg": D2R,
+    "phi_deg": D2R,
+    "psi_deg": D2R,
+    "alpha_deg": D2R,
+    "beta_deg": D2R,
+    "tas_kt": FT_PER_KT,
+    "alt_ft": 1.0,
+    "vn_fps": 1.0,
+    "ve_fps": 1.0,
+    "vd_fps": 1.0,
+}
 #: An inertial/GPS unit's heading and velocity north-east-down: with them the accelerometer biases are pinned.
 INS = ("psi_deg", "vn_fps", "ve_fps", "vd_fps")
 #: Without these the flight path cannot be reconstructed at all.
-ESSENTIAL = ("t_s", "p_dps", "q_dps", "r_dps", "ax_fps2", "ay_fps2", "az_fps2", "theta_deg", "phi_deg",
-             "alpha_deg", "beta_deg", "tas_kt", "alt_ft")
+ESSENTIAL = (
+    "t_s",
+    "p_dps",
+    "q_dps",
+    "r_dps",
+    "ax_fps2",
+    "ay_fps2",
+    "az_fps2",
+    "theta_deg",
+    "phi_deg",
+    "alpha_deg",
+    "beta_deg",
+    "tas_kt",
+    "alt_ft",
+)
 
 
 def prepare(logs: list[Log]) -> _Data:
@@ -113,8 +143,10 @@ def _frame_rates(data: _Data, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     earth = EARTH_RATE * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], -1)
     transport = np.stack([ve / r, -vn / r, -ve * np.tan(lat) / r], -1)
     n2b = np.swapaxes(body_to_ned(th, ph, ps), -1, -2)
-    return (np.einsum("lnij,lnj->lni", n2b, earth + transport, optimize=True),
-            np.einsum("lnij,lnj->lni", n2b, earth, optimize=True))
+    return (
+        np.einsum("lnij,lnj->lni", n2b, earth + transport, optimize=True),
+        np.einsum("lnij,lnj->lni", n2b, earth, optimize=True),
+    )
 
 
 def delayed(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
@@ -146,20 +178,42 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternion arrays (..., 4)."""
     a0, a1, a2, a3 = np.moveaxis(a, -1, 0)
     b0, b1, b2, b3 = np.moveaxis(b, -1, 0)
-    return np.stack([a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-                     a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0], -1)
+    return np.stack(
+        [
+            a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
+        ],
+        -1,
+    )
 
 
-def integrated_attitude(data: _Data, bp: float, bq: float, br: float, th0: np.ndarray, ph0: np.ndarray,
-              ps0: np.ndarray, steps: np.ndarray | None = None):
+def integrated_attitude(
+    data: _Data,
+    bp: float,
+    bq: float,
+    br: float,
+    th0: np.ndarray,
+    ph0: np.ndarray,
+    ps0: np.ndarray,
+    steps: np.ndarray | None = None,
+):
     """Euler angles integrated from the gyros [rad], less the local frame's own rotation when
     the logs give the latitude and the heading. ``steps`` are :func:`body_rotations` of these
     biases if already known.
     """
     steps = body_rotations(data, bp, bq, br) if steps is None else steps
     (cy, ct, cf), (sy, st, sf) = np.cos(0.5 * np.stack([ps0, th0, ph0])), np.sin(0.5 * np.stack([ps0, th0, ph0]))
-    q0 = np.stack([cf * ct * cy + sf * st * sy, sf * ct * cy - cf * st * sy, cf * st * cy + sf * ct * sy,
-                   cf * ct * sy - sf * st * cy], -1)[:, None]
+    q0 = np.stack(
+        [
+            cf * ct * cy + sf * st * sy,
+            sf * ct * cy - cf * st * sy,
+            cf * st * cy + sf * ct * sy,
+            cf * ct * sy - sf * st * cy,
+        ],
+        -1,
+    )[:, None]
     a, b, c, e = np.moveaxis(np.concatenate([q0, _qmul(np.broadcast_to(q0, steps.shape), steps)], 1), -1, 0)
     th = np.arcsin(np.clip(2.0 * (a * c - e * b), -1.0, 1.0))
     ph = np.arctan2(2.0 * (a * b + c * e), 1.0 - 2.0 * (b * b + c * c))
@@ -180,7 +234,7 @@ def body_rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
         w = w - data.frame_rate
     h = data.dt[:, None, None]
     wa, wb = w[:, :-1], w[:, 1:]
-    rot = 0.5 * (wa + wb) * h + (h ** 2 / 12.0) * np.cross(wa, wb)
+    rot = 0.5 * (wa + wb) * h + (h**2 / 12.0) * np.cross(wa, wb)
     ang = np.linalg.norm(rot, axis=-1, keepdims=True)
     steps = np.concatenate([np.cos(0.5 * ang), np.sin(0.5 * ang) * rot / np.maximum(ang, 1e-300)], -1)
     d = 1
@@ -193,9 +247,14 @@ def body_rotations(data: _Data, bp: float, bq: float, br: float) -> np.ndarray:
 def body_to_ned(th: np.ndarray, ph: np.ndarray, ps: np.ndarray) -> np.ndarray:
     """Rotation matrices body -> north-east-down (L, n, 3, 3)."""
     ct, st, cp, sp, cs, ss = np.cos(th), np.sin(th), np.cos(ph), np.sin(ph), np.cos(ps), np.sin(ps)
-    return np.stack([np.stack([ct * cs, sp * st * cs - cp * ss, cp * st * cs + sp * ss], -1),
-                     np.stack([ct * ss, sp * st * ss + cp * cs, cp * st * ss - sp * cs], -1),
-                     np.stack([-st, sp * ct, cp * ct], -1)], -2)
+    return np.stack(
+        [
+            np.stack([ct * cs, sp * st * cs - cp * ss, cp * st * cs + sp * ss], -1),
+            np.stack([ct * ss, sp * st * ss + cp * cs, cp * st * ss - sp * cs], -1),
+            np.stack([-st, sp * ct, cp * ct], -1),
+        ],
+        -2,
+    )
 
 
 # ------------------------------------------------------------------------ velocity
@@ -268,7 +327,7 @@ def gust_basis(data: _Data) -> np.ndarray:
         knots = np.concatenate([[0.0] * 3, np.linspace(0.0, end, k + 1), [end] * 3])
         b = BSpline.design_matrix(np.clip(data.t[i], 0.0, end), knots, 3).toarray()
         b -= b[data.mask[i]].mean(axis=0)
-        out[i, :, :k + 3] = b * data.mask[i][:, None]
+        out[i, :, : k + 3] = b * data.mask[i][:, None]
     return out
 
 
@@ -285,8 +344,15 @@ class _Blocks:
     by its own log's parameters only.
     """
 
-    def __init__(self, Js: np.ndarray, Jp: np.ndarray, e: np.ndarray, rows: list[np.ndarray],
-                 blocks: np.ndarray | None = None, steady: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        Js: np.ndarray,
+        Jp: np.ndarray,
+        e: np.ndarray,
+        rows: list[np.ndarray],
+        blocks: np.ndarray | None = None,
+        steady: np.ndarray | None = None,
+    ) -> None:
         self.rows = rows
         self.scores = None  # per log: each time block's (shared, per-log) gradient, with ``blocks``
         # per log: the shared and per-log normal-equation columns of the steady gusts, with ``steady``
@@ -295,13 +361,22 @@ class _Blocks:
             self.scores = []
             for r in rows:
                 labels = blocks[r]
-                self.scores.append([(Js[r[labels == b]].T @ e[r[labels == b]], Jp[r[labels == b]].T @ e[r[labels == b]])
-                                    for b in np.unique(labels)])
+                self.scores.append(
+                    [
+                        (Js[r[labels == b]].T @ e[r[labels == b]], Jp[r[labels == b]].T @ e[r[labels == b]])
+                        for b in np.unique(labels)
+                    ]
+                )
         ns, per = Js.shape[1], Jp.shape[1]
         self.Hll, self.Hsl, self.gl, self.Bb, self.gb = [], [], [], [], []  # each log's products only
         for r in rows:
-            hll, hsl, gl, bb, gb = np.zeros((per, per)), np.zeros((ns, per)), np.zeros(per), np.zeros((ns, ns)), \
-                np.zeros(ns)
+            hll, hsl, gl, bb, gb = (
+                np.zeros((per, per)),
+                np.zeros((ns, per)),
+                np.zeros(per),
+                np.zeros((ns, ns)),
+                np.zeros(ns),
+            )
             cuts = np.flatnonzero(np.diff(r) != 1) + 1
             for lo, hi in zip(r[np.r_[0, cuts]], r[np.r_[cuts - 1, len(r) - 1]] + 1):  # its runs of rows: views
                 a, b, ee = Jp[lo:hi], Js[lo:hi], e[lo:hi]
@@ -324,10 +399,12 @@ class _Blocks:
 
     def step(self, lam: float) -> tuple[np.ndarray, list[np.ndarray]]:
         """Damped Gauss-Newton step: shared part and each log's part."""
+
         def damp(h):
             d = np.diag(h).copy()
             d[d <= 0] = 1.0
             return h + lam * np.diag(d)
+
         hll_inv = [np.linalg.pinv(damp(h)) for h in self.Hll]
         S = damp(self.Hss) - sum(h @ hi @ h.T for h, hi in zip(self.Hsl, hll_inv)) if len(self.gs) else None
         rhs = self.gs - sum(h @ hi @ g for h, hi, g in zip(self.Hsl, hll_inv, self.gl))
@@ -377,8 +454,12 @@ class _Blocks:
         hll_inv, S = self._reduced
         own = [bb - h @ hi @ h.T for bb, h, hi in zip(self.Bb, self.Hsl, hll_inv)]
         L = len(self.rows)
-        d = np.array([np.linalg.pinv(S - s_l) @ (gb - h @ hi @ g)
-                      for gb, g, h, hi, s_l in zip(self.gb, self.gl, self.Hsl, hll_inv, own)])
+        d = np.array(
+            [
+                np.linalg.pinv(S - s_l) @ (gb - h @ hi @ g)
+                for gb, g, h, hi, s_l in zip(self.gb, self.gl, self.Hsl, hll_inv, own)
+            ]
+        )
         d -= d.mean(axis=0)
         return d.T @ d * ((L - 1) / L)
 
@@ -391,8 +472,9 @@ def heading_change(data: _Data) -> np.ndarray:
     return np.array([float(np.ptp(psi[i][m])) / D2R if m.any() else 0.0 for i, m in enumerate(data.mask)])
 
 
-def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray],
-                         settings: CompatSettings | None = None) -> dict[str, str]:
+def unexcited_parameters(
+    data: _Data, recon: dict[str, np.ndarray], settings: CompatSettings | None = None
+) -> dict[str, str]:
     """Parameters the logs cannot identify, with the reason. Scale factors and time shifts
     need the reconstructed signal to move (turbulence moves the measured one too): by the spans of
     ``settings`` (None: the defaults)."""
@@ -400,11 +482,13 @@ def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray],
     out = {}
     m = data.mask
     lateral, span_of = s.lateral_span_deg, s.scale_span
-    for c, need, unit, k in (("theta_deg", span_of["theta_deg"], "deg", D2R),
-                             ("phi_deg", lateral["phi_deg"], "deg", D2R),
-                             ("alpha_deg", span_of["alpha_deg"], "deg", D2R),
-                             ("beta_deg", lateral["beta_deg"], "deg", D2R),
-                             ("tas_kt", span_of["tas_kt"], "kt", FT_PER_KT)):
+    for c, need, unit, k in (
+        ("theta_deg", span_of["theta_deg"], "deg", D2R),
+        ("phi_deg", lateral["phi_deg"], "deg", D2R),
+        ("alpha_deg", span_of["alpha_deg"], "deg", D2R),
+        ("beta_deg", lateral["beta_deg"], "deg", D2R),
+        ("tas_kt", span_of["tas_kt"], "kt", FT_PER_KT),
+    ):
         if c not in data.present:
             for e in ("bias", "scale", "delay"):
                 out[f"{c}.{e}"] = "channel not in the logs"
@@ -425,20 +509,26 @@ def unexcited_parameters(data: _Data, recon: dict[str, np.ndarray],
     if beta_span < lateral["beta_deg"]:
         out.setdefault("beta_deg.bias", "a sideslip offset is a lateral velocity offset without a lateral manoeuvre")
     if phi_span < lateral["phi_deg"]:
-        out.setdefault("phi_deg.bias", "confounded with the lateral accelerometer's bias through gravity without a "
-                                       "bank")
+        out.setdefault(
+            "phi_deg.bias", "confounded with the lateral accelerometer's bias through gravity without a bank"
+        )
     if theta_span < s.theta_bias_span_deg:
-        out.setdefault("theta_deg.bias", f"confounded with the longitudinal accelerometer's bias through gravity "
-                                         f"(pitch spans {theta_span:.0f} deg, needs {s.theta_bias_span_deg:g})")
+        out.setdefault(
+            "theta_deg.bias",
+            f"confounded with the longitudinal accelerometer's bias through gravity "
+            f"(pitch spans {theta_span:.0f} deg, needs {s.theta_bias_span_deg:g})",
+        )
     ins = all(c in data.present for c in INS)
     turned = float(heading_change(data).max(initial=0.0)) if ins else 0.0
     for e in ("bias", "scale", "delay"):
         if e != "delay" and turned >= s.turn_span_deg:
             continue  # a steady wind in the earth's axes, seen from several headings, is not an airspeed error
-        out.setdefault(f"tas_kt.{e}", (f"{NEEDS_TURN} (no turn in the manoeuvres: the "
-                                       f"heading spans {turned:.0f} deg, needs {s.turn_span_deg:g})") if ins else
-                       "no inertial speed reference in the logs (ground speed): each log's own initial speed "
-                       "absorbs it")
+        out.setdefault(
+            f"tas_kt.{e}",
+            (f"{NEEDS_TURN} (no turn in the manoeuvres: the heading spans {turned:.0f} deg, needs {s.turn_span_deg:g})")
+            if ins
+            else "no inertial speed reference in the logs (ground speed): each log's own initial speed absorbs it",
+        )
     for c in ("p_dps", "r_dps", "ay_fps2"):
         if c not in data.present:
             out[f"{c}.bias"] = "channel not in the logs"
@@ -459,9 +549,19 @@ CONVERGED = 1e-6
 UNDAMPED = 1e-3
 
 
-def gauss_newton(residual, x: np.ndarray, free: np.ndarray, ns: int, L: int, per: int,
-                  rows: list[np.ndarray], perlog=None, max_iter: int = 40,
-                  robust: tuple | None = None, column=None):
+def gauss_newton(
+    residual,
+    x: np.ndarray,
+    free: np.ndarray,
+    ns: int,
+    L: int,
+    per: int,
+    rows: list[np.ndarray],
+    perlog=None,
+    max_iter: int = 40,
+    robust: tuple | None = None,
+    column=None,
+):
     """Damped Gauss-Newton: x = [shared (ns), per log (L x per)]; ``free`` masks the shared ones
     (each log's own parameters are always free).
 

@@ -1,5 +1,6 @@
 """What the data compatibility found, and the correction of a log for it: the instrument
 errors with their standard errors (:class:`CompatResult`) and the sensor positions moved to the CG."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -71,8 +72,11 @@ class Parameter:
         """At least :attr:`settings`' ``candidate_z`` standard errors (or measured by the kinematics and
         refined by the aerodynamic residuals), at least what ``matters`` for its unit, and ``plausible``."""
         s = self.settings
-        return bool(self.identifiable and (self.z >= s.candidate_z or {"kinematics", "residuals"} <= set(self.sources))
-                    and s.matters[self.unit] <= abs(self.estimate) <= s.plausible[self.unit])
+        return bool(
+            self.identifiable
+            and (self.z >= s.candidate_z or {"kinematics", "residuals"} <= set(self.sources))
+            and s.matters[self.unit] <= abs(self.estimate) <= s.plausible[self.unit]
+        )
 
     @property
     def applied(self) -> bool:
@@ -82,13 +86,21 @@ class Parameter:
 
     def to_dict(self) -> dict:
         ok = bool(self.identifiable)
-        return {"channel": self.channel, "error": self.error, "unit": self.unit,
-                "estimate": float(self.estimate) if ok else None,
-                "se": float(self.se) if ok else None, "z": float(self.z) if ok else None,
-                "identifiable": ok, "reason": self.reason, "applied": bool(self.applied),
-                "confounded_with": self.confounded_with or None, "chosen_because": self.chosen or None,
-                "se_one_step": float(self.se_one_step) if ok and np.isfinite(self.se_one_step) else None,
-                "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()}}
+        return {
+            "channel": self.channel,
+            "error": self.error,
+            "unit": self.unit,
+            "estimate": float(self.estimate) if ok else None,
+            "se": float(self.se) if ok else None,
+            "z": float(self.z) if ok else None,
+            "identifiable": ok,
+            "reason": self.reason,
+            "applied": bool(self.applied),
+            "confounded_with": self.confounded_with or None,
+            "chosen_because": self.chosen or None,
+            "se_one_step": float(self.se_one_step) if ok and np.isfinite(self.se_one_step) else None,
+            "methods": {k: {"estimate": float(e), "se": float(se)} for k, (e, se) in self.sources.items()},
+        }
 
 
 def instrument_parameters(settings: CompatSettings | None = None) -> list[Parameter]:
@@ -151,15 +163,21 @@ class CompatResult:
             keep = [j for j, n in enumerate(ns) if n.split(".")[1] in ("bias", "scale", "delay") and n in ok]
             names += [tuple(ns[j].split(".")) for j in keep]
             blocks.append(cov[np.ix_(keep, keep)])
-        timed = [p for p in self.parameters if p.applied and p.se > 0
-                 and p.name.split(".")[1] in ("bias", "scale", "delay") and tuple(p.name.split(".")) not in names]
+        timed = [
+            p
+            for p in self.parameters
+            if p.applied
+            and p.se > 0
+            and p.name.split(".")[1] in ("bias", "scale", "delay")
+            and tuple(p.name.split(".")) not in names
+        ]
         total = np.zeros((len(names) + len(timed), len(names) + len(timed)))
         i = 0
         for b in blocks:
-            total[i:i + len(b), i:i + len(b)] = b
+            total[i : i + len(b), i : i + len(b)] = b
             i += len(b)
         for p in timed:
-            total[i, i] = p.se ** 2
+            total[i, i] = p.se**2
             i += 1
         names = names + [tuple(p.name.split(".")) for p in timed]
         if plausible_at is not None and len(names):
@@ -171,34 +189,44 @@ class CompatResult:
 
     def choose(self, name: str, why: str, beside_aero: bool = False) -> CompatResult:
         """The same result with a confounded parameter applied (its partner held at 0), and why."""
-        return replace(self, parameters=[replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p
-                                         for p in self.parameters])
+        return replace(
+            self,
+            parameters=[
+                replace(p, chosen=why, beside_aero=beside_aero) if p.name == name else p for p in self.parameters
+            ],
+        )
 
     def note(self, name: str, text: str) -> CompatResult:
         """The same result with a note added to one parameter's reason."""
-        return replace(self, parameters=[replace(p, reason=f"{p.reason}; {text}") if p.name == name else p
-                                         for p in self.parameters])
+        return replace(
+            self,
+            parameters=[replace(p, reason=f"{p.reason}; {text}") if p.name == name else p for p in self.parameters],
+        )
 
     @property
     def undecided(self) -> list[Parameter]:
         """Correctable parameters held back: confounded with a partner the kinematics cannot tell
         them from, or short of their ``settings.apply_z`` standard errors. Other evidence may choose them."""
-        return [p for p in self.parameters if p.correctable and not p.applied
-                and (p.confounded_with or not p.reason)]
+        return [p for p in self.parameters if p.correctable and not p.applied and (p.confounded_with or not p.reason)]
 
     def without(self, name: str) -> CompatResult:
         """The same result with one parameter's correction not applied."""
-        params = [replace(p, identifiable=False, reason="undone") if p.name == name else p
-                  for p in self.parameters]
+        params = [replace(p, identifiable=False, reason="undone") if p.name == name else p for p in self.parameters]
         return replace(self, parameters=params)
 
     @property
     def unmeasured(self) -> list[tuple[str, str]]:
         """Air-data errors the manoeuvres could have shown but the conditions hid (turbulence), and
         the airspeed's scale that only a turn can tell from a steady wind."""
-        return [(p.channel, p.error) for p in self.parameters
-                if not p.identifiable and ((p.reason.startswith("turbulence") and p.channel == "alpha_deg")
-                                           or (p.name == "tas_kt.scale" and p.reason.startswith(NEEDS_TURN)))]
+        return [
+            (p.channel, p.error)
+            for p in self.parameters
+            if not p.identifiable
+            and (
+                (p.reason.startswith("turbulence") and p.channel == "alpha_deg")
+                or (p.name == "tas_kt.scale" and p.reason.startswith(NEEDS_TURN))
+            )
+        ]
 
     def get(self, name: str) -> Parameter:
         return next(p for p in self.parameters if p.name == name)
@@ -230,9 +258,13 @@ class CompatResult:
         return tuple((p.name, float(p.estimate)) for p in self.applied), repr(sorted(self.positions.items()))
 
     def to_dict(self) -> dict:
-        return {"parameters": [p.to_dict() for p in self.parameters], "logs": [Path(p).name for p in self.logs],
-                "residual_rms": self.residual_rms, "documented_positions_ft": self.positions,
-                "vertical_gust_rms_fps": self.turbulence_fps}
+        return {
+            "parameters": [p.to_dict() for p in self.parameters],
+            "logs": [Path(p).name for p in self.logs],
+            "residual_rms": self.residual_rms,
+            "documented_positions_ft": self.positions,
+            "vertical_gust_rms_fps": self.turbulence_fps,
+        }
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([p.to_dict() for p in self.parameters])
@@ -251,14 +283,26 @@ class CompatResult:
                     continue
                 lines.append(f"  {p.name:<22} not identifiable ({p.reason})")
                 continue
-            mark = ("  applied" + (f" ({p.chosen})" if p.chosen else "") if p.applied else
-                    f"  {p.reason}" if p.reason else
-                    "  implausible, not applied" if abs(p.estimate) > _plausible(p) else "")
+            mark = (
+                "  applied" + (f" ({p.chosen})" if p.chosen else "")
+                if p.applied
+                else f"  {p.reason}"
+                if p.reason
+                else "  implausible, not applied"
+                if abs(p.estimate) > _plausible(p)
+                else ""
+            )
             how = "; ".join(f"{k} {e:+.4g} +- {se:.2g}" for k, (e, se) in p.sources.items())
-            whole = (f"  [each log left out, the whole estimate again; one-step jackknife +- {p.se_one_step:.2g}]"
-                     if np.isfinite(p.se_one_step) else "")
-            lines.append(f"  {p.name:<22} {p.estimate:+11.5g} +- {p.se:.3g} {p.unit:<7} (z {p.z:5.1f}){mark}"
-                         + (f"  [{how}]" if how else "") + whole)
+            whole = (
+                f"  [each log left out, the whole estimate again; one-step jackknife +- {p.se_one_step:.2g}]"
+                if np.isfinite(p.se_one_step)
+                else ""
+            )
+            lines.append(
+                f"  {p.name:<22} {p.estimate:+11.5g} +- {p.se:.3g} {p.unit:<7} (z {p.z:5.1f}){mark}"
+                + (f"  [{how}]" if how else "")
+                + whole
+            )
         for ch, v in self.residual_rms.items():
             lines.append(f"  residual RMS {ch}: {v['before']:.4g} -> {v['after']:.4g}")
         if np.isfinite(self.turbulence_fps):
@@ -290,8 +334,7 @@ class CompatResult:
         if x:
             positions.update({c: [x, 0.0, 0.0] for c in ("alpha_deg", "beta_deg")})
         d = at_cg(d, positions, air_data_only=True)
-        meta = {**log.meta, "corrections": {p.name: p.estimate for p in self.applied},
-                "positions_corrected": positions}
+        meta = {**log.meta, "corrections": {p.name: p.estimate for p in self.applied}, "positions_corrected": positions}
         return replace(log, data=pd.DataFrame(d, index=log.data.index), meta=meta)
 
 
@@ -314,8 +357,9 @@ def columns_of(frame: pd.DataFrame) -> dict[str, np.ndarray]:
     return {c: frame[c].to_numpy() for c in frame.columns}
 
 
-def at_cg(d: dict[str, np.ndarray], positions: dict, accelerometers_only: bool = False,
-          air_data_only: bool = False) -> dict[str, np.ndarray]:
+def at_cg(
+    d: dict[str, np.ndarray], positions: dict, accelerometers_only: bool = False, air_data_only: bool = False
+) -> dict[str, np.ndarray]:
     """Channels moved from where their sensors sit to the CG.
 
     Accelerometers lose the rotational terms (angular acceleration from the
@@ -374,7 +418,7 @@ def _at_cg(d: dict[str, np.ndarray], x_ft: float, xb_ft: float | None = None) ->
     bv = np.asarray(d["beta_deg"], dtype=float) * D2R if "beta_deg" in d else np.zeros(len(v))
     vs = v * np.sin(bv)
     vb = vs - r * xb_ft
-    uw = np.sqrt(np.maximum(v ** 2 - vs ** 2, 1.0))
+    uw = np.sqrt(np.maximum(v**2 - vs**2, 1.0))
     a = av.copy()
     for _ in range(4):  # the vane reads atan((w - q x) / u) with u, w of the CG
         u = uw * np.cos(a)

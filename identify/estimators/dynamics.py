@@ -7,6 +7,7 @@ and all its parameter perturbations as one batch, so finite-difference sensitivi
 one pass over the data, not one per parameter. A model that cannot be batched (a JSBSim
 aircraft) loops over the rows itself.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -80,8 +81,9 @@ def rk4_step(f: Callable, x: np.ndarray, u1: np.ndarray, u2: np.ndarray, p: np.n
     return x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
-def simulate(model: StateSpaceModel, p: np.ndarray, x0: np.ndarray, rec: Record,
-             gain: np.ndarray | None = None) -> np.ndarray:
+def simulate(
+    model: StateSpaceModel, p: np.ndarray, x0: np.ndarray, rec: Record, gain: np.ndarray | None = None
+) -> np.ndarray:
     """Outputs of the model over one record, for a batch of parameter vectors.
 
     Parameters
@@ -109,8 +111,9 @@ def simulate(model: StateSpaceModel, p: np.ndarray, x0: np.ndarray, rec: Record,
     return y
 
 
-def linearize(model: StateSpaceModel, p: np.ndarray, x: np.ndarray, u: np.ndarray,
-              step: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+def linearize(
+    model: StateSpaceModel, p: np.ndarray, x: np.ndarray, u: np.ndarray, step: float = 1e-4
+) -> tuple[np.ndarray, np.ndarray]:
     """``A = df/dx`` and ``C = dg/dx`` by central differences, for a batch of parameter vectors.
 
     Parameters
@@ -137,4 +140,3 @@ def linearize(model: StateSpaceModel, p: np.ndarray, x: np.ndarray, u: np.ndarra
     a = (fx[:, :, 0] - fx[:, :, 1]) / (2 * step)  # (B, i=state perturbed, nx)
     c = (gx[:, :, 0] - gx[:, :, 1]) / (2 * step)
     return np.transpose(a, (0, 2, 1)), np.transpose(c, (0, 2, 1))
-

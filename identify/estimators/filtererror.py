@@ -19,6 +19,7 @@ innovation covariance (Jategaonkar 2015, ch. 5, the algorithm of ``ml_fem``):
    twenty times higher (Cmq 10 % off the published value), compensating from the first lands
    within 1 %.
 """
+
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
@@ -46,9 +47,17 @@ class FilterError(OutputError):
 
     method = "fe"
 
-    def __init__(self, model: StateSpaceModel, records: Sequence[Record], p0, f0,
-                 free: Collection[str] | None = None, tol: float = 1e-4, max_iter: int = 30,
-                 step: float = 1e-4) -> None:
+    def __init__(
+        self,
+        model: StateSpaceModel,
+        records: Sequence[Record],
+        p0,
+        f0,
+        free: Collection[str] | None = None,
+        tol: float = 1e-4,
+        max_iter: int = 30,
+        step: float = 1e-4,
+    ) -> None:
         super().__init__(model, records, p0, free=free, tol=tol, max_iter=max_iter, step=step)
         f0 = np.array([f0[k] for k in model.states] if isinstance(f0, Mapping) else f0, dtype=float)
         self.f0 = f0
@@ -121,7 +130,7 @@ class FilterError(OutputError):
             a = jac[active]
             kkt = np.block([[m, a.T], [a, np.zeros((len(active), len(active)))]])
             rhs = np.concatenate([g, 1.0 - KC_MARGIN - kc[0, active]])
-            delta = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:len(theta)]
+            delta = np.linalg.lstsq(kkt, rhs, rcond=None)[0][: len(theta)]
         return delta
 
     def _trial_ok(self, trial: np.ndarray) -> bool:
@@ -134,8 +143,9 @@ class FilterError(OutputError):
         s = self._covariance(self._residuals(theta))
         return float(np.sum(np.log(self.r_gain)) + np.sum(s / self.r_gain)), s
 
-    def _after_step(self, theta: np.ndarray, iteration: int, cost: float,
-                    r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    def _after_step(
+        self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray
+    ) -> tuple[np.ndarray, float, np.ndarray]:
         """``R`` re-estimated from the innovations and ``F`` scaled to keep the gain (eq. 5.41); the
         scaling halved back, then dropped, if the likelihood would rise; ``R`` kept if even that fails."""
         if iteration < F_UPDATE_FROM:
@@ -175,7 +185,7 @@ class FilterError(OutputError):
         if np.all(kc <= 1.0):
             return theta
         over = np.zeros(len(theta), dtype=bool)
-        over[len(theta) - nx:] = kc > 1.0 - KC_MARGIN
+        over[len(theta) - nx :] = kc > 1.0 - KC_MARGIN
         lo, hi = 0.0, 1.0
         while hi - lo > 1e-3:
             mid = 0.5 * (lo + hi)

@@ -1,5 +1,6 @@
 """Model structures the estimators fit: a linear short period, and the longitudinal point
 model of a rigid aeroplane with coefficients linear in named regressors."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -18,10 +19,16 @@ def short_period() -> StateSpaceModel:
     States and outputs alpha [rad] and q [rad/s], input de [rad]; parameters
     :data:`SHORT_PERIOD_PARAMS` (per second).
     """
+
     def f(x, u, p):
         a, q, de = x[:, 0], x[:, 1], u[0]
-        return np.stack([p[:, 0] + p[:, 1] * a + (1.0 + p[:, 2]) * q + p[:, 3] * de,
-                         p[:, 4] + p[:, 5] * a + p[:, 6] * q + p[:, 7] * de], axis=1)
+        return np.stack(
+            [
+                p[:, 0] + p[:, 1] * a + (1.0 + p[:, 2]) * q + p[:, 3] * de,
+                p[:, 4] + p[:, 5] * a + p[:, 6] * q + p[:, 7] * de,
+            ],
+            axis=1,
+        )
 
     def g(x, u, p):
         return x.copy()
@@ -68,10 +75,14 @@ SHORT_PERIOD_STATES = ("alpha_rad", "q_rps")
 SHORT_PERIOD_OUTPUTS = ("alpha_rad", "q_rps", "qdot_rps2")
 
 
-def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs: Sequence[str] = ("de_rad",),  # noqa: C901
-                 offsets: Mapping[str, float] | None = None,
-                 outputs: Sequence[str] = LONGITUDINAL_OUTPUTS,
-                 states: Sequence[str] = LONGITUDINAL_STATES) -> StateSpaceModel:
+def longitudinal(  # noqa: C901
+    airframe: Airframe,
+    terms: Mapping[str, Sequence[str]],
+    inputs: Sequence[str] = ("de_rad",),
+    offsets: Mapping[str, float] | None = None,
+    outputs: Sequence[str] = LONGITUDINAL_OUTPUTS,
+    states: Sequence[str] = LONGITUDINAL_STATES,
+) -> StateSpaceModel:
     """Rigid-body longitudinal equations in the stability axes, coefficients linear in regressors.
 
     States V, alpha, theta, q; outputs those and qdot, ax, az (body accelerations at the CG,
@@ -184,7 +195,7 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
     def forces(x, u, p):
         v, a, th, q = state(x)
         rho = u[ir] if ir is not None else off["rho"]
-        qs = 0.5 * rho * v ** 2 * af.area
+        qs = 0.5 * rho * v**2 * af.area
         return v, a, th, q, qs, coefficients(v, a, q, u, p), (u[it] if it is not None else 0.0)
 
     def f(x, u, p):
@@ -193,8 +204,15 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
         out = np.empty_like(x)
         out[:, -1] = (qs * af.chord * c["Cm"] + af.thrust_arm * thrust) / af.iyy
         if short:
-            out[:, 0] = q + (af.g * np.cos(off.get("gamma_rad", 0.0)) - thrust * np.sin(a_ref + af.thrust_angle_rad) / m
-                             - qs * c["CL"] / m) / v
+            out[:, 0] = (
+                q
+                + (
+                    af.g * np.cos(off.get("gamma_rad", 0.0))
+                    - thrust * np.sin(a_ref + af.thrust_angle_rad) / m
+                    - qs * c["CL"] / m
+                )
+                / v
+            )
             return out
         ath = a - th
         out[:, 0] = (-qs * c["CD"] + thrust * np.cos(a + af.thrust_angle_rad)) / m + af.g * np.sin(ath)
@@ -208,9 +226,12 @@ def longitudinal(airframe: Airframe, terms: Mapping[str, Sequence[str]], inputs:
         full = {"alpha_rad": a, "q_rps": q, "qdot_rps2": qdot}
         if not short:
             sa, ca = np.sin(a), np.cos(a)
-            full.update(V=v, theta_rad=th,
-                        ax=(qs * (c["CL"] * sa - c["CD"] * ca) + thrust * np.cos(af.thrust_angle_rad)) / af.mass,
-                        az=(qs * (-c["CL"] * ca - c["CD"] * sa) - thrust * np.sin(af.thrust_angle_rad)) / af.mass)
+            full.update(
+                V=v,
+                theta_rad=th,
+                ax=(qs * (c["CL"] * sa - c["CD"] * ca) + thrust * np.cos(af.thrust_angle_rad)) / af.mass,
+                az=(qs * (-c["CL"] * ca - c["CD"] * sa) - thrust * np.sin(af.thrust_angle_rad)) / af.mass,
+            )
         return np.stack([full[k] for k in outputs], axis=1)
 
     return StateSpaceModel(f, g, states, inputs, outputs, tuple(names))

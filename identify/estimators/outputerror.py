@@ -7,6 +7,7 @@ with ``R`` held (the parameters scaled to a unit diagonal of the information mat
 halved while the cost rises. Sensitivities are forward
 differences, integrated as one batch with the nominal model.
 """
+
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
@@ -69,9 +70,18 @@ class OutputError:
 
     method = "oe"
 
-    def __init__(self, model: StateSpaceModel, records: Sequence[Record], p0, free: Collection[str] | None = None,
-                 x0_free: Collection[str] = (), biases: Collection[str] = (), tol: float = 1e-5,
-                 max_iter: int = 50, step: float = 1e-4) -> None:
+    def __init__(
+        self,
+        model: StateSpaceModel,
+        records: Sequence[Record],
+        p0,
+        free: Collection[str] | None = None,
+        x0_free: Collection[str] = (),
+        biases: Collection[str] = (),
+        tol: float = 1e-5,
+        max_iter: int = 50,
+        step: float = 1e-4,
+    ) -> None:
         self.model = model
         self.records = list(records)
         p0 = np.array([p0[k] for k in model.params] if isinstance(p0, Mapping) else p0, dtype=float)
@@ -108,11 +118,11 @@ class OutputError:
         x0s, biases = [], []
         for j, r in enumerate(self.records):
             x0 = np.repeat(r.x0[None], nb, axis=0)
-            x0[:, self.i_x0] = thetas[:, nf + j * nx0: nf + (j + 1) * nx0]
+            x0[:, self.i_x0] = thetas[:, nf + j * nx0 : nf + (j + 1) * nx0]
             x0s.append(x0)
             b = np.zeros((nb, len(self.model.outputs)))
             k = nf + len(self.records) * nx0 + j * nbias
-            b[:, self.i_bias] = thetas[:, k:k + nbias]
+            b[:, self.i_bias] = thetas[:, k : k + nbias]
             biases.append(b)
         return p, x0s, biases
 
@@ -147,7 +157,7 @@ class OutputError:
     @staticmethod
     def _covariance(res: list[np.ndarray]) -> np.ndarray:
         stacked = np.vstack(res)
-        return np.mean(stacked ** 2, axis=0)
+        return np.mean(stacked**2, axis=0)
 
     def _prepare(self, theta: np.ndarray) -> None:
         """Hook run before each iteration's sensitivities (the filter error updates its gains)."""
@@ -160,8 +170,9 @@ class OutputError:
         """Hook: whether a trial step keeps the estimator's constraints (always, for the output error)."""
         return True
 
-    def _line_search(self, theta: np.ndarray, delta: np.ndarray, cost: float,
-                     halvings: int) -> tuple[np.ndarray, float, np.ndarray] | None:
+    def _line_search(
+        self, theta: np.ndarray, delta: np.ndarray, cost: float, halvings: int
+    ) -> tuple[np.ndarray, float, np.ndarray] | None:
         """The first of ``theta + delta``, ``theta + delta / 2``, ... that lowers the cost and keeps the
         constraints: (parameters, cost, R), or None."""
         for _ in range(halvings):
@@ -183,8 +194,9 @@ class OutputError:
         r = self._covariance(self._residuals(theta))
         return float(np.sum(np.log(r))), r
 
-    def _after_step(self, theta: np.ndarray, iteration: int, cost: float,
-                    r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    def _after_step(
+        self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray
+    ) -> tuple[np.ndarray, float, np.ndarray]:
         """Hook after an accepted step: the parameters, the cost and ``R`` to go on from."""
         return theta, cost, r
 
@@ -237,10 +249,15 @@ class OutputError:
                 last = abs(np.expm1(costs[-1] - costs[-2])) if len(costs) > 1 else float("nan")
                 moved = float(np.max(np.abs(last_step) / bounds(m))) if last_step is not None else float("nan")
                 converged = settled or last < 10 * self.tol or moved < STILL_SE
-                reason = "" if converged else (
-                    f"no step lowered the cost at iteration {it} (Gauss-Newton and damped steps, each halved); the last "
-                    f"accepted step changed it by {last:.2g} (tolerance {self.tol:g}) and moved an estimate by "
-                    f"{moved:.2g} of its Cramér-Rao bound")
+                reason = (
+                    ""
+                    if converged
+                    else (
+                        f"no step lowered the cost at iteration {it} (Gauss-Newton and damped steps, each halved); the last "
+                        f"accepted step changed it by {last:.2g} (tolerance {self.tol:g}) and moved an estimate by "
+                        f"{moved:.2g} of its Cramér-Rao bound"
+                    )
+                )
                 break
             trial, c, r = step
             last_step = trial - theta
@@ -272,6 +289,18 @@ class OutputError:
         cov_c = cov @ middle @ cov
         preds = [z - e for z, e in zip((rec.z for rec in self.records), res)]
         idx = pd.Index(self.names)
-        return TimeDomainResults(self.method, pd.Series(theta, index=idx), pd.Series(np.sqrt(np.diag(cov)), index=idx),
-                                 pd.Series(np.sqrt(np.diag(cov_c)), index=idx), pd.Series(r, index=self.model.outputs),
-                                 float(np.prod(r)), history, converged, iterations, preds, res, cov, cov_c)
+        return TimeDomainResults(
+            self.method,
+            pd.Series(theta, index=idx),
+            pd.Series(np.sqrt(np.diag(cov)), index=idx),
+            pd.Series(np.sqrt(np.diag(cov_c)), index=idx),
+            pd.Series(r, index=self.model.outputs),
+            float(np.prod(r)),
+            history,
+            converged,
+            iterations,
+            preds,
+            res,
+            cov,
+            cov_c,
+        )

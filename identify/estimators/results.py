@@ -1,4 +1,5 @@
 """What an output-error or filter-error fit returns: the statsmodels shape."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -73,20 +74,23 @@ class TimeDomainResults:
             "se": {k: float(v) for k, v in self.bse.items()},
             "se_coloured": {k: float(v) for k, v in self.bse_coloured.items()},
             "R": {k: float(v) for k, v in self.R.items()},
-            "cost": self.cost, "iterations": self.iterations, "converged": self.converged,
+            "cost": self.cost,
+            "iterations": self.iterations,
+            "converged": self.converged,
             **({"reason": self.reason} if self.reason else {}),
             "nobs": self.nobs,
         }
 
     def summary(self) -> str:
         name = {"oe": "Output error", "fe": "Filter error"}.get(self.method, self.method)
-        lines = [f"{name}: N = {self.nobs}, det(R) = {self.cost:.4g}, {self.iterations} iterations, "
-                 f"{'converged' if self.converged else 'NOT converged: ' + self.reason}",
-                 f"  {'parameter':<24}{'estimate':>14}{'CR bound':>12}{'coloured':>12}{'rel %':>8}"]
+        lines = [
+            f"{name}: N = {self.nobs}, det(R) = {self.cost:.4g}, {self.iterations} iterations, "
+            f"{'converged' if self.converged else 'NOT converged: ' + self.reason}",
+            f"  {'parameter':<24}{'estimate':>14}{'CR bound':>12}{'coloured':>12}{'rel %':>8}",
+        ]
         for k in self.params.index:
             v, se, sc = self.params[k], self.bse[k], self.bse_coloured[k]
             rel = 100 * sc / abs(v) if v != 0 else np.inf
             lines.append(f"  {k:<24}{v:>14.6g}{se:>12.3g}{sc:>12.3g}{rel:>8.1f}")
-        lines.append("  residual standard deviations: "
-                     + ", ".join(f"{k} {np.sqrt(v):.3g}" for k, v in self.R.items()))
+        lines.append("  residual standard deviations: " + ", ".join(f"{k} {np.sqrt(v):.3g}" for k, v in self.R.items()))
         return "\n".join(lines)
