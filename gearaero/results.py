@@ -14,6 +14,15 @@ def _json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
 
 
+def _csv(path: Path) -> pd.DataFrame:
+    """The table, or an empty one where the identification had nothing to write (no gear-down fit for a
+    linear gear model)."""
+    try:
+        return pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame()
+
+
 @dataclass
 class IdentificationResult:
     """An identification: eq. (1) coefficients, eq. (3) fits per point, the gear models (eqs. 4, 8, 9)
@@ -51,13 +60,14 @@ class IdentificationResult:
         """Every point's eq. (3) parameters: ``point``, ``gear``, ``coefficient``, ``parameter``,
         ``estimate``, ``std_error``, ``identifiable``, ``note``, ``method`` (the estimator the number came
         from; regressors in rad, [1/rad])."""
-        return pd.read_csv(self.folder / "baseline_parameters.csv")
+        return _csv(self.folder / "baseline_parameters.csv")
 
     @property
     def linear_gear_model(self) -> pd.DataFrame:
         """The linear gear model (eq. 4) per condition: gear-up and gear-down C0, ``dCL_gear``,
-        ``dCD_gear``, ``dCm_gear`` [-] and the derivatives."""
-        return pd.read_csv(self.folder / "linear_gear_model.csv")
+        ``dCD_gear``, ``dCm_gear`` [-] and the derivatives; empty where no condition was fitted both gear up
+        and gear down."""
+        return _csv(self.folder / "linear_gear_model.csv")
 
     @property
     def not_converged(self) -> list[dict]:

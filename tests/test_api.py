@@ -273,3 +273,15 @@ def test_help_shows_the_documented_api():
         assert doc.strip(), f
         if callable(f) and not isinstance(f, type):
             assert "Parameters\n    ----------" in doc and "Returns\n    -------" in doc, f
+
+
+def test_an_identification_without_a_gear_down_fit_has_an_empty_linear_gear_model(tmp_path):
+    """A campaign whose gear-down points fly only the gear extension (no gear-down eq. 3 fit) writes an empty
+    linear gear model: the property is an empty table, not an exception."""
+    from gearaero.results import IdentificationResult
+
+    (tmp_path / "linear_gear_model.csv").write_text("")
+    (tmp_path / "baseline_parameters.csv").write_text("point,gear\np1,up\n")
+    res = IdentificationResult(tmp_path, {}, None, False)
+    assert res.linear_gear_model.empty
+    assert list(res.parameters.columns) == ["point", "gear"]
