@@ -27,9 +27,27 @@ def pytest_addoption(parser):
         action="store_true",
         help="the fast tier only: no JSBSim flight, campaign or worker process (tests/fast_tier.json)",
     )
+    parser.addoption(
+        "--slow",
+        action="store_true",
+        help="also the long scenario tests (marked slow: a minute each on 2 cores), which CI leaves out",
+    )
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers",
+        "slow: a long scenario test (the paper's whole matrix, kill -9 at six moments, a planned turn flown): "
+        "run with --slow; the capability it exercises has a shorter test in the default run",
+    )
 
 
 def pytest_collection_modifyitems(config, items):
+    if not config.getoption("--slow"):
+        skip = pytest.mark.skip(reason="a long scenario test: pytest --slow runs it")
+        for it in items:
+            if "slow" in it.keywords:
+                it.add_marker(skip)
     if not config.getoption("--fast"):
         return
     listed = {m: set(names) for m, names in json.loads(FAST_TIER.read_text()).items()}

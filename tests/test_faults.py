@@ -122,6 +122,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
     }
 
 
+@pytest.mark.slow
 def test_kill_9_at_six_moments_then_resume_gives_the_uninterrupted_folder(tmp_path, short_tmp):
     m, cases = tmp_path / "kill.toml", tmp_path / "cases.toml"
     m.write_text(KILL_MATRIX)

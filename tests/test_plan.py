@@ -316,6 +316,7 @@ def test_a_vane_scale_the_other_coefficients_refute_is_no_rival(tmp_path, capsys
     assert "nothing to separate" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_airspeed_scale_is_measured_by_the_turn_the_plan_flies(tmp_path, capsys):
     """A 6 % airspeed scale (the pitot's) on our 737 through the flight-test instruments: without a
     turn the data compatibility cannot tell it from a steady wind, and the residuals name a pitch

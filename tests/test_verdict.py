@@ -97,6 +97,7 @@ MACH_STEP = """<effects>
 """
 
 
+@pytest.mark.slow
 def test_a_lift_step_with_mach_is_named_on_the_paper_matrix(tmp_path):
     """CL a few hundredths higher above Mach 0.4, the paper's matrix through the flight-test profile:
     one condition left out (2000/0.3/15, x0.88) vetoed this effect, tens of times its floor with a
