@@ -57,8 +57,10 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
     flown = pmap(replay, [(lg, src) for lg in held], jobs)
     floors = pmap(replay_floor, [(lg, src, i) for i, lg in enumerate(held)], jobs)
     worst = {k: dict.fromkeys(CHANNELS, 0.0) for k in ("window", "log", "floor_window", "floor_log")}
-    where = {}
+    where, no_floor = {}, {}
     for lg, f, fl in zip(held, flown, floors):
+        if not fl.get("draws"):
+            no_floor[Path(lg.path).name] = fl.get("note", "")
         win = replay_window(lg.data)[:2]
         for k, e in (
             ("window", replay_errors(lg.data, f, win)),
@@ -67,10 +69,17 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
             ("floor_log", fl["log"]),
         ):
             for ch in CHANNELS:
-                if e[ch] > worst[k][ch] or e[ch] != e[ch]:
+                if e[ch] > worst[k][ch] or (e[ch] != e[ch] and not k.startswith("floor")):
                     worst[k][ch] = e[ch]
                     where[f"{k} {ch}"] = Path(lg.path).name
-    return {"sigma_fps": sigma, "seed": seed, "held_out_logs": len(held), "worst": worst, "where": where}
+    return {
+        "sigma_fps": sigma,
+        "seed": seed,
+        "held_out_logs": len(held),
+        "worst": worst,
+        "where": where,
+        "no_floor": no_floor,  # the logs whose floor could not be flown, with why (left out of the worst floor)
+    }
 
 
 def main() -> None:
