@@ -199,7 +199,7 @@ def test_a_map_with_an_implausible_declaration_is_refused_in_one_line(tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("gravity", ['"9.5 m/s^2"', '"10.1 m/s^2"', '"-9.8 m/s^2"'])
+@pytest.mark.parametrize("gravity", ['"9.5 m/s^2"', '"10.1 m/s^2"', '"-9.8 m/s^2"', "9.81"])
 def test_a_gravity_outside_the_earths_is_refused_in_one_line(tmp_path, capsys, gravity):
     text = (EXAMPLES / "attas-map.toml").read_text().replace("[aircraft]", f"[aircraft]\ngravity = {gravity}")
     (tmp_path / "map.toml").write_text(text)
@@ -218,6 +218,8 @@ def test_a_gravity_outside_the_earths_is_refused_in_one_line(tmp_path, capsys, g
     )
     err = capsys.readouterr().err
     assert "aircraft.gravity" in err and "9.7..9.9 m/s^2" in err and err.count("\n") == 1
+    if '"' not in gravity:  # a bare number is in the schema's ft/s^2, and the line says so
+        assert "9.81 (a number without a unit is in ft/s^2: 2.99 m/s^2)" in err, err
     assert not (tmp_path / "out").exists()
 
 

@@ -68,13 +68,15 @@ def normal_gravity_fps2(latitude_deg: float, alt_ft: float) -> float:
     return g / 0.3048
 
 
-def check_gravity(path: str, where: str, g_fps2: float) -> float:
-    """A declared gravity [ft/s^2] within :data:`GRAVITY_RANGE_FPS2`, or a one-line error."""
+def check_gravity(path: str, where: str, g_fps2: float, written=None) -> float:
+    """A declared gravity [ft/s^2] within :data:`GRAVITY_RANGE_FPS2`, or a one-line error naming what was
+    ``written`` in the map and how it was read (a bare number is in ft/s^2)."""
     lo, hi = GRAVITY_RANGE_FPS2
     if not (math.isfinite(g_fps2) and lo <= g_fps2 <= hi):
-        raise UserError(
-            f"{path}: {where}: {g_fps2 * 0.3048:.4g} m/s^2 is not a local gravity (must be within 9.7..9.9 m/s^2)"
-        )
+        value = f"{g_fps2 * 0.3048:.4g} m/s^2"
+        if isinstance(written, (int, float)):
+            value = f"{written!r} (a number without a unit is in ft/s^2: {value})"
+        raise UserError(f"{path}: {where}: {value} is not a local gravity (must be within 9.7..9.9 m/s^2)")
     return g_fps2
 
 

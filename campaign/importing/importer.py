@@ -297,7 +297,9 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
     for key, value in doc.get("aircraft", {}).items():
         unit, where = AIRCRAFT_UNITS[key], f"aircraft.{key}"
         x = _quantity(ps, where, value, unit)
-        aircraft.append((key, check_gravity(ps, where, x) if key == "gravity" else bounded(ps, where, key, x, unit)))
+        aircraft.append(
+            (key, check_gravity(ps, where, x, value) if key == "gravity" else bounded(ps, where, key, x, unit))
+        )
     accuracy = parse_accuracy(ps, doc.get("accuracy", {}), _quantity, schema_unit)
     records = parse_records(ps, doc["records"]) if "records" in doc else ()
     positions = []
