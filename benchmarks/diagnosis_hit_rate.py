@@ -37,14 +37,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from campaign.validation.hidden import (
+from campaign.validation.hidden import (  # noqa: E402
     CLEAN,
     FAMILIES,
     OWN_TERMS,
     SENSOR_FAMILIES,
     make,
     make_sensor,
-    score,  # noqa: E402
+    score,
     score_sensor,
 )
 from campaign.validation.support import matrix_toml, pairs, run_matrix, scaled_copy  # noqa: E402

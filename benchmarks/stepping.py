@@ -19,13 +19,13 @@ os.environ.setdefault("JSBSIM_DEBUG", "0")
 
 from campaign.simulation import catalog as cat  # noqa: E402
 from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, DEFAULT_EFFECTS, AircraftSource, load_effects  # noqa: E402
-from campaign.simulation.engine import (
+from campaign.simulation.engine import (  # noqa: E402
     FlightConfig,
     flap_schedule,
     fly,
     model_catalog,
     new_fdm,
-    trim,  # noqa: E402
+    trim,
     trimmed_fdm,
 )
 from campaign.simulation.matrix import load_matrix  # noqa: E402

@@ -529,8 +529,7 @@ class DiagnosisSettings:
         "on the held-out logs worse: the residual RMS without its terms (the coefficient's other terms "
         "refitted) over the RMS with them below this. It is reported unconfirmed, not rejected: held-out logs "
         "that do not fly where the cause acts test the extension's level there, not the cause.",
-        "180 random cases of the detection curve (150 hidden effects, 30 nulls, drawn after the rule was "
-        "written): "
+        "180 random cases of the detection curve (150 hidden effects, 30 nulls): "
         "of the 91 named causes that were the hidden effect, the ratio was 0.97 at least (5th percentile "
         "0.998); 5 more hidden effects fell to 0.04-0.55 (mach x alpha shapes, held out where their fit "
         "extrapolates), hence unconfirmed rather than rejected. The one false cause named had 2.8: on "

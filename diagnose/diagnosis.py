@@ -383,7 +383,7 @@ def _diagnose(  # noqa: C901
             c.verdict.update(accepted=False, reason=why, implausible=True)
     accepted = merge_sensors([c for c in sensors + causes if c.verdict["accepted"]])
     rejected = [c for c in sensors + causes if not c.verdict["accepted"]] + [c for c, _ in p.fallen]
-    for _ in range(s.drop_rounds + 1):  # the accepted causes' fits; a cause that worsens held-out data goes
+    while True:  # the accepted causes' fits; a cause that worsens held-out data goes (each pass drops one or more)
         for c in COEFFS:
             keep = [t for cause in accepted if cause.coefficient == c and cause.terms for t in cause.terms]
             if len(keep) != len(results[c].terms):

@@ -98,7 +98,8 @@ class Diagnosis:
     @property
     def unconfirmed(self) -> list[Cause]:
         """Aero candidates significant and beyond what instrument noise and errors make that held-out data
-        cannot confirm (they act at a single condition) or do not, strong ones (``held_out_f`` of :attr:`settings`)."""
+        cannot confirm (they act at a single condition) or do not, strong ones (``held_out_f`` of :attr:`settings`),
+        and those whose terms make the held-out logs worse (``held_out_worse``); none is in the extension."""
         return [c for c in self.rejected if c.verdict.get("unconfirmed")]
 
     @property

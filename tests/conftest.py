@@ -30,7 +30,7 @@ def pytest_addoption(parser):
     parser.addoption(
         "--slow",
         action="store_true",
-        help="also the long scenario tests (marked slow: a minute each on 2 cores), which CI leaves out",
+        help="also the long scenario tests (marked slow: about a minute each), which CI leaves out",
     )
 
 

@@ -276,8 +276,9 @@ def test_help_shows_the_documented_api():
 
 
 def test_an_identification_without_a_gear_down_fit_has_an_empty_linear_gear_model(tmp_path):
-    """A campaign whose gear-down points fly only the gear extension (no gear-down eq. 3 fit) writes an empty
-    linear gear model: the property is an empty table, not an exception."""
+    """An identification without a gear-down eq. (3) fit (a campaign whose gear-down points fly only the gear
+    extension) has an empty ``linear_gear_model.csv``: the property reads it as an empty table, not an
+    exception."""
     from gearaero.results import IdentificationResult
 
     (tmp_path / "linear_gear_model.csv").write_text("")
