@@ -386,8 +386,8 @@ class Ahead:
                     self._done[i] = value
                 else:
                     self._error = value
-        except EOFError:  # the chain ended (or its process died: the caller computes the rest)
-            pass
+        except (EOFError, OSError):  # the chain ended, or its process died or was ended mid-message: the
+            pass  # caller computes the rest
         finally:
             recv.close()
             proc.join()
