@@ -211,6 +211,13 @@ def stop_workers() -> None:
             proc.join(5.0)
         pool.shutdown(wait=False, cancel_futures=True)
     _POOL.clear()
+    import multiprocessing
+
+    late = multiprocessing.active_children()  # started as the interrupt came (a worker, the replays ahead)
+    for proc in late:
+        proc.terminate()
+    for proc in late:
+        proc.join(5.0)
 
 
 class _ByValue:
@@ -366,18 +373,24 @@ class Ahead:
         self._nice = nice
         ctx = _context()
         self._stopped = ctx.Event() if jobs > 1 and calls else threading.Event()
+        self._launched = threading.Event()  # the process started, or will not be
         if jobs > 1 and calls:  # a thread starts the process: that waits for the warm server's imports
             _warm_as_imported()
             self._thread = threading.Thread(target=self._collect, args=(ctx, func, calls), daemon=True)
             self._thread.start()
 
     def _collect(self, ctx, func: Callable, calls: list[tuple]) -> None:
-        recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(
-            target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls, self._nice), daemon=True
-        )
-        proc.start()
-        self._proc = proc
+        try:
+            if self._stopped.is_set():  # cancelled before it began
+                return
+            recv, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(
+                target=_ahead, args=(send, self._stopped, os.getcwd(), portable(func), calls, self._nice), daemon=True
+            )
+            proc.start()
+            self._proc = proc
+        finally:
+            self._launched.set()
         send.close()
         try:
             while True:
@@ -405,6 +418,8 @@ class Ahead:
     def cancel(self) -> None:
         """Start no more tasks, and end the one running unfinished (its result is left out)."""
         self.stop()
+        if self._thread is not None:  # a process being started is waited for, so that none outlives the caller
+            self._launched.wait(30.0)
         proc = self._proc
         if proc is not None and proc.is_alive():
             proc.terminate()  # what it was sending is cut short: the collector reads to the end of the pipe
