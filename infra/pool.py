@@ -534,7 +534,7 @@ def landed(shipment: Shipment) -> Path:
 
 
 #: The temporary folders :func:`owned_tmpdir` makes: ``gearid-[<kind>-]<pid>-<random>``.
-OWNED = re.compile(r"gearid-(?:[a-z]+-)?(\d+)-[^/]+")
+OWNED = re.compile(r"gearid-(?:[a-z][a-z-]*-)?(\d+)-[^/]+")
 _SWEPT: list = []  # not empty once this process has swept the temporary folder
 
 

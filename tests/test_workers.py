@@ -287,6 +287,7 @@ def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_pa
         f"gearid-{dead.pid}-abc",
         f"gearid-eval-{dead.pid}-x_1",
         f"gearid-started-{zombie.pid}-q",
+        f"gearid-replay-aircraft-{dead.pid}-r",
         f"gearid-{os.getpid()}-mine",
         "gearid-cluster",
         "gearid-k2j4l5m6",
@@ -300,7 +301,7 @@ def test_the_folders_of_dead_processes_are_swept_and_the_living_ones_kept(tmp_pa
     made = w.owned_tmpdir("eval")
     zombie.wait()
     assert made.parent == tmp_path and made.name.startswith(f"gearid-eval-{os.getpid()}-")
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names[3:] + [made.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names[4:] + [made.name])
     (tmp_path / f"gearid-{dead.pid}-abc").mkdir()
     w.owned_tmpdir()  # once per process
     assert (tmp_path / f"gearid-{dead.pid}-abc").exists()
@@ -336,3 +337,32 @@ def test_a_script_without_a_main_guard_fans_out_from_a_file_stdin_or_c(tmp_path,
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines() == ["[3, 7] [101, 102] 103"], out.stdout
+
+
+REPLAY_COPY = """
+import sys
+import jsbsim
+from pathlib import Path
+from campaign.simulation.aircraft import AircraftSource
+from campaign.simulation.replay_log import flying_source
+from infra.pool import pmap
+
+def made(_):
+    kind, src = flying_source(AircraftSource(str(Path(jsbsim.get_default_root_dir()) / "aircraft" / "c172x"), ()))
+    return kind, Path(src.folder).exists()
+
+if __name__ == "__main__":
+    print(made(0), pmap(made, [(0,), (1,)], jobs=2))
+"""
+
+
+def test_the_aircraft_copies_replays_fly_are_removed_when_their_processes_end(tmp_path):
+    script = tmp_path / "copies.py"
+    script.write_text(REPLAY_COPY)
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    env = {**os.environ, "TMPDIR": str(temp), "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "('engines', True) [('engines', True), ('engines', True)]"
+    assert list(temp.iterdir()) == []

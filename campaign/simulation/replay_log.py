@@ -42,6 +42,7 @@ import shutil
 import threading
 import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass
+from multiprocessing.util import Finalize
 from pathlib import Path
 
 import numpy as np
@@ -248,7 +249,9 @@ def flying_source(source: AircraftSource) -> tuple[str, AircraftSource]:
         if kind == "force":
             out = (kind, source)
         else:
-            dest = owned_tmpdir("replay-aircraft") / source.name
+            folder = owned_tmpdir("replay-aircraft")
+            Finalize(None, shutil.rmtree, args=(folder,), kwargs={"ignore_errors": True}, exitpriority=0)
+            dest = folder / source.name
             shutil.copytree(source.folder, dest, ignore=shutil.ignore_patterns("effects", "__pycache__"))
             xml = dest / f"{source.name}.xml"
             tree = ET.parse(xml)
