@@ -356,11 +356,10 @@ if __name__ == "__main__":
 """
 
 
-def test_the_aircraft_copies_replays_fly_are_removed_when_their_processes_end(tmp_path):
+def test_the_aircraft_copies_replays_fly_are_removed_when_their_processes_end(tmp_path, short_tmp):
     script = tmp_path / "copies.py"
     script.write_text(REPLAY_COPY)
-    temp = tmp_path / "temp"
-    temp.mkdir()
+    temp = short_tmp
     env = {**os.environ, "TMPDIR": str(temp), "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
