@@ -161,3 +161,53 @@ def test_attas_diagnosed_against_the_aircraft_campaign_model_builds(tmp_path, ca
     assert r["theta_deg"]["model"] < 3.0 and r["alt_ft"]["model"] < 200.0, r
     assert "not flown" not in (out / "diagnosis.txt").read_text()
     assert "held-out split by flight" in (out / "diagnosis.txt").read_text()
+
+
+#: A lift change with the gear down that grows more negative with alpha, as the diagnosis extends our 737 with
+#: it: the lift is then the same at about 7 deg and, past the stall, at about 18 deg.
+GEAR_ALPHA_LIFT = """<effects><axis name="LIFT"><function name="aero/coefficient/gear-alpha-lift"><product>
+<property>aero/qbar-psf</property><property>metrics/Sw-sqft</property>
+<table><independentVar lookup="row">gear/gear-pos-norm</independentVar>
+<independentVar lookup="column">aero/alpha-deg</independentVar>
+<tableData>
+      -2.3032466 12.953417
+  0.0 0.0 0.0
+  0.4 0.042941500 -0.062274160
+  1.0 0.045917093 -0.064690530
+</tableData></table></product></function></axis></effects>"""
+
+
+def test_a_replay_starts_on_the_branch_of_the_lift_curve_the_measured_alpha_is_on(tmp_path):
+    """JSBSim's trim in the first gust can land past the stall, where the lift is the same as at the measured
+    alpha: the replay then starts 11 deg off and flies nothing like the log. It is trimmed again below."""
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import TrimError, trimmed_fdm
+    from campaign.simulation.matrix import StatusPoint
+    from campaign.simulation.replay_log import Start, _trim_engines, flying_source
+    from identify.export import merge_into_aircraft
+
+    (tmp_path / "x.xml").write_text(GEAR_ALPHA_LIFT)
+    folder = merge_into_aircraft(Path(DEFAULT_AIRCRAFT), tmp_path / "x.xml", tmp_path / "ext", replace_gear=False)
+    _, src = flying_source(AircraftSource(str(folder), load_effects(None)))
+    wind = (-2.7295, -1.0532, 0.7642)  # north, east, down [ft/s]: the first gust of a flown log
+    start = Start(
+        1999.63,
+        196.80,
+        0.29964,
+        -0.0038,
+        6.884,
+        0.0,
+        1.0,
+        135000.0,
+        0.0,
+        -1.2213,
+        13175.8,
+        (0.03, 0.02, 337.5),
+        wind,
+        2.0,
+    )
+    point = StatusPoint(start.alt_ft, start.mach, 0.0, True, start.weight_lb)
+    _, _, *_, wide = trimmed_fdm(src, point, 1.0, np.asarray(wind), gamma_deg=start.gamma_deg)
+    assert wide.alpha_deg > 15.0  # JSBSim's own trim in this gust: past the stall
+    fdm, tr = _trim_engines(src, start, trimmed_fdm, TrimError)
+    assert abs(tr.alpha_deg - start.alpha_deg) < 0.5 and abs(fdm["aero/alpha-deg"] - start.alpha_deg) < 0.5

@@ -214,9 +214,17 @@ class Trim:
 TRIM_ALPHA_MAX_DEG = (30.0, 18.0, 15.0, 12.0)
 
 
-def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fps=None, gamma_deg: float = 0.0):
+def trimmed_fdm(
+    source: AircraftSource,
+    point: StatusPoint,
+    gear: float,
+    gust_fps=None,
+    gamma_deg: float = 0.0,
+    alpha_max_deg: tuple[float, ...] = TRIM_ALPHA_MAX_DEG,
+):
     """A fresh FDM trimmed at ``point`` (in the gust ``gust_fps``, if given, on the flight path
-    ``gamma_deg``: :func:`trim`), retrying narrower alpha brackets.
+    ``gamma_deg``: :func:`trim`), retrying narrower alpha brackets (their upper bounds ``alpha_max_deg``
+    [deg], tried in turn).
 
     Returns
     -------
@@ -228,7 +236,7 @@ def trimmed_fdm(source: AircraftSource, point: StatusPoint, gear: float, gust_fp
     flap_cmd = flap_schedule(source).command_for(point.flap_deg)
     reason = ""
     names, n_eng, optional = model_catalog(source)
-    for alpha_max in TRIM_ALPHA_MAX_DEG:
+    for alpha_max in alpha_max_deg:
         fdm = new_fdm(source)
         try:
             return (
