@@ -26,6 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 CHANNELS = ("theta_deg", "tas_kt", "alt_ft")
+#: Every channel the diagnosis replays, kept per log.
+ALL = ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft")
 
 
 def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
@@ -57,11 +59,15 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
     flown = pmap(replay, [(lg, src) for lg in held], jobs)
     floors = pmap(replay_floor, [(lg, src, i) for i, lg in enumerate(held)], jobs)
     worst = {k: dict.fromkeys(CHANNELS, 0.0) for k in ("window", "log", "floor_window", "floor_log")}
-    where, no_floor = {}, {}
+    where, no_floor, per_log = {}, {}, {}
     for lg, f, fl in zip(held, flown, floors):
         if not fl.get("draws"):
             no_floor[Path(lg.path).name] = fl.get("note", "")
         win = replay_window(lg.data)[:2]
+        per_log[Path(lg.path).name] = {
+            k: {ch: [e[ch], fl[k][ch]] for ch in ALL}
+            for k, e in (("window", replay_errors(lg.data, f, win)), ("log", replay_errors(lg.data, f)))
+        }
         for k, e in (
             ("window", replay_errors(lg.data, f, win)),
             ("log", replay_errors(lg.data, f)),
@@ -78,7 +84,8 @@ def one(work: Path, sigma: float, seed: int, jobs: int) -> dict:
         "held_out_logs": len(held),
         "worst": worst,
         "where": where,
-        "no_floor": no_floor,  # the logs whose floor could not be flown, with why (left out of the worst floor)
+        "no_floor": no_floor,
+        "per_log": per_log,  # per held-out log, judged window and whole log: channel -> [replay error, floor]  # the logs whose floor could not be flown, with why (left out of the worst floor)
     }
 
 

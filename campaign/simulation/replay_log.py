@@ -19,11 +19,13 @@ Where it starts (:func:`estimate_start`)
     velocity (else from the altitude's slope), the wind at the first sample from the measured wind
     (low-passed), and each control's and the thrust's reference (mean) and spread (standard deviation)
     over the quiet head. The aircraft is trimmed there, in that wind: its own trim angle of attack,
-    pitch control and thrust.
+    pitch control and thrust, on the branch of its lift curve the measured angle of attack is on
+    (:data:`TRIM_BRANCH_DEG`).
 
 What the controls are (:func:`fly_log`)
     The measured positions and thrust as they are, unless the aircraft's trim differs from the
-    measured reference by more than :data:`OFFSET_SPREADS` times its spread: then by that difference,
+    measured reference by more than :data:`OFFSET_SPREADS` times its spread (the thrust's at least
+    :data:`THRUST_SPREAD_OF_WEIGHT` of the weight): then by that difference,
     an offset per log and control (reported), so that a model whose trim is off by more than the data
     can tell flies its trim plus the measured changes and shows the trim error in the trim comparison
     rather than as a drift of every time history. A hold that is moving the controls from the first
