@@ -71,15 +71,19 @@ def test_a_perfect_model_replays_its_own_turbulent_data_within_half_the_part60_t
 
 
 def test_the_floor_of_a_perfect_model_covers_its_own_replays(perfect):
-    """The floor is the error a perfect model leaves from the data's noise and wind: on data flown by the
-    model itself the replay errors are of its size, not beyond."""
+    """The floor bounds the error a perfect model leaves from the data's noise and wind (99 times in 100): on
+    data flown by the model itself every replay error is within it, over the window and the whole log. The
+    larger noise draw alone is no such bound (a perfect model's replay exceeds it a third of the time)."""
     doc, _ = perfect
-    assert "perfect model" in doc["replay_floor"]["method"]
+    assert "perfect model" in doc["replay_floor"]["method"] and "99 times in 100" in doc["replay_floor"]["method"]
+    within = []
     for name, r in doc["replays"].items():
         assert doc["replay_floor"]["per_log"][name]["draws"] >= 2
         for ch in ("theta_deg", "alpha_deg", "q_dps", "tas_kt", "alt_ft"):
-            floor, err = r[ch]["window"]["floor"], r[ch]["window"]["model"]
-            assert floor > 0 and err <= 2.0 * floor + 0.05 * FULL.get(ch, 1.0), (name, ch, err, floor)
+            for floor, err in ((r[ch]["window"]["floor"], r[ch]["window"]["model"]), (r[ch]["floor"], r[ch]["model"])):
+                assert floor > 0 and err <= 1.1 * floor, (name, ch, err, floor)
+                within.append(err <= floor / 2.5)
+    assert not all(within)  # the larger draw alone (the floor over 2.5) would not have covered them all
 
 
 def test_a_replay_flies_the_measured_thrust_not_a_throttle(tmp_path):
