@@ -31,7 +31,7 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, see
     assert r["shape_error"] < 0.10, (hidden.description, r["shape_error"])
     assert r["gain"] >= 2.0, (hidden.description, r["gain"])
     # the replays in the measured wind show the gain where the cause moves them most; a drag at one
-    # Mach only moves the trim, and the trimmed start's throttle shows it. An elevator derivative
+    # Mach, flown at the measured thrust, drifts the altitude and the airspeed. An elevator derivative
     # moves the replays by a fifth of a tolerance, less than the wind errors: the truth itself
     # replays x1.07 better (benchmarks/replay_gain.py), so no x2 is there to show. x2 is asked of a
     # cause 20 times its floor: 10 times the floor as it was until the floor of a noisy variable was
@@ -39,7 +39,7 @@ def test_hidden_effect_is_found_shaped_and_worth_it(tmp_path, family, coeff, see
     g = r["doc"]["gain"]
     most = g["replay_moved_most"]
     if family == "mach":
-        assert most == "trim_thrust_pct", g["replay_moved"]
+        assert most in ("alt_ft", "tas_kt"), g["replay_moved"]
     if first["verdict"]["size_over_floor"] >= 20 and family != "elevator_derivative":
         assert g["replay_where_acts"][most]["gain"] >= 2.0, (most, g["replay_where_acts"])
 
@@ -329,7 +329,8 @@ def test_replaying_a_log_on_its_own_aircraft_reproduces_it(tmp_path):
 def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
     """A log recorded at 50 Hz (the flight-test profile, here in still air) is replayed over its
     own 28 s at the simulation's 120 Hz, not compressed into 1400 steps (11.7 s), and follows the
-    data on its own aircraft within the instruments' errors."""
+    data on its own aircraft within half the Part 60 tolerances (the raw log: its vane and attitude
+    errors uncorrected)."""
     from campaign.diagnosis.run import replay
     from campaign.simulation.aircraft import (
         DEFAULT_AIRCRAFT,
@@ -352,7 +353,7 @@ def test_a_50hz_recording_replays_over_its_whole_length(tmp_path):
     again = replay(Log("x", f.log, f.meta), src)
     assert again.t_s.iloc[-1] == pytest.approx(f.log.t_s.iloc[-1], abs=0.01)
     err = replay_errors(f.log, again)
-    assert err["theta_deg"] < 0.5 and err["alt_ft"] < 30.0, err
+    assert err["theta_deg"] < 0.75 and err["alt_ft"] < 30.0, err
 
 
 def test_hat_basis_is_np_interp_of_each_knot_to_the_bit():

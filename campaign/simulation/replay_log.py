@@ -361,13 +361,13 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
         If the aircraft cannot trim at the start, or the replay diverges (the reason in the message).
     """
     from campaign.errors import UserError
-    from campaign.simulation.engine import DT_S, TrimError, elevator_gain_deg, new_fdm, stabilizer_gain_deg, trimmed_fdm
+    from campaign.simulation.engine import DT_S, TrimError, elevator_gain_deg, new_fdm, stabilizer_gain_deg
 
     kind, src = flying_source(source)
     de, dh, dthrust, gear, wind = _on_step(inputs, DT_S)
     try:
         if kind == "engines":
-            fdm, tr = _trim_engines(src, start, trimmed_fdm, TrimError)
+            fdm, tr = _trim_engines(src, start)
             de_gain, dh_gain = elevator_gain_deg(src), stabilizer_gain_deg(src)
             e0, h0 = tr.elevator_cmd_norm, tr.pitch_trim_norm
             force_prop = f"external_reactions/{ADDED_FORCE}/magnitude"
@@ -432,27 +432,23 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
     return out
 
 
-def _trim_engines(src: AircraftSource, start: Start, trimmed_fdm, TrimError):
+def _trim_engines(src: AircraftSource, start: Start):
     """An aircraft with engines trimmed at ``start`` in its wind (in the horizontal wind if JSBSim's trim in the
     gust fails), on the branch of its lift curve the measured alpha is on (:data:`TRIM_BRANCH_DEG`); the FDM and
     its trim. :class:`ReplayError` if the only trim found is on another branch."""
+    from campaign.simulation.engine import TRIM_ALPHA_MAX_DEG, TrimError, trimmed_fdm
+
     point = StatusPoint(start.alt_ft, start.mach, start.flap_deg, start.gear_norm == 1.0, start.weight_lb)
     winds = [np.asarray(start.wind_fps) if any(start.wind_fps) else None]
     if start.wind_fps[2]:
         winds.append(np.array([*start.wind_fps[:2], 0.0]))
     measured = start.alpha_deg
-    brackets = [None] + ([(measured + TRIM_BRANCH_DEG,)] if np.isfinite(measured) else [])
+    brackets = [TRIM_ALPHA_MAX_DEG] + ([(measured + TRIM_BRANCH_DEG,)] if np.isfinite(measured) else [])
     found, failure = None, None
     for bracket in brackets:
         for wind in winds:
             try:
-                fdm, _, *_, tr = (
-                    trimmed_fdm(src, point, start.gear_norm, wind, gamma_deg=start.gamma_deg)
-                    if bracket is None
-                    else trimmed_fdm(
-                        src, point, start.gear_norm, wind, gamma_deg=start.gamma_deg, alpha_max_deg=bracket
-                    )
-                )
+                fdm, *_, tr = trimmed_fdm(src, point, start.gear_norm, wind, start.gamma_deg, bracket)
             except TrimError as exc:  # JSBSim's trim in a gust fails near its alpha limits: then in the horizontal wind
                 failure = failure or exc
                 continue
@@ -463,8 +459,9 @@ def _trim_engines(src: AircraftSource, start: Start, trimmed_fdm, TrimError):
     if found is None:
         raise failure
     raise ReplayError(
-        f"the aircraft trims at the log's start only at alpha {found.alpha_deg:.1f} deg, {found.alpha_deg - measured:+.1f} "
-        f"deg from the measured {measured:.1f} deg: on another branch of its lift curve"
+        f"the aircraft trims at the log's start only at alpha {found.alpha_deg:.1f} deg, "
+        f"{found.alpha_deg - measured:+.1f} deg from the measured {measured:.1f} deg: on another branch of its "
+        "lift curve"
     )
 
 
