@@ -24,8 +24,8 @@ Where it starts (:func:`estimate_start`)
 
 What the controls are (:func:`fly_log`)
     The measured positions and thrust as they are, unless the aircraft's trim differs from the
-    measured reference by more than :data:`OFFSET_SPREADS` times its spread (the thrust's at least
-    :data:`THRUST_SPREAD_OF_WEIGHT` of the weight): then by that difference,
+    measured reference by more than :data:`OFFSET_SPREADS` times its spread (the thrust's, in a measured
+    wind, at least :data:`THRUST_SPREAD_GUSTS` times the weight times the gusts' angle): then by that difference,
     an offset per log and control (reported), so that a model whose trim is off by more than the data
     can tell flies its trim plus the measured changes and shows the trim error in the trim comparison
     rather than as a drift of every time history. A hold that is moving the controls from the first
@@ -62,13 +62,14 @@ FT_PER_KT = 1.6878098571011957
 ADDED_FORCE, MODEL_FORCE = "replay-thrust", "thrust"
 #: A control's trim is taken as differing from the measured reference beyond this many spreads.
 OFFSET_SPREADS = 3.0
-#: The thrust's spread is at least this fraction of the weight: how far the trim thrust of a model that is
-#: the aeroplane lands from the measured thrust when the log starts in turbulence, out of steady flight (its
-#: flight-path angle and acceleration at the first sample are not a trim's). Calibrated on our 737 flown by
-#: itself through the flight-test profile at 3 ft/s (seed 22, 40 held-out logs): the trim thrust differed
-#: from the measured by up to 0.70 % of the weight (5 % of the thrust), and an offset of that size flown as
-#: a trim error drifted a perfect model's replay by up to 91 ft; 3 spreads of 0.25 % cover it.
-THRUST_SPREAD_OF_WEIGHT = 0.0025
+#: The thrust's spread is at least this many times the weight times the measured vertical wind's standard
+#: deviation over the airspeed: a log that starts in turbulence is out of steady flight, its flight-path angle
+#: uncertain by about the gusts' angle, and the trim thrust of a model that is the aeroplane lands up to about
+#: the weight times that from the measured thrust. Calibrated on our 737 flown by itself through the
+#: flight-test profile at 1.5 and 3 ft/s (seeds 21-26, 512 held-out logs): the trim thrust differed from the
+#: measured by at most 1.35 times the weight times the gusts' angle (0.70 % of the weight), and an offset of
+#: that size flown as a trim error drifted a perfect model's replay by up to 91 ft; 3 spreads of 0.45 cover it.
+THRUST_SPREAD_GUSTS = 0.45
 #: A trim whose angle of attack is further than this from the measured one at the log's start [deg] is on another
 #: branch of the aircraft's lift curve (JSBSim's trim in a gust can land past the stall, where the lift is the
 #: same): the trim is tried again with its alpha bracket ending this far above the measured alpha.
@@ -184,8 +185,9 @@ def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
     mass = col("mass_slug")
     refs = [col(c)[quiet] for c in ("elevator_deg", "stabilizer_deg", "thrust_lbf")]
     weight = float(np.mean(mass[quiet])) * G0
+    gusts = 0.0 if wind is None else float(np.std(np.asarray(wind, dtype=float)[:, 2])) / max(tas * FT_PER_KT, 1.0)
     spread = tuple(
-        max(float(np.std(r)), noise_level(col(c)), THRUST_SPREAD_OF_WEIGHT * weight if c == "thrust_lbf" else 0.0)
+        max(float(np.std(r)), noise_level(col(c)), THRUST_SPREAD_GUSTS * weight * gusts if c == "thrust_lbf" else 0.0)
         for r, c in zip(refs, ("elevator_deg", "stabilizer_deg", "thrust_lbf"))
     )
     return Start(
