@@ -133,7 +133,20 @@ def write(out: Path, rows: list[dict]) -> None:
         },
         "rows": rows,
     }
-    out.write_text(json.dumps(doc, indent=1) + "\n")
+    text = json.dumps({**doc, "rows": "ROWS"}, indent=1)
+    rows_text = ",\n".join("  " + json.dumps(_rounded(r), separators=(",", ":")) for r in rows)
+    out.write_text(text.replace('"ROWS"', "[\n" + rows_text + "\n ]") + "\n")
+
+
+def _rounded(x):
+    """``x`` with every float to 4 significant digits (the per-log table is most of the file)."""
+    if isinstance(x, float):
+        return float(f"{x:.4g}")
+    if isinstance(x, dict):
+        return {k: _rounded(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_rounded(v) for v in x]
+    return x
 
 
 if __name__ == "__main__":
