@@ -215,3 +215,38 @@ def test_a_replay_starts_on_the_branch_of_the_lift_curve_the_measured_alpha_is_o
     assert wide.alpha_deg > 15.0  # JSBSim's own trim in this gust: past the stall
     fdm, tr = _trim_engines(src, start)
     assert abs(tr.alpha_deg - start.alpha_deg) < 0.5 and abs(fdm["aero/alpha-deg"] - start.alpha_deg) < 0.5
+
+
+def test_a_start_in_turbulence_takes_the_thrust_as_measured_and_one_in_still_air_takes_its_bias(tmp_path):
+    """Flown by itself, our 737's trim thrust at a start in 3 ft/s turbulence is hundreds of lbf from the
+    measured thrust (the aeroplane is out of steady flight there): that is no trim error, and the thrust is
+    flown as measured. In still air the same log's thrust read 8 % high is a bias the trim takes as an offset."""
+    from campaign.diagnosis.run import log_wind, replay, recorded
+    from campaign.simulation.aircraft import DEFAULT_AIRCRAFT, AircraftSource, load_effects
+    from campaign.simulation.engine import FlightConfig, fly
+    from campaign.simulation.matrix import load_matrix
+    from campaign.simulation.replay_log import THRUST_SPREAD_GUSTS
+    from identify.logs import Log
+
+    m = load_matrix()
+    src = AircraftSource(str(DEFAULT_AIRCRAFT), load_effects(None))
+    rough, still = tmp_path / "t3.toml", tmp_path / "t0.toml"
+    rough.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 3.0\n')
+    still.write_text('extends = "flight-test"\n[turbulence]\nsigma_fps = 0.0\n')
+    point = m.point("h05000_m0.40_f00_gdn")
+
+    f = fly(point, "doublet", FlightConfig(src, 1, str(rough), m.maneuver_params, m.clmax_by_flap))
+    log = Log("rough.parquet", f.log, f.meta)
+    start, _ = recorded(log)
+    head = (log.data.t_s - log.data.t_s.iloc[0]).to_numpy() <= max(start.head_s, 1.0)
+    gusts = float(np.std(log_wind(log)[head, 2])) / (start.tas_kt * 1.6878098571011957)
+    assert start.spread[2] == pytest.approx(THRUST_SPREAD_GUSTS * start.weight_lb * gusts, rel=1e-9)
+    flown = replay(log, src)
+    off_by = abs(flown.attrs["trim"]["thrust_lbf"] - start.thrust_lbf)
+    assert off_by > 3 * 50.0  # beyond 3 spreads of the thrust's own noise: the rule for still air would offset it
+    assert flown.attrs["offsets"]["thrust_lbf"] == 0.0
+
+    f = fly(point, "doublet", FlightConfig(src, 1, str(still), m.maneuver_params, m.clmax_by_flap))
+    biased = f.log.assign(thrust_lbf=f.log.thrust_lbf * 1.08)
+    again = replay(Log("still.parquet", biased, f.meta), src)
+    assert again.attrs["offsets"]["thrust_lbf"] < -0.05 * float(biased.thrust_lbf.iloc[0])

@@ -62,14 +62,16 @@ FT_PER_KT = 1.6878098571011957
 ADDED_FORCE, MODEL_FORCE = "replay-thrust", "thrust"
 #: A control's trim is taken as differing from the measured reference beyond this many spreads.
 OFFSET_SPREADS = 3.0
-#: The thrust's spread is at least this many times the weight times the measured vertical wind's standard
-#: deviation over the airspeed: a log that starts in turbulence is out of steady flight, its flight-path angle
-#: uncertain by about the gusts' angle, and the trim thrust of a model that is the aeroplane lands up to about
-#: the weight times that from the measured thrust. Calibrated on our 737 flown by itself through the
-#: flight-test profile at 1.5 and 3 ft/s (seeds 21-26, 512 held-out logs): the trim thrust differed from the
-#: measured by at most 1.35 times the weight times the gusts' angle (0.70 % of the weight), and an offset of
-#: that size flown as a trim error drifted a perfect model's replay by up to 91 ft; 3 spreads of 0.45 cover it.
-THRUST_SPREAD_GUSTS = 0.45
+#: The thrust's spread is at least this many times the weight times the gusts' angle (the measured vertical
+#: wind's standard deviation over the quiet head, over the airspeed): a log that starts in turbulence is out of
+#: steady flight, its flight-path angle uncertain by about the gusts' angle, and the trim thrust of a model that
+#: is the aeroplane lands up to a few times the weight times that from the measured thrust. The head, not the
+#: whole log: the wind reconstructed through a manoeuvre carries the air data's errors (2.4 ft/s in still air
+#: through a 737 doublet, uncorrected). Calibrated on our 737 flown by itself through the flight-test profile at
+#: 1.5 and 3 ft/s (seeds 21-26, 512 held-out logs): the trim thrust differed from the measured by at most 3.41
+#: times the weight times the gusts' angle (0.70 % of the weight), and an offset of that size flown as a trim
+#: error drifted a perfect model's replay by up to 91 ft; 3 spreads of 1.2 cover it.
+THRUST_SPREAD_GUSTS = 1.2
 #: A trim whose angle of attack is further than this from the measured one at the log's start [deg] is on another
 #: branch of the aircraft's lift curve (JSBSim's trim in a gust can land past the stall, where the lift is the
 #: same): the trim is tried again with its alpha bracket ending this far above the measured alpha.
@@ -185,7 +187,8 @@ def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
     mass = col("mass_slug")
     refs = [col(c)[quiet] for c in ("elevator_deg", "stabilizer_deg", "thrust_lbf")]
     weight = float(np.mean(mass[quiet])) * G0
-    gusts = 0.0 if wind is None else float(np.std(np.asarray(wind, dtype=float)[:, 2])) / max(tas * FT_PER_KT, 1.0)
+    calm = t <= max(head, STATE_FIT_S)
+    gusts = 0.0 if wind is None else float(np.std(np.asarray(wind, dtype=float)[calm, 2])) / max(tas * FT_PER_KT, 1.0)
     spread = tuple(
         max(float(np.std(r)), noise_level(col(c)), THRUST_SPREAD_GUSTS * weight * gusts if c == "thrust_lbf" else 0.0)
         for r, c in zip(refs, ("elevator_deg", "stabilizer_deg", "thrust_lbf"))
