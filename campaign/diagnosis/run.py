@@ -530,7 +530,9 @@ def _diagnosis(  # noqa: PLR0913
     doc["replay_windows"] = window_table(held)
     doc["replay_floor"] = {
         "method": FLOOR,
-        "per_log": {k: {"draws": f.get("draws"), "note": f.get("note")} for k, f in floors.items()},
+        "per_log": {
+            k: {"draws": f.get("draws"), "drawn": f.get("drawn"), "note": f.get("note")} for k, f in floors.items()
+        },
     }
     doc["replay_starts"] = {Path(lg.path).name: _start_note(lg, raw[lg.path]) for lg in held}
     doc["wind"] = {Path(lg.path).name: wind_note(lg) for lg in held}
