@@ -129,6 +129,36 @@ def test_logs_without_the_kinematic_channels_say_why(tmp_path):
     assert not res.applied and all("phi_deg is not logged" in p.reason for p in res.parameters)
 
 
+def test_one_log_is_reconstructed_in_segments_that_stand_in_for_logs(tmp_path):
+    """One log alone: cut into segments of at least ``one_log_segment_s``, each its own initial state, as
+    the jackknife's clusters; the pitch gyro's injected bias comes back as from many logs. A log shorter than
+    two segments gets no reconstruction, and says why."""
+    from dataclasses import replace
+
+    from identify.compat import CompatSettings
+    from identify.compat.fit import segments
+
+    prof = tmp_path / "faulty.toml"
+    prof.write_text(_profile(0.0))
+    one = DIAG_MATRIX.split("[[points]]")
+    data = run_matrix(tmp_path, one[0] + "[[points]]" + one[1], str(DEFAULT_AIRCRAFT), noise=str(prof), seed=41)
+    log = max(load_data(data), key=lambda lg: lg.data.t_s.iloc[-1])
+    span = log.data.t_s.iloc[-1] - log.data.t_s.iloc[0]
+    least = CompatSettings().one_log_segment_s
+    pieces = segments(log, least)
+    assert len(pieces) == int(span // least) >= 2
+    assert sum(len(p.data) for p in pieces) == len(log.data)
+    assert all(p.data.t_s.iloc[-1] - p.data.t_s.iloc[0] >= least - 0.1 for p in pieces)
+    res = estimate([log])
+    assert res.segments == len(pieces) and res.logs == [log.path]
+    q = res.get("q_dps.bias")
+    assert q.applied and abs(q.estimate - 0.05) <= max(2 * q.se, 0.005), (q.estimate, q.se)
+    short = replace(log, data=log.data[log.data.t_s < log.data.t_s.iloc[0] + 1.5 * least])
+    res = estimate([short])
+    assert not res.applied and not res.segments
+    assert all("shorter than two segments of 8 s" in p.reason for p in res.parameters)
+
+
 def test_a_full_circle_measures_the_airspeed_error_in_turbulence(tmp_path):
     """A 3 % airspeed scale that no straight manoeuvre can tell from a steady wind, found from one
     360-deg level turn in the flight-test profile's turbulence: the prior on the gusts keeps the

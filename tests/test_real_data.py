@@ -79,6 +79,31 @@ def test_attas_model_shows_nothing_against_the_other_record(attas):
     assert diag.noise["alpha_deg"] == pytest.approx(DEFAULTS.default_accuracy["alpha_deg"]["noise"])
 
 
+def test_attas_instruments_from_one_record_agree_with_both_and_the_boom_with_the_books(attas, tmp_path):
+    """fAttasElv1 alone, cut into segments that stand in for logs, gives the pitch gyro's bias that both
+    records give as two logs (within 3 standard errors of the two combined), and applies it. With the vanes'
+    position not declared, both records put them 40 to 50 ft ahead of the CG: the book's reconstruction of
+    these records has its nose boom 13.08 m (42.9 ft) ahead."""
+    from identify.compat import estimate
+
+    d, ident, e1, e2 = attas
+    one, both = estimate(e1), estimate(e1 + e2, jobs=2)
+    assert one.segments == 3 and "1 log cut into 3 segments" in one.summary()
+    a, b = one.get("q_dps.bias"), both.get("q_dps.bias")
+    assert a.applied and b.applied, (one.summary(), both.summary())
+    assert abs(a.estimate - b.estimate) < 3 * np.hypot(a.se, b.se), (a.estimate, a.se, b.estimate, b.se)
+    assert 0.15 < a.estimate < 0.22
+    saved = json.loads((ident / "compatibility.json").read_text())
+    assert saved["segments"] == 3 and any(
+        p["channel"] == "q_dps" and p["error"] == "bias" and p["applied"] for p in saved["parameters"]
+    )
+    text = (EXAMPLES / "attas-map.toml").read_text()
+    undeclared = text.split("\n[positions]")[0]
+    logs = [load_data(_identified(tmp_path, DATA / f"fAttasElv{k}.mat", undeclared, f"u{k}"))[0] for k in (1, 2)]
+    boom = estimate(logs, jobs=2).get("alpha_deg.position")
+    assert boom.applied and 40.0 < boom.estimate < 50.0, (boom.estimate, boom.se)
+
+
 @pytest.mark.parametrize(
     "change, named",
     [

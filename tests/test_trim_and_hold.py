@@ -232,9 +232,12 @@ def test_a_level_turn_is_not_an_excitation(tmp_path):
     assert sorted(f.path for f in fits) == sorted(str(lg.path) for lg in logs if lg.excitation)
 
 
-def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
-    """The reconstruction's standard errors are the spread between logs: one log has none (it gave
-    0, so z = inf, and a correction of nothing but noise was applied)."""
+def test_one_log_is_cut_into_segments_for_its_standard_errors_and_a_short_one_gets_none(tmp_path):
+    """The reconstruction's standard errors are the spread between logs: one log is cut into segments that
+    stand in for them, and with perfect instruments nothing is corrected; one too short for two segments
+    has none (it gave 0, so z = inf, and a correction of nothing but noise was applied)."""
+    from dataclasses import replace
+
     from campaign.simulation.aircraft import DEFAULT_AIRCRAFT
     from campaign.diagnosis.run import load_data
     from identify.compat import estimate
@@ -244,8 +247,11 @@ def test_one_log_gives_no_standard_error_so_no_correction(tmp_path):
         'name = "one"\n[maneuvers.doublet]\ntail_s = 2.0\n'
         '[[points]]\ngear = "up"\nflap_deg = 0\nmach = 0.3\nalt_ft = 10000\nmaneuvers = ["doublet"]\n'
     )
-    res = estimate(load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3)))
-    assert not res.applied
+    (log,) = load_data(run_matrix(tmp_path, text, str(DEFAULT_AIRCRAFT), noise="flight-test", seed=3))
+    res = estimate([log])
+    assert res.segments >= 2 and not res.applied, res.summary()
+    res = estimate([replace(log, data=log.data[log.data.t_s < log.data.t_s.iloc[0] + 12.0])])
+    assert not res.applied and not res.segments
     assert all(not p.identifiable and "at least two" in p.reason for p in res.parameters)
     said = [line for line in res.summary().splitlines() if "not identifiable" in line]
     assert len(said) == 1 and said[0].split()[:2] == ["every", "error"], said  # once, not for each error

@@ -113,6 +113,17 @@ class CompatSettings:
         "The pitch rate must vary (standard deviation) this much before the air-data head's distance ahead "
         "of the CG is estimated (a boom's vane reads alpha - q x / V).",
     )
+    one_log_segment_s: float = setting(
+        8.0,
+        "s",
+        "One log alone (the jackknife's clusters are logs) is cut into segments at least this long, each "
+        "reconstructed from its own initial state, and they stand in for the logs; a log shorter than two "
+        "segments gets no reconstruction.",
+        "About twice the correlation time of Dryden's vertical gust (1,750 ft at 420 ft/s, 4.2 s), so that "
+        "the segments' turbulence is nearly independent. On the DLR ATTAS record fAttasElv1 (25 s, three "
+        "segments) the pitch gyro's bias came out at +0.182 +- 0.007 deg/s, and at +0.184 +- 0.002 deg/s "
+        "from that record and fAttasElv2 as two logs.",
+    )
     turbulent_fps: float = setting(
         0.5,
         "ft/s",

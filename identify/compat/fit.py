@@ -32,6 +32,7 @@ from identify.compat.result import (
     DRYDEN_LENGTH_FT,
     FT_PER_KT,
     GUST_PRIOR_FLOOR_FPS,
+    MAX_LOGS,
     PRUNE_FIRST,
     CompatResult,
     at_cg,
@@ -73,11 +74,19 @@ def estimate(  # noqa: C901
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
+    if not missing and len(logs) == 1 and not replicate:
+        pieces = segments(logs[0].read(), settings.one_log_segment_s)
+        if len(pieces) >= 2:
+            return replace(estimate(pieces, jobs=jobs, settings=settings), logs=[logs[0].path], segments=len(pieces))
     if missing or len(logs) < 2:
         why = (
             f"{missing[0]} is not logged"
             if missing
-            else "one log (its standard errors come from the spread between logs: at least two are needed)"
+            else (
+                "one log shorter than two segments of "
+                f"{settings.one_log_segment_s:g} s (its standard errors come from the spread between logs or "
+                "segments: at least two are needed)"
+            )
         )
         for p in params:
             p.identifiable, p.reason = False, f"no reconstruction: {why}"
@@ -438,6 +447,19 @@ def estimate(  # noqa: C901
     if not replicate and L >= 3 and result.applied:
         _whole_jackknife(result, chosen, jobs, settings)
     return result
+
+
+def segments(log: Log, least_s: float) -> list[Log]:
+    """``log`` cut into equal segments at least ``least_s`` long [s] (at most
+    :data:`~identify.compat.result.MAX_LOGS`), each a log of its own; ``[log]`` if it is shorter than two."""
+    t = log.data["t_s"].to_numpy()
+    k = min(int((t[-1] - t[0]) // least_s), MAX_LOGS) if len(t) > 1 else 0
+    if k < 2:
+        return [log]
+    piece = np.minimum(((t - t[0]) / (t[-1] - t[0]) * k).astype(int), k - 1)
+    return [
+        replace(log, path=f"{log.path}#{i + 1}", data=log.data.loc[piece == i].reset_index(drop=True)) for i in range(k)
+    ]
 
 
 #: Evaluations :func:`estimate` keeps (a Jacobian's differences return to the point they start from).

@@ -125,6 +125,9 @@ class CompatResult:
     parameters : list of Parameter
     logs : list of str
         The logs reconstructed.
+    segments : int
+        One log cut into this many segments, the jackknife's clusters
+        (:attr:`~identify.compat.config.CompatSettings.one_log_segment_s`); 0: the logs themselves.
     residual_rms : dict
         Output channel -> RMS of (measured - reconstructed) without and with the
         estimated errors, ``{"before": ..., "after": ...}``.
@@ -139,6 +142,7 @@ class CompatResult:
     positions: dict = field(default_factory=dict)
     covariance: list = field(default_factory=list)  # [(parameter names, covariance matrix)] per stage
     turbulence_fps: float = float("nan")  # RMS vertical gust the reconstruction needed [ft/s]
+    segments: int = 0
 
     def uncertainty(self, plausible_at: float | None = None) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
@@ -264,13 +268,19 @@ class CompatResult:
             "residual_rms": self.residual_rms,
             "documented_positions_ft": self.positions,
             "vertical_gust_rms_fps": self.turbulence_fps,
+            "segments": self.segments,
         }
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([p.to_dict() for p in self.parameters])
 
     def summary(self) -> str:
-        lines = [f"Data compatibility (flight-path reconstruction of {len(self.logs)} logs):"]
+        of = (
+            f"1 log cut into {self.segments} segments, the standard errors' clusters"
+            if self.segments
+            else f"{len(self.logs)} logs"
+        )
+        lines = [f"Data compatibility (flight-path reconstruction of {of}):"]
         for c, r in self.positions.items():
             lines.append(f"  {c} sensor documented at {r} ft from the CG: corrected for")
         why = {p.reason for p in self.parameters if not p.identifiable}
