@@ -57,7 +57,12 @@ def on_log_times(flown: pd.DataFrame, t_s: np.ndarray, channels) -> np.ndarray:
 
 
 def _head(frame: pd.DataFrame, channel: str) -> float:
-    return float(frame.loc[frame.t_s < frame.t_s.iloc[0] + HEAD_S, channel].mean())
+    """The mean of ``channel`` over the first :data:`HEAD_S` of ``frame``, NaN left out (as pandas has it)."""
+    t = frame["t_s"].to_numpy(dtype=float)
+    x = frame[channel].to_numpy(dtype=float)[t < t[0] + HEAD_S]
+    known = ~np.isnan(x)
+    n = int(known.sum())
+    return float(np.where(known, x, 0.0).sum() / n) if n else float("nan")
 
 
 def _trim_difference(flown: pd.DataFrame, measured: pd.DataFrame, c: str) -> float:
