@@ -124,7 +124,7 @@ class Log(_Described):
 
 #: The metadata a :class:`LogHead` keeps (what is needed of a log before it is read); the rest
 #: comes with the log.
-HEAD_META = ("point", "maneuver", "status_point", "sensor_positions_ft", "geometry")
+HEAD_META = ("point", "maneuver", "status_point", "sensor_positions_ft", "geometry", "imported")
 #: Of those, the parts a campaign's logs share: one object for all heads.
 SHARED_META = ("sensor_positions_ft", "geometry")
 

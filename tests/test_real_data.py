@@ -159,6 +159,32 @@ def test_hfb320_model_shows_nothing_against_the_pulse_and_names_a_halved_damping
     assert (first.coefficient, first.variables[0]) == ("Cm", "qhat_rad"), halved.summary()
 
 
+def test_a_channel_the_map_gives_as_a_constant_is_not_reconstructed(hfb, tmp_path):
+    """The HFB-320 map gives the altitude as a constant (the record holds none), and an ATTAS map may give
+    the roll rate as one: no flight-path reconstruction compares a constant with the
+    aircraft's motion (one did: a +3.4 deg vane bias on the HFB-320's 3-2-1-1), and each says which."""
+    from identify.compat import estimate
+
+    d, ident, one, two = hfb
+    assert one[0].meta["imported"]["constants"] == [
+        "alt_ft",
+        "flap_deg",
+        "gear_norm",
+        "mass_slug",
+        "psi_deg",
+        "stabilizer_deg",
+    ]
+    for logs in (one, one + two):
+        res = estimate(logs)
+        assert not res.applied and "alt_ft is a constant of the import map" in res.summary(), res.summary()
+    saved = json.loads((ident / "compatibility.json").read_text())
+    assert not any(p["applied"] for p in saved["parameters"])
+    text = (EXAMPLES / "attas-map.toml").read_text()
+    text = text.replace('p_dps = "p deg/s"\n', "").replace("[constants]\n", "[constants]\np_dps = 0\n")
+    (log,) = load_data(_identified(tmp_path, DATA / "fAttasElv1.mat", text, "e1"))
+    assert "p_dps is a constant of the import map" in estimate([log]).summary()
+
+
 def test_a_declared_accuracy_and_gravity_reach_the_log_and_the_diagnosis(tmp_path):
     """An import map's ``[accuracy]`` goes into each log's metadata and sets the noise the floor draws; its
     ``gravity`` replaces the standard one for the data compatibility."""

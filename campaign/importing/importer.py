@@ -607,6 +607,7 @@ def convert(path: str | Path, m: ImportMap) -> list[Imported]:
             "source": path.name,
             "map": Path(m.path).name,
             "map_sha256": m.sha256,
+            "constants": sorted(c for c, _ in m.constants),
             **({"record": k, "from_s": float(t0[rows[0]])} if m.records else {}),
         }
         log, meta = schema_log(

@@ -74,14 +74,19 @@ def estimate(  # noqa: C901
     by = {p.name: p for p in params}
     positions = documented_positions(logs)
     missing = [c for c in ESSENTIAL if not logs or not all(c in lg.columns for lg in logs)]
-    if not missing and len(logs) == 1 and not replicate:
+    # a channel an import map gave as a constant is no measurement: not reconstructed, nor compared with
+    constant = set().union(*(lg.meta.get("imported", {}).get("constants", ()) for lg in logs)) if logs else set()
+    fixed = [c for c in ESSENTIAL if c in constant and c not in missing]
+    if not missing and not fixed and len(logs) == 1 and not replicate:
         pieces = segments(logs[0].read(), settings.one_log_segment_s)
         if len(pieces) >= 2:
             return replace(estimate(pieces, jobs=jobs, settings=settings), logs=[logs[0].path], segments=len(pieces))
-    if missing or len(logs) < 2:
+    if missing or fixed or len(logs) < 2:
         why = (
             f"{missing[0]} is not logged"
             if missing
+            else f"{fixed[0]} is a constant of the import map, not a measurement"
+            if fixed
             else (
                 "one log shorter than two segments of "
                 f"{settings.one_log_segment_s:g} s (its standard errors come from the spread between logs or "
@@ -96,7 +101,14 @@ def estimate(  # noqa: C901
         [
             replace(
                 lg,
-                data=pd.DataFrame(at_cg(columns_of(lg.data), positions, accelerometers_only=True), index=lg.data.index),
+                data=pd.DataFrame(
+                    at_cg(
+                        columns_of(lg.data.drop(columns=sorted(constant & set(lg.data.columns)))),
+                        positions,
+                        accelerometers_only=True,
+                    ),
+                    index=lg.data.index,
+                ),
             )
             for lg in chosen
         ]
