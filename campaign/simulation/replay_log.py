@@ -409,7 +409,9 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
     elev_cmd = (e0 + de / de_gain).tolist()
     stab_cmd = (h0 + dh / dh_gain).tolist() if dh_gain else None
     gear_cmd, winds, targets = gear.tolist(), wind.tolist(), (thrust0 + dthrust).tolist()
-    sets = [(g.set_double_value, i) for i, g in enumerate(gusts)]
+    # still air: the gusts stay at the trim's 0; a gear command is set when it changes
+    still = inputs.wind_fps is None and all(g.get_double_value() == 0.0 for g in gusts)
+    sets = [] if still else [(g.set_double_value, i) for i, g in enumerate(gusts)]
     get = type(reads[0]).get_double_value
     width = len(reads)
     rows, thrust = array.array("d"), array.array("d")
@@ -423,11 +425,14 @@ def fly_log(source: AircraftSource, start: Start, inputs: Inputs) -> pd.DataFram
         force.get_double_value,
     )
     set_stab, run = (stab.set_double_value if stab_cmd is not None else None), fdm.run
+    gear_now = None
     for k in range(n):
         set_elev(elev_cmd[k])
         if stab_cmd is not None:
             set_stab(stab_cmd[k])
-        set_gear(gear_cmd[k])
+        if gear_cmd[k] != gear_now:
+            gear_now = gear_cmd[k]
+            set_gear(gear_now)
         w = winds[k]
         for put, i in sets:
             put(w[i])
