@@ -103,7 +103,9 @@ def estimate(  # noqa: C901
                 lg,
                 data=pd.DataFrame(
                     at_cg(
-                        columns_of(lg.data.drop(columns=sorted(constant & set(lg.data.columns)))),
+                        columns_of(
+                            lg.data.drop(columns=sorted(constant & set(lg.data.columns))) if constant else lg.data
+                        ),
                         positions,
                         accelerometers_only=True,
                     ),
