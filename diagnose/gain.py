@@ -107,12 +107,14 @@ def compared(measured: pd.DataFrame, flown: pd.DataFrame) -> np.ndarray:
     return np.abs(f - m)
 
 
-def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None, window: tuple | None = None) -> dict[str, float]:
+def replay_errors(
+    measured: pd.DataFrame, flown: pd.DataFrame | None, window: tuple | None = None, unmeasured=()
+) -> dict[str, float]:
     """Max |flown - measured| per :data:`REPLAY_CHANNELS` channel, compared at the log's sample
     times over what both cover (:func:`compared`; only within ``window``, ``(from_s, to_s)``, if
     given), and |flown - measured| of the trimmed start's controls (``trim_<control>``, their means
     over the first :data:`HEAD_S`; the thrust in percent of the measured). NaN if the replay did not
-    fly, or a control is not logged."""
+    fly, or a control is not logged, and for the channels in ``unmeasured`` (:func:`unmeasured`)."""
     if flown is None:
         return {ch: float("nan") for ch in COMPARED}
     err = compared(measured, flown)
@@ -120,7 +122,7 @@ def replay_errors(measured: pd.DataFrame, flown: pd.DataFrame | None, window: tu
         t = measured["t_s"].to_numpy(dtype=float)
         err = err[(t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)]
     out = {
-        ch: float(np.nanmax(err[:, j])) if np.isfinite(err[:, j]).any() else float("nan")
+        ch: float(np.nanmax(err[:, j])) if np.isfinite(err[:, j]).any() and ch not in unmeasured else float("nan")
         for j, ch in enumerate(REPLAY_CHANNELS)
     }
     for c in TRIM_CHANNELS:
@@ -140,9 +142,22 @@ def moved(model: pd.DataFrame | None, extended: pd.DataFrame | None, t_s: np.nda
     return out
 
 
-def part60(error: float, floor: float | None, tolerance: float) -> dict:
+def unmeasured(log) -> list[str]:
+    """The log's channels an import map gave as constants (``meta["imported"]["constants"]``): a replay is not
+    judged against them (the HFB-320's altitude, a constant 4,300 m, would read as a 299 ft miss)."""
+    return list(log.meta.get("imported", {}).get("constants", ()))
+
+
+#: What a Part 60 verdict says of a channel that was not measured.
+NOT_MEASURED = "not measured (a constant of the import map)"
+
+
+def part60(error: float, floor: float | None, tolerance: float, measured: bool = True) -> dict:
     """A Part 60 verdict on measured data: pass or fail, the margin (tolerance - error) and whether it is
-    larger than the floor a perfect model leaves on the same log (``conclusive``)."""
+    larger than the floor a perfect model leaves on the same log (``conclusive``); none for a channel the
+    log does not measure."""
+    if not measured:
+        return {"pass": None, "margin": None, "conclusive": False, "says": NOT_MEASURED}
     if not np.isfinite(error):
         return {"pass": None, "margin": None, "conclusive": False, "says": "not flown"}
     margin = tolerance - error
@@ -166,9 +181,13 @@ def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool, floor
     for lg in held:
         name = Path(lg.path).name
         fm, fx = flown[lg.path]
-        win = replay_window(lg.data)
-        em, wm = replay_errors(lg.data, fm), replay_errors(lg.data, fm, win[:2])
-        ex, wx = (replay_errors(lg.data, fx), replay_errors(lg.data, fx, win[:2])) if extended else ({}, {})
+        win, off = replay_window(lg.data), unmeasured(lg)
+        em, wm = replay_errors(lg.data, fm, unmeasured=off), replay_errors(lg.data, fm, win[:2], off)
+        ex, wx = (
+            (replay_errors(lg.data, fx, unmeasured=off), replay_errors(lg.data, fx, win[:2], off))
+            if extended
+            else ({}, {})
+        )
         fl = (floors or {}).get(name) or {}
         row = {}
         for ch in COMPARED:
@@ -181,10 +200,10 @@ def replay_table(held: list[Log], flown: dict[str, tuple], extended: bool, floor
                     "extended": wx.get(ch),
                     "floor": f_win,
                     "tolerance": SCALES[ch],
-                    "part60": part60(wm[ch], f_win, SCALES[ch]),
+                    "part60": part60(wm[ch], f_win, SCALES[ch], ch not in off),
                 }
                 if extended:
-                    w["part60_extended"] = part60(wx[ch], f_win, SCALES[ch])
+                    w["part60_extended"] = part60(wx[ch], f_win, SCALES[ch], ch not in off)
                 row[ch]["window"] = w
         out[name] = row
     return out
@@ -214,6 +233,9 @@ def replay_lines(doc: dict) -> list[str]:
     for ch in next(iter(reps.values())):
         rs = list(reps.values())
         m, x = worst(r[ch]["model"] for r in rs), worst(r[ch]["extended"] for r in rs)
+        if "window" in rs[0][ch] and all(r[ch]["window"]["part60"]["says"] == NOT_MEASURED for r in rs):
+            lines.append(f"  {ch}: {NOT_MEASURED} in every held-out log")
+            continue
         if "window" not in rs[0][ch]:
             lines.append(f"  {ch}: {m:.3g}" + (f" -> {x:.3g}" if ext else ""))
             continue
@@ -224,7 +246,12 @@ def replay_lines(doc: dict) -> list[str]:
             + (f" -> {wx:.3g} ({x:.3g})" if ext else "")
             + f" [floor {fw:.3g} ({fl:.3g}); tolerance {SCALES[ch]:g}]"
         )
-    verdicts = [(n, ch, r[ch]["window"]["part60"]) for n, r in reps.items() for ch in ("theta_deg", "tas_kt", "alt_ft")]
+    verdicts = [
+        (n, ch, r[ch]["window"]["part60"])
+        for n, r in reps.items()
+        for ch in ("theta_deg", "tas_kt", "alt_ft")
+        if r[ch]["window"]["part60"]["says"] != NOT_MEASURED
+    ]
     fails = [f"{n} {ch} ({v['says']})" for n, ch, v in verdicts if v["pass"] is False]
     unsure = [f"{n} {ch}" for n, ch, v in verdicts if v["pass"] and v["conclusive"] is False]
     lines.append(
@@ -301,7 +328,10 @@ def measure_gain(
     replays = {}
     for lg in held:
         fb, fa = flown[lg.path]
-        eb, ea = replay_errors(lg.data, fb), replay_errors(lg.data, fa)
+        eb, ea = (
+            replay_errors(lg.data, fb, unmeasured=unmeasured(lg)),
+            replay_errors(lg.data, fa, unmeasured=unmeasured(lg)),
+        )
         replays[Path(lg.path).name] = {ch: {"before": eb[ch], "after": ea[ch]} for ch in COMPARED}
     worst = _with_gain(
         {

@@ -256,3 +256,45 @@ def test_a_start_in_turbulence_takes_the_thrust_as_measured_and_one_in_still_air
     biased = f.log.assign(thrust_lbf=f.log.thrust_lbf * 1.08)
     again = replay(Log("still.parquet", biased, f.meta), src)
     assert again.attrs["offsets"]["thrust_lbf"] < -0.05 * float(biased.thrust_lbf.iloc[0])
+
+
+def test_a_channel_the_map_gives_as_a_constant_is_not_judged():
+    """A replay is not judged against a channel the import map gave as a constant: the HFB-320 record has no
+    altitude, and its map's constant 4,300 m against a replay that climbs 300 ft is no miss. The other
+    channels are judged as ever, and the Part 60 count leaves the unmeasured one out."""
+    import pandas as pd
+
+    from diagnose.gain import NOT_MEASURED, replay_lines, replay_table
+    from identify.logs import Log
+
+    t = np.arange(0.0, 20.0, 0.1)
+    measured = pd.DataFrame(
+        {
+            "t_s": t,
+            "theta_deg": 2.0 + np.sin(t),
+            "alpha_deg": np.full_like(t, 3.0),
+            "q_dps": np.cos(t),
+            "tas_kt": np.full_like(t, 200.0),
+            "alt_ft": np.full_like(t, 14107.6),
+            "elevator_deg": np.zeros_like(t),
+            "thrust_lbf": np.full_like(t, 1000.0),
+            "gear_norm": np.zeros_like(t),
+        }
+    )
+    flown = measured.copy()
+    flown["alt_ft"] = 14107.6 + 15.0 * t  # 300 ft higher at the end
+    flown["theta_deg"] += 0.5
+    logs = [
+        Log("a.parquet", measured, {"imported": {"constants": ["alt_ft"]}}),
+        Log("b.parquet", measured, {"imported": {"constants": []}}),
+    ]
+    table = replay_table(logs[:1], {"a.parquet": (flown, None)}, extended=False)
+    alt, theta = table["a.parquet"]["alt_ft"], table["a.parquet"]["theta_deg"]
+    assert np.isnan(alt["model"]) and np.isnan(alt["window"]["model"])
+    assert alt["window"]["part60"] == {"pass": None, "margin": None, "conclusive": False, "says": NOT_MEASURED}
+    assert theta["model"] == pytest.approx(0.5, abs=0.01) and theta["window"]["part60"]["pass"] is True
+    lines = replay_lines({"replays": table})
+    assert f"  alt_ft: {NOT_MEASURED} in every held-out log" in lines
+    assert any("model: 2 of 2 pass" in line for line in lines), lines
+    measured_too = replay_table(logs[1:], {"b.parquet": (flown, None)}, extended=False)["b.parquet"]["alt_ft"]
+    assert measured_too["model"] == pytest.approx(300.0, rel=0.05) and measured_too["window"]["part60"]["pass"] is False
