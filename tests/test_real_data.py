@@ -88,13 +88,13 @@ def test_attas_instruments_from_one_record_agree_with_both_and_the_boom_with_the
 
     d, ident, e1, e2 = attas
     one, both = estimate(e1), estimate(e1 + e2, jobs=2)
-    assert one.segments == 3 and "1 log cut into 3 segments" in one.summary()
+    assert one.segments == 6 and "1 log cut into 6 segments" in one.summary()
     a, b = one.get("q_dps.bias"), both.get("q_dps.bias")
     assert a.applied and b.applied, (one.summary(), both.summary())
     assert abs(a.estimate - b.estimate) < 3 * np.hypot(a.se, b.se), (a.estimate, a.se, b.estimate, b.se)
     assert 0.15 < a.estimate < 0.22
     saved = json.loads((ident / "compatibility.json").read_text())
-    assert saved["segments"] == 3 and any(
+    assert saved["segments"] == 6 and any(
         p["channel"] == "q_dps" and p["error"] == "bias" and p["applied"] for p in saved["parameters"]
     )
     text = (EXAMPLES / "attas-map.toml").read_text()

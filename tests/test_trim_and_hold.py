@@ -252,6 +252,6 @@ def test_one_log_is_cut_into_segments_for_its_standard_errors_and_a_short_one_ge
     assert res.segments >= 2 and not res.applied, res.summary()
     res = estimate([replace(log, data=log.data[log.data.t_s < log.data.t_s.iloc[0] + 12.0])])
     assert not res.applied and not res.segments
-    assert all(not p.identifiable and "at least two" in p.reason for p in res.parameters)
+    assert all(not p.identifiable and "shorter than 4 segments" in p.reason for p in res.parameters)
     said = [line for line in res.summary().splitlines() if "not identifiable" in line]
     assert len(said) == 1 and said[0].split()[:2] == ["every", "error"], said  # once, not for each error

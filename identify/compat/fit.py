@@ -79,8 +79,14 @@ def estimate(  # noqa: C901
     fixed = [c for c in ESSENTIAL if c in constant and c not in missing]
     if not missing and not fixed and len(logs) == 1 and not replicate:
         pieces = segments(logs[0].read(), settings.one_log_segment_s)
-        if len(pieces) >= 2:
-            return replace(estimate(pieces, jobs=jobs, settings=settings), logs=[logs[0].path], segments=len(pieces))
+        if len(pieces) >= settings.one_log_segments:
+            result = estimate(pieces, jobs=jobs, settings=settings)
+            # the segments' spread misjudges the turbulence's hold on the air data: their errors are candidates
+            candidates = replace(settings, apply_z=float("inf"))
+            for p in result.parameters:
+                if p.name in ONE_LOG_CANDIDATES:
+                    p.settings = candidates
+            return replace(result, logs=[logs[0].path], segments=len(pieces))
     if missing or fixed or len(logs) < 2:
         why = (
             f"{missing[0]} is not logged"
@@ -88,9 +94,8 @@ def estimate(  # noqa: C901
             else f"{fixed[0]} is a constant of the import map, not a measurement"
             if fixed
             else (
-                "one log shorter than two segments of "
-                f"{settings.one_log_segment_s:g} s (its standard errors come from the spread between logs or "
-                "segments: at least two are needed)"
+                f"one log shorter than {settings.one_log_segments} segments of {settings.one_log_segment_s:g} s "
+                "(its standard errors come from the spread between logs, or between a log's segments)"
             )
         )
         for p in params:
@@ -461,6 +466,14 @@ def estimate(  # noqa: C901
     if not replicate and L >= 3 and result.applied:
         _whole_jackknife(result, chosen, jobs, settings)
     return result
+
+
+#: The errors one log's reconstruction applies only where other evidence (the aerodynamic residuals)
+#: chooses them: those the air data's turbulence holds (:attr:`CompatSettings.one_log_segment_s`).
+ONE_LOG_CANDIDATES = frozenset(
+    [f"{c}.{e}" for c in ("alpha_deg", "beta_deg", "tas_kt") for e in ("bias", "scale", "delay")]
+    + ["alpha_deg.position", "ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias"]
+)
 
 
 def segments(log: Log, least_s: float) -> list[Log]:

@@ -276,7 +276,8 @@ class CompatResult:
 
     def summary(self) -> str:
         of = (
-            f"1 log cut into {self.segments} segments, the standard errors' clusters"
+            f"1 log cut into {self.segments} segments, the standard errors' clusters; its air-data and "
+            "accelerometer errors are corrected only where the aerodynamic residuals choose them"
             if self.segments
             else f"{len(self.logs)} logs"
         )
