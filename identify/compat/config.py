@@ -120,8 +120,8 @@ class CompatSettings:
         "reconstructed from its own initial state, and they stand in for the logs.",
         "About the correlation time of Dryden's vertical gust (1,750 ft at 420 ft/s, 4.2 s). On 60 single "
         "logs of our 737 in the flight-test profile's turbulence with perfect instruments "
-        "(``benchmarks/one_log_compat.py``, seeds 300-319: doublets of 22 s, multisines of 28 s, level turns "
-        "of 190 s), segments of 8 s, two or three in the short logs, applied a vane correction that was not "
+        "(``benchmarks/one_log_compat.py``: doublets of 22 s, multisines of 28 s and level turns of 190 s, "
+        "20 turbulence draws each), segments of 8 s, two or three in the short logs, applied a vane correction that was not "
         "there to 7 of them, one at 214 standard errors: so few clusters misjudge the turbulence's spread. "
         "Segments of 4 s applied one (a 0.37 deg vane bias and a -9 % scale at 6.8 standard errors, a "
         "multisine in 6 segments): from one log, the errors the air data's turbulence holds (air data, "
