@@ -131,8 +131,8 @@ def test_logs_without_the_kinematic_channels_say_why(tmp_path):
 
 def test_one_log_is_reconstructed_in_segments_that_stand_in_for_logs(tmp_path):
     """One log alone: cut into segments of at least ``one_log_segment_s``, each its own initial state, as
-    the jackknife's clusters; the pitch gyro's injected bias comes back and is corrected, the vane's comes
-    back as a candidate for the aerodynamic residuals. A log shorter than ``one_log_segments`` segments gets
+    the jackknife's clusters; the pitch gyro's injected bias comes back and is corrected, the vane's is not
+    estimated (the segments misjudge the turbulence's hold on the air data). A log shorter than ``one_log_segments`` segments gets
     no reconstruction, and says why."""
     from dataclasses import replace
 
@@ -154,10 +154,9 @@ def test_one_log_is_reconstructed_in_segments_that_stand_in_for_logs(tmp_path):
     assert res.segments == len(pieces) and res.logs == [log.path]
     q = res.get("q_dps.bias")
     assert q.applied and abs(q.estimate - 0.05) <= max(2 * q.se, 0.005), (q.estimate, q.se)
-    # the vane's bias, which the air data's turbulence holds, is a candidate for the residuals to choose
+    # the vane's bias, which the air data's turbulence holds, is not estimated from one log
     vane = res.get("alpha_deg.bias")
-    assert vane.correctable and not vane.applied and vane in res.undecided, (vane.estimate, vane.se)
-    assert abs(vane.estimate - 0.5) <= max(2 * vane.se, 0.05), (vane.estimate, vane.se)
+    assert not vane.identifiable and not vane.applied and vane.reason.startswith("one log"), vane.reason
     short = replace(log, data=log.data[log.data.t_s < log.data.t_s.iloc[0] + 1.5 * least])
     res = estimate([short])
     assert not res.applied and not res.segments

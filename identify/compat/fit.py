@@ -81,11 +81,13 @@ def estimate(  # noqa: C901
         pieces = segments(logs[0].read(), settings.one_log_segment_s)
         if len(pieces) >= settings.one_log_segments:
             result = estimate(pieces, jobs=jobs, settings=settings)
-            # the segments' spread misjudges the turbulence's hold on the air data: their errors are candidates
-            candidates = replace(settings, apply_z=float("inf"))
             for p in result.parameters:
-                if p.name in ONE_LOG_CANDIDATES:
-                    p.settings = candidates
+                if p.name in ONE_LOG_UNMEASURED and p.identifiable:
+                    p.identifiable = False
+                    p.reason = (
+                        f"one log: its segments misjudge how much the turbulence holds of the air data "
+                        f"(estimated {p.estimate:+.3g} +- {p.se:.2g} {p.unit})"
+                    )
             return replace(result, logs=[logs[0].path], segments=len(pieces))
     if missing or fixed or len(logs) < 2:
         why = (
@@ -468,9 +470,9 @@ def estimate(  # noqa: C901
     return result
 
 
-#: The errors one log's reconstruction applies only where other evidence (the aerodynamic residuals)
-#: chooses them: those the air data's turbulence holds (:attr:`CompatSettings.one_log_segment_s`).
-ONE_LOG_CANDIDATES = frozenset(
+#: The errors one log's reconstruction does not estimate: those the air data's turbulence holds
+#: (:attr:`CompatSettings.one_log_segment_s`); the diagnosis takes them as large as specified.
+ONE_LOG_UNMEASURED = frozenset(
     [f"{c}.{e}" for c in ("alpha_deg", "beta_deg", "tas_kt") for e in ("bias", "scale", "delay")]
     + ["alpha_deg.position", "ax_fps2.bias", "ay_fps2.bias", "az_fps2.bias", "theta_deg.bias", "phi_deg.bias"]
 )

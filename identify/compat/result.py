@@ -277,7 +277,7 @@ class CompatResult:
     def summary(self) -> str:
         of = (
             f"1 log cut into {self.segments} segments, the standard errors' clusters; its air-data and "
-            "accelerometer errors are corrected only where the aerodynamic residuals choose them"
+            "accelerometer errors are not estimated"
             if self.segments
             else f"{len(self.logs)} logs"
         )
