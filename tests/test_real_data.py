@@ -139,6 +139,44 @@ def test_attas_model_with_a_term_taken_out_is_named_by_that_term(attas, fitted, 
     assert first.verdict["held_out_logs_gain"] > 1.5, first.verdict
 
 
+def test_a_campaign_model_aircraft_flies_a_matrix_and_campaign_plan_flies_its_candidates(attas, tmp_path):
+    """The aircraft ``campaign model`` writes has no engine: its thrust is an external force. ``campaign run``
+    trims it by that force (logged as ``thrust_lbf``; ``throttle_norm`` half at the trim, the force twice the
+    trim's at full throttle) and flies the gear extension with the autopilot's speed hold moving it, through
+    an engine's lag; ``campaign plan`` flies its candidate flights on it for a diagnosis of the real records
+    (the ATTAS model with its lift slope scaled by 0.8, its first cause beside a rival)."""
+    d, ident, *_ = attas
+    model = _model(ident, tmp_path / "model" / "attas", ("CL", "dalpha_rad", 0.8))
+    matrix = tmp_path / "m.toml"
+    matrix.write_text(
+        'name = "model"\n[[points]]\ngear = "up"\nflap_deg = 1.0\nmach = 0.38\nalt_ft = 16000\n'
+        'maneuvers = ["doublet", "gear_extension"]\n'
+    )
+    run = ["run", "--matrix", str(matrix), "--aircraft", str(model), "--out", str(tmp_path / "flown")]
+    assert main([*run, "--no-identify", "--noise", "none", "--jobs", "1"]) == 0
+    flown = {lg.maneuver: lg.data for lg in load_data(tmp_path / "flown")}
+    doublet, extension = flown["doublet"], flown["gear_extension"]
+    assert np.ptp(doublet.thrust_lbf) == 0.0 and doublet.thrust_lbf.iloc[0] > 1000.0
+    assert np.allclose(doublet.throttle_norm, 0.5)
+    per = extension.thrust_lbf / extension.throttle_norm
+    assert np.allclose(per, 2.0 * doublet.thrust_lbf.iloc[0]), per.describe()
+    assert extension.gear_norm.iloc[-1] == 1.0 and extension.throttle_norm.max() > 0.55
+    assert np.ptp(extension.tas_kt) < 1.0 and extension.throttle_norm.between(0.0, 1.0).all()
+
+    text = (EXAMPLES / "attas-map.toml").read_text()
+    (tmp_path / "map.toml").write_text(text)
+    records = [str(DATA / f"fAttasElv{k}.mat") for k in (1, 2)]
+    assert main(["import", *records, "--map", str(tmp_path / "map.toml"), "--out", str(tmp_path / "both")]) == 0
+    diag = tmp_path / "diagnosis"
+    command = ["diagnose", "--data", str(tmp_path / "both"), "--model", str(model), "--out", str(diag)]
+    assert main([*command, "--no-plots", "--jobs", "1"]) == 0
+    first = next(c for c in json.loads((diag / "diagnosis.json").read_text())["causes"] if c["kind"] == "aero")
+    assert (first["coefficient"], first["variables"][0]) == ("CL", "alpha_deg"), first
+    assert main(["plan", "--diagnosis", str(diag), "--jobs", "1"]) == 0
+    plan = json.loads((diag / "plan" / "plan.json").read_text())
+    assert plan["candidates"] > 10 and plan["rivals"], plan
+
+
 @pytest.fixture(scope="module")
 def hfb(tmp_path_factory):
     """The HFB-320 record cut into its two inputs (the 3-2-1-1 before 22 s, the pulse after), each identified

@@ -171,9 +171,10 @@ def catalog_names(fdm) -> PropertyNames:
     return PropertyNames(canonical(entry.split(" ")[0]) for entry in fdm.get_property_catalog())
 
 
-def check_catalog(names: set[str], n_engines: int, aircraft: str) -> dict[str, bool]:
+def check_catalog(names: set[str], n_engines: int, aircraft: str, thrust: str | None = None) -> dict[str, bool]:
     """Check every property we need exists in a model's catalog ``names``
-    (:func:`catalog_names`); report which optional ones do.
+    (:func:`catalog_names`); report which optional ones do. ``thrust``: the thrust force of an aircraft
+    without engines (its throttle, fuel and engines' properties are not needed).
 
     Returns
     -------
@@ -185,13 +186,13 @@ def check_catalog(names: set[str], n_engines: int, aircraft: str) -> dict[str, b
     UserError
         Naming the aircraft and the first missing property.
     """
-    required = [p for p, _ in STATE_CHANNELS.values()]
+    required = [thrust if thrust and c == "thrust_lbf" else p for c, (p, _) in STATE_CHANNELS.items()]
     required += list(FORCE_CHANNELS.values()) + list(HOLD_INPUTS.values()) + [FLAP_DEG]
     required += [THROTTLE_POS.format(i=i) for i in range(n_engines)]
     for key, prop in CONTROLS.items():
         if key == "throttle":
             required += [prop.format(i=i) for i in range(n_engines)]
-        else:
+        elif not (thrust and key in ("fuel_freeze", "set_running")):
             required.append(prop)
     required += list(INITIAL_CONDITIONS) + list(GUSTS) + list(ANGULAR_ACCELERATIONS.values())
     for prop in required:

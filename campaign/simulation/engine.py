@@ -145,8 +145,92 @@ def model_catalog(source: AircraftSource) -> tuple[cat.PropertyNames, int, dict[
         If a property the engine needs is missing.
     """
     names = cat.catalog_names(new_fdm(source))
-    n_eng = engine_count(names)
-    return names, n_eng, cat.check_catalog(names, n_eng, source.folder)
+    force = thrust_force(source)
+    n_eng = 0 if force else engine_count(names)
+    return names, n_eng, cat.check_catalog(names, n_eng, source.folder, thrust=force)
+
+
+#: The throttle at which an aircraft without engines trims: the hold's throttle moves its thrust force
+#: from none (0) to twice the trim's (1).
+FORCE_TRIM_THROTTLE = 0.5
+
+
+@lru_cache(maxsize=8)
+def thrust_force(source: AircraftSource) -> str | None:
+    """The property of the thrust force of an aircraft without engines (``campaign model``'s, its thrust an
+    external force), None for an aircraft with engines."""
+    from campaign.simulation.replay_log import MODEL_FORCE, ReplayError, thrust_kind  # noqa: PLC0415
+
+    try:
+        kind = thrust_kind(source)
+    except ReplayError as exc:
+        raise UserError(f"{source.folder}: {exc}") from None
+    return f"external_reactions/{MODEL_FORCE}/magnitude" if kind == "force" else None
+
+
+def _force_trim(source: AircraftSource, point: StatusPoint, gear: float, gust_fps, gamma_deg: float):
+    """An aircraft without engines trimmed at ``point`` (:func:`campaign.modelling.trim.trim_model`, its
+    thrust force for the throttle), in the gust ``gust_fps``: the FDM and its :class:`Trim`."""
+    from campaign.modelling.trim import ModelTrimError, trim_model  # noqa: PLC0415
+    from campaign.simulation.replay_log import _model_pitch_control  # noqa: PLC0415
+
+    fdm = new_fdm(source)
+    fdm["ic/h-sl-ft"], fdm["ic/mach"] = point.alt_ft, point.mach
+    with captured_stdout():
+        fdm.run_ic()
+    tas_kt = float(fdm["velocities/vtrue-kts"])
+    weight = point.weight_lb
+    for prop, v in zip(cat.GUSTS, gust_fps if gust_fps is not None else (0.0, 0.0, 0.0)):
+        fdm[prop] = float(v)
+    try:
+        mt = trim_model(
+            fdm,
+            point.alt_ft,
+            tas_kt,
+            gamma_deg,
+            point.flap_deg,
+            gear,
+            weight_lb=weight,
+            thrust_lbf=0.1 * float(fdm["inertia/weight-lbs"]),
+            pitch_control=_model_pitch_control(source),
+        )
+    except (ModelTrimError, UserError) as exc:
+        raise TrimError(str(exc)) from None
+    thrust = float(fdm[thrust_force(source)])
+    if not thrust > 0.0:
+        raise TrimError(f"trimmed with a thrust force of {thrust:.0f} lbf: the aircraft glides at this point")
+    qbar, weight = fdm["aero/qbar-psf"], fdm["inertia/weight-lbs"]
+    return fdm, Trim(
+        alpha_deg=mt.alpha_deg,
+        theta_deg=mt.theta_deg,
+        elevator_deg=fdm["fcs/elevator-pos-rad"] * cat.R2D,
+        elevator_cmd_norm=fdm["fcs/elevator-cmd-norm"],
+        pitch_trim_norm=fdm["fcs/pitch-trim-cmd-norm"],
+        throttle=FORCE_TRIM_THROTTLE,
+        qbar_psf=qbar,
+        cl=weight / (qbar * fdm["metrics/Sw-sqft"]),
+        weight_lb=weight,
+        thrust_per_throttle_lbf=thrust / FORCE_TRIM_THROTTLE,
+    )
+
+
+#: The time constant of the thrust force's answer to the throttle of an aircraft without engines [s]: an
+#: engine's spool-up, without which the hold's speed loop, its damping on the acceleration the force itself
+#: makes at once, swings the throttle from stop to stop.
+FORCE_LAG_S = 1.0
+
+
+class _ThrottleForce:
+    """A throttle command for an aircraft without engines: its thrust force follows it with the lag
+    :data:`FORCE_LAG_S`, one step of ``dt_s`` per command."""
+
+    def __init__(self, node, per_throttle_lbf: float, dt_s: float) -> None:
+        self.node, self.per, self.k = node, per_throttle_lbf, dt_s / (FORCE_LAG_S + dt_s)
+        self.force = node.get_double_value()
+
+    def set_double_value(self, throttle: float) -> None:
+        self.force += self.k * (throttle * self.per - self.force)
+        self.node.set_double_value(self.force)
 
 
 @lru_cache(maxsize=8)
@@ -206,6 +290,8 @@ class Trim:
     qbar_psf: float
     cl: float
     weight_lb: float
+    #: an aircraft without engines (``campaign model``'s): the thrust force per unit throttle [lbf]
+    thrust_per_throttle_lbf: float = 0.0
 
 
 #: Upper alpha bounds tried in turn [deg]: JSBSim's trim brackets alpha between
@@ -233,9 +319,12 @@ def trimmed_fdm(
     why = flap_problem(source, point.flap_deg)
     if why:
         raise TrimError(why)
+    names, n_eng, optional = model_catalog(source)
+    if thrust_force(source):
+        fdm, tr = _force_trim(source, point, gear, gust_fps, gamma_deg)
+        return fdm, names, n_eng, optional, tr
     flap_cmd = flap_schedule(source).command_for(point.flap_deg)
     reason = ""
-    names, n_eng, optional = model_catalog(source)
     for alpha_max in alpha_max_deg:
         fdm = new_fdm(source)
         try:
@@ -455,13 +544,14 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     pm = fdm.get_property_manager()
     node = lambda p: pm.get_node(p, False)  # noqa: E731
-    state_nodes = [node(p) for p, _ in cat.STATE_CHANNELS.values()]
+    force = thrust_force(config.aircraft)  # an aircraft without engines: its thrust force, along body x
+    state_nodes = [node(force if force and c == "thrust_lbf" else p) for c, (p, _) in cat.STATE_CHANNELS.items()]
     state_scale = np.array([s for _, s in cat.STATE_CHANNELS.values()])
     force_nodes = [node(p) for p in cat.FORCE_CHANNELS.values()]
     stab = cat.OPTIONAL_CHANNELS["stabilizer_deg"]
     stab_node = node(stab[0]) if optional[stab[0]] else None
     flap_node = node(cat.FLAP_DEG)
-    thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)]
+    thr_nodes = [node(cat.THROTTLE_POS.format(i=i)) for i in range(n_eng)] if not force else [node(force)]
     truth_nodes = [node(p) for p in cat.TRUTH_CHANNELS.values()] if config.record_truth else []
     hdot_node = node(cat.HOLD_INPUTS["hdot_fps"])
     uvw_nodes = [node(cat.HOLD_INPUTS[c]) for c in ("u_fps", "v_fps", "w_fps")]
@@ -473,7 +563,11 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
 
     elev_cmd = node(cat.CONTROLS["elevator"])
     trim_cmd = node(cat.CONTROLS["pitch_trim"])
-    thr_cmd = [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
+    thr_cmd = (
+        [node(cat.CONTROLS["throttle"].format(i=i)) for i in range(n_eng)]
+        if not force
+        else [_ThrottleForce(node(force), tr.thrust_per_throttle_lbf, DT_S)]
+    )
     gear_cmd = node(cat.CONTROLS["gear_cmd"])
     gust_nodes = [node(p) for p in cat.GUSTS] if profile.sigma_fps > 0 or prog.wind_fps is not None else []
     rot_nodes = (
@@ -596,15 +690,16 @@ def fly(point: StatusPoint, maneuver_name: str | Maneuver, config: FlightConfig)
     raw = np.frombuffer(buf, dtype=float).reshape(-1, n_read)
     n_force, n_stab = len(force_nodes), int(stab_node is not None)
     mass = raw[:, i_mass] * s_mass
-    at = n_state + n_force + n_stab + 1  # the engines' throttle positions
+    at = n_state + n_force + n_stab + 1  # the engines' throttle positions (without engines, the thrust force)
+    n_thr = len(thr_nodes)
     rows = np.column_stack(
         [
             raw[:, :n_state] * state_scale,
             raw[:, n_state : n_state + n_force] / mass[:, None],
             raw[:, n_state + n_force] if n_stab else np.full(len(raw), stab_const),
             raw[:, at - 1],
-            sum(raw[:, at + e] for e in range(n_eng)) / n_eng,
-            raw[:, at + n_eng :],
+            sum(raw[:, at + e] for e in range(n_thr)) / n_thr / (tr.thrust_per_throttle_lbf if force else 1.0),
+            raw[:, at + n_thr :],
         ]
     )
     if gear_final is not None and abs(rows[-1, i_gear] - gear_final) > 1e-9:
