@@ -124,6 +124,33 @@ def test_attas_instruments_from_one_record_agree_with_both_and_the_boom_with_the
     assert boom.applied and 40.0 < boom.estimate < 50.0, (boom.estimate, boom.se)
 
 
+def test_an_attitude_channel_that_jumps_is_not_used_by_the_reconstruction(attas):
+    """A heading that jumps by 180 deg where the gyros hardly turn (as a DLR ATTAS stall record's does) is not
+    a heading: the reconstruction leaves it out, says where it jumps, and estimates the pitch gyro's bias as
+    without it. A pitch angle that jumps leaves no reconstruction, and says why."""
+    from dataclasses import replace
+
+    from identify.compat import estimate
+
+    d, ident, e1, e2, _ = attas
+    jumped = []
+    for lg in e1 + e2:
+        data = lg.data.copy()
+        half = data.index >= len(data) // 2
+        data.loc[half, "psi_deg"] = (data.loc[half, "psi_deg"] + 180.0) % 360.0
+        jumped.append(replace(lg, data=data))
+    clean, res = estimate(e1 + e2, jobs=2), estimate(jumped, jobs=2)
+    assert "psi_deg" in res.unused and "where the gyros turn it by" in res.unused["psi_deg"], res.unused
+    assert "psi_deg not used" in res.summary() and not clean.unused
+    a, b = clean.get("q_dps.bias"), res.get("q_dps.bias")
+    assert a.applied and b.applied and abs(a.estimate - b.estimate) < 2 * a.se, (a.estimate, b.estimate, a.se)
+    pitch = [
+        replace(lg, data=lg.data.assign(theta_deg=lg.data.theta_deg + 30.0 * (lg.data.index >= 300))) for lg in e1 + e2
+    ]
+    res = estimate(pitch)
+    assert not res.applied and "no reconstruction: theta_deg moves by +30.0 deg" in res.summary(), res.summary()
+
+
 @TAKEN_OUT
 @pytest.mark.parametrize("fitted, held", [("e1", "e2"), ("e2", "e1")])
 def test_attas_model_with_a_term_taken_out_is_named_by_that_term(attas, fitted, held, change, named):

@@ -136,6 +136,16 @@ class CompatSettings:
         "A jackknife over 2 or 3 clusters is what applied the false corrections of `one_log_segment_s`; the "
         "doublets of 22 s, in 5 segments, applied none.",
     )
+    attitude_jump_deg: float = setting(
+        20.0,
+        "deg",
+        "An attitude channel (pitch, bank, heading) that moves more than this in one sample beyond what the "
+        "gyros turn it by, after the full turns of a heading are unwrapped, is no measurement of the attitude: "
+        "the reconstruction does not use it (a heading), or does not run (pitch, bank), and says where it jumps.",
+        "Physical, not fitted: the gyros' own errors move an attitude by a thousandth of this in a sample. A "
+        "DLR ATTAS stall record's heading jumps by 180 deg where the gyros turn it by 0.02 deg; read as a "
+        "heading, it made a 10.9 deg/s pitch-gyro bias, where the record without it gives +0.41 deg/s.",
+    )
     turbulent_fps: float = setting(
         0.5,
         "ft/s",

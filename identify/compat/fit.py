@@ -4,6 +4,7 @@ excite, stage by stage, with delete-one-log jackknife standard errors."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -104,6 +105,13 @@ def estimate(  # noqa: C901
             p.identifiable, p.reason = False, f"no reconstruction: {why}"
         return CompatResult(params, [lg.path for lg in logs], {}, positions)
     chosen = [lg.read() for lg in select(logs)]
+    unused = attitude_jumps(chosen, settings.attitude_jump_deg)
+    broken = [c for c in ESSENTIAL if c in unused]
+    if broken:
+        for p in params:
+            p.identifiable, p.reason = False, f"no reconstruction: {broken[0]} {unused[broken[0]]}"
+        return CompatResult(params, [lg.path for lg in logs], {}, positions, unused=unused)
+    constant = constant | set(unused)
     data = prepare(
         [
             replace(
@@ -464,7 +472,7 @@ def estimate(  # noqa: C901
     for ch, k in (("theta_deg", D2R), ("phi_deg", D2R), ("alpha_deg", D2R), ("beta_deg", D2R), ("tas_kt", FT_PER_KT)):
         if ch in rms:
             rms[ch] = {key: v / k for key, v in rms[ch].items()}
-    result = CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence)
+    result = CompatResult(params, [lg.path for lg in chosen], rms, positions, covs, turbulence, unused=unused)
     if not replicate and L >= 3 and result.applied:
         _whole_jackknife(result, chosen, jobs, settings)
     return result
@@ -489,6 +497,46 @@ def segments(log: Log, least_s: float) -> list[Log]:
     return [
         replace(log, path=f"{log.path}#{i + 1}", data=log.data.loc[piece == i].reset_index(drop=True)) for i in range(k)
     ]
+
+
+#: The attitude channels :func:`attitude_jumps` checks against the gyros.
+ATTITUDES = ("theta_deg", "phi_deg", "psi_deg")
+
+
+def attitude_jumps(logs: list[Log], limit_deg: float) -> dict[str, str]:
+    """The attitude channels that move more than ``limit_deg`` in one sample beyond what the gyros turn them
+    by (a heading's full turns unwrapped first), in any of ``logs``: ``{channel: where and by how much}``.
+
+    The gyros' turn is the Euler angles' rate from the body rates and the logged pitch and bank, averaged
+    over the sample; a channel or rate the log lacks is not checked.
+    """
+    out: dict[str, str] = {}
+    for lg in logs:
+        d = lg.data
+        if not all(c in d for c in ("t_s", "p_dps", "q_dps", "r_dps", "theta_deg", "phi_deg")) or len(d) < 2:
+            continue
+        t = d["t_s"].to_numpy(float)
+        p, q, r = (np.radians(d[c].to_numpy(float)) for c in ("p_dps", "q_dps", "r_dps"))
+        th, ph = np.radians(d["theta_deg"].to_numpy(float)), np.radians(d["phi_deg"].to_numpy(float))
+        rates = {
+            "theta_deg": q * np.cos(ph) - r * np.sin(ph),
+            "phi_deg": p + (q * np.sin(ph) + r * np.cos(ph)) * np.tan(th),
+            "psi_deg": (q * np.sin(ph) + r * np.cos(ph)) / np.cos(th),
+        }
+        for c in ATTITUDES:
+            if c in out or c not in d:
+                continue
+            x = d[c].to_numpy(float)
+            x = np.degrees(np.unwrap(np.radians(x))) if c == "psi_deg" else x
+            turn = np.degrees(0.5 * (rates[c][1:] + rates[c][:-1]) * np.diff(t))
+            gap = np.abs(np.diff(x) - turn)
+            k = int(np.argmax(gap))
+            if gap[k] > limit_deg:
+                out[c] = (
+                    f"moves by {np.diff(x)[k]:+.1f} deg at t = {t[k + 1]:.2f} s of {Path(lg.path).name}, where "
+                    f"the gyros turn it by {turn[k]:+.2f} deg: not a measurement of the attitude"
+                )
+    return out
 
 
 #: Evaluations :func:`estimate` keeps (a Jacobian's differences return to the point they start from).

@@ -143,6 +143,8 @@ class CompatResult:
     covariance: list = field(default_factory=list)  # [(parameter names, covariance matrix)] per stage
     turbulence_fps: float = float("nan")  # RMS vertical gust the reconstruction needed [ft/s]
     segments: int = 0
+    #: channels the reconstruction does not use, and why (an attitude that jumps: :func:`attitude_jumps`)
+    unused: dict = field(default_factory=dict)
 
     def uncertainty(self, plausible_at: float | None = None) -> tuple[list[tuple[str, str]], np.ndarray]:
         """The identifiable biases, scale factors and time shifts, (channel, error), and the
@@ -269,6 +271,7 @@ class CompatResult:
             "documented_positions_ft": self.positions,
             "vertical_gust_rms_fps": self.turbulence_fps,
             "segments": self.segments,
+            "unused_channels": dict(self.unused),
         }
 
     def table(self) -> pd.DataFrame:
@@ -284,6 +287,8 @@ class CompatResult:
         lines = [f"Data compatibility (flight-path reconstruction of {of}):"]
         for c, r in self.positions.items():
             lines.append(f"  {c} sensor documented at {r} ft from the CG: corrected for")
+        for c, why in self.unused.items():
+            lines.append(f"  {c} not used: {why}")
         why = {p.reason for p in self.parameters if not p.identifiable}
         none = len(why) == 1 and not any(p.identifiable for p in self.parameters)  # one reason for all
         if none:
