@@ -274,11 +274,12 @@ def diagnose(
     bands: int = 0,
     cluster: str | None = None,
     progress: bool = False,
+    held_out: list[str] | None = None,
 ) -> DiagnosisResult:
     """Find what a model gets wrong in measured data, extend it, and measure the gain (``campaign
     diagnose``).
 
-    About every third flight condition is held out; on the rest, the coefficient residuals
+    About every third flight condition is held out (or the logs ``held_out`` names); on the rest, the coefficient residuals
     (measured eq. (1) minus the model at the measured states) are searched by stepwise regression
     for causes, aerodynamic (coefficient and variables) or instrument errors (channel and
     error); a cause is named only if it is significant, larger than instrument noise can make
@@ -312,6 +313,8 @@ def diagnose(
         ``tcp://HOST:PORT`` of a Dask scheduler for the residuals, noise realizations and replays.
     progress : bool
         A progress bar of the stages on stderr.
+    held_out : list of str, optional
+        The logs to hold out, by file name or stem (``campaign diagnose --held-out``).
 
     Returns
     -------
@@ -338,6 +341,7 @@ def diagnose(
         refine=refine,
         bands=bands,
         settings=settings,
+        held_out=held_out,
     )
     html_report(out, LOG.info, LOG.warning)
     return DiagnosisResult(out, doc)

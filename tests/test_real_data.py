@@ -254,6 +254,34 @@ def test_hfb320_model_with_a_term_taken_out_is_named_by_that_term(hfb, fitted, h
     assert first.verdict["held_out_logs_gain"] > 1.2, first.verdict
 
 
+def test_the_hfb320_pulse_flies_alpha_and_elevator_together_and_held_out_as_given_the_3211_settles_it(
+    hfb, tmp_path, capsys
+):
+    """Fitted on the pulse alone, whose alpha follows the elevator (correlation -0.91), the HFB-320 model with its
+    lift slope scaled by 0.8 is diagnosed with the 3-2-1-1 held out (``--held-out``: the split the user
+    gives): "CL vs alpha" is named, confounded with its reading in the elevator, which these data settle
+    (10 standard errors). A name that matches no log is one line, exit 2, nothing written."""
+    d, ident, _ = hfb["pulse"]
+    model = _model(ident, tmp_path / "model" / "hfb", ("CL", "dalpha_rad", 0.8))
+    both = d.parent / "hfb"
+    command = ["diagnose", "--data", str(both), "--model", str(model), "--no-plots", "--jobs", "1"]
+    assert main([*command, "--held-out", "hfb320_1_10_1", "--out", str(tmp_path / "d")]) == 0
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert [Path(p).name for p in doc["data"]["held_out"]] == ["hfb320_1_10_1.parquet"]
+    assert doc["data"]["split"] == "as given (--held-out)"
+    pair = next(p for p in doc["moved_together"] if set(p["variables"]) == {"alpha_deg", "elevator_deg"})
+    assert pair["corr"] < -0.9
+    lift = next(c for c in doc["causes"] if c["kind"] == "aero")
+    assert (lift["coefficient"], lift["variables"][0]) == ("CL", "alpha_deg"), lift
+    note = lift["evidence"]["confounded"]
+    assert any("elevator_deg" in r["rival"] and r["settled"] for r in note["rivals"]), note
+    capsys.readouterr()
+    assert main([*command, "--held-out", "hfb320_1_10_9", "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--held-out hfb320_1_10_9: no log of that name" in err, err
+    assert not (tmp_path / "e").exists()
+
+
 def test_a_channel_the_map_gives_as_a_constant_is_not_reconstructed(hfb, tmp_path):
     """The HFB-320 map gives the altitude as a constant (the record holds none), and an ATTAS map may give
     the roll rate as one: no flight-path reconstruction compares a constant with the

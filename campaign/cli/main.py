@@ -232,6 +232,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="N Monte Carlo draws of the extension from its covariance: bands on the held-out replays "
         "where the cause acts, and their Part 60 pass probability (50 is usual; default 0: none)",
     )
+    dia.add_argument(
+        "--held-out",
+        action="append",
+        metavar="LOG",
+        help="hold this log out (its file name or stem; repeatable) instead of about every third flight "
+        "condition: the record of another flight that is to confirm the causes",
+    )
     dia.add_argument("--quiet", action="store_true", help="no progress bar")
 
     rep = sub.add_parser(
@@ -407,6 +414,7 @@ def _main(args) -> int:  # noqa: C901
                 cluster=args.cluster,
                 refine=args.refine,
                 bands=args.bands,
+                held_out=args.held_out,
             )
             print(doc["summary"])
             print(f"report in {args.out}")

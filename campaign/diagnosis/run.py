@@ -100,6 +100,40 @@ def split(
     return [lg for lg in logs if lg.condition not in held], [lg for lg in logs if lg.condition in held]
 
 
+#: How a held-out split the user gave is said in ``diagnosis.json`` (``data.split``).
+AS_GIVEN = "as given (--held-out)"
+
+
+def _split(logs: list[Log], first: list[Log], source: str, held_out: list[str] | None) -> tuple:
+    """``(fitted, held out, split by flight)``: as given (``held_out``), or :func:`split` of ``first``."""
+    if held_out:
+        return (*held_out_as_given(logs, held_out), False)
+    train, held = split(logs, first=first, source=source)
+    return train, held, len(_distinct(sorted({lg.condition for lg in first}))) < 2
+
+
+def held_out_as_given(logs: list[Log], names: list[str]) -> tuple[list[Log], list[Log]]:
+    """The fitted and the held-out logs, those held out named by file name or stem.
+
+    Raises
+    ------
+    UserError
+        If a name matches no log, or every log would be held out.
+    """
+    files = [Path(lg.path) for lg in logs]
+    held = set()
+    for name in names:
+        match = {str(f) for f in files if name in (f.name, f.stem)}
+        if not match:
+            shown = ", ".join(f.name for f in files[:6]) + (f" and {len(files) - 6} more" if len(files) > 6 else "")
+            raise UserError(f"--held-out {name}: no log of that name in --data (the logs: {shown})")
+        held |= match
+    train = [lg for lg in logs if str(Path(lg.path)) not in held]
+    if not train:
+        raise UserError("--held-out: every log would be held out; at least one must be fitted")
+    return train, [lg for lg in logs if str(Path(lg.path)) in held]
+
+
 #: How a split by flight is said in ``diagnosis.json`` (``data.split``) and ``diagnosis.txt``.
 BY_FLIGHT = (
     "by flight: the data hold one flight condition, so every {every}rd flight in file order is held out "
@@ -336,6 +370,7 @@ def run_diagnosis(
     refine: str | None = None,
     bands: int = 0,
     settings: DiagnosisSettings | None = None,
+    held_out: list[str] | None = None,
 ) -> dict:
     """The whole diagnosis; returns what ``diagnosis.json`` holds.
 
@@ -368,6 +403,9 @@ def run_diagnosis(
     settings : DiagnosisSettings, optional
         Every decision threshold, handed to :func:`diagnose.diagnosis.diagnose` (None: its defaults);
         ``diagnosis.json`` records them (``settings``).
+    held_out : list of str, optional
+        The logs to hold out, by file name (``fAttasElv1.parquet``) or stem, instead of the split by
+        flight condition (:func:`held_out_as_given`).
 
     Raises
     ------
@@ -408,8 +446,7 @@ def run_diagnosis(
                         f"file: each --data must hold other flights)"
                     )
                 where[name] = p
-        train, held = split(logs, first=sets[0], source=str(paths[0]))
-        by_flight = len(_distinct(sorted({lg.condition for lg in sets[0]}))) < 2
+        train, held, by_flight = _split(logs, sets[0], str(paths[0]), held_out)
     except UserError:
         if client is not None:
             client.close()
@@ -418,7 +455,21 @@ def run_diagnosis(
     try:
         with on_cluster(client):
             return _diagnosis(
-                paths, model, out, plots, jobs, progress, logs, train, held, client, refine, bands, settings, by_flight
+                paths,
+                model,
+                out,
+                plots,
+                jobs,
+                progress,
+                logs,
+                train,
+                held,
+                client,
+                refine,
+                bands,
+                settings,
+                by_flight,
+                bool(held_out),
             )
     except BaseException:  # interrupted or failed: no half report, and the same command runs again
         if fresh:
@@ -450,6 +501,7 @@ def _diagnosis(  # noqa: PLR0913
     bands: int = 0,
     settings: DiagnosisSettings | None = None,
     by_flight: bool = False,
+    as_given: bool = False,
 ) -> dict:
     """:func:`run_diagnosis` once its inputs are read (within :func:`infra.pool.on_cluster`)."""
     fan = max(jobs, sum(client.nthreads().values())) if client is not None else jobs  # tasks at once
@@ -485,7 +537,7 @@ def _diagnosis(  # noqa: PLR0913
                 "logs": len(logs),
                 "train": [lg.path for lg in train],
                 "held_out": [lg.path for lg in held],
-                "split": BY_FLIGHT.format(every=3) if by_flight else "by flight condition",
+                "split": AS_GIVEN if as_given else BY_FLIGHT.format(every=3) if by_flight else "by flight condition",
             },
             str(model),
         )
