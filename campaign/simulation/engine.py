@@ -179,7 +179,6 @@ def _force_trim(source: AircraftSource, point: StatusPoint, gear: float, gust_fp
     with captured_stdout():
         fdm.run_ic()
     tas_kt = float(fdm["velocities/vtrue-kts"])
-    weight = point.weight_lb
     for prop, v in zip(cat.GUSTS, gust_fps if gust_fps is not None else (0.0, 0.0, 0.0)):
         fdm[prop] = float(v)
     try:
@@ -190,7 +189,7 @@ def _force_trim(source: AircraftSource, point: StatusPoint, gear: float, gust_fp
             gamma_deg,
             point.flap_deg,
             gear,
-            weight_lb=weight,
+            weight_lb=point.weight_lb,
             thrust_lbf=0.1 * float(fdm["inertia/weight-lbs"]),
             pitch_control=_model_pitch_control(source),
         )
@@ -310,7 +309,7 @@ def trimmed_fdm(
 ):
     """A fresh FDM trimmed at ``point`` (in the gust ``gust_fps``, if given, on the flight path
     ``gamma_deg``: :func:`trim`), retrying narrower alpha brackets (their upper bounds ``alpha_max_deg``
-    [deg], tried in turn).
+    [deg], tried in turn); an aircraft without engines by its thrust force (:func:`_force_trim`).
 
     Returns
     -------
