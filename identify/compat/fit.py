@@ -532,8 +532,9 @@ def attitude_jumps(logs: list[Log], limit_deg: float) -> dict[str, str]:
             gap = np.abs(np.diff(x) - turn)
             k = int(np.argmax(gap))
             if gap[k] > limit_deg:
+                where = Path(lg.path).name.partition("#")[0]  # a segment of one log keeps the log's times
                 out[c] = (
-                    f"moves by {np.diff(x)[k]:+.1f} deg at t = {t[k + 1]:.2f} s of {Path(lg.path).name}, where "
+                    f"moves by {np.diff(x)[k]:+.1f} deg at t = {t[k + 1]:.2f} s of {where}, where "
                     f"the gyros turn it by {turn[k]:+.2f} deg: not a measurement of the attitude"
                 )
     return out
