@@ -61,13 +61,17 @@ def export(log: pd.DataFrame, rate_hz: float = 25.0) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def map_toml(meta: dict, stabilizer_deg: float, fmt: str = "", columns=None, variable=None) -> str:
+def map_toml(
+    meta: dict, stabilizer_deg: float, fmt: str = "", columns=None, variable=None, skip_rows=0, encoding=""
+) -> str:
     g, i = meta["geometry"], meta["inertia_slugft2"]
     src = (
         "[source]\n"
         + (f'format = "{fmt}"\n' if fmt else "")
         + (f"columns = {json.dumps(list(columns))}\n" if columns else "")
         + (f'variable = "{variable}"\n' if variable else "")
+        + (f"skip_rows = {skip_rows}\n" if skip_rows else "")
+        + (f'encoding = "{encoding}"\n' if encoding else "")
     )
     chans = "\n".join(f'{c} = "{n} {u}"' if u else f'{c} = "{n}"' for c, (n, u, _) in SI.items())
     return (
@@ -213,6 +217,11 @@ def _save(df: pd.DataFrame, path, fmt: str):
         df.to_csv(path, index=False)
     elif fmt == "whitespace":
         np.savetxt(path, df.to_numpy())
+    elif fmt == "whitespace-preamble":  # a data system's export: a preamble, then a named table, in latin-1
+        table = df.assign(**{"T\u00b0C": -20.0})
+        rows = "\n".join(" ".join(repr(float(v)) for v in r) for r in table.to_numpy())
+        text = "Flugversuch 623, Temperaturen in \u00b0C\n\n" + " ".join(table.columns) + "\n" + rows + "\n"
+        path.write_bytes(text.encode("latin-1"))
     elif fmt == "parquet":
         df.to_parquet(path)
     elif fmt == "mat-struct":
@@ -227,7 +236,14 @@ def _save(df: pd.DataFrame, path, fmt: str):
 
 @pytest.mark.parametrize(
     "fmt, suffix",
-    [("csv", "csv"), ("whitespace", "dat"), ("parquet", "parquet"), ("mat-struct", "mat"), ("mat-array", "mat")],
+    [
+        ("csv", "csv"),
+        ("whitespace", "dat"),
+        ("whitespace-preamble", "asc"),
+        ("parquet", "parquet"),
+        ("mat-struct", "mat"),
+        ("mat-array", "mat"),
+    ],
 )
 def test_each_format_gives_the_same_log(original, tmp_path, fmt, suffix):
     lg = read_campaign(original)[0]
@@ -241,6 +257,7 @@ def test_each_format_gives_the_same_log(original, tmp_path, fmt, suffix):
     _save(df, src, fmt)
     kw = {
         "whitespace": {"columns": list(df.columns)},
+        "whitespace-preamble": {"fmt": "whitespace", "skip_rows": 2, "encoding": "latin-1"},
         "mat-struct": {"variable": "flight"},
         "mat-array": {"variable": "data", "columns": list(df.columns)},
     }.get(fmt, {})
@@ -277,6 +294,8 @@ BAD_MAPS = [
     ("unknown source key", lambda t: t.replace("[source]\n", '[source]\ndelimiter = ";"\n'), "source.delimiter"),
     ("aircraft area missing", lambda t: "\n".join(x for x in t.split("\n") if not x.startswith("S =")), "aircraft.S"),
     ("time unit of the wrong dimension", lambda t: t.replace('unit = "ms"', 'unit = "m"'), "time.unit"),
+    ("lines to skip negative", lambda t: t.replace("[source]\n", "[source]\nskip_rows = -2\n"), "source.skip_rows"),
+    ("unknown encoding", lambda t: t.replace("[source]\n", '[source]\nencoding = "latin-9x"\n'), "source.encoding"),
 ]
 
 
@@ -289,6 +308,19 @@ def test_bad_maps_are_one_line_and_write_nothing(original, tmp_path, capsys, wha
     out = tmp_path / "o"
     err = one_line_error(capsys, ["import", str(tmp_path / "f.csv"), "--map", str(mp), "--out", str(out)], needle)
     assert "bad.toml" in err or "f.csv" in err
+    assert not out.exists()
+
+
+def test_a_file_in_another_encoding_without_it_in_the_map_says_which_setting_reads_it(original, tmp_path, capsys):
+    lg = read_campaign(original)[0]
+    df = export(lg.data)
+    src = tmp_path / "flight.asc"
+    _save(df, src, "whitespace-preamble")
+    mp = tmp_path / "m.toml"
+    mp.write_text(map_toml(lg.meta, 0.0, fmt="whitespace", skip_rows=2))
+    out = tmp_path / "o"
+    err = one_line_error(capsys, ["import", str(src), "--map", str(mp), "--out", str(out)], "source.encoding")
+    assert "flight.asc" in err and "0xb0" in err
     assert not out.exists()
 
 

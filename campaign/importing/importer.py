@@ -40,7 +40,7 @@ FORMATS = {
     ".parquet": "parquet",
 }
 SECTIONS = {
-    "source": {"format", "columns", "variable"},
+    "source": {"format", "columns", "variable", "skip_rows", "encoding"},
     "time": {"column", "unit"},
     "channels": None,
     "constants": None,
@@ -229,6 +229,8 @@ class ImportMap:
     units: dict = field(default_factory=dict, compare=False, hash=False)  # schema column -> source unit text
     accuracy: dict = field(default_factory=dict, compare=False, hash=False)  # channel -> declared accuracy
     records: tuple[float, ...] = ()  # times [s] one file is cut at into records
+    skip_rows: int = 0  # text files: lines before the header row (or the data, with ``columns``)
+    encoding: str = "utf-8"  # text files: the characters' encoding
 
 
 def load_map(path: str | Path) -> ImportMap:  # noqa: C901
@@ -272,6 +274,7 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
     var = src.get("variable")
     if var is not None and not isinstance(var, str):
         raise UserError(f"{ps}: source.variable: expected the name of a variable in the .mat file")
+    skip, encoding = _text_options(ps, src)
     if not isinstance(tim.get("column"), str) or not tim.get("column"):
         raise UserError(f"{ps}: time.column: missing (the source column holding time)")
     t_factor = factor(ps, "time.unit", str(tim.get("unit", "s")), "second")
@@ -346,7 +349,31 @@ def load_map(path: str | Path) -> ImportMap:  # noqa: C901
         units,
         accuracy,
         records,
+        skip,
+        encoding,
     )
+
+
+#: The most lines ``source.skip_rows`` skips (a preamble, not a file).
+MAX_SKIP_ROWS = 10_000
+
+
+def _text_options(ps: str, src: dict) -> tuple[int, str]:
+    """``source.skip_rows`` and ``source.encoding``, checked."""
+    import codecs
+
+    skip, encoding = src.get("skip_rows", 0), src.get("encoding", "utf-8")
+    if isinstance(skip, bool) or not isinstance(skip, int) or not 0 <= skip <= MAX_SKIP_ROWS:
+        raise UserError(
+            f"{ps}: source.skip_rows: {shown(skip)} is not a whole number of lines from 0 to {MAX_SKIP_ROWS:,}"
+        )
+    try:
+        if not isinstance(encoding, str):
+            raise LookupError
+        codecs.lookup(encoding)
+    except LookupError:
+        raise UserError(f"{ps}: source.encoding: {shown(encoding)} is not a text encoding Python knows") from None
+    return skip, encoding
 
 
 # ----------------------------------------------------------------------------- reading
@@ -402,17 +429,23 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
                 f"{path}: not readable as parquet ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})"
             ) from None
     try:
+        text = {"skiprows": m.skip_rows, "encoding": m.encoding, "header": None if names else "infer", "names": names}
         if fmt == "csv":
-            df = pd.read_csv(path, header=None if names else "infer", names=names, skipinitialspace=True)
+            df = pd.read_csv(path, skipinitialspace=True, **text)
         elif fmt == "whitespace":
-            df = pd.read_csv(path, sep=r"\s+", header=None if names else "infer", names=names, comment="#")
+            df = pd.read_csv(path, sep=r"\s+", comment="#", **text)
         elif fmt == "parquet":
             df = pd.read_parquet(path)
         else:
             df = _mat(path, m)
     except UserError:
         raise
-    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        raise UserError(
+            f"{path}: not readable as {m.encoding} text (it holds the byte {exc.object[exc.start]:#04x}): "
+            f'set source.encoding in {m.path} (a German or French record is often "latin-1")'
+        ) from None
+    except (ValueError, OSError, pd.errors.ParserError) as exc:
         raise UserError(
             f"{path}: not readable as {fmt} ({type(exc).__name__}: {(str(exc).splitlines() or [''])[0][:120]})"
         ) from None
