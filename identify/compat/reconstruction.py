@@ -261,14 +261,16 @@ def body_to_ned(th: np.ndarray, ph: np.ndarray, ps: np.ndarray) -> np.ndarray:
 
 
 def _skew_exp(w: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """exp(-[w]x h) for rows of w (L, 3): the body axes' rotation over a step."""
-    ang = np.linalg.norm(w, axis=1) * h
-    axis = w / np.maximum(np.linalg.norm(w, axis=1), 1e-12)[:, None]
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
-    s, c = np.sin(-ang)[:, None, None], (1 - np.cos(-ang))[:, None, None]
-    return np.eye(3)[None] + s * K + c * (K @ K)
+    """exp(-[w]x h) for vectors w (..., 3), each over its step h (broadcast against w's leading axes): the
+    body axes' rotation over a step (..., 3, 3)."""
+    norm = np.linalg.norm(w, axis=-1)
+    ang = norm * h
+    axis = w / np.maximum(norm, 1e-12)[..., None]
+    K = np.zeros((*w.shape[:-1], 3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = axis[..., 2], -axis[..., 1], axis[..., 0]
+    s, c = np.sin(-ang)[..., None, None], (1 - np.cos(-ang))[..., None, None]
+    return np.eye(3) + s * K + c * (K @ K)
 
 
 def velocity_responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarray, ph: np.ndarray):
@@ -300,8 +302,9 @@ def velocity_responses(data: _Data, rates: tuple[np.ndarray, ...], th: np.ndarra
     Phi[:, 0], X[:, 0] = np.eye(3), 0.0
     h = data.dt[:, None, None]
     w = np.stack([p, q, r], -1)
+    steps = _skew_exp(0.5 * (w[:, :-1] + w[:, 1:]), data.dt[:, None])  # every step's rotation at once
     for k in range(n - 1):
-        R = _skew_exp(0.5 * (w[:, k] + w[:, k + 1]), data.dt)
+        R = steps[:, k]
         Phi[:, k + 1] = R @ Phi[:, k]
         X[:, k + 1] = R @ (X[:, k] + 0.5 * h * forcing[:, k]) + 0.5 * h * forcing[:, k + 1]
     rate_phi = np.einsum("lni,lnij->lnj", c, Phi, optimize=True)
