@@ -202,6 +202,15 @@ def test_a_campaign_model_aircraft_flies_a_matrix_and_campaign_plan_flies_its_ca
     assert main(["plan", "--diagnosis", str(diag), "--jobs", "1"]) == 0
     plan = json.loads((diag / "plan" / "plan.json").read_text())
     assert plan["candidates"] > 10 and plan["rivals"], plan
+    from campaign.design.plan import extrapolation, identified_at
+    from campaign.simulation.matrix import StatusPoint
+
+    at = identified_at(model)  # a flight far from the record flies the model's extrapolation, and the plan says so
+    assert at["alt_ft"][0] == pytest.approx(16000.0, abs=100.0) and at["mach"][0] == pytest.approx(0.4, abs=0.01)
+    assert extrapolation(StatusPoint(16200.0, 0.40, 1.0, False, None), at) is None
+    far = extrapolation(StatusPoint(31600.0, 0.39, 1.0, False, None), at)
+    assert "at 31,600 ft, Mach 0.39 it flies its extrapolation" in far, far
+    assert identified_at(Path(__file__).resolve().parents[1] / "aircraft" / "737") is None
 
 
 @pytest.fixture(scope="module")

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from campaign.diagnosis.run import load_data
+from campaign.diagnosis.run import SAME_CONDITION, load_data
 from campaign.errors import UserError
 from campaign.orchestration.store import read_manifest
 from campaign.simulation.aircraft import (
@@ -566,6 +566,9 @@ def plan(
                 "maneuver": flights[j]["maneuver"],
                 "minutes": flights[j]["minutes"],
                 "alone_se": [planned(sep.add(o, s), b) for o, s, b in zip(old, flights[j]["sums"], base)],
+                "extrapolated": extrapolation(
+                    next(p for p in points if p.id == flights[j]["point"]), identified_at(model)
+                ),
             }
             for j in chosen
         ],
@@ -586,6 +589,42 @@ def plan(
     (out / "plan.txt").write_text(text)
     result["text"] = text
     return result
+
+
+def identified_at(model: Path) -> dict | None:
+    """The conditions a ``campaign model`` aircraft was identified at (its ``model.json``'s record starts):
+    ``{"alt_ft": (lowest, highest), "mach": (lowest, highest)}``; None for another aircraft."""
+    from campaign.importing.atmosphere import air_data
+
+    try:
+        trims = json.loads((Path(model) / "model.json").read_text()).get("trims") or []
+        alt = np.array([float(t["alt_ft"]) for t in trims])
+        mach = air_data(alt, np.array([float(t["tas_kt"]) for t in trims]))["mach"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if not len(alt):
+        return None
+    return {"alt_ft": (float(alt.min()), float(alt.max())), "mach": (float(mach.min()), float(mach.max()))}
+
+
+def extrapolation(point: StatusPoint, at: dict | None) -> str | None:
+    """What a candidate ``point`` flies of a ``campaign model`` aircraft identified ``at``
+    (:func:`identified_at`) beyond its records (their conditions widened by the held-out split's
+    :data:`campaign.diagnosis.run.SAME_CONDITION`); None within them or for another aircraft."""
+    if at is None:
+        return None
+    (a0, a1), (m0, m1) = at["alt_ft"], at["mach"]
+    d_alt, d_mach = SAME_CONDITION[0], SAME_CONDITION[1]
+    if a0 - d_alt <= point.alt_ft <= a1 + d_alt and m0 - d_mach <= point.mach <= m1 + d_mach:
+        return None
+
+    def span(lo: float, hi: float, form: str) -> str:
+        return form.format(lo) if form.format(lo) == form.format(hi) else f"{form.format(lo)}-{form.format(hi)}"
+
+    return (
+        f"the model was identified at {span(a0, a1, '{:,.0f}')} ft, Mach {span(m0, m1, '{:.2f}')} (its model.json): "
+        f"at {point.alt_ft:,.0f} ft, Mach {point.mach:.2f} it flies its extrapolation, and so does the prediction"
+    )
 
 
 def _value(v) -> str:
@@ -671,6 +710,8 @@ def report(r: dict) -> str:
         for f in r["flights"]:
             alone = ", ".join(f"{s:.1f}" for s in f["alone_se"])
             lines.append(f"  {f['point']} {f['maneuver']} ({f['minutes']:.2f} min): alone with the old data {alone}")
+            if f.get("extrapolated"):
+                lines.append(f"    {f['extrapolated']}")
         short = [x for x in r["rivals"] if x["planned_se"] < r["settled_se"]]
         if short:
             lines.append("Within the budget the plan does not settle: " + "; ".join(x["rival"] for x in short))
