@@ -516,8 +516,13 @@ def _main(args) -> int:  # noqa: C901
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except KeyboardInterrupt:
+        import signal
+
         from infra.pool import stop_workers
 
+        # a second Ctrl-C while the command stops (the terminal's, or one that arrives as the interpreter
+        # exits, when it would end the process by the signal) stays pending: the exit status is 130
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         stop_workers()
         sys.stderr.write("campaign: interrupted; run the same command again to resume\n")
         return 130
