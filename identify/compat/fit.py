@@ -50,6 +50,7 @@ def estimate(  # noqa: C901
     replicate: bool = False,
     jobs: int = 1,
     settings: CompatSettings | None = None,
+    wanted: frozenset[str] | None = None,
 ) -> CompatResult:
     """Estimate the instrument errors from the logs (see the module notes).
 
@@ -65,6 +66,10 @@ def estimate(  # noqa: C901
     settings : CompatSettings, optional
         The decision thresholds (None: the defaults); every parameter of the result carries them, and
         the replicates get them.
+    wanted : frozenset of str, optional
+        The parameters whose estimate is read (None: every one): of two errors the data cannot tell
+        apart, the other reading of one not wanted is not computed (a replicate reads only the
+        corrections its jackknife is for).
 
     Returns
     -------
@@ -221,6 +226,7 @@ def estimate(  # noqa: C901
             data,
             covs=covs,
             settings=settings,
+            wanted=wanted,
         )
     v1 = dict(zip(s1, x1[: len(s1)]))
     _, (th_r, ph_r, ps_r) = model1(x1)
@@ -423,7 +429,9 @@ def estimate(  # noqa: C901
         # prior on the gusts' size the two trade freely, and with them an airspeed scale or bias. The
         # prior is the turbulence the straight logs show (the vertical gust, as Dryden's isotropic).
         prior["fps"] = max(
-            estimate([lg for lg, t in zip(chosen, turned) if not t], replicate=True, settings=settings).turbulence_fps,
+            estimate(
+                [lg for lg, t in zip(chosen, turned) if not t], replicate=True, settings=settings, wanted=frozenset()
+            ).turbulence_fps,
             GUST_PRIOR_FLOOR_FPS,
         )
         rows2 = np.concatenate([rows2, np.repeat(np.arange(L), 3 * k_gust)])
@@ -455,6 +463,7 @@ def estimate(  # noqa: C901
         (blocks2, lambda: prior["steady"], prior["offset_sd"]) if prior["fps"] else None,
         column2,
         settings,
+        wanted,
     )
     per = x2[len(s2) :].reshape(L, n_per)
     w_gust = np.einsum("lnk,lk->ln", gust, per[:, g0 + 2 * k_gust : g0 + 3 * k_gust], optimize=True)
@@ -552,8 +561,8 @@ def _keep(kept: dict, key: bytes, value):
     return value
 
 
-def _replicate(logs: list[Log], settings: CompatSettings) -> CompatResult:
-    return estimate(logs, replicate=True, settings=settings)
+def _replicate(logs: list[Log], settings: CompatSettings, wanted: frozenset[str]) -> CompatResult:
+    return estimate(logs, replicate=True, settings=settings, wanted=wanted)
 
 
 def _whole_jackknife(
@@ -569,7 +578,8 @@ def _whole_jackknife(
     the estimate did."""
     L = len(logs)
     settings = settings or CompatSettings()
-    reps = pmap(_replicate, [(logs[:i] + logs[i + 1 :], settings) for i in range(L)], jobs)
+    wanted = frozenset(p.name for p in result.applied)
+    reps = pmap(_replicate, [(logs[:i] + logs[i + 1 :], settings, wanted) for i in range(L)], jobs)
     for p in result.applied:
         # a replicate that cannot estimate it at all (the one log that excites it left out) says nothing
         e = np.array([q.estimate for q in (r.get(p.name) for r in reps) if q.identifiable and np.isfinite(q.estimate)])
@@ -612,12 +622,13 @@ def _solve_stage(  # noqa: PLR0913
     blocks: tuple | None = None,
     column=None,
     settings: CompatSettings | None = None,
+    wanted: frozenset[str] | None = None,
 ) -> np.ndarray:
     """Initial states alone (perfect instruments assumed), then the identifiable instrument
     errors too; parameters the data cannot tell apart (variance inflation above ``settings.max_vif``)
     are fixed at 0.
     ``blocks``: for the standard errors when a log turns (:func:`_covariance`); ``column``: see
-    :func:`identify.compat.reconstruction.gauss_newton`."""
+    :func:`identify.compat.reconstruction.gauss_newton`; ``wanted``: see :func:`estimate`."""
     ns = len(names)
     free = np.zeros(ns, bool)
     rows = [np.flatnonzero(rows == i) for i in range(L)]  # residual rows of each log
@@ -662,7 +673,7 @@ def _solve_stage(  # noqa: PLR0913
     if covs is not None:
         covs.append(([names[i] for i in idx], cov))
     for pruned, kept in pairs:  # the other reading of the same data: the pruned error, its partner at 0
-        if not free[kept]:
+        if not free[kept] or (wanted is not None and names[pruned] not in wanted):
             continue
         alt_free = free.copy()
         alt_free[pruned], alt_free[kept] = True, False
