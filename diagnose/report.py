@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from diagnose.result import Diagnosis
+from diagnose.windows import STATE_FIT_S
 from infra.provenance import tool
 
 
@@ -133,6 +134,7 @@ def summary(diag: Diagnosis, doc: dict) -> str:
             )
             + "; the replay errors and their floor below",
         ]
+        lines += _start_lines(doc.get("replay_starts", {}))
     b = doc.get("bands")
     if b:
         lines += [
@@ -154,3 +156,41 @@ def summary(diag: Diagnosis, doc: dict) -> str:
             f"({'where the first cause acts' if g else 'with the largest residuals'}; --plots all: every one)"
         )
     return "\n".join(lines) + "\n"
+
+
+#: How an offset flown by a held-out replay is written: (name, unit, format).
+_OFFSETS = {
+    "elevator_deg": ("elevator", "deg", "+.3f"),
+    "stabilizer_deg": ("stabilizer", "deg", "+.3f"),
+    "thrust_lbf": ("thrust", "lbf", "+.0f"),
+}
+
+
+def _start_lines(starts: dict) -> list[str]:
+    """Each held-out replay's start: how far the log was from the steady flight it is trimmed in, and the trim
+    offsets its model replay flew (``diagnosis.json`` ``replay_starts``)."""
+    if not starts:
+        return []
+    lines = [
+        "Replay starts: each trimmed in steady flight at its log's start, which the log's first seconds depart from by"
+    ]
+    for name, note in starts.items():
+        st = note["start"]
+        span = max(st["head_s"], STATE_FIT_S)
+        text = (
+            f"  {name}: airspeed {st.get('accel_fps2', 0.0):+.2f} ft/s^2, pitch rate {st.get('q_dps', 0.0):+.2f} deg/s "
+            f"over its first {span:.1f} s; "
+        )
+        off = {k: v for k, v in ((note.get("model") or {}).get("offsets") or {}).items() if v}
+        if "model" not in note:
+            text += "not flown"
+        elif off:
+            text += (
+                "the model flies its trim plus the measured changes (trim - measured: "
+                + ", ".join(f"{_OFFSETS[k][0]} {v:{_OFFSETS[k][2]}} {_OFFSETS[k][1]}" for k, v in off.items())
+                + ")"
+            )
+        else:
+            text += "the model flies the controls and thrust as measured"
+        lines.append(text)
+    return lines

@@ -298,3 +298,50 @@ def test_a_channel_the_map_gives_as_a_constant_is_not_judged():
     assert any("model: 2 of 2 pass" in line for line in lines), lines
     measured_too = replay_table(logs[1:], {"b.parquet": (flown, None)}, extended=False)["b.parquet"]["alt_ft"]
     assert measured_too["model"] == pytest.approx(300.0, rel=0.05) and measured_too["window"]["part60"]["pass"] is False
+
+
+def test_a_replay_start_says_how_far_the_log_is_from_the_steady_flight_it_is_trimmed_in(tmp_path):
+    """A log cut from a flight starts wherever the aeroplane was. A log whose airspeed falls at 0.5 ft/s^2 and
+    whose pitch rate holds at 0.3 deg/s over its first seconds (noise on both) says so in its start, and a
+    steady one gives zero; the diagnosis text writes each held-out start and the trim offsets its replay flew."""
+    import pandas as pd
+
+    from campaign.simulation.replay_log import estimate_start
+    from diagnose.report import _start_lines
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 20.0, 0.04)
+    n = len(t)
+    steady = pd.DataFrame(
+        {
+            "t_s": t,
+            "alt_ft": 5000.0 + rng.normal(0.0, 1.0, n),
+            "tas_kt": 200.0 + rng.normal(0.0, 0.1, n),
+            "mach": np.full(n, 0.31),
+            "alpha_deg": np.full(n, 4.0),
+            "q_dps": rng.normal(0.0, 0.05, n),
+            "elevator_deg": np.where(t < 5.0, -1.0, -2.0),
+            "stabilizer_deg": np.zeros(n),
+            "thrust_lbf": np.full(n, 6000.0),
+            "mass_slug": np.full(n, 2000.0),
+            "flap_deg": np.zeros(n),
+            "gear_norm": np.zeros(n),
+        }
+    )
+    calm = estimate_start(steady)
+    assert abs(calm.accel_fps2) < 0.02 and abs(calm.q_dps) < 0.02, calm
+    moving = steady.assign(tas_kt=steady.tas_kt - 0.5 * t / 1.6878098571011957, q_dps=steady.q_dps + 0.3)
+    start = estimate_start(moving)
+    assert start.accel_fps2 == pytest.approx(-0.5, abs=0.02) and start.q_dps == pytest.approx(0.3, abs=0.02)
+    assert start.head_s == pytest.approx(5.0, abs=0.1)
+    lines = _start_lines(
+        {
+            "a.parquet": {"start": start.to_dict(), "model": {"offsets": {"elevator_deg": -0.074, "thrust_lbf": 0.0}}},
+            "b.parquet": {"start": calm.to_dict(), "model": {"offsets": {"elevator_deg": 0.0, "thrust_lbf": 0.0}}},
+            "c.parquet": {"start": calm.to_dict(), "why": {"model": "no trim"}},
+        }
+    )
+    assert "a.parquet: airspeed -0.50 ft/s^2, pitch rate +0.30 deg/s over its first 5.0 s" in lines[1], lines
+    assert lines[1].endswith("(trim - measured: elevator -0.074 deg)"), lines
+    assert lines[2].endswith("the model flies the controls and thrust as measured"), lines
+    assert lines[3].endswith("not flown"), lines

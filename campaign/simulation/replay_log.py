@@ -32,7 +32,8 @@ What the controls are (:func:`fly_log`)
     sample (a closed-loop gear transition) has a wide spread: its controls fly as measured.
 
 Limits: a log with no quiet head gets its references from its first half second; a log that does not
-start in steady flight (a turn, an accelerating climb) is trimmed in the steady flight nearest to it;
+start in steady flight (a turn, an accelerating climb, a record cut from a flight in a phugoid) is trimmed
+in the steady flight nearest to it, and its start says how far it was from it (``accel_fps2``, ``q_dps``);
 the wind at the first sample carries the vanes' noise (about 0.5 ft/s at 3 ft/s turbulence on our
 flight-test profile), which the trim turns into a thrust and an angle-of-attack error; a steady error of
 the air data is flown as a steady wind.
@@ -106,6 +107,10 @@ class Start:
         North, east, down wind at the first sample [ft/s].
     head_s : float
         The quiet head the references were averaged over [s].
+    accel_fps2, q_dps : float
+        How far the aeroplane is from the steady flight it is trimmed in: the airspeed's rate of change
+        [ft/s^2] (least squares) and the mean pitch rate [deg/s] over the quiet head (at least its first
+        ``STATE_FIT_S``); 0 and 0 in steady flight.
     """
 
     alt_ft: float
@@ -122,6 +127,8 @@ class Start:
     spread: tuple[float, float, float]
     wind_fps: tuple[float, float, float]
     head_s: float
+    accel_fps2: float = 0.0
+    q_dps: float = 0.0
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else float(v)) for k, v in asdict(self).items()}
@@ -208,6 +215,8 @@ def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
         spread,
         w0,
         head,
+        float(np.polyfit(t[calm], col("tas_kt")[calm] * FT_PER_KT, 1)[0]) if calm.sum() >= 3 else 0.0,
+        float(np.mean(col("q_dps")[calm])),
     )
 
 
