@@ -172,13 +172,14 @@ def _start_lines(starts: dict) -> list[str]:
     if not starts:
         return []
     lines = [
-        "Replay starts: each trimmed in steady flight at its log's start, which the log's first seconds depart from by"
+        "Replay starts: how far each log's first seconds are from steady flight (an aircraft from campaign model "
+        "is trimmed in that flight, one with engines in the steady flight nearest to it), and the offsets flown"
     ]
     for name, note in starts.items():
         st = note["start"]
         span = max(st["head_s"], STATE_FIT_S)
         text = (
-            f"  {name}: airspeed {st.get('accel_fps2', 0.0):+.2f} ft/s^2, pitch rate {st.get('q_dps', 0.0):+.2f} deg/s "
+            f"  {name}: airspeed {st.get('accel_fps2', 0.0):+.2f} ft/s^2, pitch attitude {st.get('theta_rate_dps', 0.0):+.2f} deg/s "
             f"over its first {span:.1f} s; "
         )
         off = {k: v for k, v in ((note.get("model") or {}).get("offsets") or {}).items() if v}

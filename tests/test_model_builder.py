@@ -139,6 +139,39 @@ def test_attas_aircraft_trims_and_gives_back_the_fit(tmp_path):
         assert said in xml, said
 
 
+def test_a_model_aircraft_trims_in_the_unsteady_flight_a_log_starts_in(tmp_path):
+    """Trimmed pitching up at 0.3 deg/s while slowing at 0.5 ft/s^2 (where a record cut from a flight may
+    start), the ATTAS aircraft holds that pitch rate with no pitch acceleration and its airspeed changes at that
+    rate. Pulling up alone, its load factor is higher by q V / g and it needs more nose-up elevator and more
+    thrust (the drag of the lift) than in steady flight there; slowing alone, less thrust by the mass times
+    the deceleration along the flight path."""
+    model, log, _, _ = _built(tmp_path, [DATA / "fAttasElv1.mat"], DOCS / "attas-map.toml", "attas")
+    d = log.data[log.data["t_s"] < 1.0].mean()
+    mass = d["mass_slug"]
+
+    def trimmed(**unsteady):
+        fdm = load_fdm(_probe(model), model.name)
+        args = (d["alt_ft"], d["tas_kt"], d["theta_deg"] - d["alpha_deg"], d["flap_deg"], d["gear_norm"])
+        firsts = (d["elevator_deg"], d["stabilizer_deg"], d["thrust_lbf"], d["alpha_deg"], mass * 32.174049)
+        return fdm, trim_model(fdm, *args, *firsts, **unsteady)
+
+    fdm0, steady = trimmed()
+    fdm, both = trimmed(q_dps=0.3, accel_fps2=-0.5)
+    alpha = np.radians(fdm["aero/alpha-deg"])
+    along = fdm["accelerations/udot-ft_sec2"] * np.cos(alpha) + fdm["accelerations/wdot-ft_sec2"] * np.sin(alpha)
+    assert along == pytest.approx(-0.5, abs=1e-5) and abs(fdm["accelerations/qdot-rad_sec2"]) < 1e-8
+    assert fdm["velocities/q-rad_sec"] == pytest.approx(np.radians(0.3), rel=1e-9)
+    fdm, pull = trimmed(q_dps=0.3)
+    up = np.radians(0.3) * fdm["velocities/vt-fps"] / 32.174049
+    assert fdm["accelerations/Nz"] - fdm0["accelerations/Nz"] == pytest.approx(up, rel=0.05)
+    assert pull.elevator_deg < steady.elevator_deg  # the elevator deflects trailing edge up to pull up
+    assert pull.thrust_lbf > steady.thrust_lbf
+    _, slow = trimmed(accel_fps2=-0.5)
+    assert steady.thrust_lbf - slow.thrust_lbf == pytest.approx(
+        0.5 * mass / np.cos(np.radians(slow.alpha_deg)), rel=0.02
+    )
+
+
 def test_hfb320_aircraft_by_output_error(tmp_path):
     """The HFB-320 identified by output error (converged on this record), made through the Python API."""
     model, log, point, text = _built(

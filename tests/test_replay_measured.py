@@ -302,8 +302,9 @@ def test_a_channel_the_map_gives_as_a_constant_is_not_judged():
 
 def test_a_replay_start_says_how_far_the_log_is_from_the_steady_flight_it_is_trimmed_in(tmp_path):
     """A log cut from a flight starts wherever the aeroplane was. A log whose airspeed falls at 0.5 ft/s^2 and
-    whose pitch rate holds at 0.3 deg/s over its first seconds (noise on both) says so in its start, and a
-    steady one gives zero; the diagnosis text writes each held-out start and the trim offsets its replay flew."""
+    whose pitch attitude rises at 0.3 deg/s over its first seconds (noise on both; a pitch gyro 0.2 deg/s off,
+    which the attitude does not follow) says so in its start, and a steady one gives zero; the diagnosis text
+    writes each held-out start and the trim offsets its replay flew."""
     import pandas as pd
 
     from campaign.simulation.replay_log import estimate_start
@@ -319,7 +320,8 @@ def test_a_replay_start_says_how_far_the_log_is_from_the_steady_flight_it_is_tri
             "tas_kt": 200.0 + rng.normal(0.0, 0.1, n),
             "mach": np.full(n, 0.31),
             "alpha_deg": np.full(n, 4.0),
-            "q_dps": rng.normal(0.0, 0.05, n),
+            "q_dps": rng.normal(0.2, 0.05, n),
+            "theta_deg": 4.0 + rng.normal(0.0, 0.01, n),
             "elevator_deg": np.where(t < 5.0, -1.0, -2.0),
             "stabilizer_deg": np.zeros(n),
             "thrust_lbf": np.full(n, 6000.0),
@@ -329,10 +331,10 @@ def test_a_replay_start_says_how_far_the_log_is_from_the_steady_flight_it_is_tri
         }
     )
     calm = estimate_start(steady)
-    assert abs(calm.accel_fps2) < 0.02 and abs(calm.q_dps) < 0.02, calm
-    moving = steady.assign(tas_kt=steady.tas_kt - 0.5 * t / 1.6878098571011957, q_dps=steady.q_dps + 0.3)
+    assert abs(calm.accel_fps2) < 0.02 and abs(calm.theta_rate_dps) < 0.01, calm
+    moving = steady.assign(tas_kt=steady.tas_kt - 0.5 * t / 1.6878098571011957, theta_deg=steady.theta_deg + 0.3 * t)
     start = estimate_start(moving)
-    assert start.accel_fps2 == pytest.approx(-0.5, abs=0.02) and start.q_dps == pytest.approx(0.3, abs=0.02)
+    assert start.accel_fps2 == pytest.approx(-0.5, abs=0.02) and start.theta_rate_dps == pytest.approx(0.3, abs=0.01)
     assert start.head_s == pytest.approx(5.0, abs=0.1)
     lines = _start_lines(
         {
@@ -341,7 +343,7 @@ def test_a_replay_start_says_how_far_the_log_is_from_the_steady_flight_it_is_tri
             "c.parquet": {"start": calm.to_dict(), "why": {"model": "no trim"}},
         }
     )
-    assert "a.parquet: airspeed -0.50 ft/s^2, pitch rate +0.30 deg/s over its first 5.0 s" in lines[1], lines
+    assert "a.parquet: airspeed -0.50 ft/s^2, pitch attitude +0.30 deg/s over its first 5.0 s" in lines[1], lines
     assert lines[1].endswith("(trim - measured: elevator -0.074 deg)"), lines
     assert lines[2].endswith("the model flies the controls and thrust as measured"), lines
     assert lines[3].endswith("not flown"), lines

@@ -81,8 +81,11 @@ def trim_model(  # noqa: PLR0913
     weight_lb: float | None = None,
     pitch_control: str = "elevator",
     iterations: int = 30,
+    q_dps: float = 0.0,
+    accel_fps2: float = 0.0,
 ) -> ModelTrim:
-    """Trim a ``campaign model`` aircraft in steady straight flight, wings level.
+    """Trim a ``campaign model`` aircraft in straight flight, wings level: steady, or pitching at ``q_dps`` with
+    its airspeed changing at ``accel_fps2``.
 
     Parameters
     ----------
@@ -100,6 +103,10 @@ def trim_model(  # noqa: PLR0913
         The weight to fly at (the point mass ``payload`` takes the difference from the empty weight).
     pitch_control : {"elevator", "stabilizer"}
         The surface that trims the pitching moment.
+    q_dps, accel_fps2 : float
+        A pitch rate [deg/s] and a rate of change of the airspeed [ft/s^2] held at the trim (a pull-up of
+        load factor ``1 + q V / g`` and an along-path acceleration): the controls and thrust that give the
+        flight a log starts in, out of steady flight. 0 and 0: steady flight.
 
     Returns
     -------
@@ -132,7 +139,7 @@ def trim_model(  # noqa: PLR0913
             ("ic/beta-deg", 0.0),
             ("ic/phi-deg", 0.0),
             ("ic/p-rad_sec", 0.0),
-            ("ic/q-rad_sec", 0.0),
+            ("ic/q-rad_sec", np.radians(q_dps)),
             ("ic/r-rad_sec", 0.0),
             ("ic/alpha-deg", v[0]),
             ("ic/gamma-deg", gamma_deg),
@@ -142,7 +149,9 @@ def trim_model(  # noqa: PLR0913
         fdm[THRUST] = v[2]
         with captured_stdout():
             fdm.run_ic()
-        return np.array([fdm[a] for a in ACCELERATIONS])
+        alpha = np.radians(v[0])
+        held = np.array([accel_fps2 * np.cos(alpha), accel_fps2 * np.sin(alpha), 0.0]) if accel_fps2 else 0.0
+        return np.array([fdm[a] for a in ACCELERATIONS]) - held
 
     fdm.set_trim_status(True)  # the gear's kinematic at its command at once
     try:

@@ -20,7 +20,11 @@ Where it starts (:func:`estimate_start`)
     (low-passed), and each control's and the thrust's reference (mean) and spread (standard deviation)
     over the quiet head. The aircraft is trimmed there, in that wind: its own trim angle of attack,
     pitch control and thrust, on the branch of its lift curve the measured angle of attack is on
-    (:data:`TRIM_BRANCH_DEG`).
+    (:data:`TRIM_BRANCH_DEG`). An aircraft written by ``campaign model`` is trimmed in the flight the log
+    starts in: pitching at the rate of the pitch attitude and with the airspeed changing at the rate the
+    quiet head shows (``theta_rate_dps``, ``accel_fps2``): a record cut from a flight starts wherever the
+    aeroplane was, a phugoid in progress among them, and its controls and thrust there are that flight's,
+    not a steady one's. An aircraft with engines is trimmed by JSBSim's trim in steady flight.
 
 What the controls are (:func:`fly_log`)
     The measured positions and thrust as they are, unless the aircraft's trim differs from the
@@ -31,9 +35,10 @@ What the controls are (:func:`fly_log`)
     rather than as a drift of every time history. A hold that is moving the controls from the first
     sample (a closed-loop gear transition) has a wide spread: its controls fly as measured.
 
-Limits: a log with no quiet head gets its references from its first half second; a log that does not
-start in steady flight (a turn, an accelerating climb, a record cut from a flight in a phugoid) is trimmed
-in the steady flight nearest to it, and its start says how far it was from it (``accel_fps2``, ``q_dps``);
+Limits: a log with no quiet head gets its references from its first half second; on an aircraft with
+engines, a log that does not start in steady flight (a turn, an accelerating climb, a phugoid in progress)
+is trimmed in the steady flight nearest to it, and its start says how far it was from it; a turn is
+trimmed wings level on every aircraft;
 the wind at the first sample carries the vanes' noise (about 0.5 ft/s at 3 ft/s turbulence on our
 flight-test profile), which the trim turns into a thrust and an angle-of-attack error; a steady error of
 the air data is flown as a steady wind.
@@ -107,10 +112,10 @@ class Start:
         North, east, down wind at the first sample [ft/s].
     head_s : float
         The quiet head the references were averaged over [s].
-    accel_fps2, q_dps : float
-        How far the aeroplane is from the steady flight it is trimmed in: the airspeed's rate of change
-        [ft/s^2] (least squares) and the mean pitch rate [deg/s] over the quiet head (at least its first
-        ``STATE_FIT_S``); 0 and 0 in steady flight.
+    accel_fps2, theta_rate_dps : float
+        How far the aeroplane is from steady flight: the rates of change of the airspeed [ft/s^2] and of
+        the pitch attitude [deg/s] (least-squares slopes over the quiet head, at least its first
+        ``STATE_FIT_S``; the attitude's, not the gyro's, which a bias would move); 0 and 0 in steady flight.
     """
 
     alt_ft: float
@@ -128,7 +133,7 @@ class Start:
     wind_fps: tuple[float, float, float]
     head_s: float
     accel_fps2: float = 0.0
-    q_dps: float = 0.0
+    theta_rate_dps: float = 0.0
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else float(v)) for k, v in asdict(self).items()}
@@ -163,6 +168,11 @@ def _at_start(t: np.ndarray, x: np.ndarray, span_s: float, degree: int = 2) -> f
     if k.sum() <= degree + 2:
         return float(np.mean(x[k])) if k.any() else float(x[0])
     return float(np.polyval(np.polyfit(t[k], x[k], degree), 0.0))
+
+
+def _slope(t: np.ndarray, x: np.ndarray) -> float:
+    """The least-squares slope of ``x`` over ``t`` (0 with fewer than three samples)."""
+    return float(np.polyfit(t, x, 1)[0]) if len(t) >= 3 else 0.0
 
 
 def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
@@ -215,8 +225,8 @@ def estimate_start(data: pd.DataFrame, wind: np.ndarray | None = None) -> Start:
         spread,
         w0,
         head,
-        float(np.polyfit(t[calm], col("tas_kt")[calm] * FT_PER_KT, 1)[0]) if calm.sum() >= 3 else 0.0,
-        float(np.mean(col("q_dps")[calm])),
+        _slope(t[calm], col("tas_kt")[calm] * FT_PER_KT),
+        _slope(t[calm], col("theta_deg")[calm]),
     )
 
 
@@ -525,6 +535,8 @@ def _trim_force_aircraft(src: AircraftSource, start: Start, new_fdm):
             start.alpha_deg,
             start.weight_lb,
             _model_pitch_control(src),
+            q_dps=start.theta_rate_dps,
+            accel_fps2=start.accel_fps2,
         )
     except (ModelTrimError, UserError) as exc:
         raise TrimError(str(exc)) from None
