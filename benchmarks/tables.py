@@ -155,6 +155,8 @@ def validation_table() -> str:
     ]
     if (RESULTS / "real_terms.json").exists():
         rows += _real_terms_rows(_json("real_terms.json"))
+    if (RESULTS / "real_replays.json").exists():
+        rows.append(_real_replays_row(_json("real_replays.json")))
     if (RESULTS / "bad_input_sweep.json").exists():
         bad = _json("bad_input_sweep.json")
         rows.append(
@@ -202,6 +204,25 @@ def _real_terms_rows(doc: dict) -> list[list[str]]:
             f"{sum(bool(r['first_aero']) for r in null)} of {len(null)}",
             "`benchmarks/real_terms.py`",
         ],
+    ]
+
+
+def _real_replays_row(doc: dict) -> list[str]:
+    """The row of ``benchmarks/real_replays.py``: real records flown on the other record's model."""
+    tol, n = doc["tolerance"], doc["within_tolerance"]
+
+    def pitch(kind: str) -> str:
+        worst = [r[kind]["max_error"]["theta_deg"] for r in doc["rows"]]
+        return f"{min(worst):.2f} to {max(worst):.2f} deg"
+
+    return [
+        f"A real record flown on a model identified from the other record of its aeroplane: within Part 60 over "
+        f"the record ({tol['theta_deg']:g} deg pitch, {tol['alt_ft']:g} ft), trimmed as the record starts "
+        "(trimmed steady)",
+        "the ATTAS's 2 elevator records, the HFB-320's 3-2-1-1 and pulse",
+        f"{n['as_started']} of {n['of']} ({n['steady']} of {n['of']}); worst pitch {pitch('as_started')} "
+        f"({pitch('steady')})",
+        "`benchmarks/real_replays.py`",
     ]
 
 
