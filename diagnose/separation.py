@@ -34,7 +34,7 @@ from diagnose.state_twins import (
     widened,
 )
 from diagnose.terms import Term, tail_twin
-from diagnose.together import flown_together, in_partner
+from diagnose.together import flown_together, in_partner, reversed_curve
 
 #: Perturbation of an instrument error whose residual signature is taken (bias in the channel's
 #: units, scale [-], delay [s]); the signature is linear in it (the model's answer is linearised).
@@ -623,10 +623,16 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
     only if no other rival will do: with the more columns it fits better, and a stock-737 drag in alpha
     times a dip in gear was named in Mach too. A term in the elevator (or the
     stabilizer) times another variable gives way to the same term in alpha or Mach as a term in CL does
-    (:func:`diagnose.state_twins.in_flow_states`)."""
+    (:func:`diagnose.state_twins.in_flow_states`). A curve in one of two variables flown together, scaled by
+    the other, never gives way to the curve in the other (:func:`diagnose.together.reversed_curve`): that
+    reading is reported and planned for, not taken. The two differ most where they extrapolate: on the
+    ATTAS's stall records the pitching moment as a curve in alpha (beside alpha x stabilizer) fitted the
+    fitted record 4.3 standard errors better than the search's curve in Mach, and taken, flew the held-out
+    stall, which reaches 0.7 deg more alpha, to 16.9 deg of pitch error; the search's own flies it to 4.5."""
     s = current()
     out: dict[str, dict[Term, Term]] = {}
     taken: dict[str, set[str]] = {}  # each rival goes in once
+    pairs = flown_together(data) if data is not None else []
     for c in causes:
         if c.kind != "aero" or not c.verdict.get("accepted"):
             continue
@@ -658,6 +664,7 @@ def preferred_aero_rivals(causes, pools: dict, data: pd.DataFrame | None = None)
             for r in c.evidence.get("rivals", [])
             if r["kind"] == "aero"
             and r["term"]
+            and not reversed_curve(r, c.terms, pairs)
             and (r["separation_se"] <= -s.swap_se or in_states(r) and r["separation_se"] < s.state_se)
         ]
         better += [

@@ -76,8 +76,13 @@ def partners(variable: str, pairs: list[dict]) -> list[str]:
 
 def in_partner(term: Term, pool: list[Term], pairs: list[dict]) -> list[Term]:
     """The candidates of ``pool`` that are ``term`` with one of its variables replaced by a variable flown
-    together with it (the same kind of term), none if no variable of the term has a partner."""
+    together with it (the same kind of term), none if no variable of the term has a partner. A curve in one
+    variable scaled by its partner (``smooth(mach) x alpha_deg``) has the curve in the partner scaled by it
+    (``smooth(alpha_deg) x mach``) as its reading: over a deceleration either may carry a lift lost in alpha."""
     out = []
+    if term.kind == "smooth_x_linear" and term.variables[1] in partners(term.variables[0], pairs):
+        # a curve in one of the two scaled by the other: its reading is the curve in the other
+        out += [t for t in pool if t.kind == term.kind and t.variables == term.variables[::-1]][:1]
     for v in term.variables:
         for u in partners(v, pairs):
             if u in term.variables:
@@ -112,7 +117,7 @@ def confounded_note(cause, pairs: list[dict], settled_se: float) -> dict | None:
             for p in mine
             for u, v in (p["variables"], p["variables"][::-1])
             if u in used
-        )
+        ) or reversed_curve(r, cause.terms, mine)
         if swapped:
             width = sum(v in r["term"] for v in (*TESTED, "CL", "flap_deg", "gear_norm", "adothat_rad"))
             rivals.append({"rival": r["rival"], "separation_se": r["separation_se"], "variables": width})
@@ -120,6 +125,18 @@ def confounded_note(cause, pairs: list[dict], settled_se: float) -> dict | None:
     for r in rivals:
         r["settled"] = r["separation_se"] >= settled_se
     return {"pairs": mine, "rivals": rivals, "settled": bool(rivals) and all(r["settled"] for r in rivals)}
+
+
+def reversed_curve(rival: dict, terms, pairs: list[dict]) -> bool:
+    """The rival replaces a curve in one variable scaled by another, the two flown together, by the curve
+    in the other scaled by the first (``smooth(mach) x alpha_deg`` by ``smooth(alpha_deg) x mach``)."""
+    old = next((t for t in terms if t.label == rival.get("replaces")), None)
+    return (
+        old is not None
+        and old.kind == "smooth_x_linear"
+        and any(set(p["variables"]) == set(old.variables) for p in pairs)
+        and rival["term"] == f"smooth({old.variables[1]}) x {old.variables[0]}"
+    )
 
 
 def clusters(pairs: list[dict]) -> list[list[str]]:

@@ -116,3 +116,55 @@ def test_a_lift_in_alpha_flown_in_decelerations_is_confounded_and_the_plan_flies
         if r["cause"] == f"{lift['coefficient']} vs {', '.join(lift['variables'])}" and other in r["rival"]
     ]
     assert mine and all(r["planned_se"] > max(r["now_se"], DEFAULTS.settled_se) for r in mine), mine
+
+
+def _deceleration_frame(seed: int = 0):
+    """Residual data of three logs, each a deceleration: Mach falls as alpha rises (correlation about -0.95)."""
+    import numpy as np
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(3):
+        t = np.linspace(0.0, 1.0, 400)
+        mach = 0.30 - 0.06 * t + 0.003 * rng.standard_normal(t.size)
+        alpha = 4.0 + 8.0 * t + 0.4 * rng.standard_normal(t.size)
+        frames.append(pd.DataFrame({"log": f"l{i}", "alpha_deg": alpha, "mach": mach, "r_Cm": 0.0 * t}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def test_a_curve_in_one_of_two_variables_flown_together_has_the_curve_in_the_other_as_its_reading():
+    """Over a deceleration a curve in Mach scaled by alpha reads as a curve in alpha scaled by Mach: that is
+    its rival, marked as the reading in the partner; the data preferring it however much never swap it in
+    (where the two extrapolate they differ most), while an ordinary rival preferred as much is taken."""
+    from diagnose.causes import Cause
+    from diagnose.separation import preferred_aero_rivals
+    from diagnose.terms import candidate_terms
+    from diagnose.together import confounded_note, flown_together, in_partner
+
+    data = _deceleration_frame()
+    pairs = flown_together(data)
+    assert [set(p["variables"]) for p in pairs] == [{"alpha_deg", "mach"}]
+    pool = candidate_terms(data, "Cm")
+    by = {t.label: t for t in pool}
+    curve = by["smooth(mach) x alpha_deg"]
+    assert by["smooth(alpha_deg) x mach"] in in_partner(curve, pool, pairs)
+
+    def cause(rival: str) -> Cause:
+        doc = {"kind": "aero", "term": rival, "replaces": curve.label, "separation_se": -20.0}
+        return Cause(
+            "Cm",
+            ["mach", "alpha_deg"],
+            [curve],
+            "linear",
+            {"rivals": [{**doc, "rival": f"Cm: {rival}"}]},
+            0.01,
+            verdict={"accepted": True},
+        )
+
+    reading = cause("smooth(alpha_deg) x mach")
+    note = confounded_note(reading, pairs, DEFAULTS.settled_se)
+    assert [r["rival"] for r in note["rivals"]] == ["Cm: smooth(alpha_deg) x mach"] and not note["settled"]
+    assert preferred_aero_rivals([reading], {"Cm": pool}, data) == {}
+    other = cause("smooth(alpha_deg)")
+    assert preferred_aero_rivals([other], {"Cm": pool}, data) == {"Cm": {curve: by["smooth(alpha_deg)"]}}
