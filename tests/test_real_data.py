@@ -318,7 +318,7 @@ def test_attas_stall_records_name_the_lift_lost_in_alpha_and_caution_that_mach_m
     model = model if model.exists() else _model(ident, model)
     diag = diagnose(load_data(folder), ModelEvaluator(model), held=load_data(tmp_path / "held"))
     pair = next(p for p in diag.moved_together if set(p["variables"]) == {"alpha_deg", "mach"})
-    assert -0.9 < pair["corr"] < -0.85 and pair["corr_within_logs"] < -0.85, pair
+    assert -0.9 < pair["corr"] < -0.8 and pair["corr_within_logs"] < -0.8, pair
     aero = [c for c in diag.causes if c.kind == "aero"]
     lift = next(c for c in aero if c.coefficient == "CL")
     assert lift.variables[0] == "alpha_deg", diag.summary()
