@@ -135,7 +135,7 @@ def reversed_curve(rival: dict, terms, pairs: list[dict]) -> bool:
         old is not None
         and old.kind == "smooth_x_linear"
         and any(set(p["variables"]) == set(old.variables) for p in pairs)
-        and rival["term"] == f"smooth({old.variables[1]}) x {old.variables[0]}"
+        and rival["term"] == Term(old.kind, old.variables[::-1]).label
     )
 
 
