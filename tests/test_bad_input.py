@@ -76,6 +76,25 @@ def test_an_import_of_degrees_declared_radians_leaves_nothing_and_the_mended_one
     assert sorted(p.name for p in out.iterdir()) == ["deg.parquet", "import.json", "import.txt"]
 
 
+@pytest.mark.parametrize(
+    "record, map_name, says",
+    [
+        ("fAttas_qst01.asc", "attas-map.toml", '"mat", its suffix .asc says "whitespace"'),
+        ("fAttasElv1.mat", "attas-stall-map.toml", '"whitespace", its suffix .mat says "mat"'),
+    ],
+)
+def test_a_record_read_in_the_format_its_map_gives_against_its_suffix_names_both(
+    tmp_path, capsys, record, map_name, says
+):
+    """A map written for the ATTAS's .mat records given a text record (or the other way round): one line naming
+    the file, the map's ``source.format`` and what the suffix says; nothing written."""
+    out = tmp_path / "imported"
+    examples = ROOT / "docs" / "examples"
+    argv = ["import", str(ROOT / "tests" / "data" / record), "--map", str(examples / map_name), "--out", str(out)]
+    one_line_error(capsys, argv, record, f"source.format in {examples / map_name} reads it as {says}")
+    assert not out.exists()
+
+
 def test_an_import_whose_out_is_a_file_is_refused(tmp_path, capsys):
     (tmp_path / "afile").write_text("mine\n")
     _refused(

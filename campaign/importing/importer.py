@@ -410,6 +410,14 @@ def _mat(path: Path, m: ImportMap) -> pd.DataFrame:
     return pd.DataFrame(vectors)
 
 
+def _format_hint(path: Path, m: ImportMap) -> str:
+    """Where the map's ``source.format`` differs from what the file's suffix says: both (else nothing)."""
+    by_suffix = FORMATS.get(path.suffix.lower())
+    if m.format and by_suffix and by_suffix != m.format:
+        return f'; source.format in {m.path} reads it as "{m.format}", its suffix {path.suffix} says "{by_suffix}"'
+    return ""
+
+
 def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
     """The source file as a table of named columns (one line naming the file on failure)."""
     path = Path(path)
@@ -438,8 +446,8 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
             df = pd.read_parquet(path)
         else:
             df = _mat(path, m)
-    except UserError:
-        raise
+    except UserError as exc:
+        raise UserError(f"{exc}{_format_hint(path, m)}") from None
     except UnicodeDecodeError as exc:
         raise UserError(
             f"{path}: not readable as {m.encoding} text (it holds the byte {exc.object[exc.start]:#04x}): "
@@ -448,6 +456,7 @@ def read_source(path: str | Path, m: ImportMap) -> pd.DataFrame:
     except (ValueError, OSError, pd.errors.ParserError) as exc:
         raise UserError(
             f"{path}: not readable as {fmt} ({type(exc).__name__}: {(str(exc).splitlines() or [''])[0][:120]})"
+            + _format_hint(path, m)
         ) from None
     if names and fmt in ("parquet",):
         missing = [c for c in names if c not in df.columns]
