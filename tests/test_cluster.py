@@ -94,6 +94,38 @@ def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_pat
     assert not out.exists()
 
 
+def test_a_service_that_is_not_a_scheduler_is_one_line_and_writes_nothing(tmp_path, capsys):
+    """A port where an SSH server listens: it sends its banner before the client speaks, which Dask's client
+    would read as a message length (a memory error, and a traceback)."""
+    import contextlib
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def banner():
+        with server:
+            while True:
+                try:
+                    conn, _ = server.accept()
+                except OSError:
+                    return
+                with conn, contextlib.suppress(OSError):  # the client hangs up when it likes
+                    conn.sendall(b"SSH-2.0-OpenSSH_9.2p1\r\n")
+                    conn.recv(64)
+
+    threading.Thread(target=banner, daemon=True).start()
+    argv = ["run", "--matrix", str(_matrix(tmp_path)), "--out", str(tmp_path / "c"), "--no-identify"]
+    try:
+        one_line_error(
+            capsys, argv + ["--cluster", f"tcp://127.0.0.1:{port}"], "--cluster", "not a Dask scheduler", "SSH-2.0"
+        )
+    finally:
+        server.close()
+    assert not (tmp_path / "c").exists()
+
+
 def test_replays_on_the_cluster_equal_local_replays_bit_for_bit(tmp_path, cluster):
     import shutil
 
