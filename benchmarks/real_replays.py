@@ -1,19 +1,20 @@
 """Replays of real flight records on a model identified from another record of the same aeroplane, trimmed in
 steady flight and in the flight each record starts in (run by hand, about 10 s).
 
-    python benchmarks/real_replays.py [--json FILE]
+    python benchmarks/real_replays.py [--method {ee,oe,fe}] [--json FILE]
 
 DLR's records (``tests/data/``: the two ATTAS elevator records, and the HFB-320 record cut into its 3-2-1-1
-and its pulse) are imported with their maps (``docs/examples/``), each identified on its own by equation error
-and built into a JSBSim aircraft (``campaign model``). Each record is then flown, as imported, on the model of
-the other record of its aeroplane (:func:`campaign.diagnosis.run.recorded`: the recorded surfaces and the
+and its pulse) are imported with their maps (``docs/examples/``), each identified on its own (equation error,
+or ``--method``'s estimator) and built into a JSBSim aircraft (``campaign model``). Each record is then flown,
+as imported, on the model of the other record of its aeroplane (:func:`campaign.diagnosis.run.recorded`: the recorded surfaces and the
 measured thrust, in still air, from the start estimated from the record), twice: trimmed in steady flight
 (the start's rates set to 0), and trimmed in the flight the record starts in (its pitch attitude's and
 airspeed's rates over the quiet head, as the diagnosis's replays are). Each row gives the worst pitch and
 altitude error over the whole record (the altitude where the record measures it), against Part 60's 1.5 deg
 and 100 ft, and the trim offsets flown.
 
-``--json`` writes the rows (default ``benchmarks/results/real_replays.json``).
+``--json`` writes the rows (default ``benchmarks/results/real_replays.json``, ``real_replays_oe.json`` with
+``--method oe``).
 """
 
 from __future__ import annotations
@@ -57,15 +58,20 @@ def _errors(log, flown) -> dict[str, float | None]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "real_replays.json")
+    ap.add_argument("--json", type=Path, help="the result file")
+    ap.add_argument("--method", choices=("ee", "oe", "fe"), default="ee", help="the identification's estimator")
     args = ap.parse_args()
+    results = ROOT / "benchmarks" / "results"
+    args.json = args.json or results / (
+        "real_replays.json" if args.method == "ee" else f"real_replays_{args.method}.json"
+    )
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         records = _records(work)
         models = {}
         for name, (folder, _, _) in records.items():
-            campaign(["identify", str(folder), "--plots", "none"])
+            campaign(["identify", str(folder), "--plots", "none", "--method", args.method])
             models[name] = work / "m" / folder.name
             campaign(["model", str(folder / "identification"), "--out", str(models[name])])
         for name, (_, logs, other) in records.items():
@@ -92,6 +98,7 @@ def main() -> None:
         "command": "python benchmarks/real_replays.py " + " ".join(sys.argv[1:]),
         "recorded_at_commit": commit,
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "method": args.method,
         "tolerance": TOLERANCE,
         "within_tolerance": {"steady": passing("steady"), "as_started": passing("as_started"), "of": len(rows)},
         "rows": rows,
