@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import socket
 import struct
+import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
@@ -51,18 +52,37 @@ def fly_shipped(point: StatusPoint, config: FlightConfig, shipment: Shipment, fl
     return fly(point, unpack(shipment, config))
 
 
-#: How long :func:`connect` waits for the scheduler's greeting [s] before the client connects: a Dask
-#: scheduler speaks first, a message whose first 8 bytes give its length; a service whose first bytes read as
-#: a length above :data:`GREETING_MAX_BYTES` (an SSH server's banner, 3.5e18) is not one (the client would try
-#: to allocate that much and fail with a traceback).
+#: How long :func:`connect`'s probe waits to connect, and then for the service's greeting [s]: a Dask scheduler
+#: speaks first over tcp, a message whose first 8 bytes give its length; a service whose first bytes read as a
+#: length above :data:`GREETING_MAX_BYTES` (an SSH server's banner, 3.5e18) is not one (the client would try
+#: to allocate that much and stop with a traceback).
 GREETING_S = 0.5
 GREETING_MAX_BYTES = 2**30
 
 
+def greeting(host: str, port: int) -> bytes:
+    """The first 8 bytes (or fewer) the service at ``host:port`` sends within :data:`GREETING_S` of a
+    connection made within :data:`GREETING_S`; nothing where none is made (refused, unreachable, slow: the
+    client then tries, retries and says why)."""
+    first = b""
+    try:
+        with socket.create_connection((host, port), timeout=GREETING_S) as probe:
+            end = time.monotonic() + GREETING_S
+            while len(first) < 8 and (left := end - time.monotonic()) > 0:
+                probe.settimeout(left)
+                more = probe.recv(8 - len(first))
+                if not more:
+                    break
+                first += more
+    except OSError:
+        pass
+    return first
+
+
 def connect(address: str, timeout_s: float = 10.0):
     """A client of the scheduler at ``address`` (``tcp://HOST:PORT``); a one-line :class:`UserError` if none
-    answers there: at once where the host refuses the port or another service greets (:data:`GREETING_S`),
-    after ``timeout_s`` [s] otherwise."""
+    answers there within ``timeout_s`` [s], or at once where another service greets on a tcp address
+    (:func:`greeting`)."""
     try:
         from distributed import Client
     except ImportError:  # pragma: no cover - distributed is a dependency
@@ -74,20 +94,8 @@ def connect(address: str, timeout_s: float = 10.0):
         port = None
     if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
         raise UserError(f"--cluster {address}: expected a scheduler address tcp://HOST:PORT")
-    first = b""
-    try:  # a port nothing listens on refuses at once, where the client would retry until its timeout
-        with socket.create_connection((parts.hostname, port), timeout=timeout_s) as probe:
-            probe.settimeout(GREETING_S)
-            try:
-                while len(first) < 8 and (more := probe.recv(8 - len(first))):
-                    first += more
-            except TimeoutError:
-                pass
-    except ConnectionRefusedError as exc:
-        raise UserError(f"--cluster {address}: no Dask scheduler answers ({exc.strerror or 'refused'})") from None
-    except OSError:
-        pass  # a host that does not answer, or a name that does not resolve: the client says which
-    if len(first) == 8 and struct.unpack("<Q", first)[0] > GREETING_MAX_BYTES:
+    first = greeting(parts.hostname, port) if parts.scheme == "tcp" else b""  # a TLS server waits for the client
+    if len(first) == 8 and struct.unpack("Q", first)[0] > GREETING_MAX_BYTES:
         said = first.decode("ascii", "replace")
         raise UserError(f"--cluster {address}: the service there is not a Dask scheduler (it greets with {said!r})")
     try:
