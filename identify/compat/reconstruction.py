@@ -599,8 +599,9 @@ def gauss_newton(
     last = {}  # the last Jacobian computed
 
     def blocks(x0, e0, reuse: bool = False):
-        if reuse:
-            return _Blocks(*last["J"], e0, rows, *((robust[0], robust[1]()) if robust is not None else ()))
+        if reuse:  # the last Jacobian, and the steady gusts' columns of the same point
+            Js, Jp, steady = last["J"]
+            return _Blocks(Js, Jp, e0, rows, *((robust[0], steady) if robust is not None else ()))
         Js = np.empty((len(e0), len(idx)))
         for j, i in enumerate(idx):
             xp = x0.copy()
@@ -620,8 +621,9 @@ def gauss_newton(
                 xp = x0.copy()
                 xp[cols] += steps[cols]
                 Jp[:, slot] = (residual(xp) - e0) / steps[cols][row_log]
-        last["J"] = Js, Jp
-        return _Blocks(Js, Jp, e0, rows, *((robust[0], robust[1]()) if robust is not None else ()))
+        steady = robust[1]() if robust is not None else None
+        last["J"] = Js, Jp, steady
+        return _Blocks(Js, Jp, e0, rows, *((robust[0], steady) if robust is not None else ()))
 
     e = residual(x)
     cost = float(e @ e)
