@@ -292,8 +292,9 @@ def test_the_estimate_is_the_same_bit_for_bit_without_its_shortcuts_and_as_if_co
     the vane's delay moves); with the Jacobian of each fit's last point computed again, the same estimates
     and standard errors within 1e-4 of themselves (2e-5). Its fits stop where a step gains a millionth of
     the cost: fits taken on to a gain of 1e-12 make the same decisions, and move no estimate or standard
-    error by a thousandth of the standard error. A jackknife replicate computes the other reading of two errors the data cannot
-    tell apart only for an error it reads, and reads every other the same, bit for bit."""
+    error by a thousandth of the standard error. A jackknife replicate computes the other reading of two
+    errors the data cannot tell apart only for an error it reads, and reads every other the same, bit for
+    bit."""
     import identify.compat.fit as fit
     import identify.compat.reconstruction as rc
 
