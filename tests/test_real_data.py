@@ -393,6 +393,33 @@ def test_a_latitude_gives_the_wgs84_gravity_at_the_logs_altitude():
     assert normal_gravity_fps2(45.0, 16000.0) * 0.3048 == pytest.approx(9.8062 - 0.01503, abs=2e-4)
 
 
+def test_a_record_with_a_gap_is_refused_with_the_cut_to_make_and_imports_cut_there(tmp_path, capsys):
+    """Two manoeuvres saved in one file with the time between them left out (as the package's aileron-rudder
+    records are): refused, the error giving the ``split_s`` that cuts the file at the gap; with that cut,
+    two logs of the samples as recorded, neither interpolated across the gap."""
+    from scipy.io import loadmat, savemat  # noqa: PLC0415
+
+    (a,) = [v for k, v in loadmat(DATA / "fAttasElv1.mat").items() if not k.startswith("_")]
+    gapped = np.vstack([a[:300], a[450:]])  # 6 s of the 25 Hz record left out after 12 s
+    savemat(tmp_path / "gapped.mat", {"gapped": gapped})
+    text = (EXAMPLES / "attas-map.toml").read_text()
+    (tmp_path / "map.toml").write_text(text)
+    args = ["import", str(tmp_path / "gapped.mat"), "--map", str(tmp_path / "map.toml"), "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "row 301: a gap of 6.04 s" in err and "split_s = [14.98]" in err, err
+    assert not (tmp_path / "out").exists()
+    (tmp_path / "map.toml").write_text(text + "\n[records]\nsplit_s = [14.98]\n")
+    assert main(args) == 0
+    logs = sorted(load_data(tmp_path / "out"), key=lambda lg: lg.meta["imported"]["record"])
+    assert [len(lg.data) for lg in logs] == [300, len(a) - 450]
+    assert logs[1].meta["imported"]["from_s"] == pytest.approx(a[450, 0] - a[0, 0])
+    for lg, rows in zip(logs, (a[:300], a[450:])):
+        assert np.allclose(lg.data["q_dps"].to_numpy(), rows[:, 7])  # as recorded, not resampled
+        assert lg.data["t_s"].iloc[0] == 0.0
+    assert "resampled" not in (tmp_path / "out" / "import.txt").read_text()
+
+
 @pytest.mark.parametrize(
     "section, why",
     [

@@ -508,11 +508,16 @@ def _time(path: Path, df: pd.DataFrame, m: ImportMap) -> np.ndarray:
     if len(t) < 10:
         raise UserError(f"{path}: only {len(t)} rows")
     step = float(np.median(dt))
-    gaps = np.flatnonzero(dt > GAP * step)
+    t0 = t - t[0]
+    # a gap the map cuts the file at ends one record and starts the next
+    at_cut = np.zeros(len(dt), dtype=bool)
+    at_cut[np.clip(np.searchsorted(t0, m.records, side="left") - 1, 0, len(dt) - 1)] = True
+    gaps = np.flatnonzero((dt > GAP * step) & ~at_cut)
     if gaps.size:
+        cuts = ", ".join(f"{c:.6g}" for c in sorted({*m.records, float(t0[gaps[0]] + dt[gaps[0]] / 2)}))
         raise UserError(
             f"{path}: time column {m.time_column!r}, row {gaps[0] + 2}: a gap of {dt[gaps[0]]:g} s "
-            f"in {step:g} s samples (split the file there)"
+            f"in {step:g} s samples (cut the file there: [records] split_s = [{cuts}])"
         )
     return t
 
@@ -627,13 +632,7 @@ def convert(path: str | Path, m: ImportMap) -> list[Imported]:
         report["mapped"][col] = f"{src} [{m.units.get(col) or '-'}]"
     step = float(np.median(np.diff(t)))
     check_rate(path, step, m)
-    jitter = float(np.max(np.abs(np.diff(t) - step)) / step)
     t0 = t - t[0]
-    if jitter > JITTER:
-        grid = np.arange(0.0, t0[-1] + 0.5 * step, step)
-        cols = {c: np.interp(grid, t0, x) for c, x in cols.items()}
-        report["resampled"] = f"onto a uniform {1 / step:.4g} Hz grid (interval jitter {jitter:.1%})"
-        t0 = grid
     for col, v in m.constants:
         cols[col] = np.full(len(t0), v)
         report["constants"][col] = v
@@ -645,17 +644,25 @@ def convert(path: str | Path, m: ImportMap) -> list[Imported]:
     out = []
     for k, rows in enumerate(parts, 1):
         name = f"{stem}_{k}" if m.records else stem
+        t_rec, rec = t0[rows], {c: x[rows] for c, x in cols.items()}
+        jitter = float(np.max(np.abs(np.diff(t_rec) - step)) / step)
+        resampled = None
+        if jitter > JITTER:
+            grid = np.arange(t_rec[0], t_rec[-1] + 0.5 * step, step)
+            rec = {c: np.interp(grid, t_rec, x) for c, x in rec.items()}
+            resampled = f"onto a uniform {1 / step:.4g} Hz grid (interval jitter {jitter:.1%})"
+            t_rec = grid
         where = {
             "source": path.name,
             "map": Path(m.path).name,
             "map_sha256": m.sha256,
             "constants": sorted(c for c, _ in m.constants),
-            **({"record": k, "from_s": float(t0[rows[0]])} if m.records else {}),
+            **({"record": k, "from_s": float(t_rec[0])} if m.records else {}),
         }
         log, meta = schema_log(
             name,
-            t0[rows] - t0[rows[0]],
-            {c: x[rows] for c, x in cols.items()},
+            t_rec - t_rec[0],
+            rec,
             air,
             m.positions,
             step,
@@ -665,7 +672,8 @@ def convert(path: str | Path, m: ImportMap) -> list[Imported]:
             **report,
             "derived": meta["derived_channels"],
             "log": f"{name}.parquet",
-            "rows": len(rows),
+            **({"resampled": resampled} if resampled else {}),
+            "rows": len(t_rec),
             "rate_hz": round(1.0 / step, 4),
             "duration_s": round(float(log.t_s.iloc[-1]), 3),
             "maneuver": meta["maneuver"],
