@@ -536,3 +536,32 @@ def test_a_cause_that_makes_the_held_out_logs_worse_is_not_named():
             assert cause.verdict["held_out_logs_gain"] < 0.95
         else:
             assert cause.verdict["held_out_logs_gain"] > 10
+
+
+def test_a_term_in_cl_is_held_out_as_its_extension_reads_the_lift(attas, tmp_path):
+    """The elevator record's model against the ATTAS aileron-rudder records (each cut at its gap into the
+    aileron and the rudder manoeuvre): a pitching-moment term in alpha x CL fits the fitted logs (F 55) at the
+    model's lift, steep in CL at fixed alpha. Its JSBSim extension reads the lift from ``aero/cl-squared``,
+    set from the measured lift where the model is evaluated; held out so, it makes the Cm residual worse, and
+    it is not named."""
+    d, ident, _, _, _ = attas
+    text = (EXAMPLES / "attas-map.toml").read_text() + "\n[records]\nsplit_s = [45.0]\n"
+    (tmp_path / "map.toml").write_text(text)
+    logs = []
+    for k in (1, 2):
+        out = tmp_path / f"ailrud{k}"
+        assert (
+            main(["import", str(DATA / f"fAttasAilRud{k}.mat"), "--map", str(tmp_path / "map.toml"), "--out", str(out)])
+            == 0
+        )
+        logs += load_data(out)
+    held = [lg for lg in logs if Path(lg.path).stem == "fAttasAilRud1_2"]  # the rudder manoeuvre of the first
+    train = [lg for lg in logs if lg not in held]
+    diag = diagnose(train, ModelEvaluator(_model(ident, d / "model" / "attas-ailrud")), held=held)
+    assert not diag.aero_causes, diag.summary()
+    (steep,) = [
+        c for c in diag.rejected if c.kind == "aero" and c.coefficient == "Cm" and c.verdict.get("held_out_worse")
+    ]
+    assert [t.variables for t in steep.terms] == [("alpha_deg", "CL")]
+    assert steep.verdict["held_out_logs_gain"] == pytest.approx(0.79, abs=0.05)
+    assert "not confirmed by the held-out logs" in diag.summary()
