@@ -46,6 +46,7 @@ class FilterError(OutputError):
     """
 
     method = "fe"
+    batched_trials = False  # each objective sets the measurement noise it is taken at (_initial_r)
 
     def __init__(
         self,

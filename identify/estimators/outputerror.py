@@ -69,6 +69,9 @@ class OutputError:
     """
 
     method = "oe"
+    #: Whether a line search's trials may be simulated as one batch (:meth:`_line_search`): the objective
+    #: keeps no state between calls.
+    batched_trials = True
 
     def __init__(
         self,
@@ -174,13 +177,19 @@ class OutputError:
         self, theta: np.ndarray, delta: np.ndarray, cost: float, halvings: int
     ) -> tuple[np.ndarray, float, np.ndarray] | None:
         """The first of ``theta + delta``, ``theta + delta / 2``, ... that lowers the cost and keeps the
-        constraints: (parameters, cost, R), or None."""
-        for _ in range(halvings):
-            trial = theta + delta
-            c, r = self._objective(trial)
+        constraints: (parameters, cost, R), or None. Where the objective keeps no state
+        (:attr:`batched_trials`) the trials are simulated together, as one batch: a simulation's cost is
+        its steps', the same for one parameter vector as for a dozen (numpy's call overhead), and each
+        trial's outputs are those it has alone, bit for bit."""
+        trials = theta + np.array([delta * 0.5**k for k in range(halvings)])
+        if self.batched_trials:
+            ys = self.predict(trials)
+            costs = (self._cost([rec.z - y[b] for rec, y in zip(self.records, ys)]) for b in range(halvings))
+        else:
+            costs = (self._objective(trial) for trial in trials)
+        for trial, (c, r) in zip(trials, costs):
             if np.isfinite(c) and c <= cost and self._trial_ok(trial):
                 return trial, c, r
-            delta = 0.5 * delta
         return None
 
     def _stalled(self, theta: np.ndarray, iteration: int, cost: float, r: np.ndarray):
@@ -191,7 +200,11 @@ class OutputError:
 
     def _objective(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         """The cost minimized, ``log det R`` with ``R`` the residuals' covariance (diagonal), and that ``R``."""
-        r = self._covariance(self._residuals(theta))
+        return self._cost(self._residuals(theta))
+
+    def _cost(self, res: list[np.ndarray]) -> tuple[float, np.ndarray]:
+        """:meth:`_objective` of the residuals ``res`` (one array per record)."""
+        r = self._covariance(res)
         return float(np.sum(np.log(r))), r
 
     def _after_step(
