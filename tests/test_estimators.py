@@ -188,3 +188,25 @@ def test_identify_method_fe_on_turbulent_737_logs(tmp_path, capsys):
             est, se = pt[c]["params"][r], pt[c]["se_coloured"][r]
             assert abs(est - t) < 4 * se + 0.01 * abs(t), (point, c, r, est, se, t)
     assert set(doc["linear"]["h02000_m0.30_f00"]["C0_gearDn"]) == {"CL", "CD", "Cm"}
+
+
+def test_a_steps_halvings_simulated_as_one_batch_give_the_fit_made_one_by_one(monkeypatch):
+    """From three times the published start, the HFB-320 output error halves a step before it takes it: its
+    trials simulated as one batch and one by one give the same fit, bit for bit."""
+    model, rec = hfb()
+    start = list(np.array(HFB_START) * 3.0)
+    line_search, halved = OutputError._line_search, []
+
+    def watched(self, theta, delta, cost, halvings):
+        out = line_search(self, theta, delta, cost, halvings)
+        halved.append(out is not None and not np.allclose(out[0] - theta, delta))
+        return out
+
+    monkeypatch.setattr(OutputError, "_line_search", watched)
+    fits = {}
+    for batched in (True, False):
+        monkeypatch.setattr(OutputError, "batched_trials", batched)
+        fits[batched] = OutputError(model, [rec], start).fit()
+    assert any(halved)
+    assert fits[True].converged and fits[True].iterations == fits[False].iterations
+    assert fits[True].params.equals(fits[False].params) and fits[True].bse.equals(fits[False].bse)
