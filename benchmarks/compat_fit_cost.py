@@ -20,11 +20,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,6 +33,7 @@ from campaign.diagnosis.run import load_data  # noqa: E402
 from campaign.simulation.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
 from campaign.validation.hidden import DIAG_MATRIX  # noqa: E402
 from campaign.validation.support import run_matrix  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 #: Each estimate is made this many times, the two kinds in turn; a row gives the least CPU time of each.
 ROUNDS = 3
@@ -110,12 +109,8 @@ def main() -> None:
             row["applied"] = [p.name for p in results[True].applied]
             rows.append(row)
             print(json.dumps(row), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     doc = {
-        "benchmark": "compat_fit_cost",
-        "command": "python benchmarks/compat_fit_cost.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("compat_fit_cost"),
         "rows": rows,
     }
     args.json.write_text(json.dumps(doc, indent=1) + "\n")

@@ -20,17 +20,16 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import identify.estimators.outputerror as oe  # noqa: E402
 from campaign.cli import main as campaign  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 DATA, EXAMPLES = ROOT / "tests" / "data", ROOT / "docs" / "examples"
 #: Each fit is made this many times, the two ways in turn; a row gives the least CPU time of each.
@@ -95,12 +94,8 @@ def main() -> None:
             row["same_standard_errors"] = all(a.bse.equals(b.bse) for a, b in pairs)
             rows.append(row)
             print(json.dumps(row), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     doc = {
-        "benchmark": "oe_line_search",
-        "command": "python benchmarks/oe_line_search.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("oe_line_search"),
         "rows": rows,
     }
     args.json.write_text(json.dumps(doc, indent=1) + "\n")

@@ -17,10 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,6 +27,7 @@ from campaign.diagnosis.run import load_data  # noqa: E402
 from campaign.simulation.aircraft import DEFAULT_AIRCRAFT  # noqa: E402
 from campaign.validation.support import run_matrix  # noqa: E402
 from identify.compat import CompatSettings, estimate  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 #: (manoeuvre, Mach, altitude [ft]) of the three single-log data sets.
 FLIGHTS = (("doublet", 0.3, 10000), ("multisine", 0.5, 20000), ("level_turn", 0.4, 15000))
@@ -61,12 +60,8 @@ def main() -> None:
                     }
                 )
                 print(seed, maneuver, res.segments, sorted(rows[-1]["applied"]), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     doc = {
-        "benchmark": "one_log_compat",
-        "command": "python benchmarks/one_log_compat.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("one_log_compat"),
         "segment_s": CompatSettings().one_log_segment_s,
         "logs": len(rows),
         "logs_with_a_correction": sum(bool(r["applied"]) for r in rows),

@@ -21,11 +21,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +36,7 @@ from campaign.diagnosis.run import recorded  # noqa: E402
 from campaign.simulation.aircraft import AircraftSource, load_effects  # noqa: E402
 from campaign.simulation.replay_log import fly_log  # noqa: E402
 from real_terms import _records  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 #: Part 60's tolerances over the record [deg, ft].
 TOLERANCE = {"theta_deg": 1.5, "alt_ft": 100.0}
@@ -88,16 +87,12 @@ def main() -> None:
                 row[kind] = {"max_error": _errors(log, flown), "offsets": flown.attrs["offsets"]}
             rows.append(row)
             print(name, "on", other, {k: row[k]["max_error"] for k in ("steady", "as_started")}, flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
 
     def passing(kind: str) -> int:
         return sum(all(v is None or v <= TOLERANCE[ch] for ch, v in r[kind]["max_error"].items()) for r in rows)
 
     doc = {
-        "benchmark": "real_replays",
-        "command": "python benchmarks/real_replays.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("real_replays"),
         "method": args.method,
         "tolerance": TOLERANCE,
         "within_tolerance": {"steady": passing("steady"), "as_started": passing("as_started"), "of": len(rows)},

@@ -19,10 +19,8 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,6 +29,7 @@ from campaign.cli import main as campaign  # noqa: E402
 from campaign.diagnosis.run import load_data  # noqa: E402
 from diagnose.diagnosis import diagnose  # noqa: E402
 from diagnose.evaluate import ModelEvaluator  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 DATA, EXAMPLES = ROOT / "tests" / "data", ROOT / "docs" / "examples"
 #: Changes that must be named first: (coefficient, regressor, factor) -> (coefficient, first variable).
@@ -128,13 +127,9 @@ def main() -> None:
                     row["largest_candidate"] = largest[0] if largest else None
                 rows.append(row)
                 print(name, change, row.get("first_aero"), row.get("held_out_gain"), row.get("right", ""), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     must = [r for r in rows if "right" in r]
     doc = {
-        "benchmark": "real_terms",
-        "command": "python benchmarks/real_terms.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("real_terms"),
         "records": list(records),
         "named_cases": len(must),
         "named_right": sum(r["right"] for r in must),

@@ -17,15 +17,14 @@ Writes ``benchmarks/results/replay_floor.json``.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 CHANNELS = ("theta_deg", "tas_kt", "alt_ft")
 #: Every channel the diagnosis replays, kept per log.
@@ -114,12 +113,8 @@ def main() -> None:
 
 def write(out: Path, rows: list[dict]) -> None:
     """The results file, rewritten after each campaign."""
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     doc = {
-        "benchmark": "replay_floor",
-        "command": "python benchmarks/replay_floor.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat(),
+        **provenance("replay_floor"),
         "setup": (
             "our 737 against its own data: the paper's Fig. 3 matrix through the flight-test instruments at "
             "each turbulence level and seed, the held-out conditions of campaign diagnose corrected by the "

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +29,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from campaign.validation.hidden import CASES, make, score  # noqa: E402
+from provenance import provenance  # noqa: E402  (this folder is the script's first path)
 
 #: The Part 60 channels and the two the diagnosis replays beside them.
 CHANNELS = ("theta_deg", "tas_kt", "alt_ft", "alpha_deg", "q_dps")
@@ -129,12 +128,8 @@ def main() -> None:
                 f"floor {x['floor']:.3g}",
                 flush=True,
             )
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     doc = {
-        "benchmark": "replay_gain",
-        "command": "python benchmarks/replay_gain.py " + " ".join(sys.argv[1:]),
-        "recorded_at_commit": commit,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **provenance("replay_gain"),
         "setup": (
             "the hidden-effect cases of tests/test_diagnose.py (flight-test profile, 1.5 ft/s, each case's seed), "
             "diagnosed against the bare model; per held-out log where the first cause acts and channel, over the "
