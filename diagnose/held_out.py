@@ -122,10 +122,14 @@ def held_out_gain(cause, res: StepwiseResult, data: pd.DataFrame, held: pd.DataF
     gains = []
     for frame in (held, as_extension_reads(held)):
         without = other.predict(frame) if other is not None else np.zeros(len(frame))  # as the extension has it
-        before = float(np.sqrt(np.mean((y - without)[ok] ** 2)))
-        after = float(np.sqrt(np.mean((y - res.predict(frame))[ok] ** 2)))
+        with_ = res.predict(frame)
+        rows = ok & np.isfinite(without) & np.isfinite(with_)
+        if not rows.any():
+            continue
+        before = float(np.sqrt(np.mean((y - without)[rows] ** 2)))
+        after = float(np.sqrt(np.mean((y - with_)[rows] ** 2)))
         gains.append(before / after if after > 0 else float("inf"))
-    return min(gains)
+    return min(gains, default=float("nan"))
 
 
 def worse_on_held_out(

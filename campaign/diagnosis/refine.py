@@ -55,6 +55,8 @@ class ReplayOutputError(OutputError):
     jobs : int
     """
 
+    batched_trials = False  # each trial is an aircraft built and flown: a batch costs what its trials cost
+
     def __init__(
         self,
         diag: Diagnosis,

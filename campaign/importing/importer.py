@@ -514,7 +514,7 @@ def _time(path: Path, df: pd.DataFrame, m: ImportMap) -> np.ndarray:
     at_cut[np.clip(np.searchsorted(t0, m.records, side="left") - 1, 0, len(dt) - 1)] = True
     gaps = np.flatnonzero((dt > GAP * step) & ~at_cut)
     if gaps.size:
-        cuts = ", ".join(f"{c:.6g}" for c in sorted({*m.records, float(t0[gaps[0]] + dt[gaps[0]] / 2)}))
+        cuts = ", ".join(f"{c:.12g}" for c in sorted({*m.records, float(t0[gaps[0]] + dt[gaps[0]] / 2)}))
         raise UserError(
             f"{path}: time column {m.time_column!r}, row {gaps[0] + 2}: a gap of {dt[gaps[0]]:g} s "
             f"in {step:g} s samples (cut the file there: [records] split_s = [{cuts}])"

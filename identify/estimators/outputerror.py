@@ -69,8 +69,9 @@ class OutputError:
     """
 
     method = "oe"
-    #: Whether a line search's trials may be simulated as one batch (:meth:`_line_search`): the objective
-    #: keeps no state between calls.
+    #: Whether a line search's trials are simulated as one batch (:meth:`_line_search`): where ``predict`` is
+    #: this class's numpy simulation, which costs the same for one parameter vector as for a dozen. A subclass
+    #: whose ``predict`` costs per vector (JSBSim replays) or whose objective keeps state sets it False.
     batched_trials = True
 
     def __init__(
